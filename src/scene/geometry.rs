@@ -1,0 +1,102 @@
+//! Flat per-triangle view of a [`Scene`]: what ray tracers, rasterisers and the atlas iterate.
+
+use glam::{Vec2, Vec3};
+
+use super::{MaterialId, Rgb, Scene};
+
+/// Index of a triangle over all meshes of a scene, in mesh order.
+pub type TriangleId = u32;
+
+/// World-space triangles of a scene laid out flat, indexed by [`TriangleId`].
+#[derive(Clone, Debug, Default)]
+pub struct SceneGeometry {
+    /// Corners of each triangle, counter-clockwise seen from the front.
+    pub corners: Vec<[Vec3; 3]>,
+    /// Unit geometric normal of the front face.
+    pub normals: Vec<Vec3>,
+    /// Area in m².
+    pub areas: Vec<f32>,
+    pub material: Vec<MaterialId>,
+    /// Mesh each triangle belongs to, and its index inside that mesh.
+    pub mesh: Vec<u32>,
+    pub local: Vec<u32>,
+    /// First global triangle of each mesh (`len = meshes + 1`).
+    pub mesh_offsets: Vec<u32>,
+}
+
+impl SceneGeometry {
+    pub fn new(scene: &Scene) -> Self {
+        let n = scene.triangle_count();
+        let mut g = SceneGeometry {
+            corners: Vec::with_capacity(n),
+            normals: Vec::with_capacity(n),
+            areas: Vec::with_capacity(n),
+            material: Vec::with_capacity(n),
+            mesh: Vec::with_capacity(n),
+            local: Vec::with_capacity(n),
+            mesh_offsets: Vec::with_capacity(scene.meshes.len() + 1),
+        };
+        for (mi, mesh) in scene.meshes.iter().enumerate() {
+            g.mesh_offsets.push(g.corners.len() as u32);
+            for t in 0..mesh.triangles.len() {
+                let c = mesh.corners(t);
+                let cross = (c[1] - c[0]).cross(c[2] - c[0]);
+                let len = cross.length();
+                g.corners.push(c);
+                g.normals.push(if len > 0.0 { cross / len } else { Vec3::Z });
+                g.areas.push(0.5 * len);
+                g.material.push(mesh.material);
+                g.mesh.push(mi as u32);
+                g.local.push(t as u32);
+            }
+        }
+        g.mesh_offsets.push(g.corners.len() as u32);
+        g
+    }
+
+    pub fn len(&self) -> usize {
+        self.corners.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.corners.is_empty()
+    }
+
+    /// Total area of all triangles (one side), m².
+    pub fn total_area(&self) -> f64 {
+        self.areas.iter().map(|&a| a as f64).sum()
+    }
+
+    /// Point on triangle `t` at barycentrics (u, v) (weights of corners 1 and 2).
+    #[inline]
+    pub fn point(&self, t: TriangleId, u: f32, v: f32) -> Vec3 {
+        let [a, b, c] = self.corners[t as usize];
+        a + (b - a) * u + (c - a) * v
+    }
+
+    /// TEXCOORD_0 of triangle `t` at barycentrics (u, v); zero when the mesh has none.
+    #[inline]
+    pub fn uv0(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Vec2 {
+        let mesh = &scene.meshes[self.mesh[t as usize] as usize];
+        let [a, b, c] = mesh.uv0_corners(self.local[t as usize] as usize);
+        a + (b - a) * u + (c - a) * v
+    }
+
+    /// Diffuse albedo of triangle `t` at barycentrics (u, v).
+    pub fn albedo(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Rgb {
+        let m = &scene.materials[self.material[t as usize] as usize];
+        if m.base_color_texture.is_none() {
+            return m.albedo(&scene.textures, Vec2::ZERO);
+        }
+        m.albedo(&scene.textures, self.uv0(scene, t, u, v))
+    }
+
+    /// Emitted radiance of triangle `t` at barycentrics (u, v), from its emitting side(s).
+    pub fn emission(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Rgb {
+        let m = &scene.materials[self.material[t as usize] as usize];
+        if m.emissive_texture.is_none() {
+            return m.emission;
+        }
+        m.emission_at(&scene.textures, self.uv0(scene, t, u, v))
+    }
+}

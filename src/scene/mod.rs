@@ -1,0 +1,323 @@
+//! The CPU scene: world-space triangle meshes, materials, punctual lights, cameras and the sky.
+//!
+//! Everything here is plain data in world space (metres). Loading from glTF lives in
+//! [`gltf`]; programmatic construction (tests, analytic scenes) in [`builder`].
+//! No GPU types: the GPU mirror of a scene is built from this elsewhere.
+
+pub mod builder;
+pub mod geometry;
+pub mod gltf;
+pub mod texture;
+
+use std::path::PathBuf;
+
+use glam::{Quat, Vec2, Vec3, Vec4};
+
+pub use builder::SceneBuilder;
+pub use geometry::{SceneGeometry, TriangleId};
+pub use gltf::{LoadError, LoadOptions, load_gltf};
+pub use texture::{Texture, TextureRef, WrapMode};
+
+/// Linear RGB triple (radiance, irradiance, albedo...). Units are given where it is used.
+pub type Rgb = Vec3;
+
+/// Which face of a triangle. `Front` is the side its counter-clockwise winding faces
+/// (glTF convention); `Back` exists as a light-mapped surface only for double-sided materials.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+#[repr(u8)]
+pub enum Side {
+    Front = 0,
+    Back = 1,
+}
+
+impl Side {
+    pub const BOTH: [Side; 2] = [Side::Front, Side::Back];
+
+    /// +1 for the front, −1 for the back: multiply a geometric normal by this to get the
+    /// normal of that side.
+    #[inline]
+    pub fn sign(self) -> f32 {
+        match self {
+            Side::Front => 1.0,
+            Side::Back => -1.0,
+        }
+    }
+
+    #[inline]
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// The side of a surface with geometric normal `ng` that a direction `d` (pointing away
+    /// from the surface, e.g. a query normal) lies on.
+    #[inline]
+    pub fn facing(ng: Vec3, d: Vec3) -> Side {
+        if ng.dot(d) >= 0.0 { Side::Front } else { Side::Back }
+    }
+}
+
+/// glTF alpha mode. Light transport treats `Opaque` and `Blend` surfaces as opaque (a blended
+/// surface has no single transmittance we could bake); `Mask` surfaces are cut out where
+/// `alpha < cutoff`.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub enum AlphaMode {
+    Opaque,
+    Mask { cutoff: f32 },
+    Blend,
+}
+
+/// A Lambertian material as light transport sees a glTF metallic-roughness material.
+#[derive(Clone, Debug)]
+pub struct Material {
+    pub name: String,
+    /// Linear RGBA factor (glTF `baseColorFactor`), multiplied by the texture when present.
+    pub base_color: Vec4,
+    pub base_color_texture: Option<TextureRef>,
+    /// Emitted radiance in W/(sr·m²): `emissiveFactor × KHR_materials_emissive_strength`,
+    /// multiplied by the emissive texture when present.
+    pub emission: Rgb,
+    pub emissive_texture: Option<TextureRef>,
+    pub double_sided: bool,
+    pub alpha_mode: AlphaMode,
+}
+
+impl Default for Material {
+    /// glTF's default material: white, opaque, single-sided, not emissive.
+    fn default() -> Self {
+        Material {
+            name: "default".into(),
+            base_color: Vec4::ONE,
+            base_color_texture: None,
+            emission: Vec3::ZERO,
+            emissive_texture: None,
+            double_sided: false,
+            alpha_mode: AlphaMode::Opaque,
+        }
+    }
+}
+
+impl Material {
+    pub fn is_emissive(&self) -> bool {
+        self.emission.max_element() > 0.0
+    }
+
+    /// Diffuse albedo at texture coordinate `uv0` (linear RGB, clamped to [0, 1]).
+    pub fn albedo(&self, textures: &[Texture], uv0: Vec2) -> Rgb {
+        let mut c = self.base_color.truncate();
+        if let Some(t) = &self.base_color_texture {
+            c *= textures[t.texture].sample(uv0).truncate();
+        }
+        c.clamp(Vec3::ZERO, Vec3::ONE)
+    }
+
+    /// Alpha at `uv0` (factor × texture alpha).
+    pub fn alpha(&self, textures: &[Texture], uv0: Vec2) -> f32 {
+        let mut a = self.base_color.w;
+        if let Some(t) = &self.base_color_texture {
+            a *= textures[t.texture].sample(uv0).w;
+        }
+        a
+    }
+
+    /// Emitted radiance (W/(sr·m²)) at `uv0` from the emitting side(s).
+    pub fn emission_at(&self, textures: &[Texture], uv0: Vec2) -> Rgb {
+        let mut e = self.emission;
+        if let Some(t) = &self.emissive_texture {
+            e *= textures[t.texture].sample(uv0).truncate();
+        }
+        e
+    }
+
+    /// Whether `side` of a surface with this material emits. A single-sided emitter emits
+    /// from its front only; a double-sided one from both faces.
+    #[inline]
+    pub fn emits_from(&self, side: Side) -> bool {
+        side == Side::Front || self.double_sided
+    }
+
+    /// Whether `side` of a surface with this material is a real, lit surface. The back of a
+    /// single-sided surface is the inside of closed geometry: it reflects and emits nothing.
+    #[inline]
+    pub fn has_side(&self, side: Side) -> bool {
+        side == Side::Front || self.double_sided
+    }
+}
+
+/// Index into [`Scene::materials`].
+pub type MaterialId = u32;
+
+/// One triangle primitive instance, already transformed to world space.
+#[derive(Clone, Debug)]
+pub struct Mesh {
+    /// `node name / mesh name / primitive index`, for messages and reports.
+    pub name: String,
+    /// glTF node index this instance came from, when loaded from a file.
+    pub node: Option<usize>,
+    pub material: MaterialId,
+    /// World-space positions (metres).
+    pub positions: Vec<Vec3>,
+    /// World-space unit shading normals, one per vertex (generated when the file has none).
+    pub normals: Vec<Vec3>,
+    /// TEXCOORD_0 (material textures), when present.
+    pub uv0: Option<Vec<Vec2>>,
+    /// TEXCOORD_1 (candidate light-map UVs), when present.
+    pub uv1: Option<Vec<Vec2>>,
+    /// Counter-clockwise triangles (front face), indices into the vertex arrays.
+    /// Degenerate triangles were dropped at load time.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+impl Mesh {
+    #[inline]
+    pub fn corners(&self, t: usize) -> [Vec3; 3] {
+        let [a, b, c] = self.triangles[t];
+        [self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]]
+    }
+
+    #[inline]
+    pub fn uv0_corners(&self, t: usize) -> [Vec2; 3] {
+        match &self.uv0 {
+            Some(uv) => {
+                let [a, b, c] = self.triangles[t];
+                [uv[a as usize], uv[b as usize], uv[c as usize]]
+            }
+            None => [Vec2::ZERO; 3],
+        }
+    }
+}
+
+/// A KHR_lights_punctual light, in livebake's radiometric convention:
+/// directional `intensity` is the irradiance (W/m²) on a surface facing the light;
+/// point and spot `intensity` is radiant intensity (W/sr) (on the axis, for spots).
+/// The light's colour multiplies the intensity.
+#[derive(Clone, Debug)]
+pub struct PunctualLight {
+    pub name: String,
+    pub kind: LightKind,
+    /// `color × intensity`: W/m² (directional) or W/sr (point, spot) per channel.
+    pub intensity: Rgb,
+    /// World-space position (unused for directional lights).
+    pub position: Vec3,
+    /// Unit direction the light travels in (the node's −Z); unused for point lights.
+    pub direction: Vec3,
+    /// glTF `range`: beyond it the light contributes nothing; within it glTF's recommended
+    /// smooth window `clamp(1 − (d/range)⁴, 0, 1)² / d²` applies.
+    pub range: Option<f32>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LightKind {
+    Directional,
+    Point,
+    /// Cone angles in radians from the axis. Between them the intensity falls off with glTF's
+    /// recommended curve: `t²` with `t = (cosθ − cos outer) / (cos inner − cos outer)` clamped.
+    Spot { inner_cone: f32, outer_cone: f32 },
+}
+
+impl PunctualLight {
+    /// Irradiance (W/m²) this light delivers to a point `p` with unit normal `n`, ignoring
+    /// occlusion, together with the unit direction from `p` towards the light and the
+    /// distance to it (`f32::INFINITY` for directional lights).
+    pub fn unoccluded_irradiance(&self, p: Vec3, n: Vec3) -> (Rgb, Vec3, f32) {
+        match self.kind {
+            LightKind::Directional => {
+                let wi = -self.direction;
+                (self.intensity * n.dot(wi).max(0.0), wi, f32::INFINITY)
+            }
+            LightKind::Point | LightKind::Spot { .. } => {
+                let to_light = self.position - p;
+                let d2 = to_light.length_squared();
+                if d2 <= 0.0 {
+                    return (Vec3::ZERO, Vec3::Y, 0.0);
+                }
+                let d = d2.sqrt();
+                let wi = to_light / d;
+                let cos_surface = n.dot(wi).max(0.0);
+                let mut falloff = 1.0 / d2;
+                if let Some(range) = self.range {
+                    let r = d / range;
+                    falloff *= (1.0 - r * r * r * r).clamp(0.0, 1.0).powi(2);
+                }
+                if let LightKind::Spot { inner_cone, outer_cone } = self.kind {
+                    let cos_axis = self.direction.dot(-wi);
+                    let (ci, co) = (inner_cone.cos(), outer_cone.cos());
+                    let t = if ci - co > 1e-6 {
+                        ((cos_axis - co) / (ci - co)).clamp(0.0, 1.0)
+                    } else if cos_axis >= co {
+                        1.0
+                    } else {
+                        0.0
+                    };
+                    falloff *= t * t;
+                }
+                (self.intensity * (cos_surface * falloff), wi, d)
+            }
+        }
+    }
+}
+
+/// A camera from the file (or made up for previews).
+#[derive(Clone, Debug)]
+pub struct Camera {
+    pub name: String,
+    pub position: Vec3,
+    /// World rotation; the camera looks along its local −Z with +Y up (glTF convention).
+    pub rotation: Quat,
+    pub projection: Projection,
+}
+
+#[derive(Clone, Copy, Debug)]
+pub enum Projection {
+    Perspective { yfov: f32, aspect: Option<f32>, znear: f32, zfar: Option<f32> },
+    Orthographic { xmag: f32, ymag: f32, znear: f32, zfar: f32 },
+}
+
+/// Counts of what loading skipped or repaired, for warnings and reports.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct LoadStats {
+    pub nodes: usize,
+    pub primitives: usize,
+    pub triangles: usize,
+    /// Zero-area (or non-finite-normal) triangles dropped.
+    pub degenerate_triangles_dropped: usize,
+    /// Point and line primitives skipped.
+    pub non_triangle_primitives_skipped: usize,
+    /// Primitives whose normals were generated because the file had none.
+    pub normals_generated: usize,
+    pub textures: usize,
+    pub lights: usize,
+    pub cameras: usize,
+}
+
+/// A whole scene in world space.
+#[derive(Clone, Debug, Default)]
+pub struct Scene {
+    /// The file this was loaded from, if any.
+    pub source: Option<PathBuf>,
+    pub meshes: Vec<Mesh>,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    pub lights: Vec<PunctualLight>,
+    pub cameras: Vec<Camera>,
+    /// Uniform sky / environment radiance, W/(sr·m²), seen by rays that leave the scene.
+    /// Comes from configuration, not the file; black by default.
+    pub sky: Rgb,
+    pub stats: LoadStats,
+}
+
+impl Scene {
+    pub fn triangle_count(&self) -> usize {
+        self.meshes.iter().map(|m| m.triangles.len()).sum()
+    }
+
+    pub fn material_of(&self, mesh: &Mesh) -> &Material {
+        &self.materials[mesh.material as usize]
+    }
+
+    /// World-space bounds of all mesh vertices (`None` for an empty scene).
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        let mut it = self.meshes.iter().flat_map(|m| m.positions.iter().copied());
+        let first = it.next()?;
+        Some(it.fold((first, first), |(lo, hi), p| (lo.min(p), hi.max(p))))
+    }
+}

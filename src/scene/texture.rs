@@ -1,0 +1,151 @@
+//! Decoded material textures and bilinear sampling.
+
+use glam::{Vec2, Vec4};
+
+/// How texture coordinates outside [0, 1] are folded back (glTF sampler wrap modes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum WrapMode {
+    #[default]
+    Repeat,
+    MirroredRepeat,
+    ClampToEdge,
+}
+
+/// A material's reference to a texture: which one and which TEXCOORD set it reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TextureRef {
+    pub texture: usize,
+    /// glTF `texCoord`; livebake samples material textures with TEXCOORD_0 only and warns
+    /// at load time about other sets.
+    pub tex_coord: u32,
+}
+
+/// An 8-bit RGBA image. Colour textures in glTF (base colour, emissive) are sRGB-encoded;
+/// sampling returns linear values.
+#[derive(Clone, Debug)]
+pub struct Texture {
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    /// Row-major, top row first (glTF UV (0,0) is the top-left corner).
+    pub rgba8: Vec<[u8; 4]>,
+    pub srgb: bool,
+    pub wrap_s: WrapMode,
+    pub wrap_t: WrapMode,
+}
+
+fn srgb_to_linear_lut() -> &'static [f32; 256] {
+    use std::sync::OnceLock;
+    static LUT: OnceLock<[f32; 256]> = OnceLock::new();
+    LUT.get_or_init(|| {
+        let mut t = [0.0f32; 256];
+        for (i, v) in t.iter_mut().enumerate() {
+            let c = i as f32 / 255.0;
+            *v = if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) };
+        }
+        t
+    })
+}
+
+fn wrap(i: i64, n: u32, mode: WrapMode) -> u32 {
+    let n = n as i64;
+    let r = match mode {
+        WrapMode::Repeat => i.rem_euclid(n),
+        WrapMode::ClampToEdge => i.clamp(0, n - 1),
+        WrapMode::MirroredRepeat => {
+            let p = i.rem_euclid(2 * n);
+            if p < n { p } else { 2 * n - 1 - p }
+        }
+    };
+    r as u32
+}
+
+impl Texture {
+    /// Linear value of texel (x, y) (alpha is never sRGB-encoded).
+    #[inline]
+    pub fn texel(&self, x: u32, y: u32) -> Vec4 {
+        let [r, g, b, a] = self.rgba8[(y * self.width + x) as usize];
+        if self.srgb {
+            let lut = srgb_to_linear_lut();
+            Vec4::new(lut[r as usize], lut[g as usize], lut[b as usize], a as f32 / 255.0)
+        } else {
+            Vec4::new(r as f32, g as f32, b as f32, a as f32) / 255.0
+        }
+    }
+
+    /// Bilinear sample at `uv` with the texture's wrap modes. Filtering happens on linear values.
+    pub fn sample(&self, uv: Vec2) -> Vec4 {
+        if self.width == 0 || self.height == 0 {
+            return Vec4::ONE;
+        }
+        let x = uv.x * self.width as f32 - 0.5;
+        let y = uv.y * self.height as f32 - 0.5;
+        if !x.is_finite() || !y.is_finite() {
+            return self.texel(0, 0);
+        }
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (x0, y0) = (x0 as i64, y0 as i64);
+        let xs = [wrap(x0, self.width, self.wrap_s), wrap(x0 + 1, self.width, self.wrap_s)];
+        let ys = [wrap(y0, self.height, self.wrap_t), wrap(y0 + 1, self.height, self.wrap_t)];
+        let top = self.texel(xs[0], ys[0]) * (1.0 - fx) + self.texel(xs[1], ys[0]) * fx;
+        let bottom = self.texel(xs[0], ys[1]) * (1.0 - fx) + self.texel(xs[1], ys[1]) * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
+
+    /// Mean linear value over all texels (used to weight emitters with emissive textures).
+    pub fn mean(&self) -> Vec4 {
+        let mut sum = glam::DVec4::ZERO;
+        for y in 0..self.height {
+            for x in 0..self.width {
+                sum += self.texel(x, y).as_dvec4();
+            }
+        }
+        let n = (self.width as f64 * self.height as f64).max(1.0);
+        (sum / n).as_vec4()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn checker() -> Texture {
+        Texture {
+            name: "c".into(),
+            width: 2,
+            height: 2,
+            rgba8: vec![[255, 255, 255, 255], [0, 0, 0, 255], [0, 0, 0, 255], [255, 255, 255, 255]],
+            srgb: true,
+            wrap_s: WrapMode::Repeat,
+            wrap_t: WrapMode::Repeat,
+        }
+    }
+
+    #[test]
+    fn texel_centres_are_exact_and_srgb_decodes() {
+        let t = checker();
+        assert_eq!(t.sample(Vec2::new(0.25, 0.25)), Vec4::ONE);
+        assert_eq!(t.sample(Vec2::new(0.75, 0.25)), Vec4::new(0.0, 0.0, 0.0, 1.0));
+        // sRGB 188/255 decodes to ~0.5 linear.
+        let mut g = checker();
+        g.rgba8 = vec![[188, 188, 188, 255]; 4];
+        assert!((g.sample(Vec2::splat(0.5)).x - 0.5029).abs() < 1e-3);
+    }
+
+    #[test]
+    fn bilinear_midpoint_and_wrap_modes() {
+        let t = checker();
+        // Halfway between a white and a black texel (horizontally) and the wrap neighbour.
+        let v = t.sample(Vec2::new(0.5, 0.25));
+        assert!((v.x - 0.5).abs() < 1e-6);
+        // Repeat: u = 1.25 is u = 0.25.
+        assert_eq!(t.sample(Vec2::new(1.25, 0.25)), t.sample(Vec2::new(0.25, 0.25)));
+        let mut c = checker();
+        c.wrap_s = WrapMode::ClampToEdge;
+        assert_eq!(c.sample(Vec2::new(-3.0, 0.25)), Vec4::ONE);
+        assert_eq!(wrap(-1, 4, WrapMode::MirroredRepeat), 0);
+        assert_eq!(wrap(4, 4, WrapMode::MirroredRepeat), 3);
+        assert_eq!(wrap(5, 4, WrapMode::Repeat), 1);
+    }
+}
