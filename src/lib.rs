@@ -5,7 +5,11 @@
 //! driver and backends), [`output`] (EXR/PNG/JSON), [`probe`] (irradiance at surface points).
 
 pub mod atlas;
+pub mod bake;
 pub mod lod;
+pub mod output;
+pub mod probe;
+pub mod progress;
 pub mod reference;
 pub mod sampling;
 pub mod scene;

@@ -1,0 +1,129 @@
+//! `report.json`: what was baked, how, how long each phase took and how many rays it cost.
+
+use serde::Serialize;
+
+use crate::atlas::{Atlas, AtlasStats, TexelMap};
+use crate::scene::{LoadStats, Rgb, Scene};
+
+use super::{BackendStats, BakeConfig};
+
+#[derive(Clone, Debug, Serialize)]
+pub struct SceneReport {
+    pub source: Option<String>,
+    pub meshes: usize,
+    pub triangles: usize,
+    pub materials: usize,
+    pub emissive_materials: usize,
+    pub punctual_lights: usize,
+    pub cameras: usize,
+    pub bounds_min: Option<[f32; 3]>,
+    pub bounds_max: Option<[f32; 3]>,
+    /// Uniform sky radiance used, W/(sr·m²).
+    pub sky: [f32; 3],
+    pub load: LoadStats,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct AtlasReport {
+    /// Metres per texel at LOD 0.
+    pub texel_size: f32,
+    pub width: u32,
+    pub height: u32,
+    #[serde(flatten)]
+    pub stats: AtlasStats,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct LodReport {
+    pub lod: u32,
+    pub width: u32,
+    pub height: u32,
+    /// Texels covered by a face (the ones baked).
+    pub texels: usize,
+    pub gutter_texels: usize,
+    pub texel_map_seconds: f64,
+    pub bake_seconds: f64,
+    pub samples_per_texel: u32,
+    pub rays: u64,
+    pub rays_per_second: f64,
+    /// Mean irradiance over texels, W/m² (a quick sanity figure).
+    pub mean_irradiance: [f32; 3],
+    /// Texels whose estimate is not finite (must be 0).
+    pub non_finite_texels: usize,
+}
+
+impl LodReport {
+    pub fn new(texels: &TexelMap, texel_seconds: f64, stats: &BackendStats, irradiance: &[Rgb]) -> Self {
+        let finite: Vec<&Rgb> = irradiance.iter().filter(|e| e.is_finite()).collect();
+        let mean = finite.iter().fold(glam::DVec3::ZERO, |a, e| a + e.as_dvec3()) / finite.len().max(1) as f64;
+        LodReport {
+            lod: texels.lod,
+            width: texels.width,
+            height: texels.height,
+            texels: texels.len(),
+            gutter_texels: texels.gutter.len(),
+            texel_map_seconds: texel_seconds,
+            bake_seconds: stats.seconds,
+            samples_per_texel: stats.samples_per_texel,
+            rays: stats.rays,
+            rays_per_second: if stats.seconds > 0.0 { stats.rays as f64 / stats.seconds } else { 0.0 },
+            mean_irradiance: mean.as_vec3().to_array(),
+            non_finite_texels: irradiance.len() - finite.len(),
+        }
+    }
+}
+
+/// Wall-clock seconds of each phase the CLI runs around the bake.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PhaseTimings {
+    pub load: f64,
+    pub write: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct BakeReport {
+    pub livebake_version: &'static str,
+    pub backend: &'static str,
+    pub config: BakeConfig,
+    pub threads: usize,
+    pub scene: SceneReport,
+    pub atlas: AtlasReport,
+    pub lods: Vec<LodReport>,
+    pub phases: PhaseTimings,
+    /// Atlas + texel maps + baking, seconds (excludes load and write; see `phases`).
+    pub total_seconds: f64,
+}
+
+impl BakeReport {
+    pub fn new(scene: &Scene, atlas: &Atlas, config: &BakeConfig) -> Self {
+        let bounds = scene.bounds();
+        BakeReport {
+            livebake_version: env!("CARGO_PKG_VERSION"),
+            backend: config.backend.name(),
+            config: config.clone(),
+            threads: config.threads(),
+            scene: SceneReport {
+                source: scene.source.as_ref().map(|p| p.display().to_string()),
+                meshes: scene.meshes.len(),
+                triangles: scene.triangle_count(),
+                materials: scene.materials.len(),
+                emissive_materials: scene.materials.iter().filter(|m| m.is_emissive()).count(),
+                punctual_lights: scene.lights.len(),
+                cameras: scene.cameras.len(),
+                bounds_min: bounds.map(|b| b.0.to_array()),
+                bounds_max: bounds.map(|b| b.1.to_array()),
+                sky: scene.sky.to_array(),
+                load: scene.stats.clone(),
+            },
+            atlas: AtlasReport {
+                texel_size: atlas.texel_size,
+                width: atlas.width,
+                height: atlas.height,
+                stats: atlas.stats.clone(),
+            },
+            lods: Vec::new(),
+            phases: PhaseTimings::default(),
+            total_seconds: 0.0,
+        }
+    }
+}

@@ -1,0 +1,179 @@
+//! The radiance exchange along one bundle ray (DESIGN.md "Units and the estimator").
+//!
+//! A pixel's fragments, ordered by depth along ω, are the surfaces one bundle line crosses.
+//! Between two consecutive fragments, each sees the other: the side of fragment i that looks
+//! along +ω sees the side of fragment i+1 that looks along −ω, and vice versa; the first and
+//! last sides see the sky. A side that is not a lit face (the back of a single-sided surface:
+//! the inside of closed geometry) is black and receives nothing — that is what stops leaks.
+//!
+//! Every hit adds `a_px · L_seen` and `a_px` to the receiving texel; the texel's irradiance is
+//! then the self-normalising `E = π · Σ a·L / Σ a` (hits are cosine-distributed because a
+//! texel's projected area is ∝ |n·ω|).
+//!
+//! The light pass uses the same ordering but only emitter fragments give: the neighbour
+//! facing an emitting side receives `a_px · Le`, normalised later by the texel's area.
+//!
+//! These functions are the spec the GPU resolve shader is held equal to.
+
+use crate::scene::Rgb;
+
+/// "No texel": the side is not a lit face.
+pub const NO_SIDE: u32 = 0x7FFF_FFFF;
+/// Set on `plus` of fragments that belong to the emitter group of a light pass.
+pub const EMITTER_FLAG: u32 = 0x8000_0000;
+const TEXEL_MASK: u32 = 0x7FFF_FFFF;
+
+/// One surface crossing of a bundle line.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fragment {
+    /// Position along ω (metres, any fixed origin).
+    pub depth: f32,
+    /// Texel of the side looking along +ω, or [`NO_SIDE`]; may carry [`EMITTER_FLAG`].
+    pub plus: u32,
+    /// Texel of the side looking along −ω, or [`NO_SIDE`].
+    pub minus: u32,
+}
+
+impl Fragment {
+    #[inline]
+    pub fn plus_texel(&self) -> Option<u32> {
+        let t = self.plus & TEXEL_MASK;
+        (t != NO_SIDE).then_some(t)
+    }
+
+    #[inline]
+    pub fn minus_texel(&self) -> Option<u32> {
+        (self.minus != NO_SIDE).then_some(self.minus)
+    }
+
+    #[inline]
+    pub fn is_emitter(&self) -> bool {
+        self.plus & EMITTER_FLAG != 0
+    }
+}
+
+/// Sorts one pixel's fragments by depth. Insertion sort: lists are short (a few surfaces)
+/// and it is stable, so equal depths keep their deterministic build order.
+#[inline]
+pub fn sort_by_depth(frags: &mut [Fragment]) {
+    for i in 1..frags.len() {
+        let f = frags[i];
+        let mut j = i;
+        while j > 0 && frags[j - 1].depth > f.depth {
+            frags[j] = frags[j - 1];
+            j -= 1;
+        }
+        frags[j] = f;
+    }
+}
+
+/// Receives hits. `texel` is a lit face's texel.
+pub trait HitSink {
+    fn hit(&mut self, texel: u32, weighted_radiance: Rgb, weight: f32);
+}
+
+/// Global-bundle exchange over one pixel's depth-sorted fragments: every lit side receives
+/// the radiance of what it sees. `source(t)` is the outgoing radiance of texel `t` toward
+/// the bundle (reflected light, plus emission where the global bundles carry it).
+#[inline]
+pub fn exchange(frags: &[Fragment], a_px: f32, sky: Rgb, source: impl Fn(u32) -> Rgb, sink: &mut impl HitSink) {
+    let seen = |side: Option<u32>| side.map_or(Rgb::ZERO, &source);
+    let m = frags.len();
+    for i in 0..m {
+        let f = &frags[i];
+        if let Some(t) = f.plus_texel() {
+            let l = if i + 1 < m { seen(frags[i + 1].minus_texel()) } else { sky };
+            sink.hit(t, l * a_px, a_px);
+        }
+        if let Some(t) = f.minus_texel() {
+            let l = if i > 0 { seen(frags[i - 1].plus_texel()) } else { sky };
+            sink.hit(t, l * a_px, a_px);
+        }
+    }
+}
+
+/// Light-pass exchange: each emitter fragment's emitting side lights the lit side of the
+/// neighbour facing it. `emission(t)` is texel `t`'s emitted radiance (zero if it does not emit).
+#[inline]
+pub fn emit(frags: &[Fragment], a_px: f32, emission: impl Fn(u32) -> Rgb, sink: &mut impl HitSink) {
+    let m = frags.len();
+    for i in 0..m {
+        let f = &frags[i];
+        if !f.is_emitter() {
+            continue;
+        }
+        if let (Some(src), Some(next)) = (f.plus_texel(), frags.get(i + 1)) {
+            if let Some(dst) = next.minus_texel() {
+                sink.hit(dst, emission(src) * a_px, a_px);
+            }
+        }
+        if let (Some(src), Some(prev)) = (f.minus_texel(), i.checked_sub(1).map(|j| &frags[j])) {
+            if let Some(dst) = prev.plus_texel() {
+                sink.hit(dst, emission(src) * a_px, a_px);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Default)]
+    struct Log(Vec<(u32, Rgb, f32)>);
+    impl HitSink for Log {
+        fn hit(&mut self, t: u32, l: Rgb, a: f32) {
+            self.0.push((t, l, a));
+        }
+    }
+
+    fn frag(depth: f32, plus: u32, minus: u32) -> Fragment {
+        Fragment { depth, plus, minus }
+    }
+
+    #[test]
+    fn sorting_is_stable_by_depth() {
+        let mut f = vec![frag(3.0, 1, 1), frag(1.0, 2, 2), frag(3.0, 3, 3), frag(-1.0, 4, 4)];
+        sort_by_depth(&mut f);
+        assert_eq!(f.iter().map(|f| f.plus).collect::<Vec<_>>(), vec![4, 2, 1, 3]);
+    }
+
+    /// Two parallel walls: a floor (front looks +ω, texel 10) and a ceiling (front looks −ω,
+    /// texel 20). Each sees the other; the outer sides are single-sided backs.
+    #[test]
+    fn facing_surfaces_exchange_and_backs_are_black() {
+        let frags = [frag(0.0, 10, NO_SIDE), frag(2.0, NO_SIDE, 20)];
+        let source = |t: u32| Rgb::splat(t as f32);
+        let mut log = Log::default();
+        exchange(&frags, 0.5, Rgb::splat(7.0), source, &mut log);
+        assert_eq!(log.0, vec![(10, Rgb::splat(10.0), 0.5), (20, Rgb::splat(5.0), 0.5)]);
+    }
+
+    /// A lit side looking at the back of a single-sided surface sees black; the outermost
+    /// sides see the sky.
+    #[test]
+    fn sky_at_the_ends_and_black_from_single_sided_backs() {
+        // A double-sided panel (texels 1 and 2) in front of a wall seen from behind.
+        let frags = [frag(0.0, 1, 2), frag(1.0, 3, NO_SIDE)];
+        let mut log = Log::default();
+        exchange(&frags, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32 * 100.0), &mut log);
+        assert_eq!(
+            log.0,
+            vec![(1, Rgb::ZERO, 1.0), (2, Rgb::splat(4.0), 1.0), (3, Rgb::splat(4.0), 1.0)]
+        );
+    }
+
+    #[test]
+    fn emitters_light_only_the_facing_neighbours() {
+        // Lamp (emitter, emits along −ω only: its minus side is lit, plus is a single-sided
+        // back) above a floor whose plus side faces the lamp; a wall beyond the lamp.
+        let frags = [
+            frag(0.0, 5, NO_SIDE),                      // floor, looks +ω at the lamp
+            frag(1.0, NO_SIDE | EMITTER_FLAG, 6),       // lamp, emitting side looks −ω
+            frag(2.0, NO_SIDE, 7),                      // ceiling beyond, looks −ω at the lamp's back
+        ];
+        let mut log = Log::default();
+        emit(&frags, 0.25, |t| if t == 6 { Rgb::splat(8.0) } else { Rgb::ZERO }, &mut log);
+        assert_eq!(log.0, vec![(5, Rgb::splat(2.0), 0.25)]);
+    }
+}

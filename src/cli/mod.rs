@@ -1,0 +1,84 @@
+//! Command-line interface: argument parsing and the subcommands. A stable interface: scripts
+//! depend on the option names and output files.
+
+mod bake;
+mod options;
+mod probe;
+mod progress;
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+pub use options::SceneOptions;
+
+/// Global-illumination light maps for glTF scenes.
+#[derive(Parser, Debug)]
+#[command(name = "livebake", version, about, long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    /// Only print errors (no progress bars, no summary).
+    #[arg(short, long, global = true)]
+    quiet: bool,
+    /// More log output (-v: debug, -vv: trace). RUST_LOG overrides.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Bake a scene's light maps: DIR/lightmap_lodK.exr (irradiance, W/m²), DIR/lightmap_lodK.png
+    /// (tone-mapped outgoing radiance) and DIR/report.json.
+    Bake {
+        /// glTF 2.0 scene (.gltf or .glb).
+        scene: PathBuf,
+        /// Output directory (created if missing).
+        #[arg(long, default_value = "out")]
+        out: PathBuf,
+        #[command(flatten)]
+        options: SceneOptions,
+    },
+    /// Irradiance at surface points given in a JSON file.
+    Probe {
+        /// glTF 2.0 scene (.gltf or .glb).
+        scene: PathBuf,
+        /// Input points: {"points":[{"p":[x,y,z],"n":[x,y,z]}, ...]}.
+        #[arg(long)]
+        points: PathBuf,
+        /// Output JSON (the input list with "E":[r,g,b] added); stdout when absent.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        #[command(flatten)]
+        options: SceneOptions,
+    },
+}
+
+/// The scene baked when livebake runs without arguments.
+pub fn default_scene() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf"))
+}
+
+pub fn run() -> Result<()> {
+    let cli = Cli::parse();
+    init_logging(cli.quiet, cli.verbose);
+    let ui = progress::Ui::new(cli.quiet);
+    match cli.command {
+        None => bake::run(&default_scene(), &PathBuf::from("out"), &SceneOptions::default(), &ui),
+        Some(Command::Bake { scene, out, options }) => bake::run(&scene, &out, &options, &ui),
+        Some(Command::Probe { scene, points, out, options }) => probe::run(&scene, &points, out.as_deref(), &options, &ui),
+    }
+}
+
+fn init_logging(quiet: bool, verbose: u8) {
+    use tracing_subscriber::EnvFilter;
+    let level = match (quiet, verbose) {
+        (true, _) => "error",
+        (false, 0) => "warn,livebake=info",
+        (false, 1) => "debug",
+        _ => "trace",
+    };
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(level));
+    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).try_init();
+}

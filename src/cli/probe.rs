@@ -1,0 +1,98 @@
+//! `livebake probe`: irradiance at surface points from a JSON file.
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+use glam::Vec3;
+use serde_json::{Value, json};
+
+use livebake::probe::{ProbeError, SurfaceLocator, SurfacePoint};
+use livebake::reference::ReferenceTracer;
+use livebake::scene::Rgb;
+
+use super::SceneOptions;
+use super::bake::load_scene;
+use super::options::Backend;
+use super::progress::Ui;
+
+/// Default paths per point for the reference backend: ~1% noise on a lit interior.
+const DEFAULT_SAMPLES: u32 = 1024;
+
+struct Query {
+    p: Vec3,
+    n: Vec3,
+}
+
+fn vec3_field(point: &Value, key: &str, index: usize) -> Result<Vec3> {
+    let arr = point
+        .get(key)
+        .and_then(Value::as_array)
+        .with_context(|| format!("point {index}: missing \"{key}\": [x, y, z]"))?;
+    let vals: Vec<f64> = arr.iter().filter_map(Value::as_f64).collect();
+    if arr.len() != 3 || vals.len() != 3 {
+        bail!("point {index}: \"{key}\" must be three numbers, got {}", Value::Array(arr.clone()));
+    }
+    Ok(Vec3::new(vals[0] as f32, vals[1] as f32, vals[2] as f32))
+}
+
+fn read_points(path: &Path) -> Result<(Value, Vec<Query>)> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read points file {}", path.display()))?;
+    let doc: Value = serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
+    let list = doc
+        .get("points")
+        .and_then(Value::as_array)
+        .with_context(|| format!("{}: expected {{\"points\": [{{\"p\": [x,y,z], \"n\": [x,y,z]}}, ...]}}", path.display()))?;
+    let queries = list
+        .iter()
+        .enumerate()
+        .map(|(i, pt)| Ok(Query { p: vec3_field(pt, "p", i)?, n: vec3_field(pt, "n", i)? }))
+        .collect::<Result<Vec<_>>>()
+        .with_context(|| format!("in {}", path.display()))?;
+    Ok((doc, queries))
+}
+
+pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &SceneOptions, ui: &Ui) -> Result<()> {
+    let config = options.bake_config(DEFAULT_SAMPLES)?;
+    let (mut doc, queries) = read_points(points_path)?;
+    let (scene, _) = load_scene(scene_path, options)?;
+    let results: Vec<Result<Rgb, ProbeError>> = match options.backend {
+        Backend::Reference => {
+            let tracer = ReferenceTracer::new(&scene);
+            let locator = SurfaceLocator::new(tracer.geometry(), tracer.bvh());
+            let located: Vec<Result<SurfacePoint, ProbeError>> =
+                queries.iter().map(|q| locator.locate(q.p, q.n)).collect();
+            // Trace at the given point, over the hemisphere of the given normal (as the
+            // Mitsuba cross-check tool does); points on no surface are reported, not traced.
+            let ok: Vec<(Vec3, Vec3)> = queries
+                .iter()
+                .zip(&located)
+                .filter(|(_, l)| l.is_ok())
+                .map(|(q, _)| (q.p, q.n.normalize()))
+                .collect();
+            ui.begin_phase("probe reference", ok.len() as u64);
+            let (e, _) = tracer.irradiance_batch_threads(&ok, config.samples, config.seed, config.threads(), &|n| {
+                ui.advance_by(n as u64)
+            });
+            ui.end_phase();
+            let mut e = e.into_iter();
+            located.into_iter().map(|l| l.map(|_| e.next().unwrap_or(Rgb::ZERO))).collect()
+        }
+    };
+    if let Some(list) = doc.get_mut("points").and_then(Value::as_array_mut) {
+        for (pt, r) in list.iter_mut().zip(&results) {
+            match r {
+                Ok(e) => pt["E"] = json!([e.x, e.y, e.z]),
+                Err(err) => pt["error"] = json!(err.to_string()),
+            }
+        }
+    }
+    let text = serde_json::to_string_pretty(&doc)?;
+    match out {
+        Some(path) => {
+            livebake::output::write_json(path, &doc)?;
+            ui.say(format!("wrote {} ({} points)", path.display(), results.len()));
+        }
+        None => println!("{text}"),
+    }
+    Ok(())
+}

@@ -1,0 +1,74 @@
+//! Progress bars (indicatif) for the library's progress reports. Bars draw only on a terminal.
+
+use std::sync::Mutex;
+use std::time::Duration;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use livebake::progress::Progress;
+
+pub struct Ui {
+    quiet: bool,
+    bar: Mutex<Option<ProgressBar>>,
+}
+
+impl Ui {
+    pub fn new(quiet: bool) -> Self {
+        Ui { quiet, bar: Mutex::new(None) }
+    }
+
+    /// Prints a line of the final summary (stdout), unless quiet.
+    pub fn say(&self, line: impl AsRef<str>) {
+        if !self.quiet {
+            println!("{}", line.as_ref());
+        }
+    }
+
+    pub fn begin_phase(&self, phase: &str, total: u64) {
+        Progress::begin(self, phase, total)
+    }
+
+    pub fn advance_by(&self, n: u64) {
+        Progress::advance(self, n)
+    }
+
+    pub fn end_phase(&self) {
+        Progress::end(self)
+    }
+
+    fn with_bar(&self, f: impl FnOnce(&mut Option<ProgressBar>)) {
+        if let Ok(mut guard) = self.bar.lock() {
+            f(&mut guard);
+        }
+    }
+}
+
+impl Progress for Ui {
+    fn begin(&self, phase: &str, total: u64) {
+        if self.quiet {
+            return;
+        }
+        let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr_with_hz(10));
+        if let Ok(style) = ProgressStyle::with_template("{msg:>18} [{bar:40}] {pos}/{len} ({percent}%) eta {eta}") {
+            bar.set_style(style.progress_chars("=> "));
+        }
+        bar.set_message(phase.to_string());
+        bar.enable_steady_tick(Duration::from_millis(200));
+        self.with_bar(|b| *b = Some(bar));
+    }
+
+    fn advance(&self, n: u64) {
+        self.with_bar(|b| {
+            if let Some(bar) = b {
+                bar.inc(n);
+            }
+        });
+    }
+
+    fn end(&self) {
+        self.with_bar(|b| {
+            if let Some(bar) = b.take() {
+                bar.finish_and_clear();
+            }
+        });
+    }
+}

@@ -1,0 +1,186 @@
+//! Builds one tile's per-pixel fragment lists on the CPU.
+//!
+//! The GPU builds per-pixel linked lists in a node buffer of capacity N; the CPU builds the
+//! same lists contiguously (count per pixel → prefix sum → fill, an "S-buffer"), which needs
+//! no pointers and leaves each pixel's fragments adjacent for the depth sort. It honours the
+//! same budget: a tile whose fragment count exceeds N has overflowed and is not built.
+
+use glam::Vec2;
+
+use super::prepared::{NO_GROUP, PreparedScene};
+use crate::atlas::TexelMap;
+use crate::atlas::texels::NO_TEXEL;
+use crate::bundle::estimator::{EMITTER_FLAG, Fragment, NO_SIDE, sort_by_depth};
+use crate::bundle::raster::{BundleFrame, ScreenTriangle, Viewport};
+
+/// A tile's fragment count exceeded the node budget.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Overflow {
+    pub fragments: u64,
+}
+
+/// A lit side of a triangle in the current viewport: its UV (LOD pixels) as an affine
+/// function of pixel coordinates, and its UV corners.
+struct TileSide {
+    gradient: [Vec2; 3],
+    corners: [Vec2; 3],
+}
+
+/// A triangle set up for the current viewport, with its sides looking +ω and −ω.
+struct TileTriangle {
+    screen: ScreenTriangle,
+    plus: Option<TileSide>,
+    minus: Option<TileSide>,
+    emitter: bool,
+}
+
+/// Reusable buffers of one worker.
+#[derive(Default)]
+pub struct FragmentBuffer {
+    res: u32,
+    tris: Vec<TileTriangle>,
+    /// Per pixel: start of its fragments in `frags` (`res² + 1` entries).
+    offsets: Vec<u32>,
+    frags: Vec<Fragment>,
+    /// Fragments whose UV fell outside every texel through rounding (they still occlude).
+    pub lost_lookups: u64,
+}
+
+fn tile_side(screen: &ScreenTriangle, uv: [Vec2; 3]) -> TileSide {
+    let gx = screen.gradient([uv[0].x, uv[1].x, uv[2].x]);
+    let gy = screen.gradient([uv[0].y, uv[1].y, uv[2].y]);
+    TileSide { gradient: [Vec2::new(gx[0], gy[0]), Vec2::new(gx[1], gy[1]), Vec2::new(gx[2], gy[2])], corners: uv }
+}
+
+impl FragmentBuffer {
+    /// Sets up `candidates` for `viewport` and counts their fragments. `emitter_group`
+    /// flags the fragments of that light-pass group. Returns the fragment count.
+    pub fn prepare(
+        &mut self,
+        scene: &PreparedScene,
+        frame: &BundleFrame,
+        viewport: &Viewport,
+        candidates: &[u32],
+        emitter_group: Option<u32>,
+    ) -> u64 {
+        self.res = viewport.res;
+        self.tris.clear();
+        for &t in candidates {
+            let t = t as usize;
+            let Some(screen) = ScreenTriangle::setup(frame, viewport, &scene.geom.corners[t], scene.geom.normals[t]) else {
+                continue;
+            };
+            let [front, back] = scene.face_uv[t];
+            let (plus, minus) = if screen.front_faces_dir { (front, back) } else { (back, front) };
+            self.tris.push(TileTriangle {
+                plus: plus.map(|uv| tile_side(&screen, uv)),
+                minus: minus.map(|uv| tile_side(&screen, uv)),
+                emitter: emitter_group.is_some_and(|g| g != NO_GROUP && scene.emitter_group[t] == g),
+                screen,
+            });
+        }
+        let n = (self.res as usize) * (self.res as usize);
+        self.offsets.clear();
+        self.offsets.resize(n + 1, 0);
+        let mut total = 0u64;
+        for tri in &self.tris {
+            tri.screen.for_each_span(self.res, |y, x0, x1| {
+                let row = (y * self.res) as usize;
+                for c in &mut self.offsets[row + x0 as usize + 1..row + x1 as usize + 1] {
+                    *c += 1;
+                }
+                total += (x1 - x0) as u64;
+            });
+        }
+        total
+    }
+
+    /// Fills and depth-sorts the fragments counted by [`prepare`](Self::prepare). The caller
+    /// has checked the count against the node budget.
+    pub fn build(&mut self, scene: &PreparedScene) {
+        for i in 1..self.offsets.len() {
+            self.offsets[i] += self.offsets[i - 1];
+        }
+        let total = *self.offsets.last().unwrap_or(&0) as usize;
+        self.frags.clear();
+        self.frags.resize(total, Fragment { depth: 0.0, plus: NO_SIDE, minus: NO_SIDE });
+        // `cursor[p]` = next free slot of pixel p: the offsets shifted by one.
+        let mut cursor: Vec<u32> = self.offsets[..self.offsets.len() - 1].to_vec();
+        let texels = scene.texels;
+        let mut lost = 0u64;
+        for tri in &self.tris {
+            let s = &tri.screen;
+            s.for_each_span(self.res, |y, x0, x1| {
+                let cy = y as f32 + 0.5;
+                for x in x0..x1 {
+                    let cx = x as f32 + 0.5;
+                    let plus = tri.plus.as_ref().map_or(NO_SIDE, |side| lookup(texels, s, side, cx, cy, &mut lost));
+                    let minus = tri.minus.as_ref().map_or(NO_SIDE, |side| lookup(texels, s, side, cx, cy, &mut lost));
+                    let p = (y * self.res + x) as usize;
+                    let at = cursor[p] as usize;
+                    cursor[p] += 1;
+                    self.frags[at] = Fragment {
+                        depth: s.depth_at(cx, cy),
+                        plus: if tri.emitter { plus | EMITTER_FLAG } else { plus },
+                        minus,
+                    };
+                }
+            });
+        }
+        self.lost_lookups += lost;
+        for p in 0..self.offsets.len() - 1 {
+            let (a, b) = (self.offsets[p] as usize, self.offsets[p + 1] as usize);
+            if b - a > 1 {
+                sort_by_depth(&mut self.frags[a..b]);
+            }
+        }
+    }
+
+    /// Calls `f(fragments)` for every pixel with at least one fragment; returns how many.
+    pub fn for_each_pixel(&self, mut f: impl FnMut(&[Fragment])) -> u64 {
+        let mut covered = 0;
+        for w in self.offsets.windows(2) {
+            if w[1] > w[0] {
+                f(&self.frags[w[0] as usize..w[1] as usize]);
+                covered += 1;
+            }
+        }
+        covered
+    }
+}
+
+/// The texel under the pixel centre (cx, cy) of one side. Pixel centres inside the triangle
+/// map inside its UV triangle, whose texels conservative rasterisation made valid; rounding
+/// can still land a hair outside, so a miss retries with the barycentrics clamped onto the
+/// triangle.
+#[inline]
+fn lookup(texels: &TexelMap, s: &ScreenTriangle, side: &TileSide, cx: f32, cy: f32, lost: &mut u64) -> u32 {
+    let g = &side.gradient;
+    if let Some(t) = texel_at(texels, g[0] * cx + g[1] * cy + g[2]) {
+        return t;
+    }
+    let (u, v) = s.barycentrics(cx, cy);
+    let (u, v) = (u.clamp(0.0, 1.0), v.clamp(0.0, 1.0));
+    let k = (u + v).max(1.0);
+    let [a, b, c] = side.corners;
+    match texel_at(texels, a + (b - a) * (u / k) + (c - a) * (v / k)) {
+        Some(t) => t,
+        None => {
+            *lost += 1;
+            NO_SIDE
+        }
+    }
+}
+
+#[inline]
+fn texel_at(texels: &TexelMap, uv: Vec2) -> Option<u32> {
+    if !(uv.x >= 0.0 && uv.y >= 0.0) {
+        return None;
+    }
+    let (x, y) = (uv.x as u32, uv.y as u32);
+    if x >= texels.width || y >= texels.height {
+        return None;
+    }
+    let t = texels.slot[(y * texels.width + x) as usize];
+    (t != NO_TEXEL).then_some(t)
+}

@@ -1,0 +1,133 @@
+//! Irradiance at arbitrary surface points: find the surface under a point and the side facing
+//! the given normal, then either read the baked light map there (bilinear, in that side's
+//! chart) or path-trace it directly.
+
+use glam::{Vec2, Vec3};
+
+use crate::atlas::Atlas;
+use crate::bake::BakedLod;
+use crate::reference::Bvh;
+use crate::scene::{Rgb, SceneGeometry, Side, TriangleId};
+
+/// Where a probe point landed.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfacePoint {
+    pub tri: TriangleId,
+    /// Barycentrics (weights of corners 1 and 2).
+    pub u: f32,
+    pub v: f32,
+    pub side: Side,
+    /// Distance from the query point to the surface, metres.
+    pub distance: f32,
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ProbeError {
+    #[error("normal {0:?} is not a finite non-zero vector")]
+    BadNormal([f32; 3]),
+    #[error("point {0:?} is not finite")]
+    BadPoint([f32; 3]),
+    #[error("no surface within {tolerance} m of the point")]
+    NoSurface { tolerance: f32 },
+    #[error("the surface under the point is single-sided and the normal looks at its back, which has no light map")]
+    BackOfSingleSided,
+}
+
+/// Finds surfaces under query points.
+pub struct SurfaceLocator<'a> {
+    geom: &'a SceneGeometry,
+    bvh: &'a Bvh,
+    /// How far a query point may be from the surface, metres.
+    pub tolerance: f32,
+}
+
+impl<'a> SurfaceLocator<'a> {
+    /// Tolerance defaults to 1e-3 of the scene's bounding-box diagonal (1 cm in a 10 m room),
+    /// loose enough for coordinates typed by hand or printed with few digits.
+    pub fn new(geom: &'a SceneGeometry, bvh: &'a Bvh) -> Self {
+        let (lo, hi) = geom
+            .corners
+            .iter()
+            .flatten()
+            .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+        let diag = if lo.x <= hi.x { (hi - lo).length() } else { 1.0 };
+        SurfaceLocator { geom, bvh, tolerance: (1e-3 * diag).max(1e-5) }
+    }
+
+    /// The surface under `p` whose side faces `n`. A short ray from just above the point
+    /// (along `n`) back down the normal finds the surface the point lies on even in corners,
+    /// where the nearest triangle may be the adjoining wall; the nearest triangle is the
+    /// fallback for normals that do not match the surface.
+    pub fn locate(&self, p: Vec3, n: Vec3) -> Result<SurfacePoint, ProbeError> {
+        if !p.is_finite() {
+            return Err(ProbeError::BadPoint(p.to_array()));
+        }
+        let n = n.try_normalize().ok_or(ProbeError::BadNormal(n.to_array()))?;
+        let tol = self.tolerance;
+        let origin = p + n * tol;
+        if let Some(hit) = self.bvh.intersect(self.geom, origin, -n, 0.0, 2.0 * tol) {
+            let side = Side::facing(self.geom.normals[hit.tri as usize], n);
+            return Ok(SurfacePoint { tri: hit.tri, u: hit.u, v: hit.v, side, distance: (hit.t - tol).abs() });
+        }
+        let c = self.bvh.closest_point(self.geom, p, tol).ok_or(ProbeError::NoSurface { tolerance: tol })?;
+        let side = Side::facing(self.geom.normals[c.tri as usize], n);
+        Ok(SurfacePoint { tri: c.tri, u: c.u, v: c.v, side, distance: c.distance })
+    }
+}
+
+/// Bilinear reads from one baked light-map level.
+pub struct LightmapSampler<'a> {
+    atlas: &'a Atlas,
+    lod: u32,
+    width: u32,
+    height: u32,
+    /// Irradiance per pixel (gutters filled); `None` for pixels outside every chart.
+    pixels: Vec<Option<Rgb>>,
+}
+
+impl<'a> LightmapSampler<'a> {
+    pub fn new(atlas: &'a Atlas, baked: &BakedLod) -> Self {
+        let values: Vec<Option<Rgb>> = baked.irradiance.iter().map(|e| Some(*e)).collect();
+        LightmapSampler {
+            atlas,
+            lod: baked.texels.lod,
+            width: baked.texels.width,
+            height: baked.texels.height,
+            pixels: baked.texels.to_image(&values, None),
+        }
+    }
+
+    /// Irradiance (W/m²) at a located surface point, bilinearly filtered in its side's chart.
+    pub fn irradiance(&self, at: &SurfacePoint) -> Result<Rgb, ProbeError> {
+        let face = self.atlas.face(at.tri, at.side).ok_or(ProbeError::BackOfSingleSided)?;
+        let [a, b, c] = self.atlas.faces[face as usize].uv;
+        let uv = a + (b - a) * at.u + (c - a) * at.v;
+        Ok(self.bilinear(uv * (1u32 << self.lod) as f32))
+    }
+
+    /// Bilinear filter at a pixel-space position; weights of empty pixels (which gutters make
+    /// impossible next to a chart, but be safe) are dropped and the rest renormalised.
+    fn bilinear(&self, p: Vec2) -> Rgb {
+        let q = p - Vec2::splat(0.5);
+        let base = q.floor();
+        let f = q - base;
+        let mut sum = Rgb::ZERO;
+        let mut wsum = 0.0;
+        for (dx, dy, w) in [
+            (0, 0, (1.0 - f.x) * (1.0 - f.y)),
+            (1, 0, f.x * (1.0 - f.y)),
+            (0, 1, (1.0 - f.x) * f.y),
+            (1, 1, f.x * f.y),
+        ] {
+            let (x, y) = (base.x as i64 + dx, base.y as i64 + dy);
+            if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
+                continue;
+            }
+            if let Some(e) = self.pixels[(y as u32 * self.width + x as u32) as usize] {
+                sum += e * w;
+                wsum += w;
+            }
+        }
+        if wsum > 0.0 { sum / wsum } else { Rgb::ZERO }
+    }
+}
