@@ -24,7 +24,9 @@
 //! exact to ~6e-8·M, so ε leaves a margin of > 100 ulps against self-intersection while
 //! staying far below any feature the light map resolves. Shadow rays stop ε short of the
 //! light or emitter point. Punctual lights are evaluated at the surface point itself, so
-//! inverse-square distances are exact.
+//! inverse-square distances are exact; emitters, the sky and bounces are seen from
+//! p + ε·n, a relative difference of order 2ε/d for a source at distance d (2e-5 for a small
+//! emitter 2 m away in a 2 m scene: visible only in zero-variance tests).
 
 use std::f32::consts::PI;
 

@@ -64,9 +64,11 @@ fn quads_match_lamberts_polygon_formula() {
         // per-path relative σ stays small from the tiny to the huge emitter (the light
         // strategy covers the tiny one, the cosine one the huge one): measured 0.16–0.18 for
         // the 1 m and 40 m quads, ~0 for the 4 cm one. σ_mean ≈ 0.18/128 ≈ 0.15%; the bound
-        // 0.5% leaves room for the tilted cases. Checked at 5σ of the measured standard error.
+        // 0.5% leaves room for the tilted cases. Checked at 5σ of the measured standard error
+        // plus a 1e-4 relative floor for the ε offset of the origin (ε ≤ 3.5e-5 m here, at
+        // d ≥ 1 m: ≤ 7e-5; the 4 cm emitter, whose σ is ~1e-6, shows it: +2e-5).
         let est = estimate(&t, p, n, 16_384);
-        assert_estimate(&est, want, 0.005, 1e-6, what);
+        assert_estimate(&est, want, 0.005, 1e-4, what);
     }
 }
 
@@ -83,7 +85,7 @@ fn single_sided_emitters_are_dark_from_behind_double_sided_lit_from_both_sides()
     // Above, looking down at its front: the polygon value.
     let above = Vec3::new(0.1, 2.0, 0.0);
     let want = lambert_polygon(above, Vec3::NEG_Y, &corners, le);
-    assert_estimate(&estimate(&t, above, Vec3::NEG_Y, 16_384), want, 0.005, 1e-6, "single-sided front");
+    assert_estimate(&estimate(&t, above, Vec3::NEG_Y, 16_384), want, 0.005, 1e-4, "single-sided front");
 
     let double = emitter_scene(corners, le, true);
     let t = ReferenceTracer::new(&double);
@@ -91,7 +93,7 @@ fn single_sided_emitters_are_dark_from_behind_double_sided_lit_from_both_sides()
         let want = lambert_polygon(p, n, &corners, le);
         assert!(want.x > 0.1);
         // Same 16384-path budget, σ bound and 5σ rule as above.
-        assert_estimate(&estimate(&t, p, n, 16_384), want, 0.005, 1e-6, &format!("double-sided at {p}"));
+        assert_estimate(&estimate(&t, p, n, 16_384), want, 0.005, 1e-4, &format!("double-sided at {p}"));
     }
 }
 
@@ -129,7 +131,41 @@ fn textured_emission_is_sampled_by_its_mean_and_integrated_exactly() {
         want += lambert_polygon(p, n, &strip, le * mean);
     }
     let t = ReferenceTracer::new(&s);
-    // Half the quad is dark, so per-path σ is larger than for a uniform quad (~1.5×): 32768
-    // paths, σ_mean ≲ 1%; 5σ rule.
-    assert_estimate(&estimate(&t, p, n, 32_768), want, 0.012, 1e-6, "textured emitter");
+    // Half the quad is dark, so per-path σ is larger than for a uniform quad: measured
+    // ≈ 0.8·E, so 32768 paths give σ_mean ≈ 0.45%; bound 0.8%; 5σ rule, 1e-4 floor as above
+    // (the strip integration error, O(1/400²), is far below it).
+    assert_estimate(&estimate(&t, p, n, 32_768), want, 0.008, 1e-4, "textured emitter");
+}
+
+#[test]
+fn alpha_masked_emitters_emit_only_where_opaque() {
+    // A 1 m emissive quad at 1 m, alpha-masked by a 2 × 1 texture (alpha 0 | 1, clamped,
+    // cutoff ½): alpha is linear in u between the texel centres, so the quad exists for
+    // u ≥ ½, i.e. x ≥ 0. E is the polygon value of that half. Both strategies must agree:
+    // cosine rays pass through the cut half, NEE points on it emit nothing.
+    use crate::scene::{AlphaMode, Texture, TextureRef, WrapMode};
+    let le = Rgb::splat(2.0);
+    let corners = quad_corners(Vec3::Y, 0.5, Quat::IDENTITY);
+    let mut s = emitter_scene(corners, le, false);
+    s.textures.push(Texture {
+        name: "alpha".into(),
+        width: 2,
+        height: 1,
+        rgba8: vec![[255, 255, 255, 0], [255, 255, 255, 255]],
+        srgb: false,
+        wrap_s: WrapMode::ClampToEdge,
+        wrap_t: WrapMode::ClampToEdge,
+    });
+    s.materials[0].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
+    s.materials[0].alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
+    s.meshes[0].uv0 = Some(vec![glam::Vec2::new(0.0, 0.5), glam::Vec2::new(1.0, 0.5), glam::Vec2::new(1.0, 0.5), glam::Vec2::new(0.0, 0.5)]);
+    let half = [Vec3::new(0.0, 1.0, -0.5), Vec3::new(0.5, 1.0, -0.5), Vec3::new(0.5, 1.0, 0.5), Vec3::new(0.0, 1.0, 0.5)];
+    let t = ReferenceTracer::new(&s);
+    for p in [Vec3::ZERO, Vec3::new(-0.4, 0.0, 0.2)] {
+        let want = lambert_polygon(p, Vec3::Y, &half, le);
+        // Half of the NEE samples land on the cut half (contributing 0): per-path σ ≈ 1·E
+        // (measured 0.98–1.06), 16384 paths give σ_mean ≈ 0.8%; bound 1.2%; 5σ rule and the
+        // 1e-4 ε floor.
+        assert_estimate(&estimate(&t, p, Vec3::Y, 16_384), want, 0.012, 1e-4, &format!("masked emitter at {p}"));
+    }
 }

@@ -126,10 +126,9 @@ fn range_window_fades_point_lights_out() {
 #[test]
 fn many_lights_are_sampled_without_bias() {
     // 12 point lights (> all_lights_up_to = 8): one light per vertex is chosen by its
-    // unoccluded luminance. Exact E = Σ Iᵢ cosθᵢ/dᵢ². The per-sample estimate is
-    // E_total · (Eᵢ/Yᵢ)·(Y_total/E_total) for RGB-neutral lights: constant up to the channel
-    // ratios, so the relative σ per sample is small (coloured lights below); 4096 samples and
-    // the 5σ rule of assert_estimate.
+    // unoccluded luminance. Exact E = Σ Iᵢ cosθᵢ/dᵢ². The per-path estimate is Eᵢ·Y/Yᵢ
+    // (Y = luminance): exact in luminance, noisy only through the lights' different colours:
+    // measured σ_mean ≤ 0.5% at 4096 paths; bound 1%; 5σ rule, rounding floor.
     let mut lights = Vec::new();
     let mut want = Rgb::ZERO;
     let p = Vec3::new(0.2, 0.0, -0.1);
@@ -144,5 +143,5 @@ fn many_lights_are_sampled_without_bias() {
     let s = floor_scene(lights, &[]);
     let t = ReferenceTracer::new(&s);
     let est = estimate(&t, p, Vec3::Y, 4096);
-    super::assert_estimate(&est, want, 0.02, 1e-5, "12 point lights");
+    super::assert_estimate(&est, want, 0.01, 1e-5, "12 point lights");
 }
