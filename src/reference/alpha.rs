@@ -35,11 +35,7 @@ pub struct AlphaMasks {
 
 /// The alpha channel of `t` only (RGB set to white): enough for [`Material::alpha`].
 fn alpha_only(t: &Texture) -> Texture {
-    Texture {
-        rgba8: t.rgba8.iter().map(|&[_, _, _, a]| [255, 255, 255, a]).collect(),
-        srgb: false,
-        ..t.clone()
-    }
+    Texture { rgba8: t.rgba8.iter().map(|&[_, _, _, a]| [255, 255, 255, a]).collect(), srgb: false, ..t.clone() }
 }
 
 impl AlphaMasks {

@@ -36,10 +36,7 @@ type Chunk = (usize, Vec<IrradianceEstimate>);
 impl ReferenceTracer<'_> {
     /// Worker threads a batch uses: the override, else the available parallelism.
     pub fn threads(&self) -> usize {
-        self.options
-            .threads
-            .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
-            .max(1)
+        self.options.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())).max(1)
     }
 
     /// E (W/m²) at every `(point, unit normal)` query with `spp` paths each; query `i` uses

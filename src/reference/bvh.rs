@@ -198,7 +198,14 @@ impl Bvh {
 
     /// Closest hit among the triangles of one leaf, shrinking `tmax`.
     #[inline(always)]
-    fn leaf_closest<const KZ: usize>(&self, r: &Ray, e: Entry, tmin: f32, tmax: &mut f32, best: &mut Option<(u32, f32, f32)>) {
+    fn leaf_closest<const KZ: usize>(
+        &self,
+        r: &Ray,
+        e: Entry,
+        tmin: f32,
+        tmax: &mut f32,
+        best: &mut Option<(u32, f32, f32)>,
+    ) {
         let first = e.child as usize;
         let count = (e.meta & COUNT_MASK) as usize;
         let masked = e.meta & MASKED != 0;
@@ -230,8 +237,14 @@ impl Bvh {
                 let e0 = Entry { child: n.child[0], meta: n.meta[0], near: near.x };
                 let e1 = Entry { child: n.child[1], meta: n.meta[1], near: near.y };
                 match mask {
-                    1 => { cur = e0; continue; }
-                    2 => { cur = e1; continue; }
+                    1 => {
+                        cur = e0;
+                        continue;
+                    }
+                    2 => {
+                        cur = e1;
+                        continue;
+                    }
                     3 => {
                         let (first, second) = if e1.near < e0.near { (e1, e0) } else { (e0, e1) };
                         stack[sp] = second;
@@ -242,7 +255,8 @@ impl Bvh {
                     _ => {}
                 }
             }
-            // Pop the nearest pending subtree that can still hold a closer hit.
+            // Pop the next pending subtree (far children are pushed, so roughly front to back),
+            // skipping those that start beyond the closest hit so far.
             loop {
                 if sp == 0 {
                     let (i, u, v) = best?;
@@ -286,8 +300,14 @@ impl Bvh {
                 let e0 = Entry { child: n.child[0], meta: n.meta[0], near: 0.0 };
                 let e1 = Entry { child: n.child[1], meta: n.meta[1], near: 0.0 };
                 match mask {
-                    1 => { cur = e0; continue; }
-                    2 => { cur = e1; continue; }
+                    1 => {
+                        cur = e0;
+                        continue;
+                    }
+                    2 => {
+                        cur = e1;
+                        continue;
+                    }
                     3 => {
                         stack[sp] = e1;
                         sp += 1;

@@ -233,12 +233,17 @@ impl Builder<'_> {
     fn median_split(&mut self, start: usize, end: usize, cb: &Aabb) -> usize {
         let mid = start + (end - start) / 2;
         let ext = cb.max - cb.min;
-        let axis = if ext.x >= ext.y && ext.x >= ext.z { 0 } else if ext.y >= ext.z { 1 } else { 2 };
+        let axis = if ext.x >= ext.y && ext.x >= ext.z {
+            0
+        } else if ext.y >= ext.z {
+            1
+        } else {
+            2
+        };
         if ext[axis] > 0.0 {
             let cs = self.centroids;
-            self.order[start..end].select_nth_unstable_by(mid - start, |&a, &b| {
-                cs[a as usize][axis].total_cmp(&cs[b as usize][axis])
-            });
+            self.order[start..end]
+                .select_nth_unstable_by(mid - start, |&a, &b| cs[a as usize][axis].total_cmp(&cs[b as usize][axis]));
         }
         mid
     }

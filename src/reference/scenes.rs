@@ -8,7 +8,15 @@ use crate::scene::{LightKind, MaterialId, PunctualLight, Scene, SceneBuilder};
 
 /// A UV sphere facing outwards: `rings` latitude bands × `segments` longitudes,
 /// `2·segments·(rings − 1)` triangles (no degenerate triangles at the poles).
-pub fn uv_sphere(b: &mut SceneBuilder, name: &str, centre: Vec3, radius: f32, rings: u32, segments: u32, material: MaterialId) {
+pub fn uv_sphere(
+    b: &mut SceneBuilder,
+    name: &str,
+    centre: Vec3,
+    radius: f32,
+    rings: u32,
+    segments: u32,
+    material: MaterialId,
+) {
     let (rings, segments) = (rings.max(2), segments.max(3));
     let mut pos = vec![centre + Vec3::Y * radius];
     for r in 1..rings {
@@ -120,7 +128,12 @@ pub fn furnished_room() -> Scene {
     for (x, z) in [(1.5, 1.5), (3.5, 2.5)] {
         b.quad(
             "lamp",
-            [Vec3::new(x, 2.99, z), Vec3::new(x + 1.0, 2.99, z), Vec3::new(x + 1.0, 2.99, z + 1.0), Vec3::new(x, 2.99, z + 1.0)],
+            [
+                Vec3::new(x, 2.99, z),
+                Vec3::new(x + 1.0, 2.99, z),
+                Vec3::new(x + 1.0, 2.99, z + 1.0),
+                Vec3::new(x, 2.99, z + 1.0),
+            ],
             lamp,
         );
     }

@@ -158,7 +158,11 @@ fn closed_boxes_have_no_leaks_through_edges_or_vertices() {
         let bvh = Bvh::new(&g);
         // Aim at every vertex and every edge midpoint of the tessellation (where a
         // non-watertight test leaks), from random interior points, plus random directions.
-        let mut targets: Vec<Vec3> = g.corners.iter().flat_map(|c| [c[0], c[1], c[2], (c[0] + c[1]) * 0.5, (c[1] + c[2]) * 0.5, (c[2] + c[0]) * 0.5]).collect();
+        let mut targets: Vec<Vec3> = g
+            .corners
+            .iter()
+            .flat_map(|c| [c[0], c[1], c[2], (c[0] + c[1]) * 0.5, (c[1] + c[2]) * 0.5, (c[2] + c[0]) * 0.5])
+            .collect();
         targets.dedup();
         let mut r = Rng::new(9, k as u64);
         let mut rays = 0;
@@ -262,4 +266,3 @@ fn tiny_and_empty_scenes() {
     let h = bvh.intersect(o, centroid - o, 0.0, f32::INFINITY).unwrap();
     assert!((h.t - 1.0).abs() < 1e-5 && h.tri == 0);
 }
-

@@ -51,7 +51,14 @@ fn quads_match_lamberts_polygon_formula() {
         ("parallel 1 m at 1 m", Vec3::Y, 0.5, Quat::IDENTITY, Vec3::ZERO, Vec3::Y),
         ("parallel, off-axis point", Vec3::Y, 0.5, Quat::IDENTITY, Vec3::new(0.7, 0.0, 0.3), Vec3::Y),
         ("tilted quad", Vec3::new(0.2, 1.2, -0.1), 0.6, tilt, Vec3::ZERO, Vec3::Y),
-        ("tilted quad, tilted receiver", Vec3::new(0.2, 1.2, -0.1), 0.6, tilt, Vec3::new(-0.3, 0.0, 0.2), Vec3::new(0.3, 0.9, 0.1).normalize()),
+        (
+            "tilted quad, tilted receiver",
+            Vec3::new(0.2, 1.2, -0.1),
+            0.6,
+            tilt,
+            Vec3::new(-0.3, 0.0, 0.2),
+            Vec3::new(0.3, 0.9, 0.1).normalize(),
+        ),
         ("tiny 4 cm emitter at 2 m", Vec3::new(0.0, 2.0, 0.0), 0.02, Quat::IDENTITY, Vec3::ZERO, Vec3::Y),
         ("huge 40 m emitter at 0.5 m", Vec3::new(0.0, 0.5, 0.0), 20.0, Quat::IDENTITY, Vec3::ZERO, Vec3::Y),
     ];
@@ -119,7 +126,12 @@ fn textured_emission_is_sampled_by_its_mean_and_integrated_exactly() {
     });
     s.materials[0].emissive_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
     // Corners in order: (−h,−h), (h,−h), (h,h), (−h,h) in (x, z): u = x + ½.
-    s.meshes[0].uv0 = Some(vec![glam::Vec2::new(0.0, 0.5), glam::Vec2::new(1.0, 0.5), glam::Vec2::new(1.0, 0.5), glam::Vec2::new(0.0, 0.5)]);
+    s.meshes[0].uv0 = Some(vec![
+        glam::Vec2::new(0.0, 0.5),
+        glam::Vec2::new(1.0, 0.5),
+        glam::Vec2::new(1.0, 0.5),
+        glam::Vec2::new(0.0, 0.5),
+    ]);
     let profile = |u: f32| ((u - 0.25) / 0.5).clamp(0.0, 1.0);
     let (p, n) = (Vec3::new(0.1, 0.0, 0.0), Vec3::Y);
     let strips = 400;
@@ -127,7 +139,12 @@ fn textured_emission_is_sampled_by_its_mean_and_integrated_exactly() {
     for k in 0..strips {
         let (u0, u1) = (k as f32 / strips as f32, (k + 1) as f32 / strips as f32);
         let mean = (0..8).map(|j| profile(u0 + (u1 - u0) * (j as f32 + 0.5) / 8.0)).sum::<f32>() / 8.0;
-        let strip = [Vec3::new(u0 - 0.5, 1.0, -0.5), Vec3::new(u1 - 0.5, 1.0, -0.5), Vec3::new(u1 - 0.5, 1.0, 0.5), Vec3::new(u0 - 0.5, 1.0, 0.5)];
+        let strip = [
+            Vec3::new(u0 - 0.5, 1.0, -0.5),
+            Vec3::new(u1 - 0.5, 1.0, -0.5),
+            Vec3::new(u1 - 0.5, 1.0, 0.5),
+            Vec3::new(u0 - 0.5, 1.0, 0.5),
+        ];
         want += lambert_polygon(p, n, &strip, le * mean);
     }
     let t = ReferenceTracer::new(&s);
@@ -158,8 +175,14 @@ fn alpha_masked_emitters_emit_only_where_opaque() {
     });
     s.materials[0].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
     s.materials[0].alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
-    s.meshes[0].uv0 = Some(vec![glam::Vec2::new(0.0, 0.5), glam::Vec2::new(1.0, 0.5), glam::Vec2::new(1.0, 0.5), glam::Vec2::new(0.0, 0.5)]);
-    let half = [Vec3::new(0.0, 1.0, -0.5), Vec3::new(0.5, 1.0, -0.5), Vec3::new(0.5, 1.0, 0.5), Vec3::new(0.0, 1.0, 0.5)];
+    s.meshes[0].uv0 = Some(vec![
+        glam::Vec2::new(0.0, 0.5),
+        glam::Vec2::new(1.0, 0.5),
+        glam::Vec2::new(1.0, 0.5),
+        glam::Vec2::new(0.0, 0.5),
+    ]);
+    let half =
+        [Vec3::new(0.0, 1.0, -0.5), Vec3::new(0.5, 1.0, -0.5), Vec3::new(0.5, 1.0, 0.5), Vec3::new(0.0, 1.0, 0.5)];
     let t = ReferenceTracer::new(&s);
     for p in [Vec3::ZERO, Vec3::new(-0.4, 0.0, 0.2)] {
         let want = lambert_polygon(p, Vec3::Y, &half, le);

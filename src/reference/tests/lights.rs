@@ -24,7 +24,12 @@ fn floor_scene(lights: Vec<PunctualLight>, occluders: &[(Vec3, f32, bool)]) -> S
     b.floor("floor", Vec3::ZERO, 20.0, floor);
     for &(c, size, facing_up) in occluders {
         let h = size * 0.5;
-        let mut q = [c + Vec3::new(-h, 0.0, h), c + Vec3::new(h, 0.0, h), c + Vec3::new(h, 0.0, -h), c + Vec3::new(-h, 0.0, -h)];
+        let mut q = [
+            c + Vec3::new(-h, 0.0, h),
+            c + Vec3::new(h, 0.0, h),
+            c + Vec3::new(h, 0.0, -h),
+            c + Vec3::new(-h, 0.0, -h),
+        ];
         if !facing_up {
             q.reverse();
         }
@@ -88,7 +93,10 @@ fn spot_light_cones_follow_gltf_quadratic_falloff() {
     let h = 2.0;
     let (inner, outer) = (20.0f32.to_radians(), 30.0f32.to_radians());
     let lp = Vec3::new(0.0, h, 0.0);
-    let s = floor_scene(vec![light(LightKind::Spot { inner_cone: inner, outer_cone: outer }, i, lp, Vec3::NEG_Y, None)], &[]);
+    let s = floor_scene(
+        vec![light(LightKind::Spot { inner_cone: inner, outer_cone: outer }, i, lp, Vec3::NEG_Y, None)],
+        &[],
+    );
     let t = ReferenceTracer::new(&s);
     for deg in [0.0f32, 10.0, 19.0, 21.0, 25.0, 29.0, 31.0, 40.0] {
         let a = deg.to_radians();

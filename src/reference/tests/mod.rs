@@ -26,12 +26,16 @@ pub(super) fn assert_estimate(est: &IrradianceEstimate, exact: Rgb, max_rel_stde
         let (e, x, s) = (est.e[c], exact[c], est.stderr[c]);
         assert!(s <= max_rel_stderr * x.abs(), "{what}: channel {c}: stderr {s} too large for {x} (E = {e})");
         let dev = (e - x) / s.max(1e-30);
-        assert!((e - x).abs() <= 5.0 * s + floor * x.abs(), "{what}: channel {c}: E = {e} ± {s}, exact {x} ({dev:.2}σ)");
+        assert!(
+            (e - x).abs() <= 5.0 * s + floor * x.abs(),
+            "{what}: channel {c}: E = {e} ± {s}, exact {x} ({dev:.2}σ)"
+        );
     }
 }
 
 /// E at (p, n) with `spp` paths, stream derived from the point so different checks differ.
 pub(super) fn estimate(t: &ReferenceTracer<'_>, p: Vec3, n: Vec3, spp: u32) -> IrradianceEstimate {
-    let stream = (p.x.to_bits() as u64) ^ ((p.y.to_bits() as u64) << 21) ^ ((p.z.to_bits() as u64) << 42) ^ n.x.to_bits() as u64;
+    let stream =
+        (p.x.to_bits() as u64) ^ ((p.y.to_bits() as u64) << 21) ^ ((p.z.to_bits() as u64) << 42) ^ n.x.to_bits() as u64;
     t.irradiance_estimate(p, n, spp, 0x5eed, stream)
 }

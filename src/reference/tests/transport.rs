@@ -105,7 +105,12 @@ fn two_rooms(albedo: f32, wall_double_sided: bool, wall_top: f32, light_pos: Vec
     b.cuboid("rooms", Vec3::ZERO, Vec3::new(4.0, 2.0, 2.0), true, walls);
     b.quad(
         "divider",
-        [Vec3::new(2.0, 0.0, 0.0), Vec3::new(2.0, 0.0, 2.0), Vec3::new(2.0, wall_top, 2.0), Vec3::new(2.0, wall_top, 0.0)],
+        [
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(2.0, 0.0, 2.0),
+            Vec3::new(2.0, wall_top, 2.0),
+            Vec3::new(2.0, wall_top, 0.0),
+        ],
         divider,
     );
     b.quad(
