@@ -1,0 +1,180 @@
+//! Synthetic scenes for tests and benchmarks of the reference tracer (and later of the
+//! baker against it).
+
+use glam::Vec3;
+
+use crate::scene::builder::diffuse;
+use crate::scene::{LightKind, MaterialId, PunctualLight, Scene, SceneBuilder};
+
+/// A UV sphere facing outwards: `rings` latitude bands × `segments` longitudes,
+/// `2·segments·(rings − 1)` triangles (no degenerate triangles at the poles).
+pub fn uv_sphere(
+    b: &mut SceneBuilder,
+    name: &str,
+    centre: Vec3,
+    radius: f32,
+    rings: u32,
+    segments: u32,
+    material: MaterialId,
+) {
+    let (rings, segments) = (rings.max(2), segments.max(3));
+    let mut pos = vec![centre + Vec3::Y * radius];
+    for r in 1..rings {
+        let theta = std::f32::consts::PI * r as f32 / rings as f32;
+        for s in 0..segments {
+            let phi = std::f32::consts::TAU * s as f32 / segments as f32;
+            let dir = Vec3::new(theta.sin() * phi.cos(), theta.cos(), -theta.sin() * phi.sin());
+            pos.push(centre + dir * radius);
+        }
+    }
+    pos.push(centre - Vec3::Y * radius);
+    let south = pos.len() as u32 - 1;
+    let ring = |r: u32, s: u32| 1 + (r - 1) * segments + s % segments;
+    let mut tris = Vec::new();
+    for s in 0..segments {
+        tris.push([0, ring(1, s), ring(1, s + 1)]);
+        tris.push([south, ring(rings - 1, s + 1), ring(rings - 1, s)]);
+    }
+    for r in 1..rings - 1 {
+        for s in 0..segments {
+            let (a, b2, c, d) = (ring(r, s), ring(r + 1, s), ring(r + 1, s + 1), ring(r, s + 1));
+            tris.push([a, b2, c]);
+            tris.push([a, c, d]);
+        }
+    }
+    b.mesh(name, pos, tris, material);
+}
+
+/// The six faces of an axis-aligned room from `lo` to `hi`, facing inwards, each a grid quad:
+/// the floor `n_floor²` cells, the ceiling `n_ceiling²`, each wall `n_wall²`.
+#[allow(clippy::too_many_arguments)]
+pub fn grid_room(
+    b: &mut SceneBuilder,
+    lo: Vec3,
+    hi: Vec3,
+    (n_floor, n_ceiling, n_wall): (u32, u32, u32),
+    floor: MaterialId,
+    ceiling: MaterialId,
+    walls: MaterialId,
+) {
+    let p = |x: usize, y: usize, z: usize| Vec3::new([lo.x, hi.x][x], [lo.y, hi.y][y], [lo.z, hi.z][z]);
+    // Corners a, b, c, d with (b − a) × (d − a) pointing into the room.
+    b.grid_quad("floor", [p(0, 0, 1), p(1, 0, 1), p(1, 0, 0), p(0, 0, 0)], n_floor, floor);
+    b.grid_quad("ceiling", [p(0, 1, 0), p(1, 1, 0), p(1, 1, 1), p(0, 1, 1)], n_ceiling, ceiling);
+    b.grid_quad("wall -x", [p(0, 0, 0), p(0, 1, 0), p(0, 1, 1), p(0, 0, 1)], n_wall, walls);
+    b.grid_quad("wall +x", [p(1, 0, 0), p(1, 0, 1), p(1, 1, 1), p(1, 1, 0)], n_wall, walls);
+    b.grid_quad("wall -z", [p(0, 0, 0), p(1, 0, 0), p(1, 1, 0), p(0, 1, 0)], n_wall, walls);
+    b.grid_quad("wall +z", [p(0, 0, 1), p(0, 1, 1), p(1, 1, 1), p(1, 0, 1)], n_wall, walls);
+}
+
+/// A box with four legs (table, stool...): top from `lo` to `hi`, legs down to y = `floor`.
+fn table(b: &mut SceneBuilder, name: &str, lo: Vec3, hi: Vec3, floor: f32, leg: f32, m: MaterialId) {
+    b.cuboid(name, lo, hi, false, m);
+    for (x, z) in [(lo.x, lo.z), (hi.x - leg, lo.z), (lo.x, hi.z - leg), (hi.x - leg, hi.z - leg)] {
+        b.cuboid(name, Vec3::new(x, floor, z), Vec3::new(x + leg, lo.y, z + leg), false, m);
+    }
+}
+
+/// A closed 6 × 3 × 5 m room with furniture, ~10k triangles: grid-tessellated walls
+/// (floor 40², ceiling 20², walls 16² cells), a UV sphere (28 × 48), a rug (20²), a
+/// table and four chairs with legs, a bookshelf, a sofa, a double-sided painting panel,
+/// two single-sided emissive ceiling panels (1 × 1 m, Le = 8) and a point light (5 W/sr).
+pub fn furnished_room() -> Scene {
+    let mut b = SceneBuilder::new();
+    let wall = b.material(diffuse(Vec3::new(0.80, 0.78, 0.72), Vec3::ZERO, false));
+    let floor = b.material(diffuse(Vec3::new(0.45, 0.32, 0.20), Vec3::ZERO, false));
+    let ceiling = b.material(diffuse(Vec3::splat(0.85), Vec3::ZERO, false));
+    let wood = b.material(diffuse(Vec3::new(0.55, 0.40, 0.25), Vec3::ZERO, false));
+    let fabric = b.material(diffuse(Vec3::new(0.20, 0.30, 0.55), Vec3::ZERO, false));
+    let rug = b.material(diffuse(Vec3::new(0.60, 0.15, 0.12), Vec3::ZERO, false));
+    let ball = b.material(diffuse(Vec3::new(0.70, 0.70, 0.70), Vec3::ZERO, false));
+    let painting = b.material(diffuse(Vec3::new(0.30, 0.60, 0.35), Vec3::ZERO, true));
+    let lamp = b.material(diffuse(Vec3::splat(0.9), Vec3::splat(8.0), false));
+
+    grid_room(&mut b, Vec3::ZERO, Vec3::new(6.0, 3.0, 5.0), (40, 20, 16), floor, ceiling, wall);
+    uv_sphere(&mut b, "sphere", Vec3::new(4.6, 0.6, 1.2), 0.6, 28, 48, ball);
+    b.grid_quad(
+        "rug",
+        [Vec3::new(1.5, 0.01, 4.0), Vec3::new(4.5, 0.01, 4.0), Vec3::new(4.5, 0.01, 2.0), Vec3::new(1.5, 0.01, 2.0)],
+        20,
+        rug,
+    );
+    table(&mut b, "table", Vec3::new(2.2, 0.72, 2.5), Vec3::new(3.8, 0.76, 3.5), 0.01, 0.06, wood);
+    for (i, (x, z)) in [(2.5, 2.0), (3.2, 2.0), (2.5, 3.6), (3.2, 3.6)].into_iter().enumerate() {
+        let name = format!("chair{i}");
+        table(&mut b, &name, Vec3::new(x, 0.42, z), Vec3::new(x + 0.42, 0.46, z + 0.42), 0.01, 0.04, wood);
+        let (bz0, bz1) = if z < 3.0 { (z - 0.04, z) } else { (z + 0.42, z + 0.46) };
+        b.cuboid(&name, Vec3::new(x, 0.46, bz0), Vec3::new(x + 0.42, 0.95, bz1), false, wood);
+    }
+    // Bookshelf against the −x wall: carcass and shelves.
+    b.cuboid("shelf", Vec3::new(0.0, 0.0, 0.5), Vec3::new(0.35, 2.0, 0.52), false, wood);
+    b.cuboid("shelf", Vec3::new(0.0, 0.0, 1.98), Vec3::new(0.35, 2.0, 2.0), false, wood);
+    for k in 0..5 {
+        let y = 0.05 + 0.45 * k as f32;
+        b.cuboid("shelf", Vec3::new(0.0, y, 0.52), Vec3::new(0.35, y + 0.03, 1.98), false, wood);
+    }
+    // Sofa against the +z wall.
+    b.cuboid("sofa", Vec3::new(1.8, 0.0, 4.1), Vec3::new(4.2, 0.45, 4.95), false, fabric);
+    b.cuboid("sofa", Vec3::new(1.8, 0.45, 4.7), Vec3::new(4.2, 0.95, 4.95), false, fabric);
+    b.cuboid("sofa", Vec3::new(1.6, 0.0, 4.1), Vec3::new(1.8, 0.65, 4.95), false, fabric);
+    b.cuboid("sofa", Vec3::new(4.2, 0.0, 4.1), Vec3::new(4.4, 0.65, 4.95), false, fabric);
+    // A double-sided painting panel standing free in front of the +x wall.
+    b.grid_quad(
+        "painting",
+        [Vec3::new(5.6, 1.0, 3.0), Vec3::new(5.6, 1.0, 4.2), Vec3::new(5.6, 2.0, 4.2), Vec3::new(5.6, 2.0, 3.0)],
+        10,
+        painting,
+    );
+    for (x, z) in [(1.5, 1.5), (3.5, 2.5)] {
+        b.quad(
+            "lamp",
+            [
+                Vec3::new(x, 2.99, z),
+                Vec3::new(x + 1.0, 2.99, z),
+                Vec3::new(x + 1.0, 2.99, z + 1.0),
+                Vec3::new(x, 2.99, z + 1.0),
+            ],
+            lamp,
+        );
+    }
+    b.light(PunctualLight {
+        name: "bulb".into(),
+        kind: LightKind::Point,
+        intensity: Vec3::new(5.0, 4.5, 3.5),
+        position: Vec3::new(1.0, 2.2, 3.8),
+        direction: Vec3::NEG_Y,
+        range: None,
+    });
+    b.build()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::SceneGeometry;
+
+    #[test]
+    fn room_faces_inwards_and_sphere_outwards() {
+        let mut b = SceneBuilder::new();
+        let m = b.material(diffuse(Vec3::ONE, Vec3::ZERO, false));
+        let (lo, hi) = (Vec3::ZERO, Vec3::new(6.0, 3.0, 5.0));
+        grid_room(&mut b, lo, hi, (3, 2, 2), m, m, m);
+        let c = Vec3::new(2.0, 1.0, 2.0);
+        uv_sphere(&mut b, "s", c, 0.5, 6, 8, m);
+        let s = b.build();
+        let g = SceneGeometry::new(&s);
+        assert_eq!(g.len(), 2 * (9 + 4 + 4 * 4) + 2 * 8 * 5);
+        for t in 0..g.len() {
+            let centroid = (g.corners[t][0] + g.corners[t][1] + g.corners[t][2]) / 3.0;
+            let into = if g.mesh[t] < 6 { (lo + hi) * 0.5 - centroid } else { centroid - c };
+            assert!(g.normals[t].dot(into) > 0.0, "triangle {t} of mesh {}", g.mesh[t]);
+            assert!(g.areas[t] > 0.0);
+        }
+    }
+
+    #[test]
+    fn furnished_room_has_about_ten_thousand_triangles() {
+        let n = furnished_room().triangle_count();
+        assert!((9_000..11_000).contains(&n), "{n}");
+    }
+}
