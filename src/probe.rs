@@ -65,11 +65,11 @@ impl<'a> SurfaceLocator<'a> {
         let n = n.try_normalize().ok_or(ProbeError::BadNormal(n.to_array()))?;
         let tol = self.tolerance;
         let origin = p + n * tol;
-        if let Some(hit) = self.bvh.intersect(self.geom, origin, -n, 0.0, 2.0 * tol) {
+        if let Some(hit) = self.bvh.intersect(origin, -n, 0.0, 2.0 * tol) {
             let side = Side::facing(self.geom.normals[hit.tri as usize], n);
             return Ok(SurfacePoint { tri: hit.tri, u: hit.u, v: hit.v, side, distance: (hit.t - tol).abs() });
         }
-        let c = self.bvh.closest_point(self.geom, p, tol).ok_or(ProbeError::NoSurface { tolerance: tol })?;
+        let c = self.bvh.closest_point(p, tol).ok_or(ProbeError::NoSurface { tolerance: tol })?;
         let side = Side::facing(self.geom.normals[c.tri as usize], n);
         Ok(SurfacePoint { tri: c.tri, u: c.u, v: c.v, side, distance: c.distance })
     }

@@ -8,6 +8,9 @@ pub trait Progress: Sync {
     fn begin(&self, _phase: &str, _total: u64) {}
     /// `n` more units done in the current phase.
     fn advance(&self, _n: u64) {}
+    /// `done` units of the current phase are finished (reports may arrive out of order from
+    /// worker threads; implementations keep the largest).
+    fn reached(&self, _done: u64) {}
     /// The current phase is over.
     fn end(&self) {}
 }

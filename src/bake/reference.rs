@@ -11,16 +11,14 @@ pub struct ReferenceBackend<'s> {
     tracer: ReferenceTracer<'s>,
     samples: u32,
     seed: u64,
-    threads: usize,
 }
 
 impl<'s> ReferenceBackend<'s> {
     pub fn new(scene: &'s Scene, config: &BakeConfig) -> Self {
         ReferenceBackend {
-            tracer: ReferenceTracer::new(scene),
+            tracer: ReferenceTracer::new(scene).with_threads(config.threads),
             samples: config.samples,
             seed: config.seed,
-            threads: config.threads(),
         }
     }
 
@@ -29,9 +27,7 @@ impl<'s> ReferenceBackend<'s> {
         progress.begin(&format!("LOD {} reference", texels.lod), queries.len() as u64);
         // Each LOD draws from its own seed so levels are independent estimates.
         let seed = crate::sampling::mix64(self.seed ^ ((texels.lod as u64) << 56));
-        let (e, stats) = self.tracer.irradiance_batch_threads(&queries, self.samples, seed, self.threads, &|n| {
-            progress.advance(n as u64)
-        });
+        let (e, stats) = self.tracer.irradiance_batch(&queries, self.samples, seed, &|done| progress.reached(done as u64));
         progress.end();
         let stats = BackendStats { samples_per_texel: self.samples, rays: stats.rays, seconds: stats.seconds };
         (e, stats)

@@ -57,7 +57,7 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
     let (scene, _) = load_scene(scene_path, options)?;
     let results: Vec<Result<Rgb, ProbeError>> = match options.backend {
         Backend::Reference => {
-            let tracer = ReferenceTracer::new(&scene);
+            let tracer = ReferenceTracer::new(&scene).with_threads(config.threads);
             let locator = SurfaceLocator::new(tracer.geometry(), tracer.bvh());
             let located: Vec<Result<SurfacePoint, ProbeError>> =
                 queries.iter().map(|q| locator.locate(q.p, q.n)).collect();
@@ -70,9 +70,7 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
                 .map(|(q, _)| (q.p, q.n.normalize()))
                 .collect();
             ui.begin_phase("probe reference", ok.len() as u64);
-            let (e, _) = tracer.irradiance_batch_threads(&ok, config.samples, config.seed, config.threads(), &|n| {
-                ui.advance_by(n as u64)
-            });
+            let (e, _) = tracer.irradiance_batch(&ok, config.samples, config.seed, &|done| ui.reached_at(done as u64));
             ui.end_phase();
             let mut e = e.into_iter();
             located.into_iter().map(|l| l.map(|_| e.next().unwrap_or(Rgb::ZERO))).collect()

@@ -27,8 +27,8 @@ impl Ui {
         Progress::begin(self, phase, total)
     }
 
-    pub fn advance_by(&self, n: u64) {
-        Progress::advance(self, n)
+    pub fn reached_at(&self, done: u64) {
+        Progress::reached(self, done)
     }
 
     pub fn end_phase(&self) {
@@ -60,6 +60,16 @@ impl Progress for Ui {
         self.with_bar(|b| {
             if let Some(bar) = b {
                 bar.inc(n);
+            }
+        });
+    }
+
+    fn reached(&self, done: u64) {
+        self.with_bar(|b| {
+            if let Some(bar) = b
+                && done > bar.position()
+            {
+                bar.set_position(done);
             }
         });
     }
