@@ -15,7 +15,7 @@ use glam::{Quat, Vec2, Vec3, Vec4};
 
 pub use builder::SceneBuilder;
 pub use geometry::{SceneGeometry, TriangleId};
-pub use gltf::{LoadError, LoadOptions, load_gltf};
+pub use gltf::{LoadError, LoadOptions, load_gltf, load_gltf_bytes};
 pub use texture::{Texture, TextureRef, WrapMode};
 
 /// Linear RGB triple (radiance, irradiance, albedo...). Units are given where it is used.
@@ -284,9 +284,13 @@ pub struct LoadStats {
     pub non_triangle_primitives_skipped: usize,
     /// Primitives whose normals were generated because the file had none.
     pub normals_generated: usize,
+    /// Vertex normals in the file that were zero or not finite, replaced by face normals.
+    pub normals_replaced: usize,
     pub textures: usize,
     pub lights: usize,
     pub cameras: usize,
+    /// What loading skipped or repaired, one line per kind (also logged with `tracing::warn!`).
+    pub warnings: Vec<String>,
 }
 
 /// A whole scene in world space.
