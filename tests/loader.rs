@@ -112,8 +112,8 @@ fn cornell_box_loads_with_its_known_facts() {
 
     // The room: 4 × 3 × 4 m, x, z ∈ [−2, 2], y ∈ [0, 3].
     let (lo, hi) = s.bounds().unwrap();
-    assert_close(lo, Vec3::new(-2.0, 0.0, -2.0), 1e-5);
-    assert_close(hi, Vec3::new(2.0, 3.0, 2.0), 1e-5);
+    assert_close(lo, Vec3::new(-2.0, 0.0, -2.0), 1e-6);
+    assert_close(hi, Vec3::new(2.0, 3.0, 2.0), 1e-6);
 
     // Two checker textures, sRGB, default sampler (repeat).
     let dims: Vec<_> = s.textures.iter().map(|t| (t.name.as_str(), t.width, t.height)).collect();
@@ -236,13 +236,28 @@ fn van_gogh_room_loads() {
     assert!(s.meshes.iter().all(|m| m.uv1.is_none() && m.uv0.is_some()));
     assert_eq!(s.stats.degenerate_triangles_dropped, 0);
     let (lo, hi) = s.bounds().unwrap();
-    assert_close(lo, Vec3::new(-1.8653, -0.024, -0.7744), 1e-3);
-    assert_close(hi, Vec3::new(1.6706, 3.8374, 5.9935), 1e-3);
+    assert_close(lo, Vec3::new(-1.8653, -0.024, -0.7744), 1e-6);
+    assert_close(hi, Vec3::new(1.6706, 3.8374, 5.9935), 1e-6);
     assert!(s.meshes.iter().all(|m| m.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-5)));
 }
 
 // ---------------------------------------------------------------------------------------------
 // broken input: one test per case, each asserting the variant and that the file is named
+
+#[test]
+fn errors_and_scenes_cross_threads() {
+    fn send_sync<T: Send + Sync + 'static>() {}
+    send_sync::<LoadError>();
+    send_sync::<Scene>();
+}
+
+#[test]
+fn missing_file_is_io() {
+    let d = tmp();
+    let p = d.path().join("nowhere.gltf");
+    let e = load_err(&p);
+    assert!(matches!(e, LoadError::Io { .. }), "{e}");
+}
 
 #[test]
 fn empty_file_is_not_gltf() {
@@ -1084,6 +1099,36 @@ fn sparse_accessors_and_accessors_without_buffer_view() {
 }
 
 #[test]
+fn quantized_attributes_with_khr_mesh_quantization() {
+    let d = tmp();
+    let mut doc = Doc::new();
+    // POSITION as plain u16 (scaled by the node), NORMAL as normalized i8.
+    let pos: Vec<u8> = [0u16, 0, 0, 0, 100, 0, 0, 0, 0, 100, 0, 0].iter().flat_map(|v| v.to_le_bytes()).collect();
+    let pv = doc.view(&pos, Some(8));
+    let p = doc.accessor(Some(pv), U16, "VEC3", 3, json!({ "min": [0, 0, 0], "max": [100, 100, 0] }));
+    let nrm: [i8; 12] = [0, 0, 127, 0, -128, 0, 0, 0, 0, 127, 0, 0];
+    let nv = doc.view(&nrm.map(|b| b as u8), Some(4));
+    let n = doc.accessor(Some(nv), 5120, "VEC3", 3, json!({ "normalized": true }));
+    doc.mesh_node(
+        vec![json!({ "attributes": { "POSITION": p, "NORMAL": n } })],
+        json!({ "scale": [0.01, 0.01, 0.01] }),
+    );
+    doc.json["extensionsUsed"] = json!(["KHR_mesh_quantization", "KHR_texture_transform"]);
+    doc.json["extensionsRequired"] = json!(["KHR_mesh_quantization"]);
+    let s = load(&doc.write_gltf(d.path(), "scene")).unwrap();
+    let m = &s.meshes[0];
+    assert_eq!(m.positions, TRI.map(Vec3::from).to_vec());
+    // (0, 0, 127) → +Z; (−128, 0, 0) → −1 (clamped) → −X; (0, 127, 0) → +Y.
+    assert_eq!(m.normals, vec![Vec3::Z, Vec3::NEG_X, Vec3::Y]);
+    let w = &s.stats.warnings;
+    assert!(
+        w.iter().any(|w| w.contains("not supported and were ignored") && w.contains("KHR_texture_transform")),
+        "{w:?}"
+    );
+    assert!(!w.iter().any(|w| w.contains("KHR_mesh_quantization")), "{w:?}");
+}
+
+#[test]
 fn punctual_lights_in_world_space() {
     let d = tmp();
     let mut doc = Doc::new();
@@ -1340,4 +1385,54 @@ fn flipped_bytes_never_panic() {
         b[pos] ^= masks[k % masks.len()];
         must_not_panic(glb_path, &b, &format!("glb byte {pos} ^ {:#x}", masks[k % masks.len()]));
     }
+}
+
+/// Load-time report: `cargo test --release --test loader -- --ignored --nocapture load_times`.
+#[test]
+#[ignore = "timing report; run in a release build"]
+fn load_times() {
+    for rel in [CORNELL, VAN_GOGH] {
+        let path = asset(rel);
+        let s = load(&path).unwrap(); // also warms the file cache
+        let n = 20;
+        let start = std::time::Instant::now();
+        for _ in 0..n {
+            load(&path).unwrap();
+        }
+        let ms = start.elapsed().as_secs_f64() * 1e3 / f64::from(n);
+        println!("{rel}: {} triangles, {} textures: {ms:.2} ms per load", s.triangle_count(), s.textures.len());
+    }
+}
+
+/// Longer corruption run (not part of the default suite):
+/// `LOADER_FUZZ_ITERS=20000 cargo test --release --test loader -- --ignored fuzz_long`.
+#[test]
+#[ignore = "long fuzz run; set LOADER_FUZZ_ITERS"]
+fn fuzz_long() {
+    let iters: usize = std::env::var("LOADER_FUZZ_ITERS").ok().and_then(|v| v.parse().ok()).unwrap_or(2000);
+    let glb = cornell_glb();
+    let glb_path = Path::new("/nonexistent/cornell.glb");
+    let json_end = 20 + u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let rand = positions(usize::MAX, iters * 4, 7);
+    let (mut ok, mut err) = (0, 0);
+    for i in 0..iters {
+        let mut b = glb.clone();
+        // 1–3 edits, half of them in the JSON chunk; digits stay digits there half the time.
+        for k in 0..1 + rand[4 * i] % 3 {
+            let r = rand[4 * i + 1 + k];
+            let pos = if r % 2 == 0 { r / 2 % json_end } else { r / 2 % b.len() };
+            b[pos] = match (r >> 8) % 4 {
+                0 if b[pos].is_ascii_digit() => b'0' + (r >> 12) as u8 % 10,
+                1 => 0xFF,
+                2 => 0,
+                _ => b[pos] ^ (1 << ((r >> 12) % 8)),
+            };
+        }
+        if must_not_panic(glb_path, &b, &format!("fuzz iteration {i}")) {
+            ok += 1;
+        } else {
+            err += 1;
+        }
+    }
+    println!("{iters} corrupted GLBs: {ok} loaded, {err} rejected");
 }

@@ -275,8 +275,11 @@ pub enum Projection {
 /// Counts of what loading skipped or repaired, for warnings and reports.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct LoadStats {
+    /// Nodes visited in the loaded scene.
     pub nodes: usize,
+    /// Triangle primitive instances loaded (one [`Mesh`] each).
     pub primitives: usize,
+    /// Triangles loaded (after dropping degenerate ones).
     pub triangles: usize,
     /// Zero-area (or non-finite-normal) triangles dropped.
     pub degenerate_triangles_dropped: usize,

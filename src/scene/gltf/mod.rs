@@ -102,15 +102,15 @@ pub fn load_gltf_bytes(path: &Path, bytes: &[u8], options: &LoadOptions) -> Resu
     diag.note(Kind::UnsupportedExtensionUsed, parsed.ignored_extensions.len(), || parsed.ignored_extensions.join(", "));
 
     let mut scene = Scene { source: Some(PathBuf::from(path)), ..Scene::default() };
-    let mut textures = images::TextureCache::default();
-    scene.materials = materials::convert_all(&ctx, &mut textures, &mut diag)?;
     let roots = nodes::scene_roots(&ctx, options)?;
     let instances = nodes::traverse(&ctx, &roots, &mut diag)?;
     scene.stats.nodes = instances.len();
 
-    let mut default_material: Option<MaterialId> = None;
+    // Geometry first (cheap, and what most errors are about); images are decoded only for a
+    // scene that has something to light.
+    let mut uses_default_material = false;
     for inst in &instances {
-        load_node_meshes(&ctx, &mut diag, &mut scene, &mut default_material, inst)?;
+        load_node_meshes(&ctx, &mut diag, &mut scene, &mut uses_default_material, inst)?;
         if let Some(light) = lights::light_of(&ctx, &mut diag, inst)? {
             scene.lights.push(light);
         }
@@ -118,11 +118,16 @@ pub fn load_gltf_bytes(path: &Path, bytes: &[u8], options: &LoadOptions) -> Resu
             scene.cameras.push(camera);
         }
     }
+    if scene.meshes.is_empty() {
+        return Err(no_triangles(path, &scene, &diag, &instances));
+    }
+    let mut textures = images::TextureCache::default();
+    scene.materials = materials::convert_all(&ctx, &mut textures, &mut diag)?;
+    if uses_default_material {
+        scene.materials.push(Material::default());
+    }
     scene.textures = textures.textures;
     finish_stats(&mut scene, &diag);
-    if scene.meshes.is_empty() {
-        return Err(no_triangles(path, &scene, &instances));
-    }
     scene.stats.warnings = diag.finish();
     for w in &scene.stats.warnings {
         tracing::warn!("{}: {w}", path.display());
@@ -146,7 +151,7 @@ fn load_node_meshes(
     ctx: &Ctx,
     diag: &mut Diagnostics,
     scene: &mut Scene,
-    default_material: &mut Option<MaterialId>,
+    uses_default_material: &mut bool,
     inst: &nodes::NodeInstance,
 ) -> Result<(), LoadError> {
     let Some(node) = ctx.root.nodes.get(inst.node) else { return Ok(()) };
@@ -163,12 +168,13 @@ fn load_node_meshes(
     let mesh_name = mesh.name.clone().unwrap_or_else(|| format!("mesh{mesh_index}"));
     for (p, prim) in mesh.primitives.iter().enumerate() {
         let material = match prim.material.map(|m| m.value()) {
-            Some(m) if m < scene.materials.len() => m as MaterialId,
+            Some(m) if m < ctx.root.materials.len() => m as MaterialId,
             Some(m) => return Err(ctx.invalid(format!("mesh {mesh_index} primitive {p}: material {m} does not exist"))),
-            None => *default_material.get_or_insert_with(|| {
-                scene.materials.push(Material::default());
-                (scene.materials.len() - 1) as MaterialId
-            }),
+            // glTF's default material goes right after the file's materials.
+            None => {
+                *uses_default_material = true;
+                ctx.root.materials.len() as MaterialId
+            }
         };
         let instance = primitive::Instance {
             prim,
@@ -201,16 +207,15 @@ fn finish_stats(scene: &mut Scene, diag: &Diagnostics) {
     s.cameras = scene.cameras.len();
 }
 
-fn no_triangles(path: &Path, scene: &Scene, instances: &[nodes::NodeInstance]) -> LoadError {
-    let s = &scene.stats;
+fn no_triangles(path: &Path, scene: &Scene, diag: &Diagnostics, instances: &[nodes::NodeInstance]) -> LoadError {
     let detail = if instances.is_empty() {
         "the scene has no nodes".to_string()
     } else {
         format!(
             "{} node(s) visited; {} point/line primitive(s) skipped, {} degenerate triangle(s) dropped",
             instances.len(),
-            s.non_triangle_primitives_skipped,
-            s.degenerate_triangles_dropped
+            scene.stats.non_triangle_primitives_skipped,
+            diag.count(Kind::DegenerateTriangles)
         )
     };
     LoadError::NoTriangles { file: path.to_path_buf(), detail }
