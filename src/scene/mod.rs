@@ -15,7 +15,7 @@ use glam::{Quat, Vec2, Vec3, Vec4};
 
 pub use builder::SceneBuilder;
 pub use geometry::{SceneGeometry, TriangleId};
-pub use gltf::{LoadError, LoadOptions, load_gltf};
+pub use gltf::{LoadError, LoadOptions, load_gltf, load_gltf_bytes};
 pub use texture::{Texture, TextureRef, WrapMode};
 
 /// Linear RGB triple (radiance, irradiance, albedo...). Units are given where it is used.
@@ -275,8 +275,11 @@ pub enum Projection {
 /// Counts of what loading skipped or repaired, for warnings and reports.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct LoadStats {
+    /// Nodes visited in the loaded scene.
     pub nodes: usize,
+    /// Triangle primitive instances loaded (one [`Mesh`] each).
     pub primitives: usize,
+    /// Triangles loaded (after dropping degenerate ones).
     pub triangles: usize,
     /// Zero-area (or non-finite-normal) triangles dropped.
     pub degenerate_triangles_dropped: usize,
@@ -284,9 +287,13 @@ pub struct LoadStats {
     pub non_triangle_primitives_skipped: usize,
     /// Primitives whose normals were generated because the file had none.
     pub normals_generated: usize,
+    /// Vertex normals in the file that were zero or not finite, replaced by face normals.
+    pub normals_replaced: usize,
     pub textures: usize,
     pub lights: usize,
     pub cameras: usize,
+    /// What loading skipped or repaired, one line per kind (also logged with `tracing::warn!`).
+    pub warnings: Vec<String>,
 }
 
 /// A whole scene in world space.

@@ -1,0 +1,157 @@
+//! Scene selection, node hierarchy traversal and world transforms.
+
+use ::gltf::json;
+use glam::{Mat3, Mat4, Quat, Vec3};
+
+use super::diag::{Diagnostics, Kind};
+use super::{Ctx, LoadError, LoadOptions};
+
+/// One visited node with its world transform (node → world, metres).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct NodeInstance {
+    pub node: usize,
+    pub world: Mat4,
+}
+
+/// Root nodes to load: `options.scene`, else the file's default scene, else the first scene,
+/// else (no scenes at all) every node that is nobody's child.
+pub(super) fn scene_roots(ctx: &Ctx, options: &LoadOptions) -> Result<Vec<usize>, LoadError> {
+    let root = ctx.root;
+    let chosen = options.scene.or(root.scene.map(|s| s.value())).or((!root.scenes.is_empty()).then_some(0));
+    match chosen {
+        Some(s) => {
+            let scene = root.scenes.get(s).ok_or_else(|| {
+                ctx.invalid(format!("scene {s} does not exist (the file has {} scenes)", root.scenes.len()))
+            })?;
+            Ok(scene.nodes.iter().map(|n| n.value()).collect())
+        }
+        None => {
+            let mut is_child = vec![false; root.nodes.len()];
+            for node in &root.nodes {
+                for c in node.children.iter().flatten() {
+                    if let Some(flag) = is_child.get_mut(c.value()) {
+                        *flag = true;
+                    }
+                }
+            }
+            Ok((0..root.nodes.len()).filter(|&n| !is_child.get(n).copied().unwrap_or(true)).collect())
+        }
+    }
+}
+
+/// Visits the hierarchy below `roots` depth-first (parents before children, in file order)
+/// without recursion, so a deep chain cannot overflow the stack. A node reached twice (a
+/// cycle, or a node shared by two parents) is an error: glTF requires disjoint trees.
+pub(super) fn traverse(ctx: &Ctx, roots: &[usize], diag: &mut Diagnostics) -> Result<Vec<NodeInstance>, LoadError> {
+    let nodes = &ctx.root.nodes;
+    let mut visited = vec![false; nodes.len()];
+    let mut out = Vec::new();
+    let mut stack: Vec<(usize, Mat4)> = roots.iter().rev().map(|&n| (n, Mat4::IDENTITY)).collect();
+    while let Some((index, parent)) = stack.pop() {
+        let node = nodes
+            .get(index)
+            .ok_or_else(|| ctx.invalid(format!("node {index} does not exist ({} nodes)", nodes.len())))?;
+        let seen = visited.get_mut(index).ok_or_else(|| ctx.invalid(format!("node {index} does not exist")))?;
+        if *seen {
+            return Err(ctx.invalid(format!(
+                "node {index}{} is reached twice: the node hierarchy has a cycle or a node with two parents",
+                name_suffix(&node.name)
+            )));
+        }
+        *seen = true;
+        let world = parent * local_transform(ctx, index, node, diag)?;
+        if !world.is_finite() {
+            return Err(ctx.invalid(format!(
+                "node {index}{}: its world transform overflows to non-finite values",
+                name_suffix(&node.name)
+            )));
+        }
+        out.push(NodeInstance { node: index, world });
+        for child in node.children.iter().flatten().rev() {
+            stack.push((child.value(), world));
+        }
+    }
+    Ok(out)
+}
+
+fn name_suffix(name: &Option<String>) -> String {
+    name.as_ref().map(|n| format!(" '{n}'")).unwrap_or_default()
+}
+
+/// The node's name, or `node<index>` when it has none.
+pub(super) fn node_name(ctx: &Ctx, index: usize) -> String {
+    ctx.root.nodes.get(index).and_then(|n| n.name.clone()).unwrap_or_else(|| format!("node{index}"))
+}
+
+/// `matrix` (column-major) or `T · R · S`.
+fn local_transform(ctx: &Ctx, index: usize, node: &json::Node, diag: &mut Diagnostics) -> Result<Mat4, LoadError> {
+    let bad = |what: &str| ctx.invalid(format!("node {index}{}: {what}", name_suffix(&node.name)));
+    if let Some(m) = node.matrix {
+        let m = Mat4::from_cols_array(&m);
+        if !m.is_finite() {
+            return Err(bad("matrix has non-finite values"));
+        }
+        return Ok(m);
+    }
+    let t = Vec3::from(node.translation.unwrap_or([0.0; 3]));
+    let s = Vec3::from(node.scale.unwrap_or([1.0; 3]));
+    let q = Quat::from_array(node.rotation.map_or([0.0, 0.0, 0.0, 1.0], |r| r.0));
+    if !t.is_finite() || !s.is_finite() || !q.is_finite() {
+        return Err(bad("translation, rotation or scale has non-finite values"));
+    }
+    let len = q.length();
+    if len == 0.0 {
+        return Err(bad("rotation is the zero quaternion"));
+    }
+    // glTF asks for unit quaternions; exporters round to ~1e-7. Anything clearly off is reported.
+    if (len - 1.0).abs() > 1e-3 {
+        diag.note(Kind::UnnormalizedRotation, 1, || node_name(ctx, index));
+    }
+    Ok(Mat4::from_scale_rotation_translation(s, q / len, t))
+}
+
+/// How normals transform: the inverse transpose of the linear part, computed as the cofactor
+/// matrix (`det · M⁻ᵀ`) times the sign of `det`, so it stays defined (and right up to length)
+/// for singular matrices; normals are renormalised afterwards. With a mirroring transform the
+/// triangle winding is flipped too, and then this keeps the shading normals on the front side.
+pub(super) fn normal_matrix(world: &Mat4) -> Mat3 {
+    let m = Mat3::from_mat4(*world);
+    let cof = Mat3::from_cols(m.y_axis.cross(m.z_axis), m.z_axis.cross(m.x_axis), m.x_axis.cross(m.y_axis));
+    if m.determinant() < 0.0 { -cof } else { cof }
+}
+
+/// Whether the transform mirrors (negative determinant): front faces would turn into back
+/// faces unless the winding is flipped.
+pub(super) fn mirrors(world: &Mat4) -> bool {
+    Mat3::from_mat4(*world).determinant() < 0.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn normal_matrix_is_inverse_transpose_up_to_scale() {
+        let world = Mat4::from_scale_rotation_translation(
+            Vec3::new(2.0, -0.5, 3.0),
+            Quat::from_rotation_y(0.7),
+            Vec3::new(1.0, 2.0, 3.0),
+        );
+        let expected = Mat3::from_mat4(world).inverse().transpose();
+        let got = normal_matrix(&world);
+        for n in [Vec3::X, Vec3::Y, Vec3::Z, Vec3::new(1.0, 2.0, -3.0)] {
+            let a = (expected * n).normalize();
+            let b = (got * n).normalize();
+            assert!((a - b).length() < 1e-6, "{a} vs {b}");
+        }
+        assert!(mirrors(&world));
+    }
+
+    #[test]
+    fn normal_matrix_survives_flattening() {
+        // Scale z to 0: the xy-plane normal still maps to ±z, not NaN.
+        let world = Mat4::from_scale(Vec3::new(1.0, 1.0, 0.0));
+        let n = normal_matrix(&world) * Vec3::Z;
+        assert_eq!(n.normalize(), Vec3::Z);
+    }
+}

@@ -1,0 +1,234 @@
+//! Writes small glTF files for the loader tests: a JSON document plus one binary buffer that
+//! can be saved as `.gltf` + `.bin`, `.gltf` with a `data:` URI, or `.glb`.
+
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use serde_json::{Value, json};
+
+pub const FLOAT: u32 = 5126;
+pub const U8: u32 = 5121;
+pub const U16: u32 = 5123;
+pub const U32: u32 = 5125;
+
+pub struct Doc {
+    pub json: Value,
+    pub bin: Vec<u8>,
+}
+
+impl Default for Doc {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Doc {
+    pub fn new() -> Doc {
+        Doc { json: json!({ "asset": { "version": "2.0" }, "scenes": [{ "nodes": [] }], "scene": 0 }), bin: Vec::new() }
+    }
+
+    /// Appends `value` to the top-level array `key` and returns its index.
+    pub fn push(&mut self, key: &str, value: Value) -> usize {
+        let obj = self.json.as_object_mut().unwrap();
+        let arr = obj.entry(key).or_insert_with(|| json!([])).as_array_mut().unwrap();
+        arr.push(value);
+        arr.len() - 1
+    }
+
+    /// A bufferView over `bytes` (4-byte aligned in the buffer).
+    pub fn view(&mut self, bytes: &[u8], stride: Option<usize>) -> usize {
+        while self.bin.len() % 4 != 0 {
+            self.bin.push(0);
+        }
+        let offset = self.bin.len();
+        self.bin.extend_from_slice(bytes);
+        let mut v = json!({ "buffer": 0, "byteOffset": offset, "byteLength": bytes.len() });
+        if let Some(s) = stride {
+            v["byteStride"] = json!(s);
+        }
+        self.push("bufferViews", v)
+    }
+
+    pub fn accessor(&mut self, view: Option<usize>, component: u32, ty: &str, count: usize, extra: Value) -> usize {
+        let mut a = json!({ "componentType": component, "type": ty, "count": count });
+        if let Some(v) = view {
+            a["bufferView"] = json!(v);
+        }
+        if let Value::Object(extra) = extra {
+            for (k, v) in extra {
+                a[k] = v;
+            }
+        }
+        self.push("accessors", a)
+    }
+
+    /// VEC3 float accessor with min/max (over the finite values, as the spec requires numbers).
+    pub fn vec3(&mut self, data: &[[f32; 3]]) -> usize {
+        let bytes: Vec<u8> = data.iter().flatten().flat_map(|f| f.to_le_bytes()).collect();
+        let view = self.view(&bytes, None);
+        let (min, max) = min_max(data);
+        self.accessor(Some(view), FLOAT, "VEC3", data.len(), json!({ "min": min, "max": max }))
+    }
+
+    pub fn vec2(&mut self, data: &[[f32; 2]]) -> usize {
+        let bytes: Vec<u8> = data.iter().flatten().flat_map(|f| f.to_le_bytes()).collect();
+        let view = self.view(&bytes, None);
+        self.accessor(Some(view), FLOAT, "VEC2", data.len(), json!({}))
+    }
+
+    pub fn indices_u16(&mut self, idx: &[u16]) -> usize {
+        let bytes: Vec<u8> = idx.iter().flat_map(|i| i.to_le_bytes()).collect();
+        let view = self.view(&bytes, None);
+        self.accessor(Some(view), U16, "SCALAR", idx.len(), json!({}))
+    }
+
+    pub fn indices_u32(&mut self, idx: &[u32]) -> usize {
+        let bytes: Vec<u8> = idx.iter().flat_map(|i| i.to_le_bytes()).collect();
+        let view = self.view(&bytes, None);
+        self.accessor(Some(view), U32, "SCALAR", idx.len(), json!({}))
+    }
+
+    pub fn indices_u8(&mut self, idx: &[u8]) -> usize {
+        let view = self.view(idx, None);
+        self.accessor(Some(view), U8, "SCALAR", idx.len(), json!({}))
+    }
+
+    /// A mesh with the given primitives, on a new root node with the given extra node
+    /// properties (name, transform...). Returns the node index.
+    pub fn mesh_node(&mut self, primitives: Vec<Value>, node: Value) -> usize {
+        let mesh =
+            self.push("meshes", json!({ "name": format!("mesh{}", self.count("meshes")), "primitives": primitives }));
+        let mut n = node;
+        n["mesh"] = json!(mesh);
+        let index = self.push("nodes", n);
+        self.add_root(index);
+        index
+    }
+
+    pub fn add_root(&mut self, node: usize) {
+        self.json["scenes"][0]["nodes"].as_array_mut().unwrap().push(json!(node));
+    }
+
+    pub fn count(&self, key: &str) -> usize {
+        self.json.get(key).and_then(Value::as_array).map_or(0, Vec::len)
+    }
+
+    /// A triangle-list primitive from positions (and optional normals / indices).
+    pub fn prim(&mut self, positions: &[[f32; 3]], normals: Option<&[[f32; 3]]>, indices: Option<&[u16]>) -> Value {
+        let mut p = json!({ "attributes": { "POSITION": self.vec3(positions) } });
+        if let Some(n) = normals {
+            p["attributes"]["NORMAL"] = json!(self.vec3(n));
+        }
+        if let Some(i) = indices {
+            p["indices"] = json!(self.indices_u16(i));
+        }
+        p
+    }
+
+    /// The document with buffer 0 pointing at `uri` (or the GLB BIN chunk if `None`).
+    pub fn json_with_buffer(&self, uri: Option<String>) -> Value {
+        let mut j = self.json.clone();
+        if !self.bin.is_empty() {
+            let mut b = json!({ "byteLength": self.bin.len() });
+            if let Some(u) = uri {
+                b["uri"] = json!(u);
+            }
+            j["buffers"] = json!([b]);
+        }
+        j
+    }
+
+    /// `<name>.gltf` + `<name>.bin`.
+    pub fn write_gltf(&self, dir: &Path, name: &str) -> PathBuf {
+        let bin_name = format!("{name}.bin");
+        std::fs::write(dir.join(&bin_name), &self.bin).unwrap();
+        let path = dir.join(format!("{name}.gltf"));
+        let j = self.json_with_buffer(Some(bin_name));
+        std::fs::write(&path, serde_json::to_vec_pretty(&j).unwrap()).unwrap();
+        path
+    }
+
+    /// `<name>.gltf` with the buffer embedded as a base64 `data:` URI.
+    pub fn write_data_uri(&self, dir: &Path, name: &str) -> PathBuf {
+        let uri = format!("data:application/octet-stream;base64,{}", base64(&self.bin));
+        let path = dir.join(format!("{name}.gltf"));
+        std::fs::write(&path, serde_json::to_vec(&self.json_with_buffer(Some(uri))).unwrap()).unwrap();
+        path
+    }
+
+    /// `<name>.glb`.
+    pub fn write_glb(&self, dir: &Path, name: &str) -> PathBuf {
+        let path = dir.join(format!("{name}.glb"));
+        std::fs::write(&path, glb(&self.json_with_buffer(None), &self.bin)).unwrap();
+        path
+    }
+}
+
+fn min_max(data: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
+    let mut lo = [f32::MAX; 3];
+    let mut hi = [f32::MIN; 3];
+    for p in data {
+        for k in 0..3 {
+            if p[k].is_finite() {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+    }
+    if data.iter().all(|p| !p.iter().all(|c| c.is_finite())) {
+        return ([0.0; 3], [0.0; 3]);
+    }
+    (lo, hi)
+}
+
+/// A GLB container: header, JSON chunk (space-padded), BIN chunk (zero-padded) if any.
+pub fn glb(json: &Value, bin: &[u8]) -> Vec<u8> {
+    let mut j = serde_json::to_vec(json).unwrap();
+    while j.len() % 4 != 0 {
+        j.push(b' ');
+    }
+    let mut b = bin.to_vec();
+    while b.len() % 4 != 0 {
+        b.push(0);
+    }
+    let total = 12 + 8 + j.len() + if b.is_empty() { 0 } else { 8 + b.len() };
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(j.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&j);
+    if !b.is_empty() {
+        out.extend_from_slice(&(b.len() as u32).to_le_bytes());
+        out.extend_from_slice(b"BIN\0");
+        out.extend_from_slice(&b);
+    }
+    out
+}
+
+pub fn base64(bytes: &[u8]) -> String {
+    const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for c in bytes.chunks(3) {
+        let n =
+            (u32::from(c[0]) << 16) | (u32::from(*c.get(1).unwrap_or(&0)) << 8) | u32::from(*c.get(2).unwrap_or(&0));
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(A[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+/// A `w × h` RGBA PNG.
+pub fn png(w: u32, h: u32, pixel: impl Fn(u32, u32) -> [u8; 4]) -> Vec<u8> {
+    let img = image::RgbaImage::from_fn(w, h, |x, y| image::Rgba(pixel(x, y)));
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png).unwrap();
+    out.into_inner()
+}
