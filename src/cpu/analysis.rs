@@ -1,0 +1,114 @@
+//! Scene analysis of one bundle direction on the CPU (paper Sect. 4.1–4.2): an R×R
+//! importance map (max over fragments of the triangle's texel density) and fragment-count
+//! map, plus a coarse grid of the triangles under each part of the window so tiles only
+//! scan the triangles that can touch them.
+
+use glam::Vec2;
+
+use super::prepared::PreparedScene;
+use crate::bundle::raster::{BundleFrame, ScreenTriangle, Viewport};
+
+/// Bins per side of the triangle grid over the analysis window.
+const BINS: u32 = 16;
+
+/// Analysis results of one direction.
+#[derive(Default)]
+pub struct Analysis {
+    pub res: u32,
+    /// Rays needed per m² of bundle at each analysis pixel (max over its fragments).
+    pub importance: Vec<f32>,
+    /// Fragments per analysis pixel (the depth complexity there).
+    pub fragments: Vec<f32>,
+    /// Triangles whose projection touches each bin (row-major, BINS×BINS).
+    bins: Vec<Vec<u32>>,
+    /// Per triangle: stamp of the last tile that collected it (dedupes bins).
+    stamp: Vec<u32>,
+    current_stamp: u32,
+}
+
+impl Analysis {
+    /// Rasterises every triangle of `scene` into the `viewport` (R×R) along `frame`.
+    /// Importance is scaled by `importance_scale` (oversampling², rays per texel area).
+    ///
+    /// A triangle too small to cover any analysis pixel centre still marks the pixel under
+    /// its centroid (a conservative touch): otherwise small objects would get no tile at all.
+    pub fn run(&mut self, scene: &PreparedScene, frame: &BundleFrame, viewport: &Viewport, importance_scale: f32) {
+        let res = viewport.res;
+        let n = (res * res) as usize;
+        self.res = res;
+        self.importance.clear();
+        self.importance.resize(n, 0.0);
+        self.fragments.clear();
+        self.fragments.resize(n, 0.0);
+        self.bins.resize_with((BINS * BINS) as usize, Vec::new);
+        self.bins.iter_mut().for_each(Vec::clear);
+        self.stamp.clear();
+        self.stamp.resize(scene.geom.len(), 0);
+        self.current_stamp = 0;
+        let bin_side = res as f32 / BINS as f32;
+        for (t, corners) in scene.geom.corners.iter().enumerate() {
+            let importance = scene.importance[t] * importance_scale;
+            let p = corners.map(|c| {
+                let f = frame.coords(c);
+                viewport.to_pixels(Vec2::new(f.x, f.y))
+            });
+            let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+            self.bin(t as u32, lo / bin_side, hi / bin_side);
+            let mut covered = false;
+            if let Some(screen) = ScreenTriangle::setup(frame, viewport, corners, scene.geom.normals[t]) {
+                screen.for_each_span(res, |y, x0, x1| {
+                    let row = (y * res) as usize;
+                    for x in x0 as usize..x1 as usize {
+                        let i = row + x;
+                        self.fragments[i] += 1.0;
+                        self.importance[i] = self.importance[i].max(importance);
+                    }
+                    covered = true;
+                });
+            }
+            if !covered {
+                let c = (p[0] + p[1] + p[2]) / 3.0;
+                if c.x >= 0.0 && c.y >= 0.0 && (c.x as u32) < res && (c.y as u32) < res {
+                    let i = (c.y as u32 * res + c.x as u32) as usize;
+                    self.importance[i] = self.importance[i].max(importance);
+                }
+            }
+        }
+    }
+
+    fn bin(&mut self, t: u32, lo: Vec2, hi: Vec2) {
+        let clamp = |v: f32| (v.max(0.0) as u32).min(BINS - 1);
+        if !(lo.is_finite() && hi.is_finite()) || hi.x < 0.0 || hi.y < 0.0 || lo.x >= BINS as f32 || lo.y >= BINS as f32 {
+            return;
+        }
+        for by in clamp(lo.y)..=clamp(hi.y) {
+            for bx in clamp(lo.x)..=clamp(hi.x) {
+                self.bins[(by * BINS + bx) as usize].push(t);
+            }
+        }
+    }
+
+    /// Triangles that may touch the window `[x0, x1) × [y0, y1)` (analysis pixels), each once,
+    /// in ascending order (so fragment build order, and with it the result, is deterministic).
+    pub fn candidates(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, out: &mut Vec<u32>) {
+        out.clear();
+        self.current_stamp = self.current_stamp.wrapping_add(1);
+        if self.current_stamp == 0 {
+            self.stamp.fill(0);
+            self.current_stamp = 1;
+        }
+        let bin_side = self.res as f64 / BINS as f64;
+        let clamp = |v: f64| ((v / bin_side).max(0.0) as u32).min(BINS - 1);
+        for by in clamp(y0)..=clamp(y1 - 1e-9) {
+            for bx in clamp(x0)..=clamp(x1 - 1e-9) {
+                for &t in &self.bins[(by * BINS + bx) as usize] {
+                    if self.stamp[t as usize] != self.current_stamp {
+                        self.stamp[t as usize] = self.current_stamp;
+                        out.push(t);
+                    }
+                }
+            }
+        }
+        out.sort_unstable();
+    }
+}

@@ -1,0 +1,291 @@
+//! One bundle direction on the CPU: analysis → mips → tile plan → per tile fragment build
+//! and resolve (global bundles), then the light bundles assigned to that direction.
+
+use std::time::Instant;
+
+use glam::Vec2;
+
+use super::analysis::Analysis;
+use super::fragments::FragmentBuffer;
+use super::prepared::PreparedScene;
+use crate::bundle::estimator::{HitSink, emit, exchange};
+use crate::bundle::mips::MipChain;
+use crate::bundle::progressive::BatchSums;
+use crate::bundle::raster::{BundleFrame, Viewport};
+use crate::bundle::stats::PassStats;
+use crate::bundle::tiles::{Tile, TileParams, TilePlanner, bundle_resolution, split};
+use crate::bundle::{BundleConfig, DirectionJob, LightJob};
+use crate::bundle::emitters::EmitterGroup;
+use crate::scene::Rgb;
+
+/// Read-only inputs shared by every lane.
+pub struct PassContext<'a> {
+    pub scene: &'a PreparedScene<'a>,
+    pub config: &'a BundleConfig,
+    pub groups: &'a [EmitterGroup],
+    pub sky: Rgb,
+    /// Light-pass bundle pixel side, metres.
+    pub light_pixel: f32,
+    /// Per triangle: its corners' frame coordinates are recomputed per light direction;
+    /// this is the list of all triangles, the light pass's candidates before culling.
+    pub all_triangles: Vec<u32>,
+}
+
+/// Per-lane scratch buffers, reused across directions.
+#[derive(Default)]
+pub struct Scratch {
+    analysis: Analysis,
+    fragments: FragmentBuffer,
+    candidates: Vec<u32>,
+    queue: Vec<Tile>,
+}
+
+struct BundleHits<'a>(&'a mut [[f32; 4]]);
+
+impl HitSink for BundleHits<'_> {
+    #[inline]
+    fn hit(&mut self, texel: u32, l: Rgb, a: f32) {
+        let s = &mut self.0[texel as usize];
+        s[0] += l.x;
+        s[1] += l.y;
+        s[2] += l.z;
+        s[3] += a;
+    }
+}
+
+struct LightHits<'a>(&'a mut [Rgb]);
+
+impl HitSink for LightHits<'_> {
+    #[inline]
+    fn hit(&mut self, texel: u32, l: Rgb, _a: f32) {
+        self.0[texel as usize] += l;
+    }
+}
+
+fn seconds(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64()
+}
+
+/// Traces global direction `job` and its light bundles into `sums`.
+pub fn trace_direction(
+    ctx: &PassContext,
+    job: &DirectionJob,
+    source: &[Rgb],
+    sums: &mut BatchSums,
+    s: &mut Scratch,
+    stats: &mut PassStats,
+) {
+    trace_global(ctx, job, source, sums, s, stats);
+    let t = Instant::now();
+    for light in &job.lights {
+        trace_light(ctx, light, sums, s, stats);
+    }
+    stats.light_seconds += seconds(t);
+    stats.directions += 1;
+}
+
+/// The analysis window of a direction: the bounding sphere's square, R pixels, with one
+/// spare pixel so the per-direction jitter never shifts geometry out of it.
+fn analysis_viewport(ctx: &PassContext, frame: &BundleFrame, jitter: Vec2) -> Viewport {
+    let res = ctx.config.analysis_res;
+    let r = ctx.scene.radius;
+    let c = frame.coords(ctx.scene.centre);
+    let pixel = 2.0 * r / (res - 1) as f32;
+    Viewport { origin: Vec2::new(c.x - r, c.y - r) - jitter * pixel, pixel, res }
+}
+
+fn tile_viewport(global: &Viewport, tile: &Tile) -> Viewport {
+    let w = tile.window();
+    let side = w.side as f32 * global.pixel;
+    Viewport {
+        origin: global.origin + Vec2::new(w.x as f32, w.y as f32) * global.pixel,
+        pixel: side / tile.res as f32,
+        res: tile.res,
+    }
+}
+
+fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mut BatchSums, s: &mut Scratch, stats: &mut PassStats) {
+    let cfg = ctx.config;
+    let frame = BundleFrame::new(job.dir);
+    let global = analysis_viewport(ctx, &frame, job.jitter);
+
+    let t = Instant::now();
+    s.analysis.run(ctx.scene, &frame, &global, cfg.oversampling * cfg.oversampling);
+    stats.analysis_seconds += seconds(t);
+
+    let t = Instant::now();
+    let res = global.res;
+    let importance = MipChain::max_mips(res, std::mem::take(&mut s.analysis.importance));
+    let fragments = MipChain::average_mips(res, std::mem::take(&mut s.analysis.fragments));
+    stats.mip_seconds += seconds(t);
+    let (Ok(importance), Ok(fragments)) = (importance, fragments) else {
+        // R is validated as a power of two when the config is built.
+        return;
+    };
+
+    let t = Instant::now();
+    let params = TileParams { w: cfg.head_side, n: cfg.node_capacity, alpha: cfg.alpha, pixel_area: (global.pixel as f64).powi(2) };
+    let Ok(planner) = TilePlanner::new(&importance, &fragments, params) else { return };
+    let Ok(plan) = planner.plan(cfg.tiling) else { return };
+    stats.subdivision_seconds += seconds(t);
+    stats.plan.add(&plan.stats);
+
+    if cfg.measure_false_alarms {
+        count_false_alarms(ctx, &planner, &plan.tiles, &frame, &global, s, stats);
+    }
+
+    s.queue.clear();
+    s.queue.extend(plan.tiles.iter().rev());
+    while let Some(tile) = s.queue.pop() {
+        let vp = tile_viewport(&global, &tile);
+        let w = tile.window();
+        s.analysis.candidates(w.x, w.y, w.x + w.side, w.y + w.side, &mut s.candidates);
+        let t = Instant::now();
+        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None);
+        if count > cfg.node_capacity {
+            stats.build_seconds += seconds(t);
+            overflowed(&tile, count, cfg.node_capacity, &mut s.queue, stats);
+            if !(stats.unsplittable_tiles > 0 && split(&tile).is_err()) {
+                continue;
+            }
+        }
+        s.fragments.build(ctx.scene);
+        stats.build_seconds += seconds(t);
+        stats.tiles += 1;
+        stats.fragments += count;
+        stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
+
+        let t = Instant::now();
+        let a_px = vp.pixel_area();
+        let sky = ctx.sky;
+        let mut sink = BundleHits(&mut sums.bundle);
+        stats.covered_pixels += s.fragments.for_each_pixel(|f| exchange(f, a_px, sky, |t| source[t as usize], &mut sink));
+        stats.resolve_seconds += seconds(t);
+    }
+    stats.lost_lookups += std::mem::take(&mut s.fragments.lost_lookups);
+}
+
+/// A tile counted more fragments than the node buffer holds: record it and queue its four
+/// quadrants at the same density (the paper's "split and redo"), so no sample is lost.
+fn overflowed(tile: &Tile, count: u64, capacity: u64, queue: &mut Vec<Tile>, stats: &mut PassStats) {
+    stats.overflowed_tiles += 1;
+    stats.overflow_fragments += count - capacity;
+    match split(tile) {
+        Ok(children) => queue.extend(children.iter().rev()),
+        // One bundle pixel deeper than the whole node buffer: N is too small for this scene.
+        // Build it anyway (peak memory exceeds N for this one pixel) rather than drop samples.
+        Err(_) => stats.unsplittable_tiles += 1,
+    }
+}
+
+/// False alarms (paper Table 2): splits for predicted memory overflow where the tile, at the
+/// resolution it asked for, would in fact have fitted in the node buffer. Fragment counts
+/// come from exact span counting, so this costs one count pass per such split.
+fn count_false_alarms(
+    ctx: &PassContext,
+    planner: &TilePlanner,
+    tiles: &[Tile],
+    frame: &BundleFrame,
+    global: &Viewport,
+    s: &mut Scratch,
+    stats: &mut PassStats,
+) {
+    let mut seen = std::collections::BTreeSet::new();
+    for tile in tiles {
+        let mut level = tile.level.max(0) as u32 + 1;
+        let (mut x, mut y) = (tile.x >> 1, tile.y >> 1);
+        if tile.level < 0 {
+            continue;
+        }
+        while level <= planner.top_level() {
+            if !seen.insert((level, x, y)) {
+                break;
+            }
+            let rays = planner.rays_needed(level, x, y);
+            let w2 = (ctx.config.head_side as f64).powi(2);
+            if rays <= w2 {
+                // The split was for memory (importance alone fitted in W×W).
+                stats.memory_splits_checked += 1;
+                let res = bundle_resolution(rays, w2);
+                let t = Tile { level: level as i32, x, y, res };
+                let vp = tile_viewport(global, &t);
+                let w = t.window();
+                s.analysis.candidates(w.x, w.y, w.x + w.side, w.y + w.side, &mut s.candidates);
+                let count = s.fragments.prepare(ctx.scene, frame, &vp, &s.candidates, None);
+                if count <= ctx.config.node_capacity {
+                    stats.false_alarms += 1;
+                }
+            }
+            level += 1;
+            x >>= 1;
+            y >>= 1;
+        }
+    }
+}
+
+/// One light bundle: the window around an emitter group's footprint along ω, in tiles of at
+/// most W×W pixels; emitter fragments light the neighbours facing them.
+fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut Scratch, stats: &mut PassStats) {
+    let cfg = ctx.config;
+    let group = &ctx.groups[job.group as usize];
+    let frame = BundleFrame::new(job.dir);
+    let (mut lo, mut hi) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
+    for c in group.corners() {
+        let f = frame.coords(c);
+        lo = lo.min(Vec2::new(f.x, f.y));
+        hi = hi.max(Vec2::new(f.x, f.y));
+    }
+    let pixel = ctx.light_pixel;
+    let origin = lo - (job.jitter + Vec2::ONE) * pixel;
+    let extent = (hi - origin).max_element() + pixel;
+    let res = (extent / pixel).ceil().max(1.0) as u32;
+    let per_side = res.div_ceil(cfg.head_side);
+    let tile_res = res.div_ceil(per_side);
+    cull_to_window(ctx, &frame, origin, tile_res as f32 * per_side as f32 * pixel, &mut s.candidates);
+    let candidates = std::mem::take(&mut s.candidates);
+    s.queue.clear();
+    for ty in (0..per_side).rev() {
+        for tx in (0..per_side).rev() {
+            // Light tiles reuse `Tile` with level 0 meaning "one light tile"; their windows
+            // are computed here, not from the analysis grid.
+            s.queue.push(Tile { level: 0, x: tx, y: ty, res: tile_res });
+        }
+    }
+    let base = Viewport { origin, pixel: tile_res as f32 * pixel, res: 1 };
+    while let Some(tile) = s.queue.pop() {
+        let vp = tile_viewport(&base, &tile);
+        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group));
+        if count > cfg.node_capacity {
+            overflowed(&tile, count, cfg.node_capacity, &mut s.queue, stats);
+            if split(&tile).is_ok() {
+                continue;
+            }
+        }
+        s.fragments.build(ctx.scene);
+        stats.light_tiles += 1;
+        stats.light_fragments += count;
+        stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
+        let a_px = vp.pixel_area();
+        let emission = &ctx.scene.texels.emission;
+        let mut sink = LightHits(&mut sums.light);
+        s.fragments.for_each_pixel(|f| emit(f, a_px, |t| emission[t as usize], &mut sink));
+    }
+    s.candidates = candidates;
+}
+
+/// Triangles whose projection along the frame overlaps the square window.
+fn cull_to_window(ctx: &PassContext, frame: &BundleFrame, origin: Vec2, side: f32, out: &mut Vec<u32>) {
+    out.clear();
+    let hi = origin + Vec2::splat(side);
+    for &t in &ctx.all_triangles {
+        let c = ctx.scene.geom.corners[t as usize];
+        let p = c.map(|c| {
+            let f = frame.coords(c);
+            Vec2::new(f.x, f.y)
+        });
+        let (tlo, thi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+        if thi.x >= origin.x && thi.y >= origin.y && tlo.x <= hi.x && tlo.y <= hi.y {
+            out.push(t);
+        }
+    }
+}
