@@ -5,6 +5,7 @@
 //! driver and backends), [`output`] (EXR/PNG/JSON), [`probe`] (irradiance at surface points).
 
 pub mod atlas;
+pub mod bundle;
 pub mod lod;
 pub mod reference;
 pub mod sampling;
