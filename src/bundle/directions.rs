@@ -13,7 +13,7 @@
 //! set instead of restarting it.
 //!
 //! Why Sobol rather than the R2 Kronecker sequence: R2 leaves slightly smaller holes up to a
-//! few thousand directions (largest empty cap 2.4–3.9 expected directions against 2.8–4.8),
+//! few thousand directions (largest empty cap 2.4–3.9 expected directions against 2.8–5.3),
 //! but the map z = 1 − u squeezes the whole edge u = 0 of the square into the pole, where only
 //! the 1D distribution of u at scale 1/N matters. R2's generators have a partial quotient of
 //! 141 after the denominator 48131, so from ~10⁵ directions on its points near the pole fall
@@ -21,8 +21,8 @@
 //! i.i.d. directions. A (0,2)-sequence has one point in every dyadic box of area 1/N of *any*
 //! aspect ratio (at N = 2^m), which is exactly what a strongly anisotropic map needs: its
 //! largest hole measured 2.5–3.9 everywhere, the pole included, at 5·10⁴–10⁶ directions.
-//! The first 2³² directions use only the high 32 bits of each coordinate from the index, so a
-//! u32 shader reproduces them with the high halves of the shifts.
+//! For the first 2³² directions the index only reaches the high 32 bits of each coordinate, so
+//! a u32 shader reproduces them, up to 2⁻³² in u and v, with the high halves of the shifts.
 //!
 //! The sub-pixel jitter of direction i (how far the bundle's pixel grid is shifted) is the R2
 //! sequence (Roberts 2018) with a seeded Cranley–Patterson rotation: stratified over the
@@ -175,8 +175,15 @@ mod tests {
             assert!((dirs.pole().length() - 1.0).abs() < 1e-6);
             for i in (0..4096u64).chain([1 << 20, 1 << 40, u64::MAX]) {
                 let d = dirs.direction(i);
-                assert!((d.length() - 1.0).abs() < 1e-6, "seed {seed} i {i}: |d| = {}", d.length());
-                assert!(d.dot(dirs.pole()) >= -1e-6, "seed {seed} i {i}: below the hemisphere");
+                assert!(
+                    (d.length() - 1.0).abs() < 1e-6,
+                    "seed {seed} i {i}: |d| = {}",
+                    d.length()
+                );
+                assert!(
+                    d.dot(dirs.pole()) >= -1e-6,
+                    "seed {seed} i {i}: below the hemisphere"
+                );
             }
         }
     }
@@ -185,7 +192,19 @@ mod tests {
     fn sobol_points_are_the_textbook_ones() {
         let eighths: Vec<[u64; 2]> = (0..8).map(|i| sobol_2d(i).map(|c| c >> 61)).collect();
         // u = van der Corput, v = 0, 1/2, 3/4, 1/4, 5/8, 1/8, 3/8, 7/8 (natural order).
-        assert_eq!(eighths, [[0, 0], [4, 4], [2, 6], [6, 2], [1, 5], [5, 1], [3, 3], [7, 7]]);
+        assert_eq!(
+            eighths,
+            [
+                [0, 0],
+                [4, 4],
+                [2, 6],
+                [6, 2],
+                [1, 5],
+                [5, 1],
+                [3, 3],
+                [7, 7]
+            ]
+        );
     }
 
     /// The (0, m, 2)-net property, the reason for Sobol: at N = 2^m every dyadic box of area
@@ -252,7 +271,12 @@ mod tests {
         for (i, a) in sets.iter().enumerate() {
             for b in &sets[i + 1..] {
                 // Poles as lines: |cos| < 1 − 1e-4 means more than ~0.8° apart.
-                assert!(a.pole().dot(b.pole()).abs() < 1.0 - 1e-4, "seeds {} and {}", a.seed(), b.seed());
+                assert!(
+                    a.pole().dot(b.pole()).abs() < 1.0 - 1e-4,
+                    "seeds {} and {}",
+                    a.seed(),
+                    b.seed()
+                );
                 assert_ne!(a.first(16), b.first(16));
                 assert_ne!(a.jitter(0), b.jitter(0));
             }
@@ -270,11 +294,17 @@ mod tests {
             let mut counts = vec![0u32; m * m];
             for i in 0..n {
                 let j = dirs.jitter(i);
-                assert!((0.0..1.0).contains(&j.x) && (0.0..1.0).contains(&j.y), "{j}");
+                assert!(
+                    (0.0..1.0).contains(&j.x) && (0.0..1.0).contains(&j.y),
+                    "{j}"
+                );
                 let cell = (j.y * m as f32) as usize * m + (j.x * m as f32) as usize;
                 counts[cell] += 1;
             }
-            assert!(counts.iter().all(|&c| c > 0), "n = {n}: empty jitter cell: {counts:?}");
+            assert!(
+                counts.iter().all(|&c| c > 0),
+                "n = {n}: empty jitter cell: {counts:?}"
+            );
         }
     }
 
@@ -348,7 +378,10 @@ mod tests {
             let iid_holes = (0..4)
                 .filter(|&seed| largest_empty_cap(&iid_directions(seed, n), &centres) >= radius)
                 .count();
-            assert!(iid_holes >= 3, "N = {n}: only {iid_holes}/4 i.i.d. sets had a hole");
+            assert!(
+                iid_holes >= 3,
+                "N = {n}: only {iid_holes}/4 i.i.d. sets had a hole"
+            );
         }
     }
 
@@ -362,14 +395,21 @@ mod tests {
         for n in [256usize, 1024] {
             let ours: Vec<f64> = seeds
                 .clone()
-                .map(|s| expected_count(n, largest_empty_cap(&BundleDirections::new(s).first(n), &centres)))
+                .map(|s| {
+                    expected_count(
+                        n,
+                        largest_empty_cap(&BundleDirections::new(s).first(n), &centres),
+                    )
+                })
                 .collect();
             let iid: Vec<f64> = seeds
                 .clone()
                 .map(|s| expected_count(n, largest_empty_cap(&iid_directions(s, n), &centres)))
                 .collect();
             let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-            println!("N = {n}: largest empty cap (expected count) ours {ours:.2?}, i.i.d. {iid:.2?}");
+            println!(
+                "N = {n}: largest empty cap (expected count) ours {ours:.2?}, i.i.d. {iid:.2?}"
+            );
             assert!(
                 mean(&iid) > 1.6 * mean(&ours),
                 "N = {n}: ours {ours:.2?} not clearly better than i.i.d. {iid:.2?}"
@@ -395,7 +435,8 @@ mod tests {
             for seed in 0..3 {
                 let dirs = BundleDirections::new(seed).first(n);
                 for normal in normals {
-                    let mean = dirs.iter().map(|d| d.dot(normal).abs() as f64).sum::<f64>() / n as f64;
+                    let mean =
+                        dirs.iter().map(|d| d.dot(normal).abs() as f64).sum::<f64>() / n as f64;
                     assert!(
                         (mean - 0.5).abs() < 0.5 * sigma_iid,
                         "N = {n}, seed {seed}, n = {normal}: mean |ω·n| = {mean:.5}"

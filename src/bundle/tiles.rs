@@ -12,11 +12,12 @@
 //! (unless it is already a finest pixel); otherwise it is rendered at
 //! `res = ⌈√min(C_I, C_max)⌉`, never above `⌊√C_max⌋` (see [`bundle_resolution`]).
 //!
-//! The rule is implemented once ([`TilePlanner::ray_bound`], `judge`) and walked two ways: a
-//! plain recursive quadtree descent, and the paper's single-pass form with one "thread" per
-//! finest pixel descending from the top, where only the thread at a tile's corner emits it:
-//! the CPU twin of the compute shader. Both return the tiles in Morton (Z) order of their
-//! corners, which keeps consecutive tiles close together in the scene.
+//! The rule is implemented once and walked two ways: a plain recursive quadtree descent, and
+//! the paper's single-pass form with one "thread" per finest pixel descending from the top,
+//! where only the thread at a tile's corner emits it: the CPU twin of the compute shader.
+//! Both return the tiles in Morton (Z) order of their corners, which keeps consecutive tiles
+//! close together in the scene. [`TilePlanner::rays_needed`] and [`TilePlanner::ray_bound`]
+//! evaluate Eq. 1 and Eq. 3 from scratch for any one tile, for checks.
 
 use super::mips::{MipChain, Reduction};
 
@@ -42,7 +43,12 @@ pub struct TileParams {
 
 impl TileParams {
     pub fn new(w: u32, n: u64, pixel_area: f64) -> Self {
-        TileParams { w, n, alpha: DEFAULT_ALPHA, pixel_area }
+        TileParams {
+            w,
+            n,
+            alpha: DEFAULT_ALPHA,
+            pixel_area,
+        }
     }
 
     /// A(i) = pixel_area · 4^i. Negative levels are the sub-pixel tiles of [`split`].
@@ -114,7 +120,11 @@ impl Tile {
     /// The window this tile covers, in finest analysis pixels. Exact: all values are dyadic.
     pub fn window(&self) -> TileWindow {
         let side = 2f64.powi(self.level);
-        TileWindow { x: self.x as f64 * side, y: self.y as f64 * side, side }
+        TileWindow {
+            x: self.x as f64 * side,
+            y: self.y as f64 * side,
+            side,
+        }
     }
 
     /// World area of one of its bundle pixels, A(i)/res²: the `a_px` weight of the estimator.
@@ -172,7 +182,12 @@ pub fn split(tile: &Tile) -> Result<[Tile; 4], SplitError> {
     let y = tile.y.checked_mul(2).ok_or(too_deep)?;
     let res = tile.res.div_ceil(2);
     // 2x and 2y are even and fit in u32, so adding 1 cannot overflow.
-    Ok(QUADRANTS.map(|(dx, dy)| Tile { level, x: x + dx, y: y + dy, res }))
+    Ok(QUADRANTS.map(|(dx, dy)| Tile {
+        level,
+        x: x + dx,
+        y: y + dy,
+        res,
+    }))
 }
 
 /// What planning found, beyond the tiles themselves. The split and undersampling counters are
@@ -201,7 +216,9 @@ pub struct TilePlan {
 /// Why a plan cannot be made.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PlanError {
-    #[error("importance map is {importance}x{importance} but fragment-count map is {fragments}x{fragments}")]
+    #[error(
+        "importance map is {importance}x{importance} but fragment-count map is {fragments}x{fragments}"
+    )]
     MapSizeMismatch { importance: u32, fragments: u32 },
     #[error("the importance map must be max-reduced and the fragment-count map average-reduced")]
     WrongReduction,
@@ -232,7 +249,10 @@ enum Verdict {
     /// Nothing to light-map there.
     Skip,
     Split(SplitReason),
-    Emit { res: u32, undersampled: bool },
+    Emit {
+        res: u32,
+        undersampled: bool,
+    },
 }
 
 enum SplitReason {
@@ -266,7 +286,11 @@ impl<'a> TilePlanner<'a> {
         if importance.reduction() != Reduction::Max || fragments.reduction() != Reduction::Average {
             return Err(PlanError::WrongReduction);
         }
-        Ok(TilePlanner { importance, fragments, params })
+        Ok(TilePlanner {
+            importance,
+            fragments,
+            params,
+        })
     }
 
     pub fn params(&self) -> &TileParams {
@@ -356,7 +380,15 @@ impl<'a> TilePlanner<'a> {
                 Verdict::Skip => return,
                 Verdict::Emit { res, undersampled } => {
                     if at_corner {
-                        plan.emit(Tile { level: level as i32, x, y, res }, undersampled);
+                        plan.emit(
+                            Tile {
+                                level: level as i32,
+                                x,
+                                y,
+                                res,
+                            },
+                            undersampled,
+                        );
                     }
                     return;
                 }
@@ -368,9 +400,15 @@ impl<'a> TilePlanner<'a> {
         let memory = ancestors.min(self.memory_bound(level, x, y));
         match self.judge(level, x, y, memory) {
             Verdict::Skip => {}
-            Verdict::Emit { res, undersampled } => {
-                plan.emit(Tile { level: level as i32, x, y, res }, undersampled)
-            }
+            Verdict::Emit { res, undersampled } => plan.emit(
+                Tile {
+                    level: level as i32,
+                    x,
+                    y,
+                    res,
+                },
+                undersampled,
+            ),
             Verdict::Split(reason) => {
                 plan.count_split(reason);
                 for (dx, dy) in QUADRANTS {
@@ -396,10 +434,17 @@ impl<'a> TilePlanner<'a> {
         let head = self.params.head_buffer_pixels();
         let bound = head.min(memory);
         if rays > bound && level > 0 {
-            let reason = if memory < head { SplitReason::Memory } else { SplitReason::Importance };
+            let reason = if memory < head {
+                SplitReason::Memory
+            } else {
+                SplitReason::Importance
+            };
             return Verdict::Split(reason);
         }
-        Verdict::Emit { res: bundle_resolution(rays, bound), undersampled: rays > bound }
+        Verdict::Emit {
+            res: bundle_resolution(rays, bound),
+            undersampled: rays > bound,
+        }
     }
 
     /// Every tile of one level with any importance, at bundle resolution W.
@@ -409,7 +454,15 @@ impl<'a> TilePlanner<'a> {
         for y in 0..side {
             for x in 0..side {
                 if self.importance.get(level, x, y) > 0.0 {
-                    plan.emit(Tile { level: level as i32, x, y, res: self.params.w }, false);
+                    plan.emit(
+                        Tile {
+                            level: level as i32,
+                            x,
+                            y,
+                            res: self.params.w,
+                        },
+                        false,
+                    );
                 }
             }
         }
@@ -479,7 +532,10 @@ mod tests {
 
     /// α = 1 keeps the hand-computed budgets round.
     fn params(w: u32, n: u64, pixel_area: f64) -> TileParams {
-        TileParams { alpha: 1.0, ..TileParams::new(w, n, pixel_area) }
+        TileParams {
+            alpha: 1.0,
+            ..TileParams::new(w, n, pixel_area)
+        }
     }
 
     #[test]
@@ -488,9 +544,42 @@ mod tests {
         // Top: C_I = 4·4 = 16 > 4 → split. Children: C_I = 4, 1, 0, 0.25.
         let m = maps(2, vec![4.0, 1.0, 0.0, 0.25], vec![1.0; 4]);
         let p = plan(&m, params(2, 1 << 40, 1.0), TilingMode::Adaptive);
-        assert_eq!(p.tiles, [tile(0, 0, 0, 2), tile(0, 1, 0, 1), tile(0, 1, 1, 1)]);
-        let expected = PlanStats { tiles: 3, splits_for_importance: 1, ..Default::default() };
+        assert_eq!(
+            p.tiles,
+            [tile(0, 0, 0, 2), tile(0, 1, 0, 1), tile(0, 1, 1, 1)]
+        );
+        let expected = PlanStats {
+            tiles: 3,
+            splits_for_importance: 1,
+            ..Default::default()
+        };
         assert_eq!(p.stats, expected);
+    }
+
+    #[test]
+    fn a_tile_exactly_at_its_bound_is_emitted() {
+        // C_I = 4·1 = 4 = W²: Eq. 3 splits only when C_I > C_max (Program 1's `CI < Cmax`
+        // emit test would split here).
+        let m = maps(2, vec![1.0; 4], vec![1.0; 4]);
+        let p = plan(&m, params(2, 1 << 20, 1.0), TilingMode::Adaptive);
+        assert_eq!(p.tiles, [tile(1, 0, 0, 2)]);
+        assert_eq!(
+            p.stats,
+            PlanStats {
+                tiles: 1,
+                ..Default::default()
+            }
+        );
+    }
+
+    #[test]
+    fn a_split_with_both_bounds_equal_counts_for_importance() {
+        // W² = 9 and αN/F = 90/10 = 9: memory is not *below* the head buffer, so the head
+        // buffer is the binding bound.
+        let m = maps(2, vec![3.0; 4], vec![10.0; 4]);
+        let p = plan(&m, params(3, 90, 1.0), TilingMode::Adaptive);
+        assert_eq!(p.stats.splits_for_importance, 1);
+        assert_eq!(p.stats.splits_for_memory, 0);
     }
 
     #[test]
@@ -498,8 +587,20 @@ mod tests {
         // F = 10 everywhere, αN = 90: C_max = 9 (W² = 4096 is far). Top: C_I = 4·3 = 12 > 9.
         let m = maps(2, vec![3.0; 4], vec![10.0; 4]);
         let p = plan(&m, params(64, 90, 1.0), TilingMode::Adaptive);
-        assert_eq!(p.tiles, [tile(0, 0, 0, 2), tile(0, 1, 0, 2), tile(0, 0, 1, 2), tile(0, 1, 1, 2)]);
-        let expected = PlanStats { tiles: 4, splits_for_memory: 1, ..Default::default() };
+        assert_eq!(
+            p.tiles,
+            [
+                tile(0, 0, 0, 2),
+                tile(0, 1, 0, 2),
+                tile(0, 0, 1, 2),
+                tile(0, 1, 1, 2)
+            ]
+        );
+        let expected = PlanStats {
+            tiles: 4,
+            splits_for_memory: 1,
+            ..Default::default()
+        };
         assert_eq!(p.stats, expected);
         // The same importance fits when fragments are fewer: one tile, ⌈√12⌉ = 4 wide.
         let sparse = maps(2, vec![3.0; 4], vec![5.0; 4]);
@@ -527,8 +628,20 @@ mod tests {
         assert_eq!(900.0 / m.1.get(1, 0, 0) as f64, 900.0);
         assert_eq!(planner.ray_bound(1, 0, 0), 900.0 / 75.25);
         let p = planner.plan(TilingMode::Adaptive).unwrap();
-        assert_eq!(p.tiles, [tile(0, 0, 0, 2), tile(0, 1, 0, 2), tile(0, 0, 1, 2), tile(0, 1, 1, 2)]);
-        let expected = PlanStats { tiles: 4, splits_for_memory: 2, ..Default::default() };
+        assert_eq!(
+            p.tiles,
+            [
+                tile(0, 0, 0, 2),
+                tile(0, 1, 0, 2),
+                tile(0, 0, 1, 2),
+                tile(0, 1, 1, 2)
+            ]
+        );
+        let expected = PlanStats {
+            tiles: 4,
+            splits_for_memory: 2,
+            ..Default::default()
+        };
         assert_eq!(p.stats, expected);
     }
 
@@ -539,7 +652,11 @@ mod tests {
         let m = maps(1, vec![100.0], vec![1.0]);
         let p = plan(&m, params(4, 1 << 30, 1.0), TilingMode::Adaptive);
         assert_eq!(p.tiles, [tile(0, 0, 0, 4)]);
-        let expected = PlanStats { tiles: 1, undersampled_tiles: 1, ..Default::default() };
+        let expected = PlanStats {
+            tiles: 1,
+            undersampled_tiles: 1,
+            ..Default::default()
+        };
         assert_eq!(p.stats, expected);
         // Memory bound: F = 50, αN = 90 → C_max = 1.8 → a single pixel.
         let m = maps(1, vec![100.0], vec![50.0]);
@@ -553,7 +670,14 @@ mod tests {
         // C_I = 10 ≤ C_max = 10.5: ⌈√10⌉ = 4 would put 16 pixels·F = 16 nodes in a 10.5
         // budget; the planner takes ⌊√10.5⌋ = 3.
         let m = maps(1, vec![10.0], vec![1.0]);
-        let p = plan(&m, TileParams { alpha: 0.5, ..TileParams::new(64, 21, 1.0) }, TilingMode::Adaptive);
+        let p = plan(
+            &m,
+            TileParams {
+                alpha: 0.5,
+                ..TileParams::new(64, 21, 1.0)
+            },
+            TilingMode::Adaptive,
+        );
         assert_eq!(p.tiles, [tile(0, 0, 0, 3)]);
         assert_eq!(p.stats.undersampled_tiles, 0);
         assert_eq!(bundle_resolution(10.0, 10.5), 3);
@@ -566,8 +690,16 @@ mod tests {
     #[test]
     fn zero_importance_is_never_planned() {
         let zeros = maps(4, vec![0.0; 16], vec![3.0; 16]);
-        for mode in [TilingMode::None, TilingMode::Uniform { k: 2 }, TilingMode::Adaptive] {
-            assert_eq!(plan(&zeros, params(8, 100, 1.0), mode), TilePlan::default(), "{mode:?}");
+        for mode in [
+            TilingMode::None,
+            TilingMode::Uniform { k: 2 },
+            TilingMode::Adaptive,
+        ] {
+            assert_eq!(
+                plan(&zeros, params(8, 100, 1.0), mode),
+                TilePlan::default(),
+                "{mode:?}"
+            );
         }
         // One lit pixel in a corner: after the splits only its branch is emitted.
         let mut importance = vec![0.0; 16];
@@ -583,16 +715,27 @@ mod tests {
         let m = maps(8, vec![1.0; 64], vec![1.0; 64]);
         let p = plan(&m, params(256, 1, 1.0), TilingMode::None);
         assert_eq!(p.tiles, [tile(3, 0, 0, 256)]);
-        assert_eq!(p.stats, PlanStats { tiles: 1, ..Default::default() });
+        assert_eq!(
+            p.stats,
+            PlanStats {
+                tiles: 1,
+                ..Default::default()
+            }
+        );
     }
 
     #[test]
     fn uniform_tiling_is_k_by_k_tiles_at_full_resolution() {
         // 8×8 with importance everywhere but the top-right quarter.
-        let importance: Vec<f32> = (0..64).map(|i| if i % 8 >= 4 && i / 8 < 4 { 0.0 } else { 1.0 }).collect();
+        let importance: Vec<f32> = (0..64)
+            .map(|i| if i % 8 >= 4 && i / 8 < 4 { 0.0 } else { 1.0 })
+            .collect();
         let m = maps(8, importance, vec![1.0; 64]);
         let p = plan(&m, params(32, 1, 1.0), TilingMode::Uniform { k: 2 });
-        assert_eq!(p.tiles, [tile(2, 0, 0, 32), tile(2, 0, 1, 32), tile(2, 1, 1, 32)]);
+        assert_eq!(
+            p.tiles,
+            [tile(2, 0, 0, 32), tile(2, 0, 1, 32), tile(2, 1, 1, 32)]
+        );
         let p = plan(&m, params(32, 1, 1.0), TilingMode::Uniform { k: 8 });
         assert_eq!(p.tiles.len(), 48);
         assert!(p.tiles.iter().all(|t| t.level == 0 && t.res == 32));
@@ -617,12 +760,27 @@ mod tests {
         let small = maps(2, vec![1.0; 4], vec![1.0; 4]);
         let ok = params(8, 100, 1.0);
         let new = |i: &MipChain, f: &MipChain, p: TileParams| TilePlanner::new(i, f, p).map(|_| ());
-        assert_eq!(new(&m.0, &small.1, ok), Err(PlanError::MapSizeMismatch { importance: 4, fragments: 2 }));
+        assert_eq!(
+            new(&m.0, &small.1, ok),
+            Err(PlanError::MapSizeMismatch {
+                importance: 4,
+                fragments: 2
+            })
+        );
         assert_eq!(new(&m.1, &m.0, ok), Err(PlanError::WrongReduction));
-        assert_eq!(new(&m.0, &m.1, TileParams { w: 0, ..ok }), Err(PlanError::EmptyHeadBuffer));
-        assert_eq!(new(&m.0, &m.1, TileParams { n: 0, ..ok }), Err(PlanError::EmptyNodeBuffer));
+        assert_eq!(
+            new(&m.0, &m.1, TileParams { w: 0, ..ok }),
+            Err(PlanError::EmptyHeadBuffer)
+        );
+        assert_eq!(
+            new(&m.0, &m.1, TileParams { n: 0, ..ok }),
+            Err(PlanError::EmptyNodeBuffer)
+        );
         for alpha in [0.0, -0.5, 1.5, f32::NAN] {
-            assert!(matches!(new(&m.0, &m.1, TileParams { alpha, ..ok }), Err(PlanError::AlphaOutOfRange(_))));
+            assert!(matches!(
+                new(&m.0, &m.1, TileParams { alpha, ..ok }),
+                Err(PlanError::AlphaOutOfRange(_))
+            ));
         }
         for pixel_area in [0.0, -1.0, f64::INFINITY, f64::NAN] {
             assert!(matches!(
@@ -639,7 +797,14 @@ mod tests {
         let params = params(64, 1000, 0.25);
         let planner = TilePlanner::new(&m.0, &m.1, params).unwrap();
         let t = tile(2, 1, 0, 8);
-        assert_eq!(t.window(), TileWindow { x: 4.0, y: 0.0, side: 4.0 });
+        assert_eq!(
+            t.window(),
+            TileWindow {
+                x: 4.0,
+                y: 0.0,
+                side: 4.0
+            }
+        );
         assert_eq!(params.tile_area(2), 4.0);
         assert_eq!(t.bundle_pixel_area(&params), 4.0 / 64.0);
         assert_eq!(planner.predicted_nodes(&t), 64.0 * m.1.get(2, 1, 0) as f64);
@@ -652,10 +817,21 @@ mod tests {
     fn split_makes_quadrants_at_the_same_density() {
         let parent = tile(2, 1, 0, 6);
         let children = split(&parent).unwrap();
-        assert_eq!(children, [tile(1, 2, 0, 3), tile(1, 3, 0, 3), tile(1, 2, 1, 3), tile(1, 3, 1, 3)]);
+        assert_eq!(
+            children,
+            [
+                tile(1, 2, 0, 3),
+                tile(1, 3, 0, 3),
+                tile(1, 2, 1, 3),
+                tile(1, 3, 1, 3)
+            ]
+        );
         let params = params(64, 1000, 0.5);
         for child in &children {
-            assert_eq!(child.bundle_pixel_area(&params), parent.bundle_pixel_area(&params));
+            assert_eq!(
+                child.bundle_pixel_area(&params),
+                parent.bundle_pixel_area(&params)
+            );
         }
         assert_quadrants_tile_the_parent(&parent, &children);
         // Odd resolutions round up: density never drops.
@@ -666,16 +842,37 @@ mod tests {
     fn split_goes_below_the_finest_analysis_pixel() {
         let finest = tile(0, 3, 2, 4);
         let halves = split(&finest).unwrap();
-        assert_eq!(halves, [tile(-1, 6, 4, 2), tile(-1, 7, 4, 2), tile(-1, 6, 5, 2), tile(-1, 7, 5, 2)]);
-        assert_eq!(halves[3].window(), TileWindow { x: 3.5, y: 2.5, side: 0.5 });
+        assert_eq!(
+            halves,
+            [
+                tile(-1, 6, 4, 2),
+                tile(-1, 7, 4, 2),
+                tile(-1, 6, 5, 2),
+                tile(-1, 7, 5, 2)
+            ]
+        );
+        assert_eq!(
+            halves[3].window(),
+            TileWindow {
+                x: 3.5,
+                y: 2.5,
+                side: 0.5
+            }
+        );
         assert_quadrants_tile_the_parent(&finest, &halves);
         let quarters = split(&halves[1]).unwrap();
         assert_eq!(quarters[0], tile(-2, 14, 8, 1));
-        assert_eq!(quarters[0].bundle_pixel_area(&params(8, 8, 1.0)), 1.0 / 16.0);
+        assert_eq!(
+            quarters[0].bundle_pixel_area(&params(8, 8, 1.0)),
+            1.0 / 16.0
+        );
         // Below level 0 the prediction reads the analysis pixel the piece lies in.
         let m = maps(4, vec![1.0; 16], (0..16).map(|i| i as f32).collect());
         let planner = TilePlanner::new(&m.0, &m.1, params(8, 8, 1.0)).unwrap();
-        assert_eq!(planner.predicted_nodes(&quarters[3]), 1.0 * m.1.get(0, 3, 2) as f64);
+        assert_eq!(
+            planner.predicted_nodes(&quarters[3]),
+            1.0 * m.1.get(0, 3, 2) as f64
+        );
     }
 
     #[test]
@@ -692,7 +889,11 @@ mod tests {
         let p = parent.window();
         let half = p.side / 2.0;
         for (child, (dx, dy)) in children.iter().zip(QUADRANTS) {
-            let expected = TileWindow { x: p.x + dx as f64 * half, y: p.y + dy as f64 * half, side: half };
+            let expected = TileWindow {
+                x: p.x + dx as f64 * half,
+                y: p.y + dy as f64 * half,
+                side: half,
+            };
             assert_eq!(child.window(), expected);
         }
     }
@@ -702,7 +903,16 @@ mod tests {
         let m = maps(4, vec![1.0; 16], vec![1.0; 16]);
         let p = plan(&m, params(1, 1 << 20, 1.0), TilingMode::Uniform { k: 4 });
         let order: Vec<(u32, u32)> = p.tiles.iter().map(|t| (t.x, t.y)).collect();
-        let z_curve = [(0, 0), (1, 0), (0, 1), (1, 1), (2, 0), (3, 0), (2, 1), (3, 1)];
+        let z_curve = [
+            (0, 0),
+            (1, 0),
+            (0, 1),
+            (1, 1),
+            (2, 0),
+            (3, 0),
+            (2, 1),
+            (3, 1),
+        ];
         assert_eq!(order[..8], z_curve);
         assert_eq!(order[8..10], [(0, 2), (1, 2)]);
     }
@@ -725,7 +935,11 @@ mod tests {
         for y in 0..side {
             for x in 0..side {
                 let zero = zero_blocks[((y / block) * blocks_per_row + x / block) as usize];
-                importance.push(if zero { 0.0 } else { 10f32.powf(rng.next_f32() * 6.0 - 3.0) });
+                importance.push(if zero {
+                    0.0
+                } else {
+                    10f32.powf(rng.next_f32() * 6.0 - 3.0)
+                });
                 fragments.push(match rng.next_u32() % 10 {
                     0 => 0.0,
                     1 => (rng.next_u32() % 2000) as f32,
@@ -736,18 +950,36 @@ mod tests {
         maps(side, importance, fragments)
     }
 
-    fn random_params(rng: &mut Rng) -> TileParams {
+    /// Buffer sizes and scale around the maps' own: the whole window needs from 1/100 to 10⁴
+    /// head buffers of rays, and the node buffer holds from 1/1000 to 10 head buffers at the
+    /// mean depth complexity, so tiles end at every level and either bound may bind.
+    fn random_params(rng: &mut Rng, maps: &(MipChain, MipChain)) -> TileParams {
+        let w = [1u32, 3, 16, 64, 1024][rng.next_u32() as usize % 5];
+        let head = w as f64 * w as f64;
+        let top = maps.0.top_level();
+        let max_importance = (maps.0.get(top, 0, 0) as f64).max(1e-3);
+        let window_rays = head * 10f64.powf(rng.next_f32() as f64 * 6.0 - 2.0);
+        let mean_depth = (maps.1.get(top, 0, 0) as f64).max(1.0);
+        let nodes = head * mean_depth * 10f64.powf(rng.next_f32() as f64 * 4.0 - 3.0);
         TileParams {
-            w: [1, 3, 16, 64, 1024][rng.next_u32() as usize % 5],
-            n: [1, 50, 1000, 100_000, 5_000_000][rng.next_u32() as usize % 5],
-            alpha: if rng.next_f32() < 0.5 { DEFAULT_ALPHA } else { 0.05 + 0.95 * rng.next_f32() },
-            pixel_area: 10f64.powf(rng.next_f32() as f64 * 8.0 - 2.0),
+            w,
+            n: nodes.max(1.0) as u64,
+            alpha: if rng.next_f32() < 0.5 {
+                DEFAULT_ALPHA
+            } else {
+                0.05 + 0.95 * rng.next_f32()
+            },
+            pixel_area: window_rays / (4f64.powi(top as i32) * max_importance),
         }
     }
 
     fn random_modes(rng: &mut Rng, side: u32) -> [TilingMode; 3] {
         let k = 1 << (rng.next_u32() % (side.trailing_zeros() + 1));
-        [TilingMode::None, TilingMode::Uniform { k }, TilingMode::Adaptive]
+        [
+            TilingMode::None,
+            TilingMode::Uniform { k },
+            TilingMode::Adaptive,
+        ]
     }
 
     /// How many tiles cover each finest pixel.
@@ -772,23 +1004,35 @@ mod tests {
         let mut rng = Rng::new(1, 1);
         for case in 0..CASES {
             let m = random_maps(&mut rng);
-            let params = random_params(&mut rng);
+            let params = random_params(&mut rng, &m);
             let side = m.0.side();
             for mode in random_modes(&mut rng, side) {
                 let p = plan(&m, params, mode);
                 let covered = coverage(&p.tiles, side);
                 for (i, (&count, &importance)) in covered.iter().zip(m.0.level(0)).enumerate() {
                     let expected = if importance > 0.0 { 1 } else { count.min(1) };
-                    assert_eq!(count, expected, "case {case} {mode:?}: pixel {i} covered {count} times");
+                    assert_eq!(
+                        count, expected,
+                        "case {case} {mode:?}: pixel {i} covered {count} times"
+                    );
                 }
                 for t in &p.tiles {
                     let level = t.level as u32;
-                    assert!(m.0.get(level, t.x, t.y) > 0.0, "case {case} {mode:?}: dark tile {t:?}");
-                    assert!(t.res >= 1 && t.res <= params.w, "case {case} {mode:?}: {t:?}");
+                    assert!(
+                        m.0.get(level, t.x, t.y) > 0.0,
+                        "case {case} {mode:?}: dark tile {t:?}"
+                    );
+                    assert!(
+                        t.res >= 1 && t.res <= params.w,
+                        "case {case} {mode:?}: {t:?}"
+                    );
                 }
                 assert_eq!(p.stats.tiles, p.tiles.len());
                 let keys: Vec<u64> = p.tiles.iter().map(Tile::morton_key).collect();
-                assert!(keys.windows(2).all(|k| k[0] < k[1]), "case {case} {mode:?}: not in Z-order");
+                assert!(
+                    keys.windows(2).all(|k| k[0] < k[1]),
+                    "case {case} {mode:?}: not in Z-order"
+                );
             }
         }
     }
@@ -810,7 +1054,7 @@ mod tests {
         let mut rng = Rng::new(2, 2);
         for case in 0..CASES {
             let m = random_maps(&mut rng);
-            let params = random_params(&mut rng);
+            let params = random_params(&mut rng, &m);
             let planner = TilePlanner::new(&m.0, &m.1, params).unwrap();
             let p = planner.plan(TilingMode::Adaptive).unwrap();
             let mut undersampled = 0;
@@ -818,9 +1062,13 @@ mod tests {
                 let level = t.level as u32;
                 let res2 = t.res as f64 * t.res as f64;
                 let fits_one_pixel = deepest_estimate(&m.1, t) <= params.node_budget();
-                let memory_ok = res2 * deepest_estimate(&m.1, t) <= params.node_budget() * (1.0 + 1e-12);
+                let memory_ok =
+                    res2 * deepest_estimate(&m.1, t) <= params.node_budget() * (1.0 + 1e-12);
                 assert!(t.res <= params.w, "case {case}: {t:?} wider than W");
-                assert!(memory_ok || (t.res == 1 && !fits_one_pixel), "case {case}: {t:?} overflows");
+                assert!(
+                    memory_ok || (t.res == 1 && !fits_one_pixel),
+                    "case {case}: {t:?} overflows"
+                );
                 let rays = planner.rays_needed(level, t.x, t.y);
                 let bound = planner.ray_bound(level, t.x, t.y);
                 if rays > bound {
@@ -828,9 +1076,15 @@ mod tests {
                     undersampled += 1;
                 } else {
                     let rounded_down = (t.res as f64 + 1.0).powi(2) > bound;
-                    assert!(res2 >= rays || rounded_down, "case {case}: {t:?} undersamples");
+                    assert!(
+                        res2 >= rays || rounded_down,
+                        "case {case}: {t:?} undersamples"
+                    );
                 }
-                assert_eq!(planner.predicted_nodes(t), res2 * m.1.get(level, t.x, t.y) as f64);
+                assert_eq!(
+                    planner.predicted_nodes(t),
+                    res2 * m.1.get(level, t.x, t.y) as f64
+                );
             }
             assert_eq!(p.stats.undersampled_tiles, undersampled, "case {case}");
         }
@@ -844,7 +1098,7 @@ mod tests {
         let mut rng = Rng::new(3, 3);
         for case in 0..CASES {
             let m = random_maps(&mut rng);
-            let planner = TilePlanner::new(&m.0, &m.1, random_params(&mut rng)).unwrap();
+            let planner = TilePlanner::new(&m.0, &m.1, random_params(&mut rng, &m)).unwrap();
             let p = planner.plan(TilingMode::Adaptive).unwrap();
             for t in p.tiles.iter().filter(|t| t.level < m.0.top_level() as i32) {
                 let (level, x, y) = (t.level as u32 + 1, t.x / 2, t.y / 2);
@@ -873,7 +1127,9 @@ mod tests {
                     if split && is_reached(planner, level, x, y) {
                         dark += QUADRANTS
                             .iter()
-                            .filter(|(dx, dy)| importance.get(level - 1, 2 * x + dx, 2 * y + dy) == 0.0)
+                            .filter(|(dx, dy)| {
+                                importance.get(level - 1, 2 * x + dx, 2 * y + dy) == 0.0
+                            })
                             .count();
                     }
                 }
@@ -896,7 +1152,7 @@ mod tests {
         let mut rng = Rng::new(4, 4);
         for case in 0..CASES {
             let m = random_maps(&mut rng);
-            let planner = TilePlanner::new(&m.0, &m.1, random_params(&mut rng)).unwrap();
+            let planner = TilePlanner::new(&m.0, &m.1, random_params(&mut rng, &m)).unwrap();
             assert_eq!(
                 planner.plan_adaptive_per_pixel(),
                 planner.plan_adaptive_recursive(),
@@ -910,19 +1166,26 @@ mod tests {
         // Guards the property tests above against generators that never exercise a branch.
         let mut rng = Rng::new(1, 1);
         let mut total = PlanStats::default();
+        let mut above_finest = 0;
         for _ in 0..CASES {
             let m = random_maps(&mut rng);
-            let params = random_params(&mut rng);
-            let side = m.0.side();
-            let _ = random_modes(&mut rng, side);
-            let s = plan(&m, params, TilingMode::Adaptive).stats;
-            total.tiles += s.tiles;
-            total.splits_for_importance += s.splits_for_importance;
-            total.splits_for_memory += s.splits_for_memory;
-            total.undersampled_tiles += s.undersampled_tiles;
+            let params = random_params(&mut rng, &m);
+            let _ = random_modes(&mut rng, m.0.side());
+            let p = plan(&m, params, TilingMode::Adaptive);
+            above_finest += p.tiles.iter().filter(|t| t.level > 0).count();
+            total.tiles += p.stats.tiles;
+            total.splits_for_importance += p.stats.splits_for_importance;
+            total.splits_for_memory += p.stats.splits_for_memory;
+            total.undersampled_tiles += p.stats.undersampled_tiles;
         }
         assert!(total.splits_for_importance > 100, "{total:?}");
         assert!(total.splits_for_memory > 100, "{total:?}");
         assert!(total.undersampled_tiles > 100, "{total:?}");
+        assert!(above_finest > 1000, "{above_finest} tiles above level 0");
+        let finest_met = total.tiles - above_finest - total.undersampled_tiles;
+        assert!(
+            finest_met > 1000,
+            "{finest_met} level-0 tiles that met their importance"
+        );
     }
 }
