@@ -1,11 +1,15 @@
 //! livebake: global-illumination light maps for glTF scenes.
 //!
 //! Pure-Rust parts (no GPU): [`scene`] (glTF import), [`atlas`] (light-map UVs, packing,
-//! per-LOD texel maps), [`lod`], [`reference`] (CPU reference path tracer), [`bake`] (bake
-//! driver and backends), [`output`] (EXR/PNG/JSON), [`probe`] (irradiance at surface points).
+//! per-LOD texel maps), [`lod`], [`reference`] (CPU reference path tracer), [`bundle`] (the
+//! adaptive ray-bundle algorithm: directions, analysis mips, tile planner, estimator),
+//! [`cpu`] (the CPU bundle backend), [`bake`] (bake driver), [`output`] (EXR/PNG/JSON),
+//! [`probe`] (irradiance at surface points).
 
 pub mod atlas;
 pub mod bake;
+pub mod bundle;
+pub mod cpu;
 pub mod lod;
 pub mod output;
 pub mod probe;
