@@ -31,6 +31,8 @@ pub struct TexelMap {
     pub albedo: Vec<Rgb>,
     /// Per texel: emitted radiance of that side, W/(sr·m²) (zero when that side emits nothing).
     pub emission: Vec<Rgb>,
+    /// Per texel: world area (m²) of the surface that maps into the texel's square.
+    pub area: Vec<f32>,
     /// Gutter pixels (empty pixels next to a chart) and the texel each copies, so bilinear
     /// sampling near a chart edge never reads an empty or foreign texel.
     pub gutter: Vec<(u32, u32)>,

@@ -2,6 +2,7 @@
 //! and counts for the report. Backends compute the irradiance; this module owns everything
 //! around them.
 
+pub mod bundle;
 mod reference;
 pub mod report;
 
@@ -10,6 +11,8 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::atlas::{Atlas, AtlasConfig, AtlasError, TexelMap};
+use crate::bundle::{BundleConfig, BundleConfigError};
+use crate::reference::Bvh;
 use crate::progress::Progress;
 use crate::scene::{Rgb, Scene, SceneGeometry};
 
@@ -20,14 +23,17 @@ pub use report::{BakeReport, LodReport};
 #[serde(rename_all = "lowercase")]
 pub enum BackendKind {
     /// Per-texel path tracing (`reference` module): slow, unbiased ground truth.
-    #[default]
     Reference,
+    /// Adaptive ray bundles on CPU worker threads (`cpu` module).
+    #[default]
+    Cpu,
 }
 
 impl BackendKind {
     pub fn name(self) -> &'static str {
         match self {
             BackendKind::Reference => "reference",
+            BackendKind::Cpu => "cpu",
         }
     }
 }
@@ -39,10 +45,13 @@ pub struct BakeConfig {
     pub atlas: AtlasConfig,
     /// Number of LOD levels to bake (LOD 0 … lods−1).
     pub lods: u32,
-    /// Samples: paths per texel for the reference backend.
+    /// Samples: paths per texel for the reference backend, global bundle directions for
+    /// bundle backends (overrides `bundle.directions`).
     pub samples: u32,
     pub backend: BackendKind,
     pub seed: u64,
+    /// Bundle-backend parameters (its `directions` and `seed` come from `samples`/`seed`).
+    pub bundle: BundleConfig,
     /// Worker threads; `None` uses every core.
     pub threads: Option<usize>,
 }
@@ -52,15 +61,21 @@ impl Default for BakeConfig {
         BakeConfig {
             atlas: AtlasConfig::default(),
             lods: 1,
-            samples: 16,
+            samples: 256,
             backend: BackendKind::default(),
             seed: 0,
+            bundle: BundleConfig::default(),
             threads: None,
         }
     }
 }
 
 impl BakeConfig {
+    /// The bundle parameters with this config's sample count and seed.
+    pub fn bundle_config(&self) -> BundleConfig {
+        BundleConfig { directions: self.samples, seed: self.seed, ..self.bundle.clone() }
+    }
+
     pub fn threads(&self) -> usize {
         self.threads
             .unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))
@@ -98,6 +113,8 @@ pub enum BakeError {
     BadLodCount { got: u32, max: u32 },
     #[error("--samples must be at least 1")]
     NoSamples,
+    #[error(transparent)]
+    Bundle(#[from] BundleConfigError),
     #[error("LOD {lod} would have {texels} texels, above the limit of {max}; use fewer --lods or a larger --texel-size")]
     LodTooLarge { lod: u32, texels: u64, max: u64 },
 }
@@ -114,6 +131,7 @@ pub fn bake(scene: &Scene, config: &BakeConfig, progress: &dyn Progress) -> Resu
     if config.samples == 0 {
         return Err(BakeError::NoSamples);
     }
+    config.bundle_config().validate()?;
     let started = Instant::now();
     let geom = SceneGeometry::new(scene);
     let atlas = Atlas::build(scene, &geom, &config.atlas)?;
@@ -125,15 +143,39 @@ pub fn bake(scene: &Scene, config: &BakeConfig, progress: &dyn Progress) -> Resu
         }
     }
     let mut report = BakeReport::new(scene, &atlas, config);
-    let mut lods = Vec::new();
-    let backend = reference::ReferenceBackend::new(scene, config);
-    for lod in 0..config.lods {
-        let t0 = Instant::now();
-        let texels = TexelMap::build(scene, &geom, &atlas, lod);
-        let texel_seconds = t0.elapsed().as_secs_f64();
-        let (irradiance, stats) = backend.bake_lod(&texels, progress);
-        report.lods.push(LodReport::new(&texels, texel_seconds, &stats, &irradiance));
-        lods.push(BakedLod { texels, irradiance });
+    let mut lods: Vec<BakedLod> = Vec::new();
+    match config.backend {
+        BackendKind::Reference => {
+            let backend = reference::ReferenceBackend::new(scene, config);
+            for lod in 0..config.lods {
+                let t0 = Instant::now();
+                let texels = TexelMap::build(scene, &geom, &atlas, lod);
+                let texel_seconds = t0.elapsed().as_secs_f64();
+                let (irradiance, stats) = backend.bake_lod(&texels, progress);
+                report.lods.push(LodReport::new(&texels, texel_seconds, &stats, &irradiance, None));
+                lods.push(BakedLod { texels, irradiance });
+            }
+        }
+        BackendKind::Cpu => {
+            let bvh = Bvh::for_scene(scene, &geom);
+            let bundle_config = config.bundle_config();
+            let inputs = bundle::BundleInputs::new(scene, &geom, &bvh, &atlas, &bundle_config);
+            for lod in 0..config.lods {
+                let t0 = Instant::now();
+                let texels = TexelMap::build(scene, &geom, &atlas, lod);
+                let texel_seconds = t0.elapsed().as_secs_f64();
+                let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
+                let (irradiance, bstats) =
+                    bundle::bake_lod(&inputs, &texels, coarser, &bundle_config, config.threads(), progress);
+                let stats = BackendStats {
+                    samples_per_texel: config.samples,
+                    rays: bstats.pass.covered_pixels,
+                    seconds: bstats.bundle_seconds + bstats.punctual_seconds,
+                };
+                report.lods.push(LodReport::new(&texels, texel_seconds, &stats, &irradiance, Some(bstats)));
+                lods.push(BakedLod { texels, irradiance });
+            }
+        }
     }
     report.total_seconds = started.elapsed().as_secs_f64();
     Ok(BakeOutput { atlas, lods, report })
@@ -142,8 +184,10 @@ pub fn bake(scene: &Scene, config: &BakeConfig, progress: &dyn Progress) -> Resu
 /// What a backend measured while baking one LOD.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct BackendStats {
-    /// Samples per texel (reference: paths).
+    /// Samples per texel (reference: paths; bundles: global directions).
     pub samples_per_texel: u32,
+    /// Rays cast (reference) or effective bundle rays: bundle pixels with a fragment, summed
+    /// over directions (bundles).
     pub rays: u64,
     pub seconds: f64,
 }

@@ -5,6 +5,7 @@ use serde::Serialize;
 use crate::atlas::{Atlas, AtlasStats, TexelMap};
 use crate::scene::{LoadStats, Rgb, Scene};
 
+use super::bundle::BundleLodStats;
 use super::{BackendStats, BakeConfig};
 
 #[derive(Clone, Debug, Serialize)]
@@ -50,10 +51,68 @@ pub struct LodReport {
     pub mean_irradiance: [f32; 3],
     /// Texels whose estimate is not finite (must be 0).
     pub non_finite_texels: usize,
+    /// Bundle backends: Table 1 phases, tiles, overflow and false alarms (see `bundle`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bundle: Option<BundleReport>,
+}
+
+/// Bundle-bake figures of one LOD, including the paper's Table 1 (milliseconds per direction
+/// per phase) and Table 2 (overflow and false-alarm ratios).
+#[derive(Clone, Debug, Serialize)]
+pub struct BundleReport {
+    pub per_direction_ms: PhaseMs,
+    pub tiles_per_direction: f64,
+    pub overflow_ratio: f64,
+    pub false_alarm_ratio: f64,
+    pub fragments_per_second: f64,
+    pub effective_rays_per_second: f64,
+    #[serde(flatten)]
+    pub stats: BundleLodStats,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct PhaseMs {
+    pub analysis: f64,
+    pub mip: f64,
+    pub subdivision: f64,
+    pub build: f64,
+    pub resolve: f64,
+    pub light_pass: f64,
+}
+
+impl BundleReport {
+    pub fn new(stats: BundleLodStats) -> Self {
+        let p = &stats.pass;
+        let d = p.directions.max(1) as f64;
+        let ms = |s: f64| s * 1000.0 / d;
+        let secs = stats.bundle_seconds.max(1e-9);
+        BundleReport {
+            per_direction_ms: PhaseMs {
+                analysis: ms(p.analysis_seconds),
+                mip: ms(p.mip_seconds),
+                subdivision: ms(p.subdivision_seconds),
+                build: ms(p.build_seconds),
+                resolve: ms(p.resolve_seconds),
+                light_pass: ms(p.light_seconds),
+            },
+            tiles_per_direction: p.tiles as f64 / d,
+            overflow_ratio: p.overflow_ratio(),
+            false_alarm_ratio: p.false_alarm_ratio(),
+            fragments_per_second: (p.fragments + p.light_fragments) as f64 / secs,
+            effective_rays_per_second: p.covered_pixels as f64 / secs,
+            stats,
+        }
+    }
 }
 
 impl LodReport {
-    pub fn new(texels: &TexelMap, texel_seconds: f64, stats: &BackendStats, irradiance: &[Rgb]) -> Self {
+    pub fn new(
+        texels: &TexelMap,
+        texel_seconds: f64,
+        stats: &BackendStats,
+        irradiance: &[Rgb],
+        bundle: Option<BundleLodStats>,
+    ) -> Self {
         let finite: Vec<&Rgb> = irradiance.iter().filter(|e| e.is_finite()).collect();
         let mean = finite.iter().fold(glam::DVec3::ZERO, |a, e| a + e.as_dvec3()) / finite.len().max(1) as f64;
         LodReport {
@@ -69,6 +128,7 @@ impl LodReport {
             rays_per_second: if stats.seconds > 0.0 { stats.rays as f64 / stats.seconds } else { 0.0 },
             mean_irradiance: mean.as_vec3().to_array(),
             non_finite_texels: irradiance.len() - finite.len(),
+            bundle: bundle.map(BundleReport::new),
         }
     }
 }

@@ -21,3 +21,141 @@ pub mod progressive;
 pub mod raster;
 pub mod stats;
 pub mod tiles;
+
+use glam::{Vec2, Vec3};
+use serde::Serialize;
+
+use crate::scene::Rgb;
+use progressive::BatchSums;
+use stats::PassStats;
+use tiles::TilingMode;
+
+/// Parameters of a ray-bundle bake. Same config and scene ⇒ same light map, whatever the
+/// thread count.
+#[derive(Clone, Debug, Serialize)]
+pub struct BundleConfig {
+    /// Global bundle directions (each serves ω and −ω).
+    pub directions: u32,
+    /// Side R of the analysis maps (power of two).
+    pub analysis_res: u32,
+    /// Side W of the head-pointer buffer: at most W×W bundle pixels per tile.
+    pub head_side: u32,
+    /// Node-buffer capacity N: at most N fragments per tile.
+    pub node_capacity: u64,
+    /// α of Eq. 2–3.
+    pub alpha: f32,
+    #[serde(serialize_with = "serialize_tiling")]
+    pub tiling: TilingMode,
+    /// Bundle pixels per texel side at the importance the texel density asks for.
+    pub oversampling: f32,
+    /// Light-pass directions per global direction, per small emitter group.
+    pub light_directions: u32,
+    /// Emitter groups smaller than this fraction of the lit area get the light pass.
+    pub small_emitter_fraction: f64,
+    /// Directions per batch: the running estimate (and the radiance later directions read)
+    /// is refreshed after each batch.
+    pub directions_per_batch: u32,
+    /// Independent accumulation lanes a batch is split into. Results depend on this (float
+    /// sums in another order) but not on the thread count; at most this many threads work.
+    pub lanes: u32,
+    /// Re-count memory splits to report the false-alarm ratio (one extra count pass each).
+    pub measure_false_alarms: bool,
+    pub seed: u64,
+}
+
+fn serialize_tiling<S: serde::Serializer>(t: &TilingMode, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(&match t {
+        TilingMode::None => "none".to_string(),
+        TilingMode::Uniform { k } => format!("uniform:{k}"),
+        TilingMode::Adaptive => "adaptive".to_string(),
+    })
+}
+
+impl Default for BundleConfig {
+    fn default() -> Self {
+        BundleConfig {
+            directions: 256,
+            analysis_res: 128,
+            head_side: 512,
+            node_capacity: 1 << 20,
+            alpha: tiles::DEFAULT_ALPHA,
+            tiling: TilingMode::Adaptive,
+            oversampling: 1.0,
+            light_directions: 16,
+            small_emitter_fraction: 0.05,
+            directions_per_batch: 8,
+            lanes: 2,
+            measure_false_alarms: true,
+            seed: 0,
+        }
+    }
+}
+
+/// Errors in a bundle configuration.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BundleConfigError {
+    #[error("analysis resolution R must be a power of two between 2 and 4096, got {0}")]
+    AnalysisRes(u32),
+    #[error("head-pointer side W must be between 1 and 16384, got {0}")]
+    HeadSide(u32),
+    #[error("node capacity N must be at least 1")]
+    NodeCapacity,
+    #[error("alpha must be in (0, 1], got {0}")]
+    Alpha(f32),
+    #[error("oversampling must be a positive number, got {0}")]
+    Oversampling(f32),
+    #[error("lanes and directions per batch must be at least 1")]
+    Batching,
+}
+
+impl BundleConfig {
+    pub fn validate(&self) -> Result<(), BundleConfigError> {
+        if !self.analysis_res.is_power_of_two() || !(2..=4096).contains(&self.analysis_res) {
+            return Err(BundleConfigError::AnalysisRes(self.analysis_res));
+        }
+        if !(1..=16384).contains(&self.head_side) {
+            return Err(BundleConfigError::HeadSide(self.head_side));
+        }
+        if self.node_capacity == 0 {
+            return Err(BundleConfigError::NodeCapacity);
+        }
+        if !(self.alpha > 0.0 && self.alpha <= 1.0) {
+            return Err(BundleConfigError::Alpha(self.alpha));
+        }
+        if !(self.oversampling.is_finite() && self.oversampling > 0.0) {
+            return Err(BundleConfigError::Oversampling(self.oversampling));
+        }
+        if self.lanes == 0 || self.directions_per_batch == 0 {
+            return Err(BundleConfigError::Batching);
+        }
+        Ok(())
+    }
+}
+
+/// One global bundle direction and the light bundles traced with it.
+#[derive(Clone, Debug)]
+pub struct DirectionJob {
+    pub index: u64,
+    pub dir: Vec3,
+    /// Sub-pixel shift of the bundle grid, in [0,1)² of an analysis pixel.
+    pub jitter: Vec2,
+    pub lights: Vec<LightJob>,
+}
+
+/// One light bundle: a direction through one emitter group's footprint.
+#[derive(Clone, Debug)]
+pub struct LightJob {
+    pub group: u32,
+    pub dir: Vec3,
+    pub jitter: Vec2,
+}
+
+/// Something that traces bundles: the CPU backend now, the GPU backend later. The bake
+/// driver owns directions, batching and the estimate; a backend only turns a batch of
+/// directions and the radiance each texel sends into per-texel hit sums.
+pub trait BundleBackend {
+    fn name(&self) -> &'static str;
+    /// Traces `batch` against `source` (outgoing radiance per texel toward the bundles),
+    /// overwriting `sums` with the batch's hit sums.
+    fn trace_batch(&mut self, batch: &[DirectionJob], source: &[Rgb], sums: &mut BatchSums) -> PassStats;
+}

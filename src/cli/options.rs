@@ -5,10 +5,14 @@ use clap::{Args, ValueEnum};
 
 use livebake::atlas::AtlasConfig;
 use livebake::bake::{BackendKind, BakeConfig};
+use livebake::bundle::BundleConfig;
+use livebake::bundle::tiles::TilingMode;
 use livebake::scene::Rgb;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Backend {
+    /// Adaptive ray bundles on the CPU (fast; the default).
+    Cpu,
     /// Per-texel (or per-point) CPU path tracing: the ground truth.
     Reference,
 }
@@ -24,15 +28,15 @@ pub struct SceneOptions {
     /// Number of light-map LODs to bake (LOD k has 2^k times LOD 0's resolution).
     #[arg(long, value_name = "K", default_value_t = 1)]
     pub lods: u32,
-    /// Samples: paths per texel (bake) or per point (probe) for the reference backend.
-    /// Default: 16 for bake, 1024 for probe.
+    /// Samples: bundle directions for the cpu backend (default 256); paths per texel (bake,
+    /// default 16) or per point (probe, default 1024) for the reference backend.
     #[arg(long, value_name = "N")]
     pub samples: Option<u32>,
     /// Uniform sky radiance W/(sr·m²) seen by rays leaving the scene.
     #[arg(long, value_name = "R,G,B", default_value = "0,0,0", value_parser = parse_rgb)]
     pub sky: Rgb,
     /// Estimator that computes irradiance.
-    #[arg(long, value_enum, default_value_t = Backend::Reference)]
+    #[arg(long, value_enum, default_value_t = Backend::Cpu)]
     pub backend: Backend,
     /// Random seed.
     #[arg(long, value_name = "S", default_value_t = 0)]
@@ -43,6 +47,66 @@ pub struct SceneOptions {
     /// Ignore TEXCOORD_1 and unwrap every mesh.
     #[arg(long)]
     pub no_uv1: bool,
+    #[command(flatten)]
+    pub bundle: BundleOptions,
+}
+
+/// Ray-bundle parameters (paper notation: W, N, α, R).
+#[derive(Args, Debug, Clone)]
+pub struct BundleOptions {
+    /// Tiling of each bundle direction: adaptive (Eq. 1–3), uniform:K (K×K tiles at W×W),
+    /// or none (one W×W bundle).
+    #[arg(long, default_value = "adaptive", value_parser = parse_tiling)]
+    pub tiling: TilingMode,
+    /// Analysis map side R (power of two).
+    #[arg(long, value_name = "R", default_value_t = BundleConfig::default().analysis_res)]
+    pub analysis_res: u32,
+    /// Head-pointer buffer side W: most bundle pixels per tile side.
+    #[arg(long, value_name = "W", default_value_t = BundleConfig::default().head_side)]
+    pub head_side: u32,
+    /// Node-buffer capacity N: most fragments per tile.
+    #[arg(long, value_name = "N", default_value_t = BundleConfig::default().node_capacity)]
+    pub nodes: u64,
+    /// α of Eq. 2–3: share of N the prediction may fill.
+    #[arg(long, default_value_t = BundleConfig::default().alpha)]
+    pub alpha: f32,
+    /// Bundle pixels per texel side.
+    #[arg(long, default_value_t = BundleConfig::default().oversampling)]
+    pub oversampling: f32,
+    /// Light-pass directions per global direction per small emitter.
+    #[arg(long, default_value_t = BundleConfig::default().light_directions)]
+    pub light_directions: u32,
+    /// Accumulation lanes (results depend on it, not on --threads; at most this many threads
+    /// trace bundles).
+    #[arg(long, default_value_t = BundleConfig::default().lanes)]
+    pub lanes: u32,
+}
+
+impl Default for BundleOptions {
+    fn default() -> Self {
+        let d = BundleConfig::default();
+        BundleOptions {
+            tiling: d.tiling,
+            analysis_res: d.analysis_res,
+            head_side: d.head_side,
+            nodes: d.node_capacity,
+            alpha: d.alpha,
+            oversampling: d.oversampling,
+            light_directions: d.light_directions,
+            lanes: d.lanes,
+        }
+    }
+}
+
+fn parse_tiling(s: &str) -> Result<TilingMode, String> {
+    match s {
+        "adaptive" => Ok(TilingMode::Adaptive),
+        "none" => Ok(TilingMode::None),
+        _ => match s.strip_prefix("uniform:").map(str::parse::<u32>) {
+            Some(Ok(k)) if k.is_power_of_two() => Ok(TilingMode::Uniform { k }),
+            _ => Err(format!("expected adaptive, none or uniform:K with K a power of two, got {s:?}")),
+        },
+    }
 }
 
 impl Default for SceneOptions {
@@ -57,6 +121,7 @@ impl Default for SceneOptions {
             seed: 0,
             threads: None,
             no_uv1: false,
+            bundle: BundleOptions::default(),
         }
     }
 }
@@ -75,7 +140,8 @@ fn parse_rgb(s: &str) -> Result<Rgb, String> {
 }
 
 impl SceneOptions {
-    pub fn bake_config(&self, default_samples: u32) -> Result<BakeConfig> {
+    /// The bake config; `default_samples(backend)` gives the sample count when --samples is absent.
+    pub fn bake_config(&self, default_samples: impl Fn(Backend) -> u32) -> Result<BakeConfig> {
         if let Some(t) = self.texel_size
             && (!t.is_finite() || t <= 0.0)
         {
@@ -95,11 +161,23 @@ impl SceneOptions {
                 ..AtlasConfig::default()
             },
             lods: self.lods,
-            samples: self.samples.unwrap_or(default_samples),
+            samples: self.samples.unwrap_or_else(|| default_samples(self.backend)),
             backend: match self.backend {
                 Backend::Reference => BackendKind::Reference,
+                Backend::Cpu => BackendKind::Cpu,
             },
             seed: self.seed,
+            bundle: BundleConfig {
+                tiling: self.bundle.tiling,
+                analysis_res: self.bundle.analysis_res,
+                head_side: self.bundle.head_side,
+                node_capacity: self.bundle.nodes,
+                alpha: self.bundle.alpha,
+                oversampling: self.bundle.oversampling,
+                light_directions: self.bundle.light_directions,
+                lanes: self.bundle.lanes,
+                ..BundleConfig::default()
+            },
             threads: self.threads,
         })
     }
@@ -117,5 +195,14 @@ mod tests {
         assert!(parse_rgb("-1,0,0").is_err());
         assert!(parse_rgb("nan,0,0").is_err());
         assert!(parse_rgb("a,b,c").is_err());
+    }
+
+    #[test]
+    fn tiling_parses_the_three_modes() {
+        assert_eq!(parse_tiling("adaptive").unwrap(), TilingMode::Adaptive);
+        assert_eq!(parse_tiling("none").unwrap(), TilingMode::None);
+        assert_eq!(parse_tiling("uniform:4").unwrap(), TilingMode::Uniform { k: 4 });
+        assert!(parse_tiling("uniform:3").is_err());
+        assert!(parse_tiling("fast").is_err());
     }
 }

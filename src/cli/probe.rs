@@ -15,8 +15,14 @@ use super::bake::load_scene;
 use super::options::Backend;
 use super::progress::Ui;
 
-/// Default paths per point for the reference backend: ~1% noise on a lit interior.
-const DEFAULT_SAMPLES: u32 = 1024;
+/// Default samples: 1024 paths per point for the reference backend (~1% noise on a lit
+/// interior); 256 directions for bundle backends.
+fn default_samples(backend: Backend) -> u32 {
+    match backend {
+        Backend::Cpu => 256,
+        Backend::Reference => 1024,
+    }
+}
 
 struct Query {
     p: Vec3,
@@ -52,10 +58,11 @@ fn read_points(path: &Path) -> Result<(Value, Vec<Query>)> {
 }
 
 pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &SceneOptions, ui: &Ui) -> Result<()> {
-    let config = options.bake_config(DEFAULT_SAMPLES)?;
+    let config = options.bake_config(default_samples)?;
     let (mut doc, queries) = read_points(points_path)?;
     let (scene, _) = load_scene(scene_path, options)?;
     let results: Vec<Result<Rgb, ProbeError>> = match options.backend {
+        Backend::Cpu => anyhow::bail!("probe from bundle light maps is wired in the next step"),
         Backend::Reference => {
             let tracer = ReferenceTracer::new(&scene).with_threads(config.threads);
             let locator = SurfaceLocator::new(tracer.geometry(), tracer.bvh());

@@ -13,7 +13,7 @@ use crate::bundle::mips::MipChain;
 use crate::bundle::progressive::BatchSums;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
-use crate::bundle::tiles::{Tile, TileParams, TilePlanner, bundle_resolution, split};
+use crate::bundle::tiles::{Tile, TileParams, TilePlanner, TilingMode, bundle_resolution, split};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
 use crate::bundle::emitters::EmitterGroup;
 use crate::scene::Rgb;
@@ -128,9 +128,9 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
     let Ok(planner) = TilePlanner::new(&importance, &fragments, params) else { return };
     let Ok(plan) = planner.plan(cfg.tiling) else { return };
     stats.subdivision_seconds += seconds(t);
-    stats.plan.add(&plan.stats);
+    stats.add_plan(&plan.stats);
 
-    if cfg.measure_false_alarms {
+    if cfg.measure_false_alarms && cfg.tiling == TilingMode::Adaptive {
         count_false_alarms(ctx, &planner, &plan.tiles, &frame, &global, s, stats);
     }
 
@@ -142,12 +142,9 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
         s.analysis.candidates(w.x, w.y, w.x + w.side, w.y + w.side, &mut s.candidates);
         let t = Instant::now();
         let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None);
-        if count > cfg.node_capacity {
+        if count > cfg.node_capacity && overflowed(&tile, count, cfg.node_capacity, &mut s.queue, stats) {
             stats.build_seconds += seconds(t);
-            overflowed(&tile, count, cfg.node_capacity, &mut s.queue, stats);
-            if !(stats.unsplittable_tiles > 0 && split(&tile).is_err()) {
-                continue;
-            }
+            continue;
         }
         s.fragments.build(ctx.scene);
         stats.build_seconds += seconds(t);
@@ -167,14 +164,22 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
 
 /// A tile counted more fragments than the node buffer holds: record it and queue its four
 /// quadrants at the same density (the paper's "split and redo"), so no sample is lost.
-fn overflowed(tile: &Tile, count: u64, capacity: u64, queue: &mut Vec<Tile>, stats: &mut PassStats) {
+/// Returns false when the tile cannot be split (one bundle pixel deeper than the whole node
+/// buffer: N is too small for this scene); the caller then builds it anyway, exceeding N for
+/// that one pixel, rather than drop samples.
+fn overflowed(tile: &Tile, count: u64, capacity: u64, queue: &mut Vec<Tile>, stats: &mut PassStats) -> bool {
     stats.overflowed_tiles += 1;
     stats.overflow_fragments += count - capacity;
     match split(tile) {
-        Ok(children) => queue.extend(children.iter().rev()),
-        // One bundle pixel deeper than the whole node buffer: N is too small for this scene.
-        // Build it anyway (peak memory exceeds N for this one pixel) rather than drop samples.
-        Err(_) => stats.unsplittable_tiles += 1,
+        Ok(children) => {
+            stats.resplits += 1;
+            queue.extend(children.iter().rev());
+            true
+        }
+        Err(_) => {
+            stats.unsplittable_tiles += 1;
+            false
+        }
     }
 }
 
@@ -191,13 +196,14 @@ fn count_false_alarms(
     stats: &mut PassStats,
 ) {
     let mut seen = std::collections::BTreeSet::new();
+    let top_level = ctx.config.analysis_res.trailing_zeros();
     for tile in tiles {
         let mut level = tile.level.max(0) as u32 + 1;
         let (mut x, mut y) = (tile.x >> 1, tile.y >> 1);
         if tile.level < 0 {
             continue;
         }
-        while level <= planner.top_level() {
+        while level <= top_level {
             if !seen.insert((level, x, y)) {
                 break;
             }
@@ -255,11 +261,8 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
     while let Some(tile) = s.queue.pop() {
         let vp = tile_viewport(&base, &tile);
         let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group));
-        if count > cfg.node_capacity {
-            overflowed(&tile, count, cfg.node_capacity, &mut s.queue, stats);
-            if split(&tile).is_ok() {
-                continue;
-            }
+        if count > cfg.node_capacity && overflowed(&tile, count, cfg.node_capacity, &mut s.queue, stats) {
+            continue;
         }
         s.fragments.build(ctx.scene);
         stats.light_tiles += 1;

@@ -13,12 +13,6 @@ use crate::atlas::texels::NO_TEXEL;
 use crate::bundle::estimator::{EMITTER_FLAG, Fragment, NO_SIDE, sort_by_depth};
 use crate::bundle::raster::{BundleFrame, ScreenTriangle, Viewport};
 
-/// A tile's fragment count exceeded the node budget.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Overflow {
-    pub fragments: u64,
-}
-
 /// A lit side of a triangle in the current viewport: its UV (LOD pixels) as an affine
 /// function of pixel coordinates, and its UV corners.
 struct TileSide {

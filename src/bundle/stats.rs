@@ -1,0 +1,96 @@
+//! Counters and phase timings of bundle passes: the paper's Table 1 (time per phase per
+//! direction) and Table 2 (overflow and false-alarm ratios), identical for every backend.
+
+use serde::Serialize;
+
+use super::tiles::PlanStats;
+
+/// Sums over the directions a backend traced.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PassStats {
+    pub directions: u64,
+    /// Phase times, seconds summed over directions (divide by `directions` for Table 1).
+    pub analysis_seconds: f64,
+    pub mip_seconds: f64,
+    pub subdivision_seconds: f64,
+    pub build_seconds: f64,
+    pub resolve_seconds: f64,
+    pub light_seconds: f64,
+    /// Global-bundle tiles built (after overflow splits).
+    pub tiles: u64,
+    pub fragments: u64,
+    /// Bundle pixels with at least one fragment: effective rays.
+    pub covered_pixels: u64,
+    /// Largest fragment count of any built tile (≤ N unless a single pixel exceeded it).
+    pub peak_tile_fragments: u64,
+    /// Tiles whose actual fragment count exceeded N (detected, split and redone).
+    pub overflowed_tiles: u64,
+    /// Fragments beyond N in those tiles: what a fixed node buffer would have lost.
+    pub overflow_fragments: u64,
+    pub resplits: u64,
+    /// Tiles of one pixel deeper than N, built anyway.
+    pub unsplittable_tiles: u64,
+    /// Planner decisions summed over directions.
+    pub tiles_planned: u64,
+    pub splits_for_importance: u64,
+    pub splits_for_memory: u64,
+    pub undersampled_tiles: u64,
+    /// Memory splits re-counted at the resolution they asked for, and how many would have
+    /// fitted after all.
+    pub memory_splits_checked: u64,
+    pub false_alarms: u64,
+    pub light_tiles: u64,
+    pub light_fragments: u64,
+    /// Fragments whose UV missed every texel through rounding (they still occlude).
+    pub lost_lookups: u64,
+}
+
+impl PassStats {
+    pub fn add_plan(&mut self, p: &PlanStats) {
+        self.tiles_planned += p.tiles as u64;
+        self.splits_for_importance += p.splits_for_importance as u64;
+        self.splits_for_memory += p.splits_for_memory as u64;
+        self.undersampled_tiles += p.undersampled_tiles as u64;
+    }
+
+    pub fn add(&mut self, o: &PassStats) {
+        self.directions += o.directions;
+        self.analysis_seconds += o.analysis_seconds;
+        self.mip_seconds += o.mip_seconds;
+        self.subdivision_seconds += o.subdivision_seconds;
+        self.build_seconds += o.build_seconds;
+        self.resolve_seconds += o.resolve_seconds;
+        self.light_seconds += o.light_seconds;
+        self.tiles += o.tiles;
+        self.fragments += o.fragments;
+        self.covered_pixels += o.covered_pixels;
+        self.peak_tile_fragments = self.peak_tile_fragments.max(o.peak_tile_fragments);
+        self.overflowed_tiles += o.overflowed_tiles;
+        self.overflow_fragments += o.overflow_fragments;
+        self.resplits += o.resplits;
+        self.unsplittable_tiles += o.unsplittable_tiles;
+        self.tiles_planned += o.tiles_planned;
+        self.splits_for_importance += o.splits_for_importance;
+        self.splits_for_memory += o.splits_for_memory;
+        self.undersampled_tiles += o.undersampled_tiles;
+        self.memory_splits_checked += o.memory_splits_checked;
+        self.false_alarms += o.false_alarms;
+        self.light_tiles += o.light_tiles;
+        self.light_fragments += o.light_fragments;
+        self.lost_lookups += o.lost_lookups;
+    }
+
+    /// Paper Table 2: fragments a fixed node buffer would have lost / all fragments.
+    pub fn overflow_ratio(&self) -> f64 {
+        ratio(self.overflow_fragments, self.fragments + self.overflow_fragments)
+    }
+
+    /// Paper Table 2: unnecessary splits / all splits.
+    pub fn false_alarm_ratio(&self) -> f64 {
+        ratio(self.false_alarms, self.splits_for_importance + self.splits_for_memory)
+    }
+}
+
+fn ratio(a: u64, b: u64) -> f64 {
+    if b == 0 { 0.0 } else { a as f64 / b as f64 }
+}

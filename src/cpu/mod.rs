@@ -1,0 +1,98 @@
+//! The CPU bundle backend: the adaptive ray-bundle algorithm on worker threads, with the
+//! same plan, node budget and estimator as the GPU backend.
+//!
+//! A batch of directions is split into a fixed number of lanes; each lane traces its
+//! directions in order into its own hit sums, and the lanes are added in order. The sums
+//! therefore do not depend on how many threads ran the lanes.
+
+mod analysis;
+mod direction;
+mod fragments;
+pub mod prepared;
+pub mod punctual;
+
+use crate::bundle::emitters::EmitterGroup;
+use crate::bundle::progressive::BatchSums;
+use crate::bundle::stats::PassStats;
+use crate::bundle::{BundleBackend, BundleConfig, DirectionJob};
+use crate::scene::Rgb;
+
+use direction::{PassContext, Scratch, trace_direction};
+pub use prepared::PreparedScene;
+
+struct Lane {
+    sums: BatchSums,
+    scratch: Scratch,
+}
+
+pub struct CpuBundleBackend<'a> {
+    ctx: PassContext<'a>,
+    lanes: Vec<Lane>,
+    threads: usize,
+}
+
+impl<'a> CpuBundleBackend<'a> {
+    /// `light_pixel`: bundle pixel side of the light pass (metres).
+    pub fn new(
+        scene: &'a PreparedScene<'a>,
+        config: &'a BundleConfig,
+        groups: &'a [EmitterGroup],
+        sky: Rgb,
+        light_pixel: f32,
+        threads: usize,
+    ) -> Self {
+        let texels = scene.texels.len();
+        let lanes = (0..config.lanes.max(1)).map(|_| Lane { sums: BatchSums::new(texels), scratch: Scratch::default() }).collect();
+        let all_triangles = (0..scene.geom.len() as u32).collect();
+        CpuBundleBackend {
+            ctx: PassContext { scene, config, groups, sky, light_pixel, all_triangles },
+            lanes,
+            threads: threads.max(1),
+        }
+    }
+}
+
+impl BundleBackend for CpuBundleBackend<'_> {
+    fn name(&self) -> &'static str {
+        "cpu"
+    }
+
+    fn trace_batch(&mut self, batch: &[DirectionJob], source: &[Rgb], sums: &mut BatchSums) -> PassStats {
+        let n_lanes = self.lanes.len();
+        let workers = self.threads.min(n_lanes).max(1);
+        let ctx = &self.ctx;
+        // Lane l traces directions l, l + n_lanes, ...; worker w runs lanes w, w + workers, ...
+        let mut lane_refs: Vec<(usize, &mut Lane)> = self.lanes.iter_mut().enumerate().collect();
+        let mut per_worker: Vec<Vec<(usize, &mut Lane)>> = (0..workers).map(|_| Vec::new()).collect();
+        for (i, lane) in lane_refs.drain(..) {
+            per_worker[i % workers].push((i, lane));
+        }
+        let stats: Vec<PassStats> = std::thread::scope(|scope| {
+            let handles: Vec<_> = per_worker
+                .into_iter()
+                .map(|lanes| {
+                    scope.spawn(move || {
+                        let mut stats = PassStats::default();
+                        for (l, lane) in lanes {
+                            for job in batch.iter().skip(l).step_by(n_lanes) {
+                                trace_direction(ctx, job, source, &mut lane.sums, &mut lane.scratch, &mut stats);
+                            }
+                        }
+                        stats
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap_or_default()).collect()
+        });
+        sums.clear();
+        for lane in &mut self.lanes {
+            sums.add(&lane.sums);
+            lane.sums.clear();
+        }
+        let mut total = PassStats::default();
+        for s in &stats {
+            total.add(s);
+        }
+        total
+    }
+}
