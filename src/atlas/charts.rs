@@ -105,38 +105,46 @@ pub(crate) fn edge_adjacency(corners: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
         }
     }
     edges.sort_unstable();
-    let mut pairs: Vec<(u32, u32)> = Vec::new();
-    let mut s = 0;
-    while s < edges.len() {
-        let mut e = s + 1;
-        while e < edges.len() && edges[e].0 == edges[s].0 {
-            e += 1;
-        }
-        for i in s..e {
-            for j in s..e {
-                if edges[i].1 != edges[j].1 {
-                    pairs.push((edges[i].1, edges[j].1));
+    // Runs of equal edges: every pair of triangles in a run is adjacent. Count, then fill
+    // (a pair sharing two edges — duplicates — is listed twice, which is harmless).
+    let runs = |f: &mut dyn FnMut(u32, u32)| {
+        let mut s = 0;
+        while s < edges.len() {
+            let mut e = s + 1;
+            while e < edges.len() && edges[e].0 == edges[s].0 {
+                e += 1;
+            }
+            for i in s..e {
+                for j in s..e {
+                    if edges[i].1 != edges[j].1 {
+                        f(edges[i].1, edges[j].1);
+                    }
                 }
             }
+            s = e;
         }
-        s = e;
-    }
-    pairs.sort_unstable();
-    pairs.dedup();
+    };
     let mut start = vec![0u32; corners.len() + 1];
-    for &(a, _) in &pairs {
-        start[a as usize + 1] += 1;
-    }
+    runs(&mut |a, _| start[a as usize + 1] += 1);
     for i in 0..corners.len() {
         start[i + 1] += start[i];
     }
-    (start, pairs.into_iter().map(|(_, b)| b).collect())
+    let mut fill = start.clone();
+    let mut adj = vec![0u32; start[corners.len()] as usize];
+    runs(&mut |a, b| {
+        adj[fill[a as usize] as usize] = b;
+        fill[a as usize] += 1;
+    });
+    (start, adj)
 }
 
-/// Uniform grid over the faces of one chart, for the overlap test.
+/// Uniform grid over the faces of one chart, for the overlap test. Cells hold singly linked
+/// lists in one node array, so clearing it between charts frees nothing.
 struct OverlapGrid {
     inv_cell: f64,
-    cells: FxMap<(i64, i64), Vec<u32>>,
+    heads: FxMap<(i64, i64), u32>,
+    /// (face, next node or u32::MAX)
+    nodes: Vec<(u32, u32)>,
     /// Faces covering too many cells: tested against every candidate.
     big: Vec<u32>,
     members: Vec<u32>,
@@ -146,11 +154,18 @@ struct OverlapGrid {
 
 const MAX_CELLS: i64 = 64;
 
+#[inline]
+fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    i - i64::from((i as f64) > x)
+}
+
 impl OverlapGrid {
     fn new(cell: f64, faces: usize) -> Self {
         OverlapGrid {
             inv_cell: 1.0 / cell,
-            cells: FxMap::default(),
+            heads: FxMap::default(),
+            nodes: Vec::new(),
             big: Vec::new(),
             members: Vec::new(),
             stamp: vec![0; faces],
@@ -159,7 +174,8 @@ impl OverlapGrid {
     }
 
     fn clear(&mut self) {
-        self.cells.clear();
+        self.heads.clear();
+        self.nodes.clear();
         self.big.clear();
         self.members.clear();
     }
@@ -167,7 +183,7 @@ impl OverlapGrid {
     fn cell_range(&self, t: &[DVec2; 3]) -> Option<(i64, i64, i64, i64)> {
         let lo = t[0].min(t[1]).min(t[2]) * self.inv_cell;
         let hi = t[0].max(t[1]).max(t[2]) * self.inv_cell;
-        let r = (lo.x.floor() as i64, lo.y.floor() as i64, hi.x.floor() as i64, hi.y.floor() as i64);
+        let r = (floor_i64(lo.x), floor_i64(lo.y), floor_i64(hi.x), floor_i64(hi.y));
         ((r.2 - r.0 + 1) * (r.3 - r.1 + 1) <= MAX_CELLS).then_some(r)
     }
 
@@ -194,10 +210,13 @@ impl OverlapGrid {
         }
         for y in y0..=y1 {
             for x in x0..=x1 {
-                if let Some(v) = self.cells.get(&(x, y)) {
-                    if v.iter().any(|&f| hit(f, &mut self.stamp)) {
+                let mut n = self.heads.get(&(x, y)).copied().unwrap_or(u32::MAX);
+                while n != u32::MAX {
+                    let (f, next) = self.nodes[n as usize];
+                    if hit(f, &mut self.stamp) {
                         return true;
                     }
+                    n = next;
                 }
             }
         }
@@ -211,7 +230,9 @@ impl OverlapGrid {
             Some((x0, y0, x1, y1)) => {
                 for y in y0..=y1 {
                     for x in x0..=x1 {
-                        self.cells.entry((x, y)).or_default().push(f);
+                        let head = self.heads.entry((x, y)).or_insert(u32::MAX);
+                        self.nodes.push((f, *head));
+                        *head = (self.nodes.len() - 1) as u32;
                     }
                 }
             }
@@ -227,7 +248,8 @@ pub fn unwrap_mesh(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel
         return Vec::new();
     }
     let inv_texel = 1.0 / texel_size;
-    let cos_max = (max_angle.clamp(0.0, std::f32::consts::PI) as f64).cos();
+    let max_angle = if max_angle.is_nan() { 0.0 } else { max_angle.clamp(0.0, std::f32::consts::PI) };
+    let cos_max = (max_angle as f64).cos();
     let (wid, reps) = weld(&mesh.positions);
     let corners: Vec<[u32; 3]> = tris
         .iter()
@@ -248,7 +270,7 @@ pub fn unwrap_mesh(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel
             longest.push(e2.sqrt());
             let a2 = (b - a).cross(c - a).length();
             let [i0, i1, i2] = corners[i];
-            i0 == i1 || i1 == i2 || i2 == i0 || !(a2 > 1e-7 * e2) || e2 < 1e-12
+            i0 == i1 || i1 == i2 || i2 == i0 || a2 <= 1e-7 * e2 || e2 < 1e-12
         })
         .collect();
     let cell = {
@@ -259,7 +281,7 @@ pub fn unwrap_mesh(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel
     };
 
     let mut seeds: Vec<u32> = (0..n as u32).collect();
-    seeds.sort_by(|&a, &b| area[b as usize].total_cmp(&area[a as usize]).then(a.cmp(&b)));
+    seeds.sort_unstable_by(|&a, &b| area[b as usize].total_cmp(&area[a as usize]).then(a.cmp(&b)));
 
     let mut chart_of = vec![u32::MAX; n];
     let mut tried = vec![u32::MAX; n];

@@ -12,6 +12,11 @@
 //! UV units: atlas UVs are stored in **LOD-0 texel units** (x right, y down, origin at the
 //! atlas's top-left corner). LOD k coordinates are `uv · 2^k`; normalised [0,1] UVs are
 //! `uv / (width, height)`.
+//!
+//! Pieces: [`charts`] (planar unwrapper), [`uv1`] (TEXCOORD_1 validation), [`pack`] (chart
+//! rectangles and skyline packing), [`raster`] (the conservative coverage rule every part
+//! shares: what a face touches at LOD k is what the packer reserved room for, what the
+//! TEXCOORD_1 check tested and what the texel map rasterises), [`texels`] (inverse mapping).
 
 pub mod charts;
 pub mod pack;
@@ -195,11 +200,13 @@ impl Atlas {
 
         // Faces: a front face for every non-degenerate triangle, a back face when its
         // material is double-sided.
-        let mut faces = Vec::new();
+        let lit: Vec<bool> = (0..geom.len()).map(|t| is_lit(geom, t)).collect();
+        let count = (0..geom.len()).filter(|&t| lit[t]).map(|t| 1 + usize::from(double_sided(t))).sum();
+        let mut faces = Vec::with_capacity(count);
         let mut face_of = vec![[NO_FACE; 2]; geom.len()];
         let mut lit_area = 0.0f64;
         for t in 0..geom.len() {
-            if !is_lit(geom, t) {
+            if !lit[t] {
                 continue;
             }
             let sides: &[Side] = if double_sided(t) { &Side::BOTH } else { &[Side::Front] };
@@ -214,13 +221,16 @@ impl Atlas {
         }
         let texel = match config.texel_size {
             Some(ts) => ts as f64,
-            None => (lit_area / config.texel_budget as f64).sqrt(),
+            None => (lit_area / config.texel_budget as f64).sqrt() as f32 as f64,
         };
         if !(texel.is_finite() && texel > 0.0 && (texel as f32) > 0.0) {
             return Err(AtlasError::BadTexelSize(texel as f32));
         }
-        // Cheap lower bound before any work: the lit area alone.
-        let min_texels = lit_area / (texel * texel);
+        // Cheap lower bound before any work: a chart's faces are within `chart_max_angle` of
+        // its seed's normal, so its UV area is at least cos(angle) × its area (and a
+        // TEXCOORD_1 block has at least its area in texels).
+        let cos = (config.chart_max_angle as f64).min(std::f64::consts::FRAC_PI_2).cos().max(0.0);
+        let min_texels = lit_area * cos / (texel * texel);
         let max = config.max_size;
         if min_texels > max as f64 * max as f64 {
             let side = min_texels.sqrt().ceil().min(u32::MAX as f64) as u32;

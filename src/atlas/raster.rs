@@ -221,17 +221,24 @@ pub fn centres_inside(t: &[DVec2; 3], bounds: PixelRect, mut f: impl FnMut(i64, 
 /// candidate (their edge normals). Triangles that share an edge or a vertex, or that are
 /// degenerate (a segment has no interior), do not overlap.
 pub fn triangles_overlap(a: &[DVec2; 3], b: &[DVec2; 3], tol: f64) -> bool {
+    // Bounding boxes first (the axes x and y are separating axes too).
+    let (alo, ahi) = (a[0].min(a[1]).min(a[2]), a[0].max(a[1]).max(a[2]));
+    let (blo, bhi) = (b[0].min(b[1]).min(b[2]), b[0].max(b[1]).max(b[2]));
+    if ahi.x <= blo.x + tol || bhi.x <= alo.x + tol || ahi.y <= blo.y + tol || bhi.y <= alo.y + tol {
+        return false;
+    }
     for tri in [a, b] {
         for i in 0..3 {
-            let e = tri[(i + 1) % 3] - tri[i];
-            let len = e.length();
-            if len == 0.0 {
+            // Unnormalised edge normal; the tolerance is scaled instead.
+            let n = (tri[(i + 1) % 3] - tri[i]).perp();
+            let len2 = n.length_squared();
+            if len2 == 0.0 {
                 continue;
             }
-            let n = e.perp() / len;
+            let t = tol * len2.sqrt();
             let (amin, amax) = project(a, n);
             let (bmin, bmax) = project(b, n);
-            if amax <= bmin + tol || bmax <= amin + tol {
+            if amax <= bmin + t || bmax <= amin + t {
                 return false;
             }
         }

@@ -259,6 +259,10 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
     maps
 }
 
+pub(crate) fn check_pub(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelMap> {
+    check(scene, atlas, max_lod, strict)
+}
+
 fn build(scene: &Scene, cfg: &AtlasConfig) -> Atlas {
     Atlas::build(scene, &SceneGeometry::new(scene), cfg).expect("atlas")
 }
@@ -499,9 +503,9 @@ fn degenerate_triangles_get_no_face() {
 
 /// Timing on the largest synthetic scene (not a correctness test; run with
 /// `cargo test --release --lib atlas::tests::timing -- --ignored --nocapture`).
-#[test]
-#[ignore = "timing report, run in release by hand"]
-fn timing() {
+/// A synthetic "temple complex": a 120 m courtyard, 400 columns (box shaft, torus base,
+/// icosphere capital), tiled floors. 312k triangles, 491k faces.
+pub(crate) fn temple() -> Scene {
     let mut b = SceneBuilder::new();
     let m = b.material(white());
     let d = b.material(diffuse(Vec3::splat(0.7), Vec3::ZERO, true));
@@ -521,7 +525,13 @@ fn timing() {
         let o = Vec3::new(-55.0 + k as f32 * 14.0, 0.0, 58.0);
         b.grid_quad("tiles", [o, o + Vec3::X * 12.0, o + Vec3::new(12.0, 0.0, -12.0), o - Vec3::Z * 12.0], 40, d);
     }
-    let s = b.build();
+    b.build()
+}
+
+#[test]
+#[ignore = "timing report, run in release by hand"]
+fn timing() {
+    let s = temple();
     let g = SceneGeometry::new(&s);
     println!("{} triangles", g.len());
     let cfg = AtlasConfig::default();

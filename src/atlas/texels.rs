@@ -79,28 +79,43 @@ impl TexelMap {
         let band_rows = if threads == 1 { h.max(1) } else { h.div_ceil(threads * 8).max(4) };
         let bands = h.div_ceil(band_rows);
 
-        // Phase 1: which face each pixel takes (NO_TEXEL where none).
-        let mut slot = vec![NO_TEXEL; w * h];
+        // Faces per band, in increasing id order.
+        let mut per_band: Vec<Vec<u32>> = vec![Vec::new(); bands];
+        for (fi, &(r0, r1)) in rows.iter().enumerate() {
+            if r1 > r0 {
+                for band in per_band.iter_mut().take((r1 as usize - 1) / band_rows + 1).skip(r0 as usize / band_rows) {
+                    band.push(fi as u32);
+                }
+            }
+        }
+
+        // Phase 1: which face each pixel takes (NO_TEXEL where none). Per pixel the best
+        // (squared distance from the centre as f32 bits, face id) packed in a u64: the
+        // smallest wins, so a face containing the centre (distance 0) beats any other and
+        // ties go to the lower face id.
+        let mut slot = vec![0u32; w * h]; // every entry is written below
         let mut counts = vec![0usize; bands];
         par_for_each(slot.chunks_mut(band_rows * w).zip(counts.iter_mut()).enumerate().collect(), threads, |(b, (owner, count))| {
             let (y0, y1) = ((b * band_rows) as i64, ((b * band_rows) as i64 + (owner.len() / w.max(1)) as i64));
-            let mut key = vec![f64::INFINITY; owner.len()];
-            for (fi, (bounds, tri)) in pre.iter().enumerate() {
-                let (r0, r1) = rows[fi];
-                if r1 <= y0 || r0 >= y1 {
-                    continue;
-                }
+            let mut best = vec![u64::MAX; owner.len()];
+            for &fi in &per_band[b] {
+                let (bounds, tri) = &pre[fi as usize];
                 raster::conservative(tri, *bounds, (y0, y1), |x, y| {
                     let i = (y - y0) as usize * w + x as usize;
+                    if best[i] >> 32 == 0 {
+                        return; // the centre lies in a face with a lower id
+                    }
                     let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
                     let (_, _, d2) = raster::closest_barycentric(tri, c);
-                    if d2 < key[i] {
-                        key[i] = d2;
-                        owner[i] = fi as u32;
-                    }
+                    best[i] = best[i].min(((d2 as f32).to_bits() as u64) << 32 | fi as u64);
                 });
             }
-            *count = owner.iter().filter(|&&o| o != NO_TEXEL).count();
+            let mut n = 0;
+            for (o, &k) in owner.iter_mut().zip(&best) {
+                *o = if k == u64::MAX { NO_TEXEL } else { k as u32 };
+                n += usize::from(k != u64::MAX);
+            }
+            *count = n;
         });
 
         // Phase 2: texels, in row-major pixel order; `slot` turns from face into texel ids.

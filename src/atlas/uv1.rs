@@ -78,7 +78,7 @@ pub fn validate(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_si
         let q = c.map(|v| uv1[v as usize].as_dvec2());
         let a2 = area2(&q).abs();
         let e2 = (q[1] - q[0]).length_squared().max((q[2] - q[1]).length_squared()).max((q[0] - q[2]).length_squared());
-        if !(a2 > 1e-7 * e2) {
+        if a2 <= 1e-7 * e2 || a2.is_nan() {
             return Err(format!("TEXCOORD_1 triangle {k} is degenerate (zero UV area)"));
         }
         world_area += geom.areas[t as usize] as f64;
@@ -214,4 +214,129 @@ pub fn validate(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_si
         crop_size: (cw as u32, ch as u32),
         islands: islands as usize,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::{Vec2, Vec3};
+
+    use crate::atlas::tests::config;
+    use crate::atlas::{Atlas, AtlasConfig, ChartSource, Side, TexelMap};
+    use crate::scene::builder::{diffuse, white};
+    use crate::scene::{Scene, SceneBuilder, SceneGeometry};
+
+    /// Two islands in one mesh: a 2 m × 1 m quad and a 1 m × 1 m quad, TEXCOORD_1 given by
+    /// `a` (x0, y0, per-metre scale) and `b`.
+    fn two_islands(a: (f32, f32, f32), b: (f32, f32, f32), double_sided: bool) -> Scene {
+        let mut sb = SceneBuilder::new();
+        let m = sb.material(if double_sided { diffuse(Vec3::ONE, Vec3::ZERO, true) } else { white() });
+        let p = vec![
+            Vec3::new(0.0, 0.0, 0.0),
+            Vec3::new(2.0, 0.0, 0.0),
+            Vec3::new(2.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(5.0, 0.0, 0.0),
+            Vec3::new(6.0, 0.0, 0.0),
+            Vec3::new(6.0, 1.0, 0.0),
+            Vec3::new(5.0, 1.0, 0.0),
+        ];
+        sb.mesh("islands", p.clone(), vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], m);
+        let mut s = sb.build();
+        let uv = |(x0, y0, k): (f32, f32, f32), q: Vec3, ox: f32| Vec2::new(x0 + (q.x - ox) * k, y0 + (1.0 - q.y) * k);
+        s.meshes[0].uv1 = Some(p.iter().enumerate().map(|(i, &q)| if i < 4 { uv(a, q, 0.0) } else { uv(b, q, 5.0) }).collect());
+        s
+    }
+
+    fn build(s: &Scene, cfg: &AtlasConfig) -> Atlas {
+        Atlas::build(s, &SceneGeometry::new(s), cfg).unwrap()
+    }
+
+    fn assert_affine_image_of_uv1(s: &Scene, a: &Atlas) {
+        let g = SceneGeometry::new(s);
+        let uv1 = s.meshes[0].uv1.as_ref().unwrap();
+        for c in &a.charts {
+            assert_eq!(c.source, ChartSource::Uv1);
+            let f0 = &a.faces[c.faces[0] as usize];
+            let tri0 = s.meshes[0].triangles[g.local[f0.tri as usize] as usize];
+            // scale from the first edge, origin from the first corner
+            let (p0, p1) = (uv1[tri0[0] as usize], uv1[tri0[1] as usize]);
+            let scale = (f0.uv[1] - f0.uv[0]).length() / (p1 - p0).length();
+            let origin = f0.uv[0] - p0 * scale;
+            for &f in &c.faces {
+                let face = &a.faces[f as usize];
+                let tri = s.meshes[0].triangles[g.local[face.tri as usize] as usize];
+                for k in 0..3 {
+                    let want = origin + uv1[tri[k] as usize] * scale;
+                    assert!((face.uv[k] - want).length() < 1e-3, "{:?} vs {want:?}", face.uv[k]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn valid_layout_is_kept() {
+        for double_sided in [false, true] {
+            let s = two_islands((0.05, 0.05, 0.3), (0.7, 0.05, 0.3), double_sided);
+            let a = build(&s, &config(0.05));
+            assert_eq!((a.stats.meshes_from_uv1, a.stats.meshes_unwrapped), (1, 0));
+            assert!(a.stats.uv1_rejected.is_empty());
+            assert_eq!(a.charts.len(), if double_sided { 2 } else { 1 });
+            if double_sided {
+                assert_eq!((a.charts[0].side, a.charts[1].side), (Side::Front, Side::Back));
+            }
+            assert_affine_image_of_uv1(&s, &a);
+            // s = ⌈√(3 m² / 0.27) / 0.05⌉ = 67 texels for the unit square: the islands span
+            // 0.05..1.0 × 0.05..0.35 of it, i.e. pixels 3..67 × 3..24 (cropped, 1-texel border).
+            let c = &a.charts[0];
+            assert_eq!((c.rect_size.0 - 2, c.rect_size.1 - 2), (64, 21));
+            crate::atlas::tests::check_pub(&s, &a, 2, true);
+        }
+    }
+
+    #[test]
+    fn invalid_layouts_are_unwrapped_with_a_reason() {
+        let cases = [
+            ("overlap", two_islands((0.05, 0.05, 0.3), (0.5, 0.05, 0.3), false)),
+            ("outside [0,1]", two_islands((0.05, 0.05, 0.3), (0.8, 0.05, 0.3), false)),
+            ("closer than the 2-texel gutter", two_islands((0.05, 0.05, 0.3), (0.66, 0.05, 0.3), false)),
+        ];
+        for (why, s) in cases {
+            let a = build(&s, &config(0.05));
+            assert_eq!((a.stats.meshes_from_uv1, a.stats.meshes_unwrapped), (0, 1), "{why}");
+            assert_eq!(a.stats.uv1_rejected.len(), 1);
+            let (name, reason) = &a.stats.uv1_rejected[0];
+            assert_eq!(name, "islands");
+            assert!(reason.contains(why), "expected '{why}' in '{reason}'");
+            assert!(a.charts.iter().all(|c| c.source == ChartSource::Unwrapped));
+            crate::atlas::tests::check_pub(&s, &a, 1, true);
+        }
+        // Gutter of 0.01 UV: 0.67 texel at 5 cm texels (refused), 17 texels at 2 mm (kept).
+        let s = two_islands((0.05, 0.05, 0.3), (0.66, 0.05, 0.3), false);
+        let a = build(&s, &config(0.002));
+        assert_eq!(a.stats.meshes_from_uv1, 1, "{:?}", a.stats.uv1_rejected);
+    }
+
+    #[test]
+    fn folds_and_degenerate_uvs_are_refused() {
+        let mut sb = SceneBuilder::new();
+        let m = sb.material(white());
+        sb.grid_quad("fold", [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y], 2, m);
+        sb.quad("flat", [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y].map(|p| p + Vec3::Z), m);
+        let mut s = sb.build();
+        // 3×3 vertices over [0.1, 0.9]²; the middle one pulled past the right column.
+        let mut uv: Vec<Vec2> = (0..9).map(|i| Vec2::new(0.1 + 0.4 * (i % 3) as f32, 0.9 - 0.4 * (i / 3) as f32)).collect();
+        uv[4] = Vec2::new(0.97, 0.5);
+        s.meshes[0].uv1 = Some(uv);
+        s.meshes[1].uv1 = Some(vec![Vec2::splat(0.5); 4]);
+        let a = build(&s, &config(0.02));
+        assert_eq!(a.stats.uv1_rejected.len(), 2);
+        assert!(a.stats.uv1_rejected[0].1.contains("overlap"), "{:?}", a.stats.uv1_rejected[0]);
+        assert!(a.stats.uv1_rejected[1].1.contains("degenerate"), "{:?}", a.stats.uv1_rejected[1]);
+        // Not asked for: TEXCOORD_1 ignored, nothing reported.
+        let a = build(&s, &AtlasConfig { use_uv1: false, ..config(0.02) });
+        assert!(a.stats.uv1_rejected.is_empty());
+        assert_eq!(a.stats.meshes_unwrapped, 2);
+        let g = SceneGeometry::new(&s);
+        assert!(!TexelMap::build(&s, &g, &a, 0).is_empty());
+    }
 }
