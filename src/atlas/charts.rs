@@ -22,7 +22,7 @@ use std::hash::{BuildHasherDefault, Hasher};
 
 use glam::{DVec2, DVec3, Vec3};
 
-use super::raster::triangles_overlap;
+use super::raster::{floor_i64, triangles_overlap};
 use crate::scene::{Mesh, SceneGeometry, TriangleId};
 
 /// Two faces of a chart overlap when their projections intersect by more than this (LOD-0
@@ -153,12 +153,6 @@ struct OverlapGrid {
 }
 
 const MAX_CELLS: i64 = 64;
-
-#[inline]
-fn floor_i64(x: f64) -> i64 {
-    let i = x as i64;
-    i - i64::from((i as f64) > x)
-}
 
 impl OverlapGrid {
     fn new(cell: f64, faces: usize) -> Self {

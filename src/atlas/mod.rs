@@ -10,7 +10,7 @@
 //! per LOD, every texel's surface point (inverse mapping).
 //!
 //! UV units: atlas UVs are stored in **LOD-0 texel units** (x right, y down, origin at the
-//! atlas's top-left corner). LOD k coordinates are `uv · 2^k`; normalised [0,1] UVs are
+//! atlas's top-left corner). LOD k coordinates are `uv · 2^k`; normalised UVs in \[0, 1\] are
 //! `uv / (width, height)`.
 //!
 //! Pieces: [`charts`] (planar unwrapper), [`uv1`] (TEXCOORD_1 validation), [`pack`] (chart

@@ -18,6 +18,21 @@ use glam::DVec2;
 /// touch it.
 pub const TOUCH_TOL: f64 = 1.0 / 256.0;
 
+/// `⌊x⌋` as an integer (saturating), without a libm call (x86-64's baseline has no
+/// `roundsd`).
+#[inline]
+pub fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    i - i64::from((i as f64) > x)
+}
+
+/// `⌈x⌉` as an integer (saturating).
+#[inline]
+pub fn ceil_i64(x: f64) -> i64 {
+    let i = x as i64;
+    i + i64::from((i as f64) < x)
+}
+
 /// Half-open pixel rectangle `[x0, x1) × [y0, y1)`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PixelRect {
@@ -81,15 +96,15 @@ fn scan(t: &[DVec2; 3], bounds: PixelRect, rows_from: i64, rows_to: i64, mut f: 
     if !(ymin.is_finite() && ymax.is_finite()) {
         return false;
     }
-    let y0 = ((ymin - 1.0 + TOUCH_TOL).ceil() as i64).max(bounds.y0).max(rows_from);
-    let y1 = ((ymax - TOUCH_TOL).floor() as i64).min(bounds.y1 - 1).min(rows_to - 1);
+    let y0 = ceil_i64(ymin - 1.0 + TOUCH_TOL).max(bounds.y0).max(rows_from);
+    let y1 = floor_i64(ymax - TOUCH_TOL).min(bounds.y1 - 1).min(rows_to - 1);
     let mut any = false;
     for y in y0..=y1 {
         let Some((lo, hi)) = slab_span(t, y as f64 + TOUCH_TOL, y as f64 + 1.0 - TOUCH_TOL) else {
             continue;
         };
-        let x0 = ((lo - 1.0 + TOUCH_TOL).ceil() as i64).max(bounds.x0);
-        let x1 = ((hi - TOUCH_TOL).floor() as i64).min(bounds.x1 - 1);
+        let x0 = ceil_i64(lo - 1.0 + TOUCH_TOL).max(bounds.x0);
+        let x1 = floor_i64(hi - TOUCH_TOL).min(bounds.x1 - 1);
         for x in x0..=x1 {
             any = true;
             if !f(x, y) {
@@ -104,8 +119,8 @@ fn scan(t: &[DVec2; 3], bounds: PixelRect, rows_from: i64, rows_to: i64, mut f: 
 /// clamped into `bounds`.
 fn fallback_pixel(t: &[DVec2; 3], bounds: PixelRect) -> (i64, i64) {
     let c = (t[0] + t[1] + t[2]) / 3.0;
-    let x = (c.x.floor() as i64).clamp(bounds.x0, bounds.x1 - 1);
-    let y = (c.y.floor() as i64).clamp(bounds.y0, bounds.y1 - 1);
+    let x = floor_i64(c.x).clamp(bounds.x0, bounds.x1 - 1);
+    let y = floor_i64(c.y).clamp(bounds.y0, bounds.y1 - 1);
     (x, y)
 }
 
@@ -292,6 +307,14 @@ mod tests {
         fn next(&mut self) -> f64 {
             self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             (self.0 >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    #[test]
+    fn integer_floor_and_ceil() {
+        for x in [-2.5, -2.0, -0.1, 0.0, 0.3, 1.0, 7.999, 1e12] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+            assert_eq!(ceil_i64(x), x.ceil() as i64, "{x}");
         }
     }
 

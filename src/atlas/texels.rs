@@ -65,8 +65,8 @@ impl TexelMap {
         let rows: Vec<(i64, i64)> = pre
             .iter()
             .map(|(b, t)| {
-                let lo = t[0].y.min(t[1].y).min(t[2].y).floor() as i64 - 1;
-                let hi = t[0].y.max(t[1].y).max(t[2].y).ceil() as i64 + 1;
+                let lo = raster::floor_i64(t[0].y.min(t[1].y).min(t[2].y)) - 1;
+                let hi = raster::ceil_i64(t[0].y.max(t[1].y).max(t[2].y)) + 1;
                 (lo.max(b.y0), hi.min(b.y1))
             })
             .collect();
