@@ -234,6 +234,12 @@ impl OverlapGrid {
     }
 }
 
+/// `chart_max_angle` as the unwrapper uses it: at most 80° (beyond, faces would project
+/// almost edge-on, with no texels to speak of), 0 when it is not a number.
+pub fn effective_max_angle(a: f32) -> f32 {
+    if a.is_nan() { 0.0 } else { a.clamp(0.0, 80f32.to_radians()) }
+}
+
 /// Unwraps the lit triangles `tris` (global ids, increasing) of `mesh` into planar charts,
 /// in LOD-0 texels of `texel_size` metres.
 pub fn unwrap_mesh(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_size: f64, max_angle: f32) -> Vec<LocalChart> {
@@ -242,7 +248,7 @@ pub fn unwrap_mesh(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel
         return Vec::new();
     }
     let inv_texel = 1.0 / texel_size;
-    let max_angle = if max_angle.is_nan() { 0.0 } else { max_angle.clamp(0.0, std::f32::consts::PI) };
+    let max_angle = effective_max_angle(max_angle);
     let cos_max = (max_angle as f64).cos();
     let (wid, reps) = weld(&mesh.positions);
     let corners: Vec<[u32; 3]> = tris

@@ -50,7 +50,8 @@ pub struct AtlasConfig {
     pub texel_budget: u64,
     /// Use TEXCOORD_1 as light-map UVs where it is present and valid.
     pub use_uv1: bool,
-    /// Largest angle (radians) between a face's normal and its chart's seed normal.
+    /// Largest angle (radians) between a face's normal and its chart's seed normal
+    /// (used up to 80°).
     pub chart_max_angle: f32,
     /// Largest LOD-0 atlas side in texels; a texel size that needs more is an error.
     pub max_size: u32,
@@ -229,7 +230,7 @@ impl Atlas {
         // Cheap lower bound before any work: a chart's faces are within `chart_max_angle` of
         // its seed's normal, so its UV area is at least cos(angle) × its area (and a
         // TEXCOORD_1 block has at least its area in texels).
-        let cos = (config.chart_max_angle as f64).min(std::f64::consts::FRAC_PI_2).cos().max(0.0);
+        let cos = (charts::effective_max_angle(config.chart_max_angle) as f64).cos();
         let min_texels = lit_area * cos / (texel * texel);
         let max = config.max_size;
         if min_texels > max as f64 * max as f64 {

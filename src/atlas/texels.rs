@@ -50,6 +50,9 @@ impl TexelMap {
     ///
     /// Rows are split into bands built in parallel (scoped threads); the result does not
     /// depend on the number of threads.
+    ///
+    /// # Panics
+    /// When the LOD's pixel count does not fit in `u32` (`width · height · 4^lod ≥ 2³²`).
     pub fn build(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, lod: u32) -> TexelMap {
         let width = atlas.width.checked_shl(lod).filter(|w| w >> lod == atlas.width).expect("LOD too fine for u32 pixels");
         let height = atlas.height.checked_shl(lod).filter(|h| h >> lod == atlas.height).expect("LOD too fine for u32 pixels");
@@ -140,19 +143,17 @@ impl TexelMap {
             let mut first = 0usize;
             for (b, chunk) in slot.chunks_mut(band_rows * w).enumerate() {
                 let n = counts[b];
-                let (p, rest) = std::mem::take(&mut pixel).split_at_mut(n);
-                pixel = rest;
-                let (f, rest) = std::mem::take(&mut face).split_at_mut(n);
-                face = rest;
-                let (q, rest) = std::mem::take(&mut position).split_at_mut(n);
-                position = rest;
-                let (nn, rest) = std::mem::take(&mut normal).split_at_mut(n);
-                normal = rest;
-                let (a, rest) = std::mem::take(&mut albedo).split_at_mut(n);
-                albedo = rest;
-                let (e, rest) = std::mem::take(&mut emission).split_at_mut(n);
-                emission = rest;
-                items.push((b, first, chunk, p, f, q, nn, a, e));
+                items.push((
+                    b,
+                    first,
+                    chunk,
+                    take_front(&mut pixel, n),
+                    take_front(&mut face, n),
+                    take_front(&mut position, n),
+                    take_front(&mut normal, n),
+                    take_front(&mut albedo, n),
+                    take_front(&mut emission, n),
+                ));
                 first += n;
             }
             par_for_each(items, threads, |(b, first, chunk, pixel, face, position, normal, albedo, emission)| {
@@ -254,6 +255,13 @@ impl TexelMap {
         }
         img
     }
+}
+
+/// Splits the first `n` elements off a mutable slice.
+fn take_front<'a, T>(s: &mut &'a mut [T], n: usize) -> &'a mut [T] {
+    let (front, rest) = std::mem::take(s).split_at_mut(n);
+    *s = rest;
+    front
 }
 
 /// Runs `f` on every item, on up to `threads` scoped threads pulling from a shared queue.

@@ -85,8 +85,8 @@ pub fn validate(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_si
         uv_area += 0.5 * a2;
     }
     let s = ((world_area / uv_area).sqrt() / texel_size).ceil().max(1.0);
-    if s > max_size as f64 {
-        return Err(format!("TEXCOORD_1 would need {s}×{s} texels for the unit square, above the limit of {max_size}"));
+    if s.is_nan() || s >= (1u64 << 30) as f64 {
+        return Err(format!("TEXCOORD_1 would need {s}×{s} texels for the unit square"));
     }
     let s_u = s as u32;
     let scaled: Vec<[DVec2; 3]> = tris.iter().map(|&t| corners(t).map(|v| uv1[v as usize].as_dvec2() * s)).collect();
@@ -108,6 +108,13 @@ pub fn validate(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_si
         (y0, y1) = if y0 > 0 { (y0 - 1, y0) } else { (0, 1) };
     }
     let crop = PixelRect::new(x0, y0, x1, y1);
+    if crop.width() > max_size as i64 || crop.height() > max_size as i64 {
+        return Err(format!(
+            "TEXCOORD_1 layout would be {}×{} texels ({s_u}×{s_u} for the unit square), above the limit of {max_size}",
+            crop.width(),
+            crop.height()
+        ));
+    }
     let (cw, ch) = (crop.width() as usize, crop.height() as usize);
     let idx = |x: i64, y: i64| (y - crop.y0) as usize * cw + (x - crop.x0) as usize;
 
