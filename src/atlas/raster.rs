@@ -1,1 +1,458 @@
-//! TODO
+//! Conservative rasterisation in atlas pixel space, and the small 2-D geometry helpers the
+//! unwrapper, the TEXCOORD_1 validator and the texel maps share.
+//!
+//! Pixel `(x, y)` is the square `[x, x+1] × [y, y+1]`; its centre is `(x + ½, y + ½)`.
+//! A triangle *touches* a pixel when it intersects the pixel square shrunk by [`TOUCH_TOL`]
+//! on every side (an exact triangle–box test, computed per row by clipping the triangle to
+//! the row's slab). The tolerance keeps a chart whose edge lies on a pixel boundary — an
+//! axis-aligned wall whose size is a multiple of the texel size — from claiming the next
+//! row or column for a sliver of float noise; what it leaves out is a strip thinner than
+//! 1/256 pixel, whose bilinear footprint is still made of covered and gutter pixels.
+//! A triangle that touches nothing under that rule (it lies inside the tolerance band
+//! along pixel boundaries: only possible for slivers and near-points) gets the pixel
+//! holding its centroid, so every triangle has at least one pixel.
+
+use glam::DVec2;
+
+/// How far (in pixels of the grid being rasterised) a triangle must reach into a pixel to
+/// touch it.
+pub const TOUCH_TOL: f64 = 1.0 / 256.0;
+
+/// `⌊x⌋` as an integer (saturating), without a libm call (x86-64's baseline has no
+/// `roundsd`).
+#[inline]
+pub fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    i - i64::from((i as f64) > x)
+}
+
+/// `⌈x⌉` as an integer (saturating).
+#[inline]
+pub fn ceil_i64(x: f64) -> i64 {
+    let i = x as i64;
+    i + i64::from((i as f64) < x)
+}
+
+/// Half-open pixel rectangle `[x0, x1) × [y0, y1)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PixelRect {
+    pub x0: i64,
+    pub y0: i64,
+    pub x1: i64,
+    pub y1: i64,
+}
+
+impl PixelRect {
+    pub fn new(x0: i64, y0: i64, x1: i64, y1: i64) -> Self {
+        PixelRect { x0, y0, x1, y1 }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x0 >= self.x1 || self.y0 >= self.y1
+    }
+
+    pub fn contains(&self, x: i64, y: i64) -> bool {
+        x >= self.x0 && x < self.x1 && y >= self.y0 && y < self.y1
+    }
+
+    pub fn width(&self) -> i64 {
+        (self.x1 - self.x0).max(0)
+    }
+
+    pub fn height(&self) -> i64 {
+        (self.y1 - self.y0).max(0)
+    }
+}
+
+/// x-extent of the part of triangle `t` inside the horizontal slab `ya ≤ y ≤ yb`.
+#[inline]
+fn slab_span(t: &[DVec2; 3], ya: f64, yb: f64) -> Option<(f64, f64)> {
+    let mut lo = f64::INFINITY;
+    let mut hi = f64::NEG_INFINITY;
+    for i in 0..3 {
+        let a = t[i];
+        let b = t[(i + 1) % 3];
+        if a.y >= ya && a.y <= yb {
+            lo = lo.min(a.x);
+            hi = hi.max(a.x);
+        }
+        for yl in [ya, yb] {
+            if (a.y - yl) * (b.y - yl) < 0.0 {
+                let x = a.x + (yl - a.y) * (b.x - a.x) / (b.y - a.y);
+                lo = lo.min(x);
+                hi = hi.max(x);
+            }
+        }
+    }
+    (lo <= hi).then_some((lo, hi))
+}
+
+/// Visits the pixels of `bounds` that `t` touches (see the module docs), restricted to rows
+/// `rows_from..rows_to`, row by row, left to right. `f` returns `false` to stop early.
+/// Returns whether any pixel was visited.
+fn scan(t: &[DVec2; 3], bounds: PixelRect, rows_from: i64, rows_to: i64, mut f: impl FnMut(i64, i64) -> bool) -> bool {
+    let ymin = t[0].y.min(t[1].y).min(t[2].y);
+    let ymax = t[0].y.max(t[1].y).max(t[2].y);
+    if !(ymin.is_finite() && ymax.is_finite()) {
+        return false;
+    }
+    let y0 = ceil_i64(ymin - 1.0 + TOUCH_TOL).max(bounds.y0).max(rows_from);
+    let y1 = floor_i64(ymax - TOUCH_TOL).min(bounds.y1 - 1).min(rows_to - 1);
+    let mut any = false;
+    for y in y0..=y1 {
+        let Some((lo, hi)) = slab_span(t, y as f64 + TOUCH_TOL, y as f64 + 1.0 - TOUCH_TOL) else {
+            continue;
+        };
+        let x0 = ceil_i64(lo - 1.0 + TOUCH_TOL).max(bounds.x0);
+        let x1 = floor_i64(hi - TOUCH_TOL).min(bounds.x1 - 1);
+        for x in x0..=x1 {
+            any = true;
+            if !f(x, y) {
+                return true;
+            }
+        }
+    }
+    any
+}
+
+/// The pixel a triangle that touches nothing falls back to: the one holding its centroid,
+/// clamped into `bounds`.
+fn fallback_pixel(t: &[DVec2; 3], bounds: PixelRect) -> (i64, i64) {
+    let c = (t[0] + t[1] + t[2]) / 3.0;
+    let x = floor_i64(c.x).clamp(bounds.x0, bounds.x1 - 1);
+    let y = floor_i64(c.y).clamp(bounds.y0, bounds.y1 - 1);
+    (x, y)
+}
+
+/// Calls `f(x, y)` for every pixel of `bounds` that triangle `t` touches, in rows
+/// `rows.0..rows.1` only (a band of a larger raster; the result does not depend on the band).
+/// A triangle that touches no pixel of `bounds` anywhere gets its centroid's pixel.
+pub fn conservative(t: &[DVec2; 3], bounds: PixelRect, rows: (i64, i64), mut f: impl FnMut(i64, i64)) {
+    if bounds.is_empty() {
+        return;
+    }
+    let any = scan(t, bounds, rows.0, rows.1, |x, y| {
+        f(x, y);
+        true
+    });
+    if !any && !scan(t, bounds, i64::MIN, i64::MAX, |_, _| false) {
+        let (x, y) = fallback_pixel(t, bounds);
+        if y >= rows.0 && y < rows.1 {
+            f(x, y);
+        }
+    }
+}
+
+/// Every pixel of `bounds` that `t` touches (convenience for tests and small rasters).
+pub fn conservative_pixels(t: &[DVec2; 3], bounds: PixelRect) -> Vec<(i64, i64)> {
+    let mut v = Vec::new();
+    conservative(t, bounds, (i64::MIN, i64::MAX), |x, y| v.push((x, y)));
+    v
+}
+
+/// Barycentric weights `(u, v)` (of corners 1 and 2) of the point of triangle `t` closest to
+/// `p`, and the squared distance from `p` to it (0 inside). Robust for degenerate triangles
+/// (segments, points): the closest point is then found on the edges.
+#[inline]
+pub fn closest_barycentric(t: &[DVec2; 3], p: DVec2) -> (f64, f64, f64) {
+    let [a, b, c] = *t;
+    let (e1, e2, d) = (b - a, c - a, p - a);
+    let det = e1.perp_dot(e2);
+    let scale = e1.length_squared().max(e2.length_squared());
+    if det.abs() > 1e-12 * scale {
+        let u = d.perp_dot(e2) / det;
+        let v = e1.perp_dot(d) / det;
+        if u >= 0.0 && v >= 0.0 && u + v <= 1.0 {
+            return (u, v, 0.0);
+        }
+    }
+    // Outside (or degenerate): nearest point on the three edges.
+    let seg = |p0: DVec2, p1: DVec2| {
+        let e = p1 - p0;
+        let l2 = e.length_squared();
+        let s = if l2 > 0.0 { ((p - p0).dot(e) / l2).clamp(0.0, 1.0) } else { 0.0 };
+        (s, (p0 + e * s - p).length_squared())
+    };
+    let (s_ab, d_ab) = seg(a, b);
+    let (s_bc, d_bc) = seg(b, c);
+    let (s_ca, d_ca) = seg(c, a);
+    let mut best = (s_ab, 0.0, d_ab);
+    if d_bc < best.2 {
+        best = (1.0 - s_bc, s_bc, d_bc);
+    }
+    if d_ca < best.2 {
+        best = (0.0, 1.0 - s_ca, d_ca);
+    }
+    best
+}
+
+/// Edge function `(b − a) × (p − a)`, evaluated with the endpoints in a canonical order so
+/// that the two triangles sharing an edge get exactly opposite values.
+#[inline]
+fn edge_fn(a: DVec2, b: DVec2, p: DVec2) -> f64 {
+    if (a.x, a.y) <= (b.x, b.y) { (b - a).perp_dot(p - a) } else { -(a - b).perp_dot(p - b) }
+}
+
+/// Calls `f(x, y)` for every pixel of `bounds` whose centre lies in triangle `t`, with a
+/// top-left fill rule so that a centre on an edge shared by two triangles belongs to
+/// exactly one of them. Degenerate (zero-area) triangles contain no centre.
+pub fn centres_inside(t: &[DVec2; 3], bounds: PixelRect, mut f: impl FnMut(i64, i64)) {
+    let mut t = *t;
+    let area = (t[1] - t[0]).perp_dot(t[2] - t[0]);
+    if area == 0.0 || !area.is_finite() {
+        return;
+    }
+    if area < 0.0 {
+        t.swap(1, 2);
+    }
+    let lo = t[0].min(t[1]).min(t[2]);
+    let hi = t[0].max(t[1]).max(t[2]);
+    let x0 = ((lo.x - 0.5).ceil() as i64).max(bounds.x0);
+    let x1 = ((hi.x - 0.5).floor() as i64).min(bounds.x1 - 1);
+    let y0 = ((lo.y - 0.5).ceil() as i64).max(bounds.y0);
+    let y1 = ((hi.y - 0.5).floor() as i64).min(bounds.y1 - 1);
+    // Top-left rule for a positively oriented triangle: a centre on edge a→b is inside when
+    // the edge points "up" (dy > 0) or is horizontal pointing left.
+    let top_left = |a: DVec2, b: DVec2| {
+        let d = b - a;
+        d.y > 0.0 || (d.y == 0.0 && d.x < 0.0)
+    };
+    let tl = [top_left(t[0], t[1]), top_left(t[1], t[2]), top_left(t[2], t[0])];
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let p = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+            let inside = (0..3).all(|i| {
+                let e = edge_fn(t[i], t[(i + 1) % 3], p);
+                e > 0.0 || (e == 0.0 && tl[i])
+            });
+            if inside {
+                f(x, y);
+            }
+        }
+    }
+}
+
+/// Whether two triangles' interiors overlap by more than `tol` along every separating axis
+/// candidate (their edge normals). Triangles that share an edge or a vertex, or that are
+/// degenerate (a segment has no interior), do not overlap.
+pub fn triangles_overlap(a: &[DVec2; 3], b: &[DVec2; 3], tol: f64) -> bool {
+    // Bounding boxes first (the axes x and y are separating axes too).
+    let (alo, ahi) = (a[0].min(a[1]).min(a[2]), a[0].max(a[1]).max(a[2]));
+    let (blo, bhi) = (b[0].min(b[1]).min(b[2]), b[0].max(b[1]).max(b[2]));
+    if ahi.x <= blo.x + tol || bhi.x <= alo.x + tol || ahi.y <= blo.y + tol || bhi.y <= alo.y + tol {
+        return false;
+    }
+    for tri in [a, b] {
+        for i in 0..3 {
+            // Unnormalised edge normal; the tolerance is scaled instead.
+            let n = (tri[(i + 1) % 3] - tri[i]).perp();
+            let len2 = n.length_squared();
+            if len2 == 0.0 {
+                continue;
+            }
+            let t = tol * len2.sqrt();
+            let (amin, amax) = project(a, n);
+            let (bmin, bmax) = project(b, n);
+            if amax <= bmin + t || bmax <= amin + t {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+#[inline]
+fn project(t: &[DVec2; 3], n: DVec2) -> (f64, f64) {
+    let (p0, p1, p2) = (t[0].dot(n), t[1].dot(n), t[2].dot(n));
+    (p0.min(p1).min(p2), p0.max(p1).max(p2))
+}
+
+/// Twice the signed area of a 2-D triangle.
+#[inline]
+pub fn area2(t: &[DVec2; 3]) -> f64 {
+    (t[1] - t[0]).perp_dot(t[2] - t[0])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn brute_touch(t: &[DVec2; 3], x: i64, y: i64) -> bool {
+        // Exact SAT test of the triangle against the shrunk pixel square (independent oracle).
+        let lo = DVec2::new(x as f64 + TOUCH_TOL, y as f64 + TOUCH_TOL);
+        let hi = DVec2::new(x as f64 + 1.0 - TOUCH_TOL, y as f64 + 1.0 - TOUCH_TOL);
+        let tmin = t[0].min(t[1]).min(t[2]);
+        let tmax = t[0].max(t[1]).max(t[2]);
+        if tmax.x < lo.x || tmin.x > hi.x || tmax.y < lo.y || tmin.y > hi.y {
+            return false;
+        }
+        let corners = [lo, DVec2::new(hi.x, lo.y), hi, DVec2::new(lo.x, hi.y)];
+        for i in 0..3 {
+            let n = (t[(i + 1) % 3] - t[i]).perp();
+            if n == DVec2::ZERO {
+                continue;
+            }
+            let (a0, a1) = project(t, n);
+            let b: Vec<f64> = corners.iter().map(|c| c.dot(n)).collect();
+            let (b0, b1) = (b.iter().cloned().fold(f64::INFINITY, f64::min), b.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+            if a1 < b0 || b1 < a0 {
+                return false;
+            }
+        }
+        true
+    }
+
+    struct Lcg(u64);
+    impl Lcg {
+        fn next(&mut self) -> f64 {
+            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (self.0 >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    #[test]
+    fn integer_floor_and_ceil() {
+        for x in [-2.5, -2.0, -0.1, 0.0, 0.3, 1.0, 7.999, 1e12] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+            assert_eq!(ceil_i64(x), x.ceil() as i64, "{x}");
+        }
+    }
+
+    #[test]
+    fn axis_aligned_rectangle_on_pixel_boundaries_covers_exactly_its_pixels() {
+        let b = PixelRect::new(0, 0, 64, 64);
+        let a = [DVec2::new(1.0, 1.0), DVec2::new(41.0, 1.0), DVec2::new(41.0, 21.0)];
+        let c = [DVec2::new(1.0, 1.0), DVec2::new(41.0, 21.0), DVec2::new(1.0, 21.0)];
+        let mut px: Vec<_> = conservative_pixels(&a, b);
+        px.extend(conservative_pixels(&c, b));
+        px.sort();
+        px.dedup();
+        assert_eq!(px.len(), 800);
+        assert!(px.iter().all(|&(x, y)| (1..41).contains(&x) && (1..21).contains(&y)));
+        // Half a pixel off the grid: one more row and column.
+        let s = DVec2::splat(0.5);
+        let mut px: Vec<_> = conservative_pixels(&a.map(|p| p + s), b);
+        px.extend(conservative_pixels(&c.map(|p| p + s), b));
+        px.sort();
+        px.dedup();
+        assert_eq!(px.len(), 41 * 21);
+    }
+
+    #[test]
+    fn matches_exact_triangle_box_test_on_random_triangles() {
+        let mut r = Lcg(7);
+        let b = PixelRect::new(-2, -2, 40, 40);
+        for i in 0..2000 {
+            let scale = if i % 3 == 0 { 2.0 } else { 30.0 };
+            let mut t = [0; 3].map(|_| DVec2::new(r.next() * scale, r.next() * scale));
+            if i % 5 == 0 {
+                // Sliver: third corner almost on the first edge.
+                t[2] = t[0] + (t[1] - t[0]) * 0.37 + (t[1] - t[0]).perp() * 1e-5;
+            }
+            let got: std::collections::BTreeSet<_> = conservative_pixels(&t, b).into_iter().collect();
+            let mut want = std::collections::BTreeSet::new();
+            for y in b.y0..b.y1 {
+                for x in b.x0..b.x1 {
+                    if brute_touch(&t, x, y) {
+                        want.insert((x, y));
+                    }
+                }
+            }
+            if want.is_empty() {
+                assert_eq!(got.len(), 1, "fallback pixel for {t:?}");
+            } else {
+                assert_eq!(got, want, "triangle {t:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn band_split_gives_the_same_pixels() {
+        let b = PixelRect::new(0, 0, 50, 50);
+        let t = [DVec2::new(3.2, 1.1), DVec2::new(47.0, 20.5), DVec2::new(10.0, 44.9)];
+        let all = conservative_pixels(&t, b);
+        let mut banded = Vec::new();
+        for y0 in (0..50).step_by(7) {
+            conservative(&t, b, (y0, y0 + 7), |x, y| banded.push((x, y)));
+        }
+        assert_eq!(all, banded);
+        // A point-like triangle in a tolerance band gets exactly one pixel, in whichever band.
+        let p = [DVec2::new(5.0, 9.0), DVec2::new(5.0, 9.0), DVec2::new(5.0001, 9.0)];
+        let mut n = 0;
+        for y0 in (0..50).step_by(7) {
+            conservative(&p, b, (y0, y0 + 7), |_, _| n += 1);
+        }
+        assert_eq!(n, 1);
+    }
+
+    #[test]
+    fn thin_sliver_touches_every_pixel_along_it() {
+        let b = PixelRect::new(0, 0, 200, 200);
+        let (p0, p1) = (DVec2::new(2.3, 3.7), DVec2::new(180.6, 121.2));
+        let w = (p1 - p0).perp().normalize() * (p1 - p0).length() * 1e-4;
+        let t = [p0, p1, (p0 + p1) * 0.5 + w];
+        let px: std::collections::HashSet<_> = conservative_pixels(&t, b).into_iter().collect();
+        for i in 0..=10000 {
+            let q = p0 + (p1 - p0) * (i as f64 / 10000.0);
+            let (fx, fy) = (q.x - q.x.floor(), q.y - q.y.floor());
+            if fx.min(1.0 - fx) < 0.01 || fy.min(1.0 - fy) < 0.01 {
+                continue; // within the tolerance band of a pixel edge
+            }
+            assert!(px.contains(&(q.x.floor() as i64, q.y.floor() as i64)), "{q:?}");
+        }
+    }
+
+    #[test]
+    fn top_left_rule_counts_every_centre_once() {
+        // A fan and a grid of triangles whose edges pass through pixel centres.
+        let b = PixelRect::new(0, 0, 20, 20);
+        let mut count = vec![0u32; 400];
+        let c = DVec2::new(10.5, 10.5);
+        let ring = [
+            DVec2::new(0.5, 0.5),
+            DVec2::new(10.5, 0.5),
+            DVec2::new(19.5, 0.5),
+            DVec2::new(19.5, 10.5),
+            DVec2::new(19.5, 19.5),
+            DVec2::new(10.5, 19.5),
+            DVec2::new(0.5, 19.5),
+            DVec2::new(0.5, 10.5),
+        ];
+        for i in 0..8 {
+            let t = if i % 2 == 0 { [c, ring[i], ring[(i + 1) % 8]] } else { [c, ring[(i + 1) % 8], ring[i]] };
+            centres_inside(&t, b, |x, y| count[(y * 20 + x) as usize] += 1);
+        }
+        for y in 0..20 {
+            for x in 0..20 {
+                let n = count[(y * 20 + x) as usize];
+                if (1..19).contains(&x) && (1..19).contains(&y) {
+                    assert_eq!(n, 1, "({x},{y})");
+                } else {
+                    assert!(n <= 1, "({x},{y}) on the outer boundary counted {n} times");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn closest_barycentric_handles_degenerate_triangles() {
+        let t = [DVec2::new(0.0, 0.0), DVec2::new(2.0, 0.0), DVec2::new(1.0, 0.0)];
+        let (u, v, d2) = closest_barycentric(&t, DVec2::new(1.5, 1.0));
+        let q = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+        assert!((q - DVec2::new(1.5, 0.0)).length() < 1e-12 && (d2 - 1.0).abs() < 1e-12);
+        let t = [DVec2::new(0.0, 0.0), DVec2::new(4.0, 0.0), DVec2::new(0.0, 4.0)];
+        assert_eq!(closest_barycentric(&t, DVec2::new(1.0, 2.0)), (0.25, 0.5, 0.0));
+        let (u, v, d2) = closest_barycentric(&t, DVec2::new(3.0, 3.0));
+        assert!((u - 0.5).abs() < 1e-12 && (v - 0.5).abs() < 1e-12 && (d2 - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn overlap_test_ignores_shared_edges() {
+        let a = [DVec2::new(0.0, 0.0), DVec2::new(1.0, 0.0), DVec2::new(1.0, 1.0)];
+        let b = [DVec2::new(0.0, 0.0), DVec2::new(1.0, 1.0), DVec2::new(0.0, 1.0)];
+        assert!(!triangles_overlap(&a, &b, 1e-6));
+        assert!(triangles_overlap(&a, &a, 1e-6));
+        let c = [DVec2::new(0.5, 0.1), DVec2::new(2.0, 0.1), DVec2::new(2.0, 2.0)];
+        assert!(triangles_overlap(&a, &c, 1e-6));
+    }
+}

@@ -1,8 +1,11 @@
 //! Inverse mapping (2017 thesis, 3.2.3): for every texel of a LOD, the surface point it stands
 //! for.
 
-use glam::{Vec2, Vec3};
+use std::sync::Mutex;
 
+use glam::{DVec2, Vec2, Vec3};
+
+use super::raster::{self, PixelRect};
 use super::{Atlas, FaceId};
 use crate::scene::{Rgb, Scene, SceneGeometry};
 
@@ -39,9 +42,181 @@ pub struct TexelMap {
 }
 
 impl TexelMap {
+    /// Inverse mapping at LOD `lod` (resolution `(width, height) · 2^lod` over the atlas
+    /// layout). Every face is rasterised conservatively (see [`super::raster`]) inside its
+    /// chart's interior; a pixel touched by several faces of its chart takes the face that
+    /// contains the pixel centre, else the nearest one, ties to the lower face id. The texel
+    /// holds the centre mapped onto that face (barycentrics of the closest point of the UV
+    /// triangle). Empty pixels in the 8-neighbourhood of a texel become gutter pixels copying
+    /// a 4-neighbour if any (left, right, up, down), else a diagonal one.
+    ///
+    /// Rows are split into bands built in parallel (scoped threads); the result does not
+    /// depend on the number of threads.
+    ///
+    /// # Panics
+    /// When the LOD's pixel count does not fit in `u32` (`width · height · 4^lod ≥ 2³²`).
     pub fn build(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, lod: u32) -> TexelMap {
-        let _ = (scene, geom, atlas, lod);
-        todo!("texel map")
+        let width = atlas.width.checked_shl(lod).filter(|w| w >> lod == atlas.width).expect("LOD too fine for u32 pixels");
+        let height = atlas.height.checked_shl(lod).filter(|h| h >> lod == atlas.height).expect("LOD too fine for u32 pixels");
+        let (w, h) = (width as usize, height as usize);
+        assert!(w.checked_mul(h).is_some_and(|n| n < u32::MAX as usize), "LOD {lod} has too many pixels for u32 ids");
+
+        // Per face: LOD-k UV triangle, the pixels it may use, and the rows it may touch.
+        let pre: Vec<(PixelRect, [DVec2; 3])> = atlas
+            .faces
+            .iter()
+            .map(|f| (atlas.charts[f.chart as usize].interior(lod), f.uv_lod(lod)))
+            .collect();
+        let rows: Vec<(i64, i64)> = pre
+            .iter()
+            .map(|(b, t)| {
+                let lo = raster::floor_i64(t[0].y.min(t[1].y).min(t[2].y)) - 1;
+                let hi = raster::ceil_i64(t[0].y.max(t[1].y).max(t[2].y)) + 1;
+                (lo.max(b.y0), hi.min(b.y1))
+            })
+            .collect();
+
+        let threads = if w * h < 1 << 16 {
+            1
+        } else {
+            std::thread::available_parallelism().map_or(1, |n| n.get()).min(8)
+        };
+        let band_rows = if threads == 1 { h.max(1) } else { h.div_ceil(threads * 8).max(4) };
+        let bands = h.div_ceil(band_rows);
+
+        // Faces per band, in increasing id order.
+        let mut per_band: Vec<Vec<u32>> = vec![Vec::new(); bands];
+        for (fi, &(r0, r1)) in rows.iter().enumerate() {
+            if r1 > r0 {
+                for band in per_band.iter_mut().take((r1 as usize - 1) / band_rows + 1).skip(r0 as usize / band_rows) {
+                    band.push(fi as u32);
+                }
+            }
+        }
+
+        // Phase 1: which face each pixel takes (NO_TEXEL where none). Per pixel the best
+        // (squared distance from the centre as f32 bits, face id) packed in a u64: the
+        // smallest wins, so a face containing the centre (distance 0) beats any other and
+        // ties go to the lower face id.
+        let mut slot = vec![0u32; w * h]; // every entry is written below
+        let mut counts = vec![0usize; bands];
+        par_for_each(slot.chunks_mut(band_rows * w).zip(counts.iter_mut()).enumerate().collect(), threads, |(b, (owner, count))| {
+            let (y0, y1) = ((b * band_rows) as i64, ((b * band_rows) as i64 + (owner.len() / w.max(1)) as i64));
+            let mut best = vec![u64::MAX; owner.len()];
+            for &fi in &per_band[b] {
+                let (bounds, tri) = &pre[fi as usize];
+                raster::conservative(tri, *bounds, (y0, y1), |x, y| {
+                    let i = (y - y0) as usize * w + x as usize;
+                    if best[i] >> 32 == 0 {
+                        return; // the centre lies in a face with a lower id
+                    }
+                    let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+                    let (_, _, d2) = raster::closest_barycentric(tri, c);
+                    best[i] = best[i].min(((d2 as f32).to_bits() as u64) << 32 | fi as u64);
+                });
+            }
+            let mut n = 0;
+            for (o, &k) in owner.iter_mut().zip(&best) {
+                *o = if k == u64::MAX { NO_TEXEL } else { k as u32 };
+                n += usize::from(k != u64::MAX);
+            }
+            *count = n;
+        });
+
+        // Phase 2: texels, in row-major pixel order; `slot` turns from face into texel ids.
+        let total: usize = counts.iter().sum();
+        let mut map = TexelMap {
+            lod,
+            width,
+            height,
+            slot: Vec::new(),
+            pixel: vec![0; total],
+            face: vec![0; total],
+            position: vec![Vec3::ZERO; total],
+            normal: vec![Vec3::ZERO; total],
+            albedo: vec![Vec3::ZERO; total],
+            emission: vec![Vec3::ZERO; total],
+            gutter: Vec::new(),
+        };
+        {
+            let mut items = Vec::with_capacity(bands);
+            let (mut pixel, mut face, mut position) = (&mut map.pixel[..], &mut map.face[..], &mut map.position[..]);
+            let (mut normal, mut albedo, mut emission) = (&mut map.normal[..], &mut map.albedo[..], &mut map.emission[..]);
+            let mut first = 0usize;
+            for (b, chunk) in slot.chunks_mut(band_rows * w).enumerate() {
+                let n = counts[b];
+                items.push((
+                    b,
+                    first,
+                    chunk,
+                    take_front(&mut pixel, n),
+                    take_front(&mut face, n),
+                    take_front(&mut position, n),
+                    take_front(&mut normal, n),
+                    take_front(&mut albedo, n),
+                    take_front(&mut emission, n),
+                ));
+                first += n;
+            }
+            par_for_each(items, threads, |(b, first, chunk, pixel, face, position, normal, albedo, emission)| {
+                let y0 = b * band_rows;
+                let mut k = 0;
+                for (i, s) in chunk.iter_mut().enumerate() {
+                    if *s == NO_TEXEL {
+                        continue;
+                    }
+                    let fid = *s;
+                    let f = &atlas.faces[fid as usize];
+                    let (x, y) = (i % w, y0 + i / w);
+                    let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+                    let (u, v, _) = raster::closest_barycentric(&pre[fid as usize].1, c);
+                    let (u, v) = (u as f32, v as f32);
+                    let t = f.tri;
+                    pixel[k] = (y * w + x) as u32;
+                    face[k] = fid;
+                    position[k] = geom.point(t, u, v);
+                    normal[k] = geom.normals[t as usize] * f.side.sign();
+                    albedo[k] = geom.albedo(scene, t, u, v);
+                    let m = &scene.materials[geom.material[t as usize] as usize];
+                    emission[k] = if m.emits_from(f.side) { geom.emission(scene, t, u, v) } else { Rgb::ZERO };
+                    *s = (first + k) as u32;
+                    k += 1;
+                }
+            });
+        }
+
+        // Phase 3: gutters.
+        let mut gutters: Vec<Vec<(u32, u32)>> = vec![Vec::new(); bands];
+        {
+            let slot = &slot;
+            par_for_each(gutters.iter_mut().enumerate().collect(), threads, |(b, out)| {
+                let at = |x: usize, y: usize| slot[y * w + x];
+                for y in b * band_rows..((b + 1) * band_rows).min(h) {
+                    for x in 0..w {
+                        if at(x, y) != NO_TEXEL {
+                            continue;
+                        }
+                        let (xm, xp, ym, yp) = (x > 0, x + 1 < w, y > 0, y + 1 < h);
+                        let candidates = [
+                            (xm, x.wrapping_sub(1), y),
+                            (xp, x + 1, y),
+                            (ym, x, y.wrapping_sub(1)),
+                            (yp, x, y + 1),
+                            (xm && ym, x.wrapping_sub(1), y.wrapping_sub(1)),
+                            (xp && ym, x + 1, y.wrapping_sub(1)),
+                            (xm && yp, x.wrapping_sub(1), y + 1),
+                            (xp && yp, x + 1, y + 1),
+                        ];
+                        if let Some(t) = candidates.iter().filter(|c| c.0).map(|c| at(c.1, c.2)).find(|&t| t != NO_TEXEL) {
+                            out.push(((y * w + x) as u32, t));
+                        }
+                    }
+                }
+            });
+        }
+        map.gutter = gutters.concat();
+        map.slot = slot;
+        map
     }
 
     pub fn len(&self) -> usize {
@@ -82,4 +257,33 @@ impl TexelMap {
         }
         img
     }
+}
+
+/// Splits the first `n` elements off a mutable slice.
+fn take_front<'a, T>(s: &mut &'a mut [T], n: usize) -> &'a mut [T] {
+    let (front, rest) = std::mem::take(s).split_at_mut(n);
+    *s = rest;
+    front
+}
+
+/// Runs `f` on every item, on up to `threads` scoped threads pulling from a shared queue.
+fn par_for_each<T: Send>(items: Vec<T>, threads: usize, f: impl Fn(T) + Sync) {
+    if threads <= 1 || items.len() <= 1 {
+        items.into_iter().for_each(f);
+        return;
+    }
+    let queue = Mutex::new(items.into_iter());
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            s.spawn(|| {
+                loop {
+                    let next = queue.lock().unwrap_or_else(|e| e.into_inner()).next();
+                    match next {
+                        Some(item) => f(item),
+                        None => break,
+                    }
+                }
+            });
+        }
+    });
 }

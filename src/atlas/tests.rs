@@ -1,0 +1,559 @@
+//! Whole-atlas tests: unwrap + pack + texel maps on synthetic scenes, checked by
+//! independent rasterisation.
+
+use std::collections::HashMap;
+
+use glam::{DVec2, Vec3};
+
+use super::raster::{self, PixelRect};
+use super::*;
+use crate::scene::builder::{diffuse, white};
+use crate::scene::{SceneBuilder, SceneGeometry};
+
+pub(crate) fn icosphere(centre: Vec3, r: f32, subdiv: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let t = (1.0 + 5f32.sqrt()) / 2.0;
+    let mut p: Vec<Vec3> = [
+        (-1.0, t, 0.0),
+        (1.0, t, 0.0),
+        (-1.0, -t, 0.0),
+        (1.0, -t, 0.0),
+        (0.0, -1.0, t),
+        (0.0, 1.0, t),
+        (0.0, -1.0, -t),
+        (0.0, 1.0, -t),
+        (t, 0.0, -1.0),
+        (t, 0.0, 1.0),
+        (-t, 0.0, -1.0),
+        (-t, 0.0, 1.0),
+    ]
+    .iter()
+    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
+    .collect();
+    let mut f: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..subdiv {
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut m = |a: u32, b: u32, p: &mut Vec<Vec3>| {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                p.push(((p[a as usize] + p[b as usize]) * 0.5).normalize());
+                (p.len() - 1) as u32
+            })
+        };
+        let mut g = Vec::new();
+        for [a, b, c] in f {
+            let (ab, bc, ca) = (m(a, b, &mut p), m(b, c, &mut p), m(c, a, &mut p));
+            g.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
+        }
+        f = g;
+    }
+    (p.into_iter().map(|q| centre + q * r).collect(), f)
+}
+
+pub(crate) fn torus(centre: Vec3, r0: f32, r1: f32, n0: u32, n1: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let mut p = Vec::new();
+    for i in 0..n0 {
+        let a = i as f32 / n0 as f32 * std::f32::consts::TAU;
+        for j in 0..n1 {
+            let b = j as f32 / n1 as f32 * std::f32::consts::TAU;
+            let rr = r0 + r1 * b.cos();
+            p.push(centre + Vec3::new(rr * a.cos(), r1 * b.sin(), rr * a.sin()));
+        }
+    }
+    let id = |i: u32, j: u32| (i % n0) * n1 + (j % n1);
+    let mut f = Vec::new();
+    for i in 0..n0 {
+        for j in 0..n1 {
+            f.push([id(i, j), id(i, j + 1), id(i + 1, j + 1)]);
+            f.push([id(i, j), id(i + 1, j + 1), id(i + 1, j)]);
+        }
+    }
+    (p, f)
+}
+
+/// Thin triangles, 1e-4 of their length wide: alone, and inside a fan with big neighbours.
+fn slivers(b: &mut SceneBuilder, m: u32) {
+    for k in 0..6 {
+        let a = k as f32 * 0.9;
+        let d = Vec3::new(a.cos(), 0.3 * (k as f32 - 2.0), a.sin()).normalize() * (0.3 + 0.4 * k as f32);
+        let w = d.cross(Vec3::Y).normalize() * d.length() * 1e-4;
+        let o = Vec3::new(k as f32, 2.0, 0.0);
+        b.mesh(&format!("sliver{k}"), vec![o, o + d, o + d * 0.5 + w], vec![[0, 1, 2]], m);
+    }
+    // A unit quad whose bottom edge carries a sliver and whose diagonal is split by one.
+    let p = vec![
+        Vec3::new(0.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, 0.0),
+        Vec3::new(1.0, 0.0, -1.0),
+        Vec3::new(0.0, 0.0, -1.0),
+        Vec3::new(0.5, 0.0, -1e-4),
+        Vec3::new(0.5, 0.0, -0.5 - 1e-4 * 0.7),
+    ];
+    b.mesh("fan", p, vec![[0, 1, 4], [4, 1, 2], [4, 2, 5], [0, 4, 5], [0, 5, 3], [5, 2, 3]], m);
+}
+
+pub(crate) fn config(texel: f32) -> AtlasConfig {
+    AtlasConfig { texel_size: Some(texel), ..AtlasConfig::default() }
+}
+
+/// Barycentrics (u, v) of the projection of `p` onto the plane of a 3-D triangle, and the
+/// distance from `p` to the triangle.
+fn bary3(c: [Vec3; 3], p: Vec3) -> (f64, f64, f64) {
+    let [a, b, cc] = c.map(|q| q.as_dvec3());
+    let n = (b - a).cross(cc - a).normalize();
+    let (t, s) = n.any_orthonormal_pair();
+    let to2 = |q: glam::DVec3| DVec2::new((q - a).dot(t), (q - a).dot(s));
+    let tri = [to2(a), to2(b), to2(cc)];
+    let q = p.as_dvec3();
+    let (_, _, d2) = raster::closest_barycentric(&tri, to2(q));
+    let off = (q - a).dot(n);
+    let (e1, e2, d) = (tri[1] - tri[0], tri[2] - tri[0], to2(q) - tri[0]);
+    let det = e1.perp_dot(e2);
+    ((d.perp_dot(e2)) / det, e1.perp_dot(d) / det, (d2 + off * off).sqrt())
+}
+
+/// Checks an atlas and its texel maps at LOD 0..=`max_lod` against independent rasters.
+/// `strict`: every face must also own at least one texel (true when faces are large
+/// compared with a texel, or alone in their chart).
+fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelMap> {
+    let g = SceneGeometry::new(scene);
+    // Faces and charts agree; rectangles inside the atlas and disjoint.
+    for t in 0..g.len() {
+        for side in Side::BOTH {
+            if let Some(f) = atlas.face(t as u32, side) {
+                let face = &atlas.faces[f as usize];
+                assert_eq!((face.tri, face.side), (t as u32, side));
+                assert!(atlas.charts[face.chart as usize].faces.contains(&f));
+                assert_eq!(atlas.charts[face.chart as usize].side, side);
+                assert_eq!(atlas.charts[face.chart as usize].mesh, g.mesh[t]);
+            }
+        }
+    }
+    let mut owner = vec![u32::MAX; (atlas.width * atlas.height) as usize];
+    for (ci, c) in atlas.charts.iter().enumerate() {
+        let r = c.rect(0);
+        assert!(r.x1 <= atlas.width as i64 && r.y1 <= atlas.height as i64, "chart {ci} outside the atlas");
+        for y in r.y0..r.y1 {
+            for x in r.x0..r.x1 {
+                let o = &mut owner[(y * atlas.width as i64 + x) as usize];
+                assert_eq!(*o, u32::MAX, "rectangles of charts {} and {ci} overlap", *o);
+                *o = ci as u32;
+            }
+        }
+    }
+    let mut maps = Vec::new();
+    for lod in 0..=max_lod {
+        let tm = TexelMap::build(scene, &g, atlas, lod);
+        let s = (1u32 << lod) as f64;
+        let w = tm.width as i64;
+        assert_eq!((tm.width, tm.height), (atlas.width << lod, atlas.height << lod));
+        assert_eq!(tm.len() as u64, atlas.covered_texels(lod));
+        if lod == 0 {
+            assert_eq!(tm.len() as u64, atlas.stats.covered_texels_lod0);
+        }
+        // Texels in row-major order, slot consistent.
+        assert!(tm.pixel.windows(2).all(|p| p[0] < p[1]));
+        for (t, &p) in tm.pixel.iter().enumerate() {
+            assert_eq!(tm.slot[p as usize], t as u32);
+        }
+        assert_eq!(tm.slot.iter().filter(|&&s| s != texels::NO_TEXEL).count(), tm.len());
+        // Independent conservative raster over the whole atlas (no clipping to the chart):
+        // no pixel is touched by two charts, every touched pixel holds a texel of the
+        // face's chart, and at LOD 0 nothing reaches a chart's border.
+        let window = PixelRect::new(0, 0, tm.width as i64, tm.height as i64);
+        let mut chart_at: Vec<u32> = vec![u32::MAX; tm.slot.len()];
+        let mut owned = vec![0u32; atlas.faces.len()];
+        for &f in &tm.face {
+            owned[f as usize] += 1;
+        }
+        for (fi, face) in atlas.faces.iter().enumerate() {
+            let chart = &atlas.charts[face.chart as usize];
+            let interior = chart.interior(lod);
+            let px = raster::conservative_pixels(&face.uv_lod(lod), window);
+            assert!(!px.is_empty(), "face {fi} touches no pixel at LOD {lod}");
+            for (x, y) in px {
+                let i = (y * w + x) as usize;
+                if lod == 0 {
+                    assert!(interior.contains(x, y), "face {fi} reaches its chart's border at ({x},{y})");
+                } else {
+                    assert!(chart.rect(lod).contains(x, y), "face {fi} leaves its chart's rectangle at LOD {lod}");
+                }
+                assert!(chart_at[i] == u32::MAX || chart_at[i] == face.chart, "pixel ({x},{y}) LOD {lod} in two charts");
+                chart_at[i] = face.chart;
+                if interior.contains(x, y) {
+                    let t = tm.slot[i];
+                    assert_ne!(t, texels::NO_TEXEL, "face {fi} lost pixel ({x},{y}) at LOD {lod}");
+                    assert_eq!(atlas.faces[tm.face[t as usize] as usize].chart, face.chart);
+                }
+            }
+            if strict {
+                assert!(owned[fi] > 0, "face {fi} owns no texel at LOD {lod}");
+            }
+        }
+        // Texels lie on their face, have its side's normal, and map back to their pixel.
+        for t in 0..tm.len() {
+            let f = &atlas.faces[tm.face[t] as usize];
+            let corners = g.corners[f.tri as usize];
+            let (u, v, dist) = bary3(corners, tm.position[t]);
+            let size = (corners[1] - corners[0]).length().max((corners[2] - corners[0]).length()) as f64;
+            assert!(dist < 1e-6 * size.max(1.0), "texel {t} is {dist} m off its face");
+            assert!((tm.normal[t] - g.normals[f.tri as usize] * f.side.sign()).length() < 1e-6);
+            let (px, py) = ((tm.pixel[t] as i64) % w, (tm.pixel[t] as i64) / w);
+            let centre = DVec2::new(px as f64 + 0.5, py as f64 + 0.5);
+            let (_, _, d2) = raster::closest_barycentric(&f.uv_lod(lod), centre);
+            if d2 == 0.0 {
+                let uv = f.uv_at(u as f32, v as f32).as_dvec2() * s;
+                assert!((uv - centre).length() < 1e-2, "texel {t}: UV {uv} vs centre {centre}");
+                assert_eq!((uv.x.floor() as i64, uv.y.floor() as i64), (px, py));
+            }
+        }
+        // Gutters: empty pixels next to a texel, copying a neighbouring texel of the only
+        // chart around; every empty 8-neighbour of a texel is a gutter pixel.
+        let chart_of_texel = |t: u32| atlas.faces[tm.face[t as usize] as usize].chart;
+        let mut is_gutter = vec![false; tm.slot.len()];
+        for &(p, t) in &tm.gutter {
+            assert_eq!(tm.slot[p as usize], texels::NO_TEXEL);
+            is_gutter[p as usize] = true;
+            let (x, y) = ((p as i64) % w, (p as i64) / w);
+            let (tx, ty) = ((tm.pixel[t as usize] as i64) % w, (tm.pixel[t as usize] as i64) / w);
+            assert!((x - tx).abs() <= 1 && (y - ty).abs() <= 1);
+            let c = chart_of_texel(t);
+            assert!(atlas.charts[c as usize].rect(lod).contains(x, y), "gutter pixel outside its chart's rectangle");
+            for yy in (y - 1).max(0)..=(y + 1).min(tm.height as i64 - 1) {
+                for xx in (x - 1).max(0)..=(x + 1).min(w - 1) {
+                    let n = tm.slot[(yy * w + xx) as usize];
+                    assert!(n == texels::NO_TEXEL || chart_of_texel(n) == c, "gutter ({x},{y}) LOD {lod} next to two charts");
+                }
+            }
+        }
+        for &p in &tm.pixel {
+            let (x, y) = ((p as i64) % w, (p as i64) / w);
+            for yy in (y - 1).max(0)..=(y + 1).min(tm.height as i64 - 1) {
+                for xx in (x - 1).max(0)..=(x + 1).min(w - 1) {
+                    let i = (yy * w + xx) as usize;
+                    assert!(tm.slot[i] != texels::NO_TEXEL || is_gutter[i]);
+                }
+            }
+        }
+        maps.push(tm);
+    }
+    maps
+}
+
+pub(crate) fn check_pub(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelMap> {
+    check(scene, atlas, max_lod, strict)
+}
+
+fn build(scene: &Scene, cfg: &AtlasConfig) -> Atlas {
+    Atlas::build(scene, &SceneGeometry::new(scene), cfg).expect("atlas")
+}
+
+#[test]
+fn room() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    b.cuboid("room", Vec3::ZERO, Vec3::new(4.0, 2.5, 3.0), true, m);
+    let s = b.build();
+    let a = build(&s, &config(0.05));
+    assert_eq!(a.charts.len(), 6);
+    assert_eq!(a.faces.len(), 12);
+    let area = 2.0 * (4.0 * 2.5 + 4.0 * 3.0 + 2.5 * 3.0);
+    assert_eq!(a.stats.covered_texels_lod0, (area / 0.0025f64).round() as u64, "walls aligned to the pixel grid");
+    check(&s, &a, 2, true);
+}
+
+#[test]
+fn double_sided_quad_has_two_separate_faces() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(diffuse(Vec3::splat(0.5), Vec3::new(1.0, 2.0, 3.0), true));
+    b.quad("q", [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y], m);
+    let s = b.build();
+    let a = build(&s, &config(0.1));
+    assert_eq!(a.faces.len(), 4);
+    assert_eq!(a.charts.len(), 2);
+    assert_eq!((a.charts[0].side, a.charts[1].side), (Side::Front, Side::Back));
+    let maps = check(&s, &a, 2, true);
+    for tm in &maps {
+        let mut sides = [0usize; 2];
+        for t in 0..tm.len() {
+            let f = &a.faces[tm.face[t] as usize];
+            sides[f.side.index()] += 1;
+            let want = Vec3::Z * f.side.sign();
+            assert!((tm.normal[t] - want).length() < 1e-6);
+            assert_eq!(tm.emission[t], Vec3::new(1.0, 2.0, 3.0), "a double-sided emitter emits from both faces");
+            assert_eq!(tm.albedo[t], Vec3::splat(0.5));
+        }
+        assert_eq!(sides[0], sides[1]);
+        assert_eq!(sides[0] * 2, tm.len());
+    }
+    // Single-sided emitter: back faces neither exist nor emit.
+    let mut b = SceneBuilder::new();
+    let m = b.material(diffuse(Vec3::splat(0.5), Vec3::ONE, false));
+    b.quad("q", [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y], m);
+    let s = b.build();
+    let a = build(&s, &config(0.1));
+    assert_eq!(a.faces.len(), 2);
+    assert!(a.face_of.iter().all(|f| f[1] == NO_FACE));
+}
+
+#[test]
+fn curved_surfaces_get_many_charts_and_lose_no_face() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    let (p, f) = icosphere(Vec3::ZERO, 1.0, 3);
+    b.mesh("sphere", p, f, m);
+    let (p, f) = torus(Vec3::new(4.0, 0.0, 0.0), 1.0, 0.35, 48, 24);
+    b.mesh("torus", p, f, m);
+    let s = b.build();
+    let a = build(&s, &config(0.015));
+    let per_mesh = |mi: u32| a.charts.iter().filter(|c| c.mesh == mi).count();
+    assert!(per_mesh(0) >= 8 && per_mesh(1) >= 8, "{} and {} charts", per_mesh(0), per_mesh(1));
+    // Every face of a chart is within the angle of some common direction: no chart wraps
+    // around the sphere.
+    let g = SceneGeometry::new(&s);
+    for c in &a.charts {
+        let n: Vec3 = c.faces.iter().map(|&f| g.normals[a.faces[f as usize].tri as usize]).sum::<Vec3>().normalize();
+        for &f in &c.faces {
+            assert!(g.normals[a.faces[f as usize].tri as usize].dot(n) > (80f32).to_radians().cos());
+        }
+    }
+    check(&s, &a, 2, true);
+    // At a coarse texel size many faces share a texel: still none is lost (each face's
+    // pixels hold texels of its own chart), but not every face can own one.
+    let a = build(&s, &config(0.2));
+    check(&s, &a, 1, false);
+}
+
+#[test]
+fn coplanar_duplicate_faces_get_their_own_texels() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    // Duplicated quad sharing vertices, and a copy with its own vertices, in one mesh.
+    let q = [Vec3::ZERO, Vec3::new(2.0, 0.0, 0.0), Vec3::new(2.0, 0.0, -1.0), Vec3::new(0.0, 0.0, -1.0)];
+    let mut p = q.to_vec();
+    p.extend(q);
+    b.mesh("dup", p, vec![[0, 1, 2], [0, 2, 3], [0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], m);
+    let s = b.build();
+    let a = build(&s, &config(0.1));
+    assert_eq!(a.charts.len(), 3);
+    let maps = check(&s, &a, 2, true);
+    assert_eq!(maps[0].len(), 3 * 200);
+}
+
+#[test]
+fn slivers_keep_their_texels() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    slivers(&mut b, m);
+    let s = b.build();
+    let a = build(&s, &config(0.05));
+    // Alone in their chart, slivers own their pixels.
+    let maps = check(&s, &a, 3, false);
+    let lone = 6;
+    for tm in &maps {
+        for f in 0..lone {
+            assert!(tm.face.contains(&(f as u32)), "sliver {f} owns no texel at LOD {}", tm.lod);
+        }
+    }
+}
+
+#[test]
+fn texel_density_of_a_planar_quad() {
+    for (angle, texel) in [(0.0f32, 0.1f32), (0.5, 0.1), (0.0, 0.07)] {
+        let mut b = SceneBuilder::new();
+        let m = b.material(white());
+        let (c, s) = (angle.cos(), angle.sin());
+        let x = Vec3::new(c, 0.0, -s) * 4.0;
+        let z = Vec3::new(s, 0.0, c) * -2.0;
+        b.quad("q", [Vec3::ZERO, x, x + z, z], m);
+        let sc = b.build();
+        let a = build(&sc, &config(texel));
+        let g = SceneGeometry::new(&sc);
+        let maps = check(&sc, &a, 1, true);
+        let ideal = 8.0 / (texel as f64 * texel as f64);
+        let (ex, ey) = (4.0 / texel as f64, 2.0 / texel as f64);
+        let (n0, n1) = (maps[0].len() as f64, maps[1].len() as f64);
+        if (ex - ex.round()).abs() < 1e-3 {
+            // A 4 m × 2 m wall at 0.1 m is aligned to the pixel grid: exactly 40 × 20 texels,
+            // and 80 × 40 at LOD 1.
+            assert_eq!(n0, ideal.round(), "angle {angle}");
+            assert_eq!(n1, 4.0 * ideal.round());
+        } else {
+            // Otherwise the chart is centred in ⌈e⌉ pixels: at most one partly covered
+            // column and row more than the surface.
+            assert!(n0 >= ideal && n0 <= ex.ceil() * ey.ceil(), "{n0} vs {ideal}");
+            assert!(n1 >= 4.0 * ideal && n1 <= ((2.0 * ex).ceil() + 1.0) * ((2.0 * ey).ceil() + 1.0));
+        }
+        for f in 0..a.faces.len() as u32 {
+            let d0 = a.texel_density(&g, f, 0) as f64;
+            assert!((d0 * texel as f64 * texel as f64 - 1.0).abs() < 1e-4, "density {d0}");
+            assert!((a.texel_density(&g, f, 2) as f64 / d0 - 16.0).abs() < 1e-3);
+        }
+        assert_eq!(a.triangle_texel_densities(&g, 1).len(), 2);
+    }
+}
+
+#[test]
+fn budget_sets_the_texel_size() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    b.cuboid("house", Vec3::ZERO, Vec3::new(12.0, 3.0, 8.0), true, m);
+    let dm = b.material(diffuse(Vec3::ONE, Vec3::ZERO, true));
+    b.grid_quad("partition", [Vec3::new(1.0, 0.0, 4.0), Vec3::new(11.0, 0.0, 4.0), Vec3::new(11.0, 3.0, 4.0), Vec3::new(1.0, 3.0, 4.0)], 5, dm);
+    let s = b.build();
+    let budget = 20_000u64;
+    let a = build(&s, &AtlasConfig { texel_budget: budget, ..AtlasConfig::default() });
+    let area = 2.0 * (12.0 * 3.0 + 12.0 * 8.0 + 3.0 * 8.0) + 2.0 * 30.0;
+    assert!((a.stats.lit_area - area).abs() < 1e-3);
+    let t = a.texel_size as f64;
+    assert!((area / (t * t) - budget as f64).abs() < 1.0);
+    // Covered texels: at least the surface, at most the charts' interiors (the surface plus
+    // at most one partly covered row and column per chart).
+    let interiors: u64 = a.charts.iter().map(|c| (c.rect_size.0 as u64 - 2) * (c.rect_size.1 as u64 - 2)).sum();
+    let covered = a.stats.covered_texels_lod0;
+    assert!(covered >= budget && covered <= interiors, "{covered} texels for a budget of {budget}, interiors {interiors}");
+    assert!((covered as f64) < 1.03 * budget as f64, "{covered}");
+    assert!(a.stats.fill_ratio > 0.6, "fill {}", a.stats.fill_ratio);
+    check(&s, &a, 1, true);
+}
+
+#[test]
+fn builds_are_deterministic() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    let d = b.material(diffuse(Vec3::ONE, Vec3::ZERO, true));
+    let (p, f) = icosphere(Vec3::ZERO, 1.0, 2);
+    b.mesh("sphere", p, f, d);
+    let (p, f) = torus(Vec3::new(4.0, 0.0, 0.0), 1.0, 0.35, 24, 12);
+    b.mesh("torus", p, f, m);
+    b.cuboid("room", Vec3::splat(-6.0), Vec3::splat(6.0), true, m);
+    slivers(&mut b, m);
+    let s = b.build();
+    let g = SceneGeometry::new(&s);
+    let cfg = AtlasConfig { texel_budget: 30_000, ..AtlasConfig::default() };
+    let (a1, a2) = (Atlas::build(&s, &g, &cfg).unwrap(), Atlas::build(&s, &g, &cfg).unwrap());
+    assert_eq!((a1.width, a1.height, a1.texel_size.to_bits()), (a2.width, a2.height, a2.texel_size.to_bits()));
+    assert_eq!(a1.face_of, a2.face_of);
+    for (f1, f2) in a1.faces.iter().zip(&a2.faces) {
+        assert_eq!((f1.tri, f1.side, f1.chart), (f2.tri, f2.side, f2.chart));
+        assert_eq!(f1.uv.map(|p| (p.x.to_bits(), p.y.to_bits())), f2.uv.map(|p| (p.x.to_bits(), p.y.to_bits())));
+    }
+    for (c1, c2) in a1.charts.iter().zip(&a2.charts) {
+        assert_eq!((c1.rect_min, c1.rect_size, &c1.faces), (c2.rect_min, c2.rect_size, &c2.faces));
+    }
+    let (t1, t2) = (TexelMap::build(&s, &g, &a1, 1), TexelMap::build(&s, &g, &a2, 1));
+    assert_eq!((&t1.slot, &t1.face, &t1.gutter), (&t2.slot, &t2.face, &t2.gutter));
+    assert!(t1.position.iter().zip(&t2.position).all(|(p, q)| p.to_array().map(f32::to_bits) == q.to_array().map(f32::to_bits)));
+}
+
+#[test]
+fn errors() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    b.cuboid("room", Vec3::ZERO, Vec3::new(4.0, 2.5, 3.0), true, m);
+    let s = b.build();
+    let g = SceneGeometry::new(&s);
+    for bad in [0.0, -0.1, f32::NAN, f32::INFINITY] {
+        assert!(matches!(Atlas::build(&s, &g, &config(bad)), Err(AtlasError::BadTexelSize(_))), "{bad}");
+    }
+    // 1 mm texels over 59 m²: ~7.7k × 7.7k, above a 4096 limit (reported before any work).
+    let cfg = AtlasConfig { texel_size: Some(0.001), max_size: 4096, ..AtlasConfig::default() };
+    match Atlas::build(&s, &g, &cfg) {
+        Err(AtlasError::TooLarge { width, height, max: 4096 }) => assert!(width > 4096 && height > 4096),
+        other => panic!("{other:?}"),
+    }
+    // Fits by area but one wall alone is wider than the limit (found while packing).
+    let cfg = AtlasConfig { texel_size: Some(0.01), max_size: 390, ..AtlasConfig::default() };
+    assert!(matches!(Atlas::build(&s, &g, &cfg), Err(AtlasError::TooLarge { max: 390, .. })));
+    assert!(matches!(Atlas::build(&Scene::default(), &SceneGeometry::default(), &config(0.1)), Err(AtlasError::Empty)));
+    // Zero budget: no texel size can be derived.
+    let cfg = AtlasConfig { texel_budget: 0, ..AtlasConfig::default() };
+    assert!(matches!(Atlas::build(&s, &g, &cfg), Err(AtlasError::BadTexelSize(_))));
+}
+
+#[test]
+fn degenerate_triangles_get_no_face() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    b.mesh("m", vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::X * 2.0], vec![[0, 1, 2], [0, 1, 3]], m);
+    let s = b.build();
+    let a = build(&s, &config(0.1));
+    assert_eq!(a.face_of[1], [NO_FACE, NO_FACE]);
+    assert_eq!(a.faces.len(), 1);
+}
+
+/// Timing on the largest synthetic scene (not a correctness test; run with
+/// `cargo test --release --lib atlas::tests::timing -- --ignored --nocapture`).
+/// A synthetic "temple complex": a 120 m courtyard, 400 columns (box shaft, torus base,
+/// icosphere capital), tiled floors. 312k triangles, 491k faces.
+pub(crate) fn temple() -> Scene {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    let d = b.material(diffuse(Vec3::splat(0.7), Vec3::ZERO, true));
+    // A "temple complex": 120 m courtyard, rooms, 400 columns (tori + spheres), tiled floors.
+    b.cuboid("court", Vec3::new(-60.0, 0.0, -60.0), Vec3::new(60.0, 15.0, 60.0), true, m);
+    for i in 0..20 {
+        for j in 0..20 {
+            let c = Vec3::new(-50.0 + i as f32 * 5.2, 0.0, -50.0 + j as f32 * 5.2);
+            let (p, f) = icosphere(c + Vec3::Y * 6.0, 0.6, 2);
+            b.mesh("capital", p, f, m);
+            let (p, f) = torus(c + Vec3::Y * 0.3, 0.6, 0.2, 24, 8);
+            b.mesh("base", p, f, d);
+            b.cuboid("shaft", c - Vec3::new(0.3, 0.0, 0.3), c + Vec3::new(0.3, 5.5, 0.3), false, m);
+        }
+    }
+    for k in 0..8 {
+        let o = Vec3::new(-55.0 + k as f32 * 14.0, 0.0, 58.0);
+        b.grid_quad("tiles", [o, o + Vec3::X * 12.0, o + Vec3::new(12.0, 0.0, -12.0), o - Vec3::Z * 12.0], 40, d);
+    }
+    b.build()
+}
+
+#[test]
+#[ignore = "timing report, run in release by hand"]
+fn timing() {
+    let s = temple();
+    let g = SceneGeometry::new(&s);
+    println!("{} triangles", g.len());
+    let cfg = AtlasConfig::default();
+    let t = std::time::Instant::now();
+    let a = Atlas::build(&s, &g, &cfg).unwrap();
+    let build = t.elapsed().as_secs_f64();
+    println!(
+        "atlas {}×{}, texel {:.4} m, {} charts, {} faces: unwrap {:.1} ms, pack {:.1} ms, build total {:.1} ms, covered {} (fill {:.3})",
+        a.width,
+        a.height,
+        a.texel_size,
+        a.stats.charts,
+        a.stats.faces,
+        a.stats.unwrap_seconds * 1e3,
+        a.stats.pack_seconds * 1e3,
+        build * 1e3,
+        a.stats.covered_texels_lod0,
+        a.stats.fill_ratio
+    );
+    for lod in 0..3 {
+        let t = std::time::Instant::now();
+        let tm = TexelMap::build(&s, &g, &a, lod);
+        println!("LOD {lod}: {} texels, {} gutter, {:.1} ms", tm.len(), tm.gutter.len(), t.elapsed().as_secs_f64() * 1e3);
+    }
+}
