@@ -456,3 +456,64 @@ mod tests {
         assert!(triangles_overlap(&a, &c, 1e-6));
     }
 }
+
+/// Area of triangle `t` inside the unit pixel square with corner (x, y), in pixel units
+/// (Sutherland–Hodgman clip against the four sides, then the shoelace formula).
+pub fn clipped_area(t: &[DVec2; 3], x: i64, y: i64) -> f64 {
+    let (x0, y0) = (x as f64, y as f64);
+    let (x1, y1) = (x0 + 1.0, y0 + 1.0);
+    let lo = t[0].min(t[1]).min(t[2]);
+    let hi = t[0].max(t[1]).max(t[2]);
+    if lo.x >= x0 && hi.x <= x1 && lo.y >= y0 && hi.y <= y1 {
+        return 0.5 * area2(t).abs();
+    }
+    let mut poly: Vec<DVec2> = t.to_vec();
+    let mut next = Vec::with_capacity(8);
+    // Each plane keeps points p with sign·(p[axis] − bound) ≥ 0.
+    for (axis, bound, sign) in [(0, x0, 1.0), (0, x1, -1.0), (1, y0, 1.0), (1, y1, -1.0)] {
+        next.clear();
+        let inside = |p: DVec2| sign * (p[axis] - bound) >= 0.0;
+        for i in 0..poly.len() {
+            let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+            let (ia, ib) = (inside(a), inside(b));
+            if ia {
+                next.push(a);
+            }
+            if ia != ib {
+                let s = (bound - a[axis]) / (b[axis] - a[axis]);
+                next.push(a + (b - a) * s);
+            }
+        }
+        std::mem::swap(&mut poly, &mut next);
+        if poly.len() < 3 {
+            return 0.0;
+        }
+    }
+    let mut twice = 0.0;
+    for i in 0..poly.len() {
+        let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+        twice += a.x * b.y - b.x * a.y;
+    }
+    0.5 * twice.abs()
+}
+
+#[cfg(test)]
+mod clip_tests {
+    use super::*;
+
+    #[test]
+    fn clipped_areas_of_a_triangle_sum_to_its_area() {
+        let t = [DVec2::new(0.3, 0.2), DVec2::new(5.7, 1.1), DVec2::new(2.2, 4.9)];
+        let mut sum = 0.0;
+        for y in -1..7 {
+            for x in -1..8 {
+                sum += clipped_area(&t, x, y);
+            }
+        }
+        assert!((sum - 0.5 * area2(&t).abs()).abs() < 1e-9, "{sum}");
+        // A triangle covering the whole pixel contributes exactly 1.
+        let big = [DVec2::new(-10.0, -10.0), DVec2::new(20.0, -10.0), DVec2::new(-10.0, 20.0)];
+        assert!((clipped_area(&big, 2, 2) - 1.0).abs() < 1e-12);
+        assert_eq!(clipped_area(&t, 20, 20), 0.0);
+    }
+}

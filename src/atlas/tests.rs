@@ -254,6 +254,25 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
                 }
             }
         }
+        // Texel areas partition the lit surface: every face's area lands in some texel once,
+        // except slivers of a face reaching less than TOUCH_TOL pixel into a pixel (not
+        // "touched" by the coverage rule): at most perimeter × TOUCH_TOL pixel per face.
+        let lit: f64 = atlas.faces.iter().map(|f| g.areas[f.tri as usize] as f64).sum();
+        let pixel = atlas.texel_size as f64 / (1u64 << lod) as f64;
+        let untouched: f64 = atlas
+            .faces
+            .iter()
+            .map(|f| {
+                let c = g.corners[f.tri as usize];
+                let perimeter = (c[1] - c[0]).length() + (c[2] - c[1]).length() + (c[0] - c[2]).length();
+                perimeter as f64 * raster::TOUCH_TOL * pixel
+            })
+            .sum();
+        let texel_area: f64 = tm.area.iter().map(|&a| a as f64).sum();
+        assert!(
+            texel_area <= lit * (1.0 + 1e-5) && texel_area >= lit * (1.0 - 1e-5) - untouched,
+            "LOD {lod}: texel areas {texel_area} vs lit area {lit} (untouched bound {untouched})"
+        );
         maps.push(tm);
     }
     maps

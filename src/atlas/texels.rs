@@ -100,13 +100,31 @@ impl TexelMap {
         // ties go to the lower face id.
         let mut slot = vec![0u32; w * h]; // every entry is written below
         let mut counts = vec![0usize; bands];
-        par_for_each(slot.chunks_mut(band_rows * w).zip(counts.iter_mut()).enumerate().collect(), threads, |(b, (owner, count))| {
+        // Per band, per pixel: world area of all faces inside the pixel square (m²).
+        let mut band_areas: Vec<Vec<f32>> = vec![Vec::new(); bands];
+        // World m² per LOD-k pixel² of each face's parametrisation.
+        let world_per_uv: Vec<f64> = atlas
+            .faces
+            .iter()
+            .zip(&pre)
+            .map(|(f, (_, t))| {
+                let uv = 0.5 * raster::area2(t).abs();
+                if uv > 0.0 { geom.areas[f.tri as usize] as f64 / uv } else { 0.0 }
+            })
+            .collect();
+        par_for_each(
+            slot.chunks_mut(band_rows * w).zip(counts.iter_mut()).zip(band_areas.iter_mut()).enumerate().collect(),
+            threads,
+            |(b, ((owner, count), areas))| {
             let (y0, y1) = ((b * band_rows) as i64, ((b * band_rows) as i64 + (owner.len() / w.max(1)) as i64));
             let mut best = vec![u64::MAX; owner.len()];
+            let mut area = vec![0f64; owner.len()];
             for &fi in &per_band[b] {
                 let (bounds, tri) = &pre[fi as usize];
+                let ratio = world_per_uv[fi as usize];
                 raster::conservative(tri, *bounds, (y0, y1), |x, y| {
                     let i = (y - y0) as usize * w + x as usize;
+                    area[i] += raster::clipped_area(tri, x, y) * ratio;
                     if best[i] >> 32 == 0 {
                         return; // the centre lies in a face with a lower id
                     }
@@ -115,6 +133,7 @@ impl TexelMap {
                     best[i] = best[i].min(((d2 as f32).to_bits() as u64) << 32 | fi as u64);
                 });
             }
+            *areas = area.into_iter().map(|a| a as f32).collect();
             let mut n = 0;
             for (o, &k) in owner.iter_mut().zip(&best) {
                 *o = if k == u64::MAX { NO_TEXEL } else { k as u32 };
@@ -136,12 +155,14 @@ impl TexelMap {
             normal: vec![Vec3::ZERO; total],
             albedo: vec![Vec3::ZERO; total],
             emission: vec![Vec3::ZERO; total],
+            area: vec![0.0; total],
             gutter: Vec::new(),
         };
         {
             let mut items = Vec::with_capacity(bands);
             let (mut pixel, mut face, mut position) = (&mut map.pixel[..], &mut map.face[..], &mut map.position[..]);
             let (mut normal, mut albedo, mut emission) = (&mut map.normal[..], &mut map.albedo[..], &mut map.emission[..]);
+            let mut area = &mut map.area[..];
             let mut first = 0usize;
             for (b, chunk) in slot.chunks_mut(band_rows * w).enumerate() {
                 let n = counts[b];
@@ -155,10 +176,12 @@ impl TexelMap {
                     take_front(&mut normal, n),
                     take_front(&mut albedo, n),
                     take_front(&mut emission, n),
+                    take_front(&mut area, n),
+                    &band_areas[b],
                 ));
                 first += n;
             }
-            par_for_each(items, threads, |(b, first, chunk, pixel, face, position, normal, albedo, emission)| {
+            par_for_each(items, threads, |(b, first, chunk, pixel, face, position, normal, albedo, emission, area, band_area)| {
                 let y0 = b * band_rows;
                 let mut k = 0;
                 for (i, s) in chunk.iter_mut().enumerate() {
@@ -173,6 +196,7 @@ impl TexelMap {
                     let (u, v) = (u as f32, v as f32);
                     let t = f.tri;
                     pixel[k] = (y * w + x) as u32;
+                    area[k] = band_area[i];
                     face[k] = fid;
                     position[k] = geom.point(t, u, v);
                     normal[k] = geom.normals[t as usize] * f.side.sign();

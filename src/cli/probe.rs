@@ -6,9 +6,10 @@ use anyhow::{Context, Result, bail};
 use glam::Vec3;
 use serde_json::{Value, json};
 
-use livebake::probe::{ProbeError, SurfaceLocator, SurfacePoint};
-use livebake::reference::ReferenceTracer;
-use livebake::scene::Rgb;
+use livebake::bake::bake;
+use livebake::probe::{LightmapSampler, ProbeError, SurfaceLocator, SurfacePoint};
+use livebake::reference::{Bvh, ReferenceTracer};
+use livebake::scene::{Rgb, SceneGeometry};
 
 use super::SceneOptions;
 use super::bake::load_scene;
@@ -62,7 +63,15 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
     let (mut doc, queries) = read_points(points_path)?;
     let (scene, _) = load_scene(scene_path, options)?;
     let results: Vec<Result<Rgb, ProbeError>> = match options.backend {
-        Backend::Cpu => anyhow::bail!("probe from bundle light maps is wired in the next step"),
+        Backend::Cpu => {
+            let baked = bake(&scene, &config, ui).with_context(|| format!("cannot bake {}", scene_path.display()))?;
+            let geom = SceneGeometry::new(&scene);
+            let bvh = Bvh::new(&geom);
+            let locator = SurfaceLocator::new(&geom, &bvh);
+            let finest = baked.lods.last().context("the bake produced no light map")?;
+            let sampler = LightmapSampler::new(&baked.atlas, finest);
+            queries.iter().map(|q| locator.locate(q.p, q.n).and_then(|at| sampler.irradiance(&at))).collect()
+        }
         Backend::Reference => {
             let tracer = ReferenceTracer::new(&scene).with_threads(config.threads);
             let locator = SurfaceLocator::new(tracer.geometry(), tracer.bvh());
@@ -91,13 +100,12 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
             }
         }
     }
-    let text = serde_json::to_string_pretty(&doc)?;
     match out {
         Some(path) => {
             livebake::output::write_json(path, &doc)?;
             ui.say(format!("wrote {} ({} points)", path.display(), results.len()));
         }
-        None => println!("{text}"),
+        None => println!("{}", serde_json::to_string_pretty(&doc)?),
     }
     Ok(())
 }
