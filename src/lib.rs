@@ -12,6 +12,7 @@ pub mod bundle;
 pub mod cpu;
 pub mod lod;
 pub mod output;
+pub mod parallel;
 pub mod probe;
 pub mod progress;
 pub mod reference;

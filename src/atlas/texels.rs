@@ -1,8 +1,8 @@
 //! Inverse mapping (2017 thesis, 3.2.3): for every texel of a LOD, the surface point it stands
 //! for.
 
-use std::sync::Mutex;
 
+use crate::parallel::par_for_each;
 use glam::{DVec2, Vec2, Vec3};
 
 use super::raster::{self, PixelRect};
@@ -290,24 +290,3 @@ fn take_front<'a, T>(s: &mut &'a mut [T], n: usize) -> &'a mut [T] {
     front
 }
 
-/// Runs `f` on every item, on up to `threads` scoped threads pulling from a shared queue.
-fn par_for_each<T: Send>(items: Vec<T>, threads: usize, f: impl Fn(T) + Sync) {
-    if threads <= 1 || items.len() <= 1 {
-        items.into_iter().for_each(f);
-        return;
-    }
-    let queue = Mutex::new(items.into_iter());
-    std::thread::scope(|s| {
-        for _ in 0..threads {
-            s.spawn(|| {
-                loop {
-                    let next = queue.lock().unwrap_or_else(|e| e.into_inner()).next();
-                    match next {
-                        Some(item) => f(item),
-                        None => break,
-                    }
-                }
-            });
-        }
-    });
-}

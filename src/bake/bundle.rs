@@ -92,7 +92,7 @@ pub fn bake_lod(
     let mut source = Vec::new();
     match &coarser {
         Some(c) => source_from_coarser(texels, c, &carried, &mut source),
-        None => estimate.source_radiance(texels, &carried, &mut source),
+        None => estimate.source_radiance(texels, &carried, None, threads, &mut source),
     }
     stats.light_pass_groups = inputs.emitters.small.len();
     stats.emitter_triangles_in_global_bundles = inputs.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
@@ -101,16 +101,16 @@ pub fn bake_lod(
     let jobs = Jobs::new(config, inputs.emitters.small.len());
     let mut sums = BatchSums::new(texels.len());
     progress.begin(&format!("LOD {} bundles", texels.lod), config.directions as u64);
-    let per_batch = config.directions_per_batch.max(1) as u64;
+    let per_batch = config.batch_size() as u64;
     let mut first = 0u64;
     while first < config.directions as u64 {
         let count = per_batch.min(config.directions as u64 - first);
         let batch: Vec<DirectionJob> = (first..first + count).map(|i| jobs.job(i)).collect();
         let pass = backend.trace_batch(&batch, &source, &mut sums);
         stats.pass.add(&pass);
-        estimate.add_batch(&sums, count * config.light_directions as u64);
+        estimate.add_batch(&sums, count * config.light_directions as u64, threads);
         if kind == SourceKind::Progressive {
-            estimate.source_radiance(texels, &carried, &mut source);
+            estimate.source_radiance(texels, &carried, Some(&sums), threads, &mut source);
         }
         first += count;
         progress.advance(count);

@@ -6,6 +6,9 @@
 //! Large emitters (a glowing wall, a furnace) are hit often by the global bundles, which
 //! then carry their emission directly; each emitter is estimated by exactly one of the two.
 
+use std::collections::HashMap;
+use std::collections::hash_map::Entry;
+
 use glam::Vec3;
 
 use crate::scene::{Scene, SceneGeometry};
@@ -66,16 +69,21 @@ pub fn plan_emitters(scene: &Scene, geom: &SceneGeometry, lit_area: f64, small_f
         }
         let first = geom.mesh_offsets[mi];
         let n = mesh.triangles.len() as u32;
+        // Triangles touching at a corner position join one group. Positions, not vertex
+        // indices: exporters split vertices wherever normals change (a lamp box's faces).
         let mut parent: Vec<u32> = (0..n).collect();
-        let mut owner = vec![u32::MAX; mesh.positions.len()];
+        let mut owner: HashMap<[u32; 3], u32> = HashMap::new();
         for (t, tri) in mesh.triangles.iter().enumerate() {
             for &v in tri {
-                let o = owner[v as usize];
-                if o == u32::MAX {
-                    owner[v as usize] = t as u32;
-                } else {
-                    let (a, b) = (find(&mut parent, o), find(&mut parent, t as u32));
-                    parent[a.max(b) as usize] = a.min(b);
+                let key = mesh.positions[v as usize].to_array().map(f32::to_bits);
+                match owner.entry(key) {
+                    Entry::Vacant(e) => {
+                        e.insert(t as u32);
+                    }
+                    Entry::Occupied(e) => {
+                        let (a, b) = (find(&mut parent, *e.get()), find(&mut parent, t as u32));
+                        parent[a.max(b) as usize] = a.min(b);
+                    }
                 }
             }
         }
@@ -137,14 +145,17 @@ mod tests {
         let (q1, q2) = (quad(1.0), quad(2.5));
         let mut pos = q1.to_vec();
         pos.extend_from_slice(&q2);
-        b.mesh("lamps", pos, vec![[0, 2, 1], [0, 3, 2], [4, 6, 5], [4, 7, 6]], lamp);
+        b.mesh("lamps", pos, vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], lamp);
         b.cuboid("glowing block", Vec3::splat(1.0), Vec3::splat(3.0), false, glow);
+        // A lamp box with unwelded faces (cuboid gives each face its own vertices): one group.
+        b.cuboid("lamp box", Vec3::new(3.0, 3.8, 3.0), Vec3::new(3.4, 3.9, 3.4), false, lamp);
         let scene = b.build();
         let geom = SceneGeometry::new(&scene);
         let lit = geom.total_area();
         let plan = plan_emitters(&scene, &geom, lit, 0.05);
-        assert_eq!(plan.small.len(), 2);
-        for g in &plan.small {
+        assert_eq!(plan.small.len(), 3);
+        assert_eq!(plan.small[2].triangles.len(), 12);
+        for g in &plan.small[..2] {
             assert_eq!(g.triangles.len(), 2);
             assert!((g.area - 0.25).abs() < 1e-5);
             assert!((g.mean_normal - Vec3::NEG_Y).length() < 1e-5, "{:?}", g.mean_normal);

@@ -52,8 +52,8 @@ pub struct BundleConfig {
     pub light_directions: u32,
     /// Emitter groups smaller than this fraction of the lit area get the light pass.
     pub small_emitter_fraction: f64,
-    /// Directions per batch: the running estimate (and the radiance later directions read)
-    /// is refreshed after each batch.
+    /// Most directions per batch: the radiance later directions read is refreshed after
+    /// each batch. Fewer are used when that gives fewer than [`MIN_BATCHES`] batches.
     pub directions_per_batch: u32,
     /// Independent accumulation lanes a batch is split into. Results depend on this (float
     /// sums in another order) but not on the thread count; at most this many threads work.
@@ -108,7 +108,17 @@ pub enum BundleConfigError {
     Batching,
 }
 
+/// Multi-bounce needs source refreshes (one bounce each, see [`progressive`]): a bake is
+/// split into at least this many batches when its directions allow.
+pub const MIN_BATCHES: u32 = 32;
+
 impl BundleConfig {
+    /// Directions per batch for this bake: at most `directions_per_batch`, fewer if that
+    /// leaves under [`MIN_BATCHES`] batches, but never fewer than one per lane.
+    pub fn batch_size(&self) -> u32 {
+        (self.directions / MIN_BATCHES).clamp(self.lanes.max(1), self.directions_per_batch.max(self.lanes).max(1))
+    }
+
     pub fn validate(&self) -> Result<(), BundleConfigError> {
         if !self.analysis_res.is_power_of_two() || !(2..=4096).contains(&self.analysis_res) {
             return Err(BundleConfigError::AnalysisRes(self.analysis_res));

@@ -8,16 +8,22 @@
 //! * everything else the global bundles see (sky, large emitters, reflected light):
 //!   `E = π · Σ w_b S_b / Σ w_b A_b` with per-batch hit sums S (Σ a·L) and A (Σ a).
 //!
-//! Multi-bounce is progressive: a batch reads the radiance of what it sees from the estimate
-//! after the previous batch, so early batches miss higher bounces. With a frozen source per
-//! batch and weights w_b ∝ b² (DESIGN.md "Pitfalls": plain running means stayed −7.6% low at
-//! 16k directions, (t/N)² weights and frequent refreshes brought it to −0.05%), late batches,
-//! whose source already holds many bounces, dominate. When the source is already converged
-//! (a finer LOD reading the coarser one), every batch weighs the same.
+//! Multi-bounce is a stochastic Jacobi iteration (Sbert's global lines): a batch reads the
+//! radiance of what it sees from a *source* built from the previous batch alone (plus the
+//! running light-pass and punctual estimates), so the source gains one bounce per batch and
+//! converges geometrically (error ∝ ρ^b for albedo ρ). Building it from the running average
+//! instead drags early, bounce-poor batches along: in a closed room of albedo 0.8 that
+//! stays ~20% low after 256 batches. A single batch's source is noisy, but noise in the
+//! source only adds variance, never bias, since the transport is linear in it.
+//!
+//! The result averages all batches with weights w_b ∝ b², so the first batches, whose
+//! source still lacked bounces, count little (DESIGN.md "Pitfalls"). When the source is
+//! already converged (a finer LOD reading the coarser one), every batch weighs the same.
 
 use glam::DVec3;
 
 use crate::atlas::TexelMap;
+use crate::parallel::{par_chunks_mut, par_for_each};
 use crate::scene::Rgb;
 
 /// Hit sums of one batch, per texel.
@@ -39,17 +45,40 @@ impl BatchSums {
         self.light.fill(Rgb::ZERO);
     }
 
-    /// Adds `other` texel by texel (lanes are reduced in a fixed order, so sums are
-    /// deterministic whatever the thread count).
-    pub fn add(&mut self, other: &BatchSums) {
-        for (a, b) in self.bundle.iter_mut().zip(&other.bundle) {
-            for k in 0..4 {
-                a[k] += b[k];
+    /// Sets `self` to the texel-wise sum of `lanes`, added in lane order (so the sums are
+    /// deterministic whatever the thread count), and zeroes the lanes for the next batch.
+    pub fn reduce_from(&mut self, lanes: &mut [BatchSums], threads: usize) {
+        let n = self.bundle.len();
+        let chunk = n.div_ceil(threads.max(1) * 4).max(4096);
+        // Work item: one chunk of the output and the same chunk of every lane.
+        type Item<'a> = ((&'a mut [[f32; 4]], &'a mut [Rgb]), Vec<(&'a mut [[f32; 4]], &'a mut [Rgb])>);
+        let mut items: Vec<Item> = self
+            .bundle
+            .chunks_mut(chunk)
+            .zip(self.light.chunks_mut(chunk))
+            .map(|out| (out, Vec::with_capacity(lanes.len())))
+            .collect();
+        for lane in lanes.iter_mut() {
+            for (item, part) in items.iter_mut().zip(lane.bundle.chunks_mut(chunk).zip(lane.light.chunks_mut(chunk))) {
+                item.1.push(part);
             }
         }
-        for (a, b) in self.light.iter_mut().zip(&other.light) {
-            *a += *b;
-        }
+        par_for_each(items, threads, |((out_b, out_l), parts)| {
+            out_b.fill([0.0; 4]);
+            out_l.fill(Rgb::ZERO);
+            for (b, l) in parts {
+                for (o, x) in out_b.iter_mut().zip(b.iter_mut()) {
+                    for c in 0..4 {
+                        o[c] += x[c];
+                    }
+                    *x = [0.0; 4];
+                }
+                for (o, x) in out_l.iter_mut().zip(l.iter_mut()) {
+                    *o += *x;
+                    *x = Rgb::ZERO;
+                }
+            }
+        });
     }
 }
 
@@ -109,17 +138,25 @@ impl ProgressiveEstimate {
 
     /// Folds one batch in. `light_directions` is how many light directions each emitter
     /// group received in it.
-    pub fn add_batch(&mut self, sums: &BatchSums, light_directions: u64) {
+    pub fn add_batch(&mut self, sums: &BatchSums, light_directions: u64, threads: usize) {
         let w = self.batch_weight();
-        for (i, s) in sums.bundle.iter().enumerate() {
-            if s[3] > 0.0 {
-                self.bundle_sum[i] += DVec3::new(s[0] as f64, s[1] as f64, s[2] as f64) * w;
-                self.bundle_weight[i] += s[3] as f64 * w;
+        let mut parts: Vec<(&mut DVec3, &mut f64, &mut DVec3)> = self
+            .bundle_sum
+            .iter_mut()
+            .zip(self.bundle_weight.iter_mut())
+            .zip(self.light_sum.iter_mut())
+            .map(|((s, a), l)| (s, a, l))
+            .collect();
+        par_chunks_mut(&mut parts, threads, |start, chunk| {
+            for (k, (s, a, l)) in chunk.iter_mut().enumerate() {
+                let b = &sums.bundle[start + k];
+                if b[3] > 0.0 {
+                    **s += DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64) * w;
+                    **a += b[3] as f64 * w;
+                }
+                **l += sums.light[start + k].as_dvec3();
             }
-        }
-        for (acc, l) in self.light_sum.iter_mut().zip(&sums.light) {
-            *acc += l.as_dvec3();
-        }
+        });
         self.light_directions += light_directions;
         self.batches += 1;
     }
@@ -127,10 +164,18 @@ impl ProgressiveEstimate {
     /// Irradiance (W/m²) of texel `i` now.
     #[inline]
     pub fn irradiance_of(&self, i: usize) -> Rgb {
+        let indirect = if self.bundle_weight[i] > 0.0 {
+            (self.bundle_sum[i] * (std::f64::consts::PI / self.bundle_weight[i])).as_vec3()
+        } else {
+            Rgb::ZERO
+        };
+        self.direct_of(i) + indirect
+    }
+
+    /// Punctual plus light-pass irradiance of texel `i`: the parts estimated absolutely.
+    #[inline]
+    fn direct_of(&self, i: usize) -> Rgb {
         let mut e = self.punctual[i];
-        if self.bundle_weight[i] > 0.0 {
-            e += (self.bundle_sum[i] * (std::f64::consts::PI / self.bundle_weight[i])).as_vec3();
-        }
         if self.light_directions > 0 && self.area[i] > 0.0 {
             let norm = std::f64::consts::TAU / self.light_directions as f64 / self.area[i] as f64;
             e += (self.light_sum[i] * norm).as_vec3();
@@ -148,13 +193,26 @@ impl ProgressiveEstimate {
     }
 
     /// Outgoing radiance each texel sends into the next batch: reflected light
-    /// `albedo/π · E`, plus its emission when the global bundles carry it (`carried[i]`).
-    pub fn source_radiance(&self, texels: &TexelMap, carried: &[bool], out: &mut Vec<Rgb>) {
+    /// `albedo/π · E_src`, plus its emission when the global bundles carry it (`carried[i]`).
+    /// `E_src` is the direct estimate so far plus the indirect light of `last` (the batch
+    /// just folded in) alone — see the module docs — or, for a texel that batch missed, the
+    /// running indirect estimate.
+    pub fn source_radiance(&self, texels: &TexelMap, carried: &[bool], last: Option<&BatchSums>, threads: usize, out: &mut Vec<Rgb>) {
         out.clear();
-        out.extend((0..self.area.len()).map(|i| {
-            let reflected = texels.albedo[i] * self.irradiance_of(i) * std::f32::consts::FRAC_1_PI;
-            if carried[i] { reflected + texels.emission[i] } else { reflected }
-        }));
+        out.resize(self.area.len(), Rgb::ZERO);
+        par_chunks_mut(out, threads, |start, chunk| {
+            for (k, o) in chunk.iter_mut().enumerate() {
+                let i = start + k;
+                let e = match last.map(|l| l.bundle[i]) {
+                    Some(b) if b[3] > 0.0 => {
+                        self.direct_of(i) + Rgb::new(b[0], b[1], b[2]) * (std::f32::consts::PI / b[3])
+                    }
+                    _ => self.irradiance_of(i),
+                };
+                let reflected = texels.albedo[i] * e * std::f32::consts::FRAC_1_PI;
+                *o = if carried[i] { reflected + texels.emission[i] } else { reflected };
+            }
+        });
     }
 }
 
@@ -169,7 +227,7 @@ mod tests {
         // Texel 0 saw L = 2 over total weight 3: E = 2π. Texel 1 got light-pass hits only.
         b.bundle[0] = [6.0, 6.0, 6.0, 3.0];
         b.light[1] = Rgb::splat(0.25);
-        est.add_batch(&b, 4);
+        est.add_batch(&b, 4, 2);
         let e = est.irradiance();
         let pi = std::f32::consts::PI;
         assert!((e[0] - Rgb::splat(1.0 + 2.0 * pi)).length() < 1e-5);
@@ -183,9 +241,9 @@ mod tests {
         let mut est = ProgressiveEstimate::new(SourceKind::Progressive, vec![Rgb::ZERO], vec![1.0]);
         let mut b = BatchSums::new(1);
         b.bundle[0] = [0.0, 0.0, 0.0, 1.0]; // batch 1 saw L = 0 (weight 1)
-        est.add_batch(&b, 0);
+        est.add_batch(&b, 0, 1);
         b.bundle[0] = [1.0, 1.0, 1.0, 1.0]; // batch 2 saw L = 1 (weight 4)
-        est.add_batch(&b, 0);
+        est.add_batch(&b, 0, 1);
         let e = est.irradiance()[0].x;
         assert!((e - std::f32::consts::PI * 4.0 / 5.0).abs() < 1e-5, "{e}");
     }

@@ -84,10 +84,10 @@ impl BundleBackend for CpuBundleBackend<'_> {
                 .collect();
             handles.into_iter().map(|h| h.join().unwrap_or_default()).collect()
         });
-        sums.clear();
-        for lane in &mut self.lanes {
-            sums.add(&lane.sums);
-            lane.sums.clear();
+        let mut lane_sums: Vec<BatchSums> = self.lanes.iter_mut().map(|l| std::mem::take(&mut l.sums)).collect();
+        sums.reduce_from(&mut lane_sums, self.threads);
+        for (lane, s) in self.lanes.iter_mut().zip(lane_sums) {
+            lane.sums = s;
         }
         let mut total = PassStats::default();
         for s in &stats {
