@@ -91,12 +91,18 @@ pub enum SourceKind {
     Converged,
 }
 
+/// Weighted sums of one texel over all batches so far.
+#[derive(Clone, Copy, Debug, Default)]
+struct TexelTotals {
+    bundle_sum: DVec3,
+    bundle_weight: f64,
+    light_sum: DVec3,
+}
+
 /// Running irradiance estimate of one LOD's texels.
 pub struct ProgressiveEstimate {
     kind: SourceKind,
-    bundle_sum: Vec<DVec3>,
-    bundle_weight: Vec<f64>,
-    light_sum: Vec<DVec3>,
+    totals: Vec<TexelTotals>,
     /// Light directions traced so far (per emitter group: every group gets the same count).
     light_directions: u64,
     batches: u64,
@@ -111,9 +117,7 @@ impl ProgressiveEstimate {
         let n = area.len();
         ProgressiveEstimate {
             kind,
-            bundle_sum: vec![DVec3::ZERO; n],
-            bundle_weight: vec![0.0; n],
-            light_sum: vec![DVec3::ZERO; n],
+            totals: vec![TexelTotals::default(); n],
             light_directions: 0,
             batches: 0,
             punctual,
@@ -140,21 +144,14 @@ impl ProgressiveEstimate {
     /// group received in it.
     pub fn add_batch(&mut self, sums: &BatchSums, light_directions: u64, threads: usize) {
         let w = self.batch_weight();
-        let mut parts: Vec<(&mut DVec3, &mut f64, &mut DVec3)> = self
-            .bundle_sum
-            .iter_mut()
-            .zip(self.bundle_weight.iter_mut())
-            .zip(self.light_sum.iter_mut())
-            .map(|((s, a), l)| (s, a, l))
-            .collect();
-        par_chunks_mut(&mut parts, threads, |start, chunk| {
-            for (k, (s, a, l)) in chunk.iter_mut().enumerate() {
+        par_chunks_mut(&mut self.totals, threads, |start, chunk| {
+            for (k, t) in chunk.iter_mut().enumerate() {
                 let b = &sums.bundle[start + k];
                 if b[3] > 0.0 {
-                    **s += DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64) * w;
-                    **a += b[3] as f64 * w;
+                    t.bundle_sum += DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64) * w;
+                    t.bundle_weight += b[3] as f64 * w;
                 }
-                **l += sums.light[start + k].as_dvec3();
+                t.light_sum += sums.light[start + k].as_dvec3();
             }
         });
         self.light_directions += light_directions;
@@ -164,8 +161,9 @@ impl ProgressiveEstimate {
     /// Irradiance (W/m²) of texel `i` now.
     #[inline]
     pub fn irradiance_of(&self, i: usize) -> Rgb {
-        let indirect = if self.bundle_weight[i] > 0.0 {
-            (self.bundle_sum[i] * (std::f64::consts::PI / self.bundle_weight[i])).as_vec3()
+        let t = &self.totals[i];
+        let indirect = if t.bundle_weight > 0.0 {
+            (t.bundle_sum * (std::f64::consts::PI / t.bundle_weight)).as_vec3()
         } else {
             Rgb::ZERO
         };
@@ -178,7 +176,7 @@ impl ProgressiveEstimate {
         let mut e = self.punctual[i];
         if self.light_directions > 0 && self.area[i] > 0.0 {
             let norm = std::f64::consts::TAU / self.light_directions as f64 / self.area[i] as f64;
-            e += (self.light_sum[i] * norm).as_vec3();
+            e += (self.totals[i].light_sum * norm).as_vec3();
         }
         e
     }
@@ -189,7 +187,7 @@ impl ProgressiveEstimate {
 
     /// Texels no global bundle has hit yet.
     pub fn unsampled(&self) -> usize {
-        self.bundle_weight.iter().filter(|&&w| w == 0.0).count()
+        self.totals.iter().filter(|t| t.bundle_weight == 0.0).count()
     }
 
     /// Outgoing radiance each texel sends into the next batch: reflected light

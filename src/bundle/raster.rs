@@ -79,6 +79,38 @@ pub struct ScreenTriangle {
     depth: [f32; 3],
     /// The triangle's front face looks along +ω (its geometric normal n has n·ω > 0).
     pub front_faces_dir: bool,
+    /// All snapped coordinates fit the fast i64 span arithmetic.
+    narrow: bool,
+}
+
+/// Integer arithmetic the span computation needs (i64 fast path, i128 for huge triangles).
+trait SpanInt:
+    Copy + Ord + From<i64> + std::ops::Add<Output = Self> + std::ops::Sub<Output = Self> + std::ops::Mul<Output = Self>
+{
+    fn floor_div(self, d: Self) -> Self;
+    fn to_u32(self) -> u32;
+}
+
+impl SpanInt for i64 {
+    #[inline]
+    fn floor_div(self, d: Self) -> Self {
+        self.div_euclid(d)
+    }
+    #[inline]
+    fn to_u32(self) -> u32 {
+        self as u32
+    }
+}
+
+impl SpanInt for i128 {
+    #[inline]
+    fn floor_div(self, d: Self) -> Self {
+        self.div_euclid(d)
+    }
+    #[inline]
+    fn to_u32(self) -> u32 {
+        self as u32
+    }
 }
 
 #[inline]
@@ -149,6 +181,7 @@ impl ScreenTriangle {
             bary_v: affine(p, [0.0, 0.0, 1.0])?,
             depth: affine(p, [c[0].z, c[1].z, c[2].z])?,
             front_faces_dir: normal.dot(frame.dir) > 0.0,
+            narrow: v.iter().all(|q| q.0.abs() < 1 << 30 && q.1.abs() < 1 << 30),
         })
     }
 
@@ -166,28 +199,41 @@ impl ScreenTriangle {
     /// Covered pixels of one row, clipped to `[0, res)`.
     #[inline]
     pub fn span(&self, row: u32, res: u32) -> Option<(u32, u32)> {
-        let py = row as i128 * SUBPIXEL as i128 + (SUBPIXEL / 2) as i128;
-        let mut lo: i128 = 0;
-        let mut hi: i128 = res as i128 - 1;
+        if self.narrow {
+            self.span_in::<i64>(row, res)
+        } else {
+            self.span_in::<i128>(row, res)
+        }
+    }
+
+    /// [`span`](Self::span) in integer type `I`: i64 when every snapped coordinate is below
+    /// 2^30 (products stay below 2^62), i128 for triangles reaching absurdly far outside.
+    #[inline]
+    fn span_in<I: SpanInt>(&self, row: u32, res: u32) -> Option<(u32, u32)> {
+        let sub = I::from(SUBPIXEL);
+        let half = I::from(SUBPIXEL / 2);
+        let py = I::from(row as i64) * sub + half;
+        let mut lo = I::from(0);
+        let mut hi = I::from(res as i64 - 1);
         for e in 0..3 {
             let (a, b) = (self.v[e], self.v[(e + 1) % 3]);
-            let (dx, dy) = ((b.0 - a.0) as i128, (b.1 - a.1) as i128);
+            let (dx, dy) = (I::from(b.0 - a.0), I::from(b.1 - a.1));
             // E(px) = dx·(py − ya) − dy·(SUBPIXEL·px + SUBPIXEL/2 − xa) ≥ bias
-            let c = dx * (py - a.1 as i128) - dy * ((SUBPIXEL / 2) as i128 - a.0 as i128);
-            let c = if self.include_edge[e] { c } else { c - 1 };
-            let k = dy * SUBPIXEL as i128;
+            let c = dx * (py - I::from(a.1)) - dy * (half - I::from(a.0));
+            let c = if self.include_edge[e] { c } else { c - I::from(1) };
+            let k = dy * sub;
             // c − k·px ≥ 0
-            if k == 0 {
-                if c < 0 {
+            if k == I::from(0) {
+                if c < I::from(0) {
                     return None;
                 }
-            } else if k > 0 {
-                hi = hi.min(floor_div(c, k));
+            } else if k > I::from(0) {
+                hi = hi.min(c.floor_div(k));
             } else {
-                lo = lo.max(-floor_div(c, -k));
+                lo = lo.max(I::from(0) - c.floor_div(I::from(0) - k));
             }
         }
-        (lo <= hi).then(|| (lo as u32, hi as u32 + 1))
+        (lo <= hi).then(|| (lo.to_u32(), hi.to_u32() + 1))
     }
 
     /// Barycentric weights (u, v) of the original corners 1 and 2 at a continuous pixel position.
@@ -310,6 +356,19 @@ mod tests {
         }
         // The grid spans pixel centres 0.5 ..= 32.5: every pixel of the viewport, once.
         assert!(hits.iter().all(|&h| h == 1));
+    }
+
+    /// Triangles reaching millions of pixels outside the viewport take the i128 path and
+    /// must agree with the brute-force rule.
+    #[test]
+    fn huge_triangles_use_wide_arithmetic_correctly() {
+        let res = 16;
+        let c = [Vec3::new(-3.0e6, -2.0e6, 0.0), Vec3::new(4.0e6, 7.5, 0.0), Vec3::new(8.3, 5.0e6, 0.0)];
+        let t = setup(c, res).unwrap();
+        assert!(!t.narrow);
+        let s = spans_of(&t, res);
+        assert_eq!(s, brute(&t, res));
+        assert!(!s.is_empty());
     }
 
     #[test]

@@ -36,6 +36,8 @@ pub struct FragmentBuffer {
     /// Per pixel: start of its fragments in `frags` (`res² + 1` entries).
     offsets: Vec<u32>,
     frags: Vec<Fragment>,
+    /// Next free slot per pixel while filling.
+    cursor: Vec<u32>,
     /// Fragments whose UV fell outside every texel through rounding (they still occlude).
     pub lost_lookups: u64,
 }
@@ -99,7 +101,9 @@ impl FragmentBuffer {
         self.frags.clear();
         self.frags.resize(total, Fragment { depth: 0.0, plus: NO_SIDE, minus: NO_SIDE });
         // `cursor[p]` = next free slot of pixel p: the offsets shifted by one.
-        let mut cursor: Vec<u32> = self.offsets[..self.offsets.len() - 1].to_vec();
+        let mut cursor = std::mem::take(&mut self.cursor);
+        cursor.clear();
+        cursor.extend_from_slice(&self.offsets[..self.offsets.len() - 1]);
         let texels = scene.texels;
         let mut lost = 0u64;
         for tri in &self.tris {
@@ -122,6 +126,7 @@ impl FragmentBuffer {
             });
         }
         self.lost_lookups += lost;
+        self.cursor = cursor;
         for p in 0..self.offsets.len() - 1 {
             let (a, b) = (self.offsets[p] as usize, self.offsets[p + 1] as usize);
             if b - a > 1 {
