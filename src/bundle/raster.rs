@@ -38,17 +38,49 @@ impl BundleFrame {
     }
 }
 
-/// A square window of the projection plane sampled by `res × res` pixels.
+/// A rectangle of the projection plane sampled by `width × height` square pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Viewport {
     /// Frame coordinates (along t, along b) of the window's corner at pixel (0, 0).
     pub origin: Vec2,
     /// Pixel side in metres.
     pub pixel: f32,
-    pub res: u32,
+    pub width: u32,
+    pub height: u32,
 }
 
 impl Viewport {
+    pub fn square(origin: Vec2, pixel: f32, res: u32) -> Self {
+        Viewport { origin, pixel, width: res, height: res }
+    }
+
+    pub fn pixels(&self) -> u64 {
+        self.width as u64 * self.height as u64
+    }
+
+    /// The viewport's pixel grid cut in two along each side longer than one pixel: the
+    /// parts cover exactly the same pixels (same positions, same size), so redoing an
+    /// overflowed tile as its parts samples the scene exactly as the whole would have.
+    /// `None` for a single pixel, which cannot be split.
+    pub fn split(&self) -> Option<Vec<Viewport>> {
+        if self.width <= 1 && self.height <= 1 {
+            return None;
+        }
+        let cuts = |n: u32| if n > 1 { vec![(0, n.div_ceil(2)), (n.div_ceil(2), n / 2)] } else { vec![(0, n)] };
+        let mut parts = Vec::with_capacity(4);
+        for &(y0, h) in &cuts(self.height) {
+            for &(x0, w) in &cuts(self.width) {
+                parts.push(Viewport {
+                    origin: self.origin + Vec2::new(x0 as f32, y0 as f32) * self.pixel,
+                    pixel: self.pixel,
+                    width: w,
+                    height: h,
+                });
+            }
+        }
+        Some(parts)
+    }
+
     /// World area of one pixel (m²): the weight `a_px` of every hit in this viewport.
     pub fn pixel_area(&self) -> f32 {
         self.pixel * self.pixel
@@ -72,6 +104,8 @@ pub struct ScreenTriangle {
     /// Rows of pixel centres the triangle can cover, clipped to the viewport.
     row_min: u32,
     row_max: u32,
+    /// Viewport width: spans are clipped to `[0, width)`.
+    width: u32,
     /// Barycentric weights of the *original* corners 1 and 2 and the depth, as affine
     /// functions of continuous pixel coordinates: f(x, y) = c[0]·x + c[1]·y + c[2].
     bary_u: [f32; 3],
@@ -160,7 +194,7 @@ impl ScreenTriangle {
         let (y_lo, y_hi) = (v.iter().map(|q| q.1).min()?, v.iter().map(|q| q.1).max()?);
         // Pixel row r has its centre at (r + 0.5)·SUBPIXEL.
         let row_min = floor_div((y_lo - SUBPIXEL / 2) as i128 + SUBPIXEL as i128 - 1, SUBPIXEL as i128).max(0);
-        let row_max = floor_div((y_hi - SUBPIXEL / 2) as i128, SUBPIXEL as i128).min(viewport.res as i128 - 1);
+        let row_max = floor_div((y_hi - SUBPIXEL / 2) as i128, SUBPIXEL as i128).min(viewport.height as i128 - 1);
         if row_min > row_max {
             return None;
         }
@@ -181,28 +215,29 @@ impl ScreenTriangle {
             bary_v: affine(p, [0.0, 0.0, 1.0])?,
             depth: affine(p, [c[0].z, c[1].z, c[2].z])?,
             front_faces_dir: normal.dot(frame.dir) > 0.0,
+            width: viewport.width,
             narrow: v.iter().all(|q| q.0.abs() < 1 << 30 && q.1.abs() < 1 << 30),
         })
     }
 
-    /// Calls `f(row, x_begin, x_end)` for every row with covered pixel centres in
-    /// `[0, res)`, pixels `x_begin..x_end`.
+    /// Calls `f(row, x_begin, x_end)` for every row of the viewport with covered pixel
+    /// centres, pixels `x_begin..x_end`.
     #[inline]
-    pub fn for_each_span(&self, res: u32, mut f: impl FnMut(u32, u32, u32)) {
+    pub fn for_each_span(&self, mut f: impl FnMut(u32, u32, u32)) {
         for row in self.row_min..=self.row_max {
-            if let Some((x0, x1)) = self.span(row, res) {
+            if let Some((x0, x1)) = self.span(row) {
                 f(row, x0, x1);
             }
         }
     }
 
-    /// Covered pixels of one row, clipped to `[0, res)`.
+    /// Covered pixels of one row, clipped to the viewport.
     #[inline]
-    pub fn span(&self, row: u32, res: u32) -> Option<(u32, u32)> {
+    pub fn span(&self, row: u32) -> Option<(u32, u32)> {
         if self.narrow {
-            self.span_in::<i64>(row, res)
+            self.span_in::<i64>(row, self.width)
         } else {
-            self.span_in::<i128>(row, res)
+            self.span_in::<i128>(row, self.width)
         }
     }
 
@@ -271,7 +306,7 @@ mod tests {
     }
 
     fn vp(res: u32) -> Viewport {
-        Viewport { origin: Vec2::ZERO, pixel: 1.0, res }
+        Viewport::square(Vec2::ZERO, 1.0, res)
     }
 
     /// Pixel-centre coverage of one triangle, brute force with the same snapping and rule.
@@ -293,9 +328,9 @@ mod tests {
         out
     }
 
-    fn spans_of(tri: &ScreenTriangle, res: u32) -> Vec<(u32, u32)> {
+    fn spans_of(tri: &ScreenTriangle) -> Vec<(u32, u32)> {
         let mut out = Vec::new();
-        tri.for_each_span(res, |y, x0, x1| out.extend((x0..x1).map(|x| (x, y))));
+        tri.for_each_span(|y, x0, x1| out.extend((x0..x1).map(|x| (x, y))));
         out
     }
 
@@ -313,7 +348,7 @@ mod tests {
             let mut p = || Vec3::new(rng.next_f32() * 30.0 - 3.0, rng.next_f32() * 30.0 - 3.0, rng.next_f32());
             let c = [p(), p(), p()];
             if let Some(t) = setup(c, res) {
-                let s = spans_of(&t, res);
+                let s = spans_of(&t);
                 assert_eq!(s, brute(&t, res));
                 nonempty += !s.is_empty() as u32;
             }
@@ -337,7 +372,7 @@ mod tests {
             // Alternate winding: the fill rule must not depend on it.
             let tri = if i % 2 == 0 { [centre, pa, pb] } else { [centre, pb, pa] };
             if let Some(t) = setup(tri, res) {
-                t.for_each_span(res, |y, x0, x1| (x0..x1).for_each(|x| hits[(y * res + x) as usize] += 1));
+                t.for_each_span(|y, x0, x1| (x0..x1).for_each(|x| hits[(y * res + x) as usize] += 1));
             }
         }
         assert!(hits.iter().all(|&h| h == 1), "fan: {:?}", hits.iter().filter(|&&h| h != 1).count());
@@ -349,7 +384,7 @@ mod tests {
                 let (a, b, c, d) = (p(gx, gy), p(gx + 1, gy), p(gx + 1, gy + 1), p(gx, gy + 1));
                 for tri in [[a, b, c], [a, c, d]] {
                     if let Some(t) = setup(tri, res) {
-                        t.for_each_span(res, |y, x0, x1| (x0..x1).for_each(|x| hits[(y * res + x) as usize] += 1));
+                        t.for_each_span(|y, x0, x1| (x0..x1).for_each(|x| hits[(y * res + x) as usize] += 1));
                     }
                 }
             }
@@ -366,9 +401,41 @@ mod tests {
         let c = [Vec3::new(-3.0e6, -2.0e6, 0.0), Vec3::new(4.0e6, 7.5, 0.0), Vec3::new(8.3, 5.0e6, 0.0)];
         let t = setup(c, res).unwrap();
         assert!(!t.narrow);
-        let s = spans_of(&t, res);
+        let s = spans_of(&t);
         assert_eq!(s, brute(&t, res));
         assert!(!s.is_empty());
+    }
+
+    /// Splitting a viewport keeps every pixel centre where it was: the parts' coverage is
+    /// exactly the whole's.
+    #[test]
+    fn split_viewports_cover_the_same_pixels() {
+        let mut rng = Rng::new(9, 1);
+        let whole = Viewport { origin: Vec2::new(-0.37, 1.21), pixel: 0.25, width: 13, height: 6 };
+        let parts = whole.split().unwrap();
+        assert_eq!(parts.len(), 4);
+        assert_eq!(parts.iter().map(|p| p.pixels()).sum::<u64>(), whole.pixels());
+        for _ in 0..50 {
+            let mut p = || Vec3::new(rng.next_f32() * 4.0 - 0.7, rng.next_f32() * 2.0 + 1.0, rng.next_f32());
+            let c = [p(), p(), p()];
+            let n = (c[1] - c[0]).cross(c[2] - c[0]).normalize_or_zero();
+            let centres = |v: &Viewport| -> Vec<(i64, i64)> {
+                let Some(t) = ScreenTriangle::setup(&frame_z(), v, &c, n) else { return Vec::new() };
+                // Pixel centres in units of a quarter pixel of the whole, relative to its origin.
+                let off = ((v.origin - whole.origin) / whole.pixel).round();
+                let mut out = Vec::new();
+                t.for_each_span(|y, x0, x1| out.extend((x0..x1).map(|x| (x as i64 + off.x as i64, y as i64 + off.y as i64))));
+                out
+            };
+            let mut from_parts: Vec<_> = parts.iter().flat_map(centres).collect();
+            let mut from_whole = centres(&whole);
+            from_parts.sort_unstable();
+            from_whole.sort_unstable();
+            assert_eq!(from_parts, from_whole);
+        }
+        let strip = Viewport { origin: Vec2::ZERO, pixel: 1.0, width: 1, height: 5 };
+        assert_eq!(strip.split().unwrap().len(), 2);
+        assert!(Viewport::square(Vec2::ZERO, 1.0, 1).split().is_none());
     }
 
     #[test]
@@ -397,7 +464,7 @@ mod tests {
         // sampling is exact up to the pixels along the perimeter (~ 610 pixels long).
         let c = [Vec3::new(10.3, 20.7, 0.0), Vec3::new(210.3, 20.7, 0.0), Vec3::new(10.3, 170.7, 0.0)];
         let t = setup(c, 256).unwrap();
-        let n = spans_of(&t, 256).len() as f32;
+        let n = spans_of(&t).len() as f32;
         assert!((n - 15000.0).abs() < 610.0 * 0.5 + 1.0, "{n}");
     }
 }

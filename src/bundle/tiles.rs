@@ -51,7 +51,7 @@ impl TileParams {
         }
     }
 
-    /// A(i) = pixel_area · 4^i. Negative levels are the sub-pixel tiles of [`split`].
+    /// A(i) = pixel_area · 4^i.
     pub fn tile_area(&self, level: i32) -> f64 {
         self.pixel_area * 4f64.powi(level)
     }
@@ -98,8 +98,8 @@ pub enum TilingMode {
 /// One tile to render: the block of analysis pixels under pixel (x, y) of mip level `level`,
 /// rendered as a `res`×`res` bundle.
 ///
-/// Planned tiles have 0 ≤ level ≤ L. Only [`split`] makes negative levels: a level −s tile is a
-/// 2^−s × 2^−s piece of a finest analysis pixel, and (x, y) count such pieces.
+/// Planned tiles have 0 ≤ level ≤ L. (A baker redoing an overflowed tile splits its pixel
+/// grid, not the analysis grid: see `raster::Viewport::split`.)
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Tile {
     pub level: i32,
@@ -148,46 +148,6 @@ fn interleave_bits(v: u32) -> u64 {
     v = (v | (v << 4)) & 0x0f0f_0f0f_0f0f_0f0f;
     v = (v | (v << 2)) & 0x3333_3333_3333_3333;
     (v | (v << 1)) & 0x5555_5555_5555_5555
-}
-
-/// Why a tile that overflowed the node buffer cannot be split.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
-pub enum SplitError {
-    /// One bundle pixel alone had more fragments than the node buffer holds: quadrants at the
-    /// same density would each still need a whole pixel, so splitting cannot help. N is too
-    /// small for the scene's depth complexity.
-    #[error("tile {0:?} is a single bundle pixel: splitting cannot reduce its fragments")]
-    SinglePixel(Tile),
-    /// The quadrants' coordinates would not fit in u32 (about 32 levels below the analysis
-    /// pixel: unreachable in practice, since res halves at each split).
-    #[error("tile {0:?} is too deep to split further")]
-    TooDeep(Tile),
-}
-
-/// The four quadrants of a tile that overflowed the node buffer, at the same pixel density:
-/// res' = ⌈res/2⌉, in Morton order.
-///
-/// Splitting below a finest analysis pixel is allowed: the quadrants of a level-0 tile are
-/// level −1 tiles (half an analysis pixel wide). The analysis maps cannot predict anything
-/// there, but the baker does not need a prediction to redo a tile that *measured* an overflow,
-/// and refusing the split would force it to drop samples or lower the density. Only a
-/// single-pixel tile is refused ([`SplitError::SinglePixel`]).
-pub fn split(tile: &Tile) -> Result<[Tile; 4], SplitError> {
-    if tile.res <= 1 {
-        return Err(SplitError::SinglePixel(*tile));
-    }
-    let too_deep = SplitError::TooDeep(*tile);
-    let level = tile.level.checked_sub(1).ok_or(too_deep)?;
-    let x = tile.x.checked_mul(2).ok_or(too_deep)?;
-    let y = tile.y.checked_mul(2).ok_or(too_deep)?;
-    let res = tile.res.div_ceil(2);
-    // 2x and 2y are even and fit in u32, so adding 1 cannot overflow.
-    Ok(QUADRANTS.map(|(dx, dy)| Tile {
-        level,
-        x: x + dx,
-        y: y + dy,
-        res,
-    }))
 }
 
 /// What planning found, beyond the tiles themselves. The split and undersampling counters are
@@ -813,90 +773,9 @@ mod tests {
         assert_eq!(TileParams::new(1, 1, 1.0).alpha, DEFAULT_ALPHA);
     }
 
-    #[test]
-    fn split_makes_quadrants_at_the_same_density() {
-        let parent = tile(2, 1, 0, 6);
-        let children = split(&parent).unwrap();
-        assert_eq!(
-            children,
-            [
-                tile(1, 2, 0, 3),
-                tile(1, 3, 0, 3),
-                tile(1, 2, 1, 3),
-                tile(1, 3, 1, 3)
-            ]
-        );
-        let params = params(64, 1000, 0.5);
-        for child in &children {
-            assert_eq!(
-                child.bundle_pixel_area(&params),
-                parent.bundle_pixel_area(&params)
-            );
-        }
-        assert_quadrants_tile_the_parent(&parent, &children);
-        // Odd resolutions round up: density never drops.
-        assert!(split(&tile(1, 0, 0, 5)).unwrap().iter().all(|c| c.res == 3));
-    }
 
-    #[test]
-    fn split_goes_below_the_finest_analysis_pixel() {
-        let finest = tile(0, 3, 2, 4);
-        let halves = split(&finest).unwrap();
-        assert_eq!(
-            halves,
-            [
-                tile(-1, 6, 4, 2),
-                tile(-1, 7, 4, 2),
-                tile(-1, 6, 5, 2),
-                tile(-1, 7, 5, 2)
-            ]
-        );
-        assert_eq!(
-            halves[3].window(),
-            TileWindow {
-                x: 3.5,
-                y: 2.5,
-                side: 0.5
-            }
-        );
-        assert_quadrants_tile_the_parent(&finest, &halves);
-        let quarters = split(&halves[1]).unwrap();
-        assert_eq!(quarters[0], tile(-2, 14, 8, 1));
-        assert_eq!(
-            quarters[0].bundle_pixel_area(&params(8, 8, 1.0)),
-            1.0 / 16.0
-        );
-        // Below level 0 the prediction reads the analysis pixel the piece lies in.
-        let m = maps(4, vec![1.0; 16], (0..16).map(|i| i as f32).collect());
-        let planner = TilePlanner::new(&m.0, &m.1, params(8, 8, 1.0)).unwrap();
-        assert_eq!(
-            planner.predicted_nodes(&quarters[3]),
-            1.0 * m.1.get(0, 3, 2) as f64
-        );
-    }
 
-    #[test]
-    fn split_refuses_single_pixels_and_coordinate_overflow() {
-        let single = tile(3, 0, 0, 1);
-        assert_eq!(split(&single), Err(SplitError::SinglePixel(single)));
-        let edge = tile(-31, u32::MAX / 2 + 1, 0, 4);
-        assert_eq!(split(&edge), Err(SplitError::TooDeep(edge)));
-        let bottom = tile(i32::MIN, 0, 0, 4);
-        assert_eq!(split(&bottom), Err(SplitError::TooDeep(bottom)));
-    }
 
-    fn assert_quadrants_tile_the_parent(parent: &Tile, children: &[Tile; 4]) {
-        let p = parent.window();
-        let half = p.side / 2.0;
-        for (child, (dx, dy)) in children.iter().zip(QUADRANTS) {
-            let expected = TileWindow {
-                x: p.x + dx as f64 * half,
-                y: p.y + dy as f64 * half,
-                side: half,
-            };
-            assert_eq!(child.window(), expected);
-        }
-    }
 
     #[test]
     fn tiles_come_in_morton_order() {

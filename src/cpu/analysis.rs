@@ -33,7 +33,7 @@ impl Analysis {
     /// A triangle too small to cover any analysis pixel centre still marks the pixel under
     /// its centroid (a conservative touch): otherwise small objects would get no tile at all.
     pub fn run(&mut self, scene: &PreparedScene, frame: &BundleFrame, viewport: &Viewport, importance_scale: f32) {
-        let res = viewport.res;
+        let res = viewport.width;
         let n = (res * res) as usize;
         self.res = res;
         self.importance.clear();
@@ -56,7 +56,7 @@ impl Analysis {
             self.bin(t as u32, lo / bin_side, hi / bin_side);
             let mut covered = false;
             if let Some(screen) = ScreenTriangle::setup(frame, viewport, corners, scene.geom.normals[t]) {
-                screen.for_each_span(res, |y, x0, x1| {
+                screen.for_each_span(|y, x0, x1| {
                     let row = (y * res) as usize;
                     for x in x0 as usize..x1 as usize {
                         let i = row + x;

@@ -13,7 +13,7 @@ use crate::bundle::mips::MipChain;
 use crate::bundle::progressive::BatchSums;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
-use crate::bundle::tiles::{Tile, TileParams, TilePlanner, TilingMode, bundle_resolution, split};
+use crate::bundle::tiles::{Tile, TileParams, TilePlanner, TilingMode, bundle_resolution};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
 use crate::bundle::emitters::EmitterGroup;
 use crate::scene::Rgb;
@@ -37,7 +37,7 @@ pub struct Scratch {
     analysis: Analysis,
     fragments: FragmentBuffer,
     candidates: Vec<u32>,
-    queue: Vec<Tile>,
+    queue: Vec<Viewport>,
 }
 
 struct BundleHits<'a>(&'a mut [[f32; 4]]);
@@ -91,17 +91,20 @@ fn analysis_viewport(ctx: &PassContext, frame: &BundleFrame, jitter: Vec2) -> Vi
     let r = ctx.scene.radius;
     let c = frame.coords(ctx.scene.centre);
     let pixel = 2.0 * r / (res - 1) as f32;
-    Viewport { origin: Vec2::new(c.x - r, c.y - r) - jitter * pixel, pixel, res }
+    Viewport::square(Vec2::new(c.x - r, c.y - r) - jitter * pixel, pixel, res)
 }
 
 fn tile_viewport(global: &Viewport, tile: &Tile) -> Viewport {
     let w = tile.window();
     let side = w.side as f32 * global.pixel;
-    Viewport {
-        origin: global.origin + Vec2::new(w.x as f32, w.y as f32) * global.pixel,
-        pixel: side / tile.res as f32,
-        res: tile.res,
-    }
+    Viewport::square(global.origin + Vec2::new(w.x as f32, w.y as f32) * global.pixel, side / tile.res as f32, tile.res)
+}
+
+/// The triangles that may touch `vp`, from the analysis bins over `global`.
+fn gather(analysis: &mut Analysis, global: &Viewport, vp: &Viewport, out: &mut Vec<u32>) {
+    let lo = (vp.origin - global.origin) / global.pixel;
+    let hi = lo + Vec2::new(vp.width as f32, vp.height as f32) * (vp.pixel / global.pixel);
+    analysis.candidates(lo.x as f64, lo.y as f64, hi.x as f64, hi.y as f64, out);
 }
 
 fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mut BatchSums, s: &mut Scratch, stats: &mut PassStats) {
@@ -114,7 +117,7 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
     stats.analysis_seconds += seconds(t);
 
     let t = Instant::now();
-    let res = global.res;
+    let res = global.width;
     let importance = MipChain::max_mips(res, std::mem::take(&mut s.analysis.importance));
     let fragments = MipChain::average_mips(res, std::mem::take(&mut s.analysis.fragments));
     stats.mip_seconds += seconds(t);
@@ -135,14 +138,12 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
     }
 
     s.queue.clear();
-    s.queue.extend(plan.tiles.iter().rev());
-    while let Some(tile) = s.queue.pop() {
-        let vp = tile_viewport(&global, &tile);
-        let w = tile.window();
-        s.analysis.candidates(w.x, w.y, w.x + w.side, w.y + w.side, &mut s.candidates);
+    s.queue.extend(plan.tiles.iter().rev().map(|tile| tile_viewport(&global, tile)));
+    while let Some(vp) = s.queue.pop() {
+        gather(&mut s.analysis, &global, &vp, &mut s.candidates);
         let t = Instant::now();
         let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None);
-        if count > cfg.node_capacity && overflowed(&tile, count, cfg.node_capacity, &mut s.queue, stats) {
+        if count > cfg.node_capacity && overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             stats.build_seconds += seconds(t);
             continue;
         }
@@ -162,21 +163,21 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
     stats.lost_lookups += std::mem::take(&mut s.fragments.lost_lookups);
 }
 
-/// A tile counted more fragments than the node buffer holds: record it and queue its four
-/// quadrants at the same density (the paper's "split and redo"), so no sample is lost.
-/// Returns false when the tile cannot be split (one bundle pixel deeper than the whole node
-/// buffer: N is too small for this scene); the caller then builds it anyway, exceeding N for
-/// that one pixel, rather than drop samples.
-fn overflowed(tile: &Tile, count: u64, capacity: u64, queue: &mut Vec<Tile>, stats: &mut PassStats) -> bool {
+/// A tile counted more fragments than the node buffer holds: record it and queue its parts
+/// (its pixel grid cut in four: the paper's "split and redo", sampling exactly the same
+/// pixels), so no sample is lost. Returns false when the tile is a single pixel deeper than
+/// the whole node buffer (N too small for the scene); the caller then builds it anyway,
+/// exceeding N for that one pixel, rather than drop samples.
+fn overflowed(vp: &Viewport, count: u64, capacity: u64, queue: &mut Vec<Viewport>, stats: &mut PassStats) -> bool {
     stats.overflowed_tiles += 1;
     stats.overflow_fragments += count - capacity;
-    match split(tile) {
-        Ok(children) => {
+    match vp.split() {
+        Some(parts) => {
             stats.resplits += 1;
-            queue.extend(children.iter().rev());
+            queue.extend(parts.iter().rev());
             true
         }
-        Err(_) => {
+        None => {
             stats.unsplittable_tiles += 1;
             false
         }
@@ -213,10 +214,8 @@ fn count_false_alarms(
                 // The split was for memory (importance alone fitted in W×W).
                 stats.memory_splits_checked += 1;
                 let res = bundle_resolution(rays, w2);
-                let t = Tile { level: level as i32, x, y, res };
-                let vp = tile_viewport(global, &t);
-                let w = t.window();
-                s.analysis.candidates(w.x, w.y, w.x + w.side, w.y + w.side, &mut s.candidates);
+                let vp = tile_viewport(global, &Tile { level: level as i32, x, y, res });
+                gather(&mut s.analysis, global, &vp, &mut s.candidates);
                 let count = s.fragments.prepare(ctx.scene, frame, &vp, &s.candidates, None);
                 if count <= ctx.config.node_capacity {
                     stats.false_alarms += 1;
@@ -252,16 +251,13 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
     s.queue.clear();
     for ty in (0..per_side).rev() {
         for tx in (0..per_side).rev() {
-            // Light tiles reuse `Tile` with level 0 meaning "one light tile"; their windows
-            // are computed here, not from the analysis grid.
-            s.queue.push(Tile { level: 0, x: tx, y: ty, res: tile_res });
+            let corner = origin + Vec2::new(tx as f32, ty as f32) * (tile_res as f32 * pixel);
+            s.queue.push(Viewport::square(corner, pixel, tile_res));
         }
     }
-    let base = Viewport { origin, pixel: tile_res as f32 * pixel, res: 1 };
-    while let Some(tile) = s.queue.pop() {
-        let vp = tile_viewport(&base, &tile);
+    while let Some(vp) = s.queue.pop() {
         let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group));
-        if count > cfg.node_capacity && overflowed(&tile, count, cfg.node_capacity, &mut s.queue, stats) {
+        if count > cfg.node_capacity && overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             continue;
         }
         s.fragments.build(ctx.scene);

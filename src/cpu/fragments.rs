@@ -31,7 +31,7 @@ struct TileTriangle {
 /// Reusable buffers of one worker.
 #[derive(Default)]
 pub struct FragmentBuffer {
-    res: u32,
+    width: u32,
     tris: Vec<TileTriangle>,
     /// Per pixel: start of its fragments in `frags` (`res² + 1` entries).
     offsets: Vec<u32>,
@@ -59,7 +59,7 @@ impl FragmentBuffer {
         candidates: &[u32],
         emitter_group: Option<u32>,
     ) -> u64 {
-        self.res = viewport.res;
+        self.width = viewport.width;
         self.tris.clear();
         for &t in candidates {
             let t = t as usize;
@@ -75,13 +75,13 @@ impl FragmentBuffer {
                 screen,
             });
         }
-        let n = (self.res as usize) * (self.res as usize);
+        let n = viewport.pixels() as usize;
         self.offsets.clear();
         self.offsets.resize(n + 1, 0);
         let mut total = 0u64;
         for tri in &self.tris {
-            tri.screen.for_each_span(self.res, |y, x0, x1| {
-                let row = (y * self.res) as usize;
+            tri.screen.for_each_span(|y, x0, x1| {
+                let row = (y * self.width) as usize;
                 for c in &mut self.offsets[row + x0 as usize + 1..row + x1 as usize + 1] {
                     *c += 1;
                 }
@@ -108,13 +108,13 @@ impl FragmentBuffer {
         let mut lost = 0u64;
         for tri in &self.tris {
             let s = &tri.screen;
-            s.for_each_span(self.res, |y, x0, x1| {
+            s.for_each_span(|y, x0, x1| {
                 let cy = y as f32 + 0.5;
                 for x in x0..x1 {
                     let cx = x as f32 + 0.5;
                     let plus = tri.plus.as_ref().map_or(NO_SIDE, |side| lookup(texels, s, side, cx, cy, &mut lost));
                     let minus = tri.minus.as_ref().map_or(NO_SIDE, |side| lookup(texels, s, side, cx, cy, &mut lost));
-                    let p = (y * self.res + x) as usize;
+                    let p = (y * self.width + x) as usize;
                     let at = cursor[p] as usize;
                     cursor[p] += 1;
                     self.frags[at] = Fragment {
