@@ -6,6 +6,7 @@
 //! [`cpu`] (the CPU bundle backend), [`bake`] (bake driver), [`output`] (EXR/PNG/JSON),
 //! [`probe`] (irradiance at surface points).
 
+pub mod analytic;
 pub mod atlas;
 pub mod bake;
 pub mod bundle;

@@ -21,6 +21,8 @@ use crate::scene::Rgb;
 pub const NO_SIDE: u32 = 0x7FFF_FFFF;
 /// Set on `plus` of fragments that belong to the emitter group of a light pass.
 pub const EMITTER_FLAG: u32 = 0x8000_0000;
+/// Set on `minus` when the triangle's front face looks along +ω.
+pub const FRONT_LOOKS_PLUS: u32 = 0x8000_0000;
 const TEXEL_MASK: u32 = 0x7FFF_FFFF;
 
 /// One surface crossing of a bundle line.
@@ -30,7 +32,7 @@ pub struct Fragment {
     pub depth: f32,
     /// Texel of the side looking along +ω, or [`NO_SIDE`]; may carry [`EMITTER_FLAG`].
     pub plus: u32,
-    /// Texel of the side looking along −ω, or [`NO_SIDE`].
+    /// Texel of the side looking along −ω, or [`NO_SIDE`]; may carry [`FRONT_LOOKS_PLUS`].
     pub minus: u32,
 }
 
@@ -43,7 +45,14 @@ impl Fragment {
 
     #[inline]
     pub fn minus_texel(&self) -> Option<u32> {
-        (self.minus != NO_SIDE).then_some(self.minus)
+        let t = self.minus & TEXEL_MASK;
+        (t != NO_SIDE).then_some(t)
+    }
+
+    /// Order of coincident surfaces: the one whose front looks back along −ω first.
+    #[inline]
+    fn coincident_rank(&self) -> u32 {
+        self.minus >> 31
     }
 
     #[inline]
@@ -52,14 +61,25 @@ impl Fragment {
     }
 }
 
-/// Sorts one pixel's fragments by depth. Insertion sort: lists are short (a few surfaces)
-/// and it is stable, so equal depths keep their deterministic build order.
+/// Whether `a` lies before `b` along ω. Depths within `eps` are one place: back-to-back
+/// coincident surfaces (two rooms sharing a zero-thickness wall, each room's wall facing
+/// into it) must be ordered by facing, or rounding could put the far room's wall first and
+/// let the rooms see each other through the wall. The surface whose front looks back along
+/// −ω goes first; its room lies before it.
 #[inline]
-pub fn sort_by_depth(frags: &mut [Fragment]) {
+fn before(a: &Fragment, b: &Fragment, eps: f32) -> bool {
+    if (a.depth - b.depth).abs() <= eps { a.coincident_rank() < b.coincident_rank() } else { a.depth < b.depth }
+}
+
+/// Sorts one pixel's fragments along ω (see [`before`]; `eps` is the depth tolerance of
+/// coincident surfaces). Insertion sort: lists are short (a few surfaces) and it is stable,
+/// so ties keep their deterministic build order.
+#[inline]
+pub fn sort_by_depth(frags: &mut [Fragment], eps: f32) {
     for i in 1..frags.len() {
         let f = frags[i];
         let mut j = i;
-        while j > 0 && frags[j - 1].depth > f.depth {
+        while j > 0 && before(&f, &frags[j - 1], eps) {
             frags[j] = frags[j - 1];
             j -= 1;
         }
@@ -134,8 +154,32 @@ mod tests {
     #[test]
     fn sorting_is_stable_by_depth() {
         let mut f = vec![frag(3.0, 1, 1), frag(1.0, 2, 2), frag(3.0, 3, 3), frag(-1.0, 4, 4)];
-        sort_by_depth(&mut f);
+        sort_by_depth(&mut f, 0.0);
         assert_eq!(f.iter().map(|f| f.plus).collect::<Vec<_>>(), vec![4, 2, 1, 3]);
+    }
+
+    /// Two rooms sharing a zero-thickness wall along ω: room A's wall (front looks −ω, into
+    /// A) and room B's wall (front looks +ω, into B) at depths equal up to rounding. Whatever
+    /// order they arrive in, A's wall comes first and neither room sees the other.
+    #[test]
+    fn coincident_back_to_back_walls_never_see_each_other() {
+        let a_wall = frag(5.0 + 1e-6, NO_SIDE, 1); // plus = back (none), minus = front
+        let b_wall = frag(5.0, 2, NO_SIDE | FRONT_LOOKS_PLUS);
+        let a_floor = frag(0.0, 3, NO_SIDE);
+        let b_far = frag(9.0, NO_SIDE, 4 | FRONT_LOOKS_PLUS);
+        for order in [[a_floor, a_wall, b_wall, b_far], [a_floor, b_wall, a_wall, b_far]] {
+            let mut f = order.to_vec();
+            sort_by_depth(&mut f, 1e-4);
+            assert_eq!(f[1], a_wall);
+            let mut log = Log::default();
+            // Room A's texels (1, 3) glow; room B's (2, 4) must see nothing of them.
+            exchange(&f, 1.0, Rgb::ZERO, |t| if t == 1 || t == 3 { Rgb::ONE } else { Rgb::ZERO }, &mut log);
+            for (t, l, _) in log.0 {
+                if t == 2 || t == 4 {
+                    assert_eq!(l, Rgb::ZERO, "texel {t} of the dark room sees light");
+                }
+            }
+        }
     }
 
     /// Two parallel walls: a floor (front looks +ω, texel 10) and a ceiling (front looks −ω,

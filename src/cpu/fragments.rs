@@ -10,7 +10,7 @@ use glam::Vec2;
 use super::prepared::{NO_GROUP, PreparedScene};
 use crate::atlas::TexelMap;
 use crate::atlas::texels::NO_TEXEL;
-use crate::bundle::estimator::{EMITTER_FLAG, Fragment, NO_SIDE, sort_by_depth};
+use crate::bundle::estimator::{EMITTER_FLAG, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, sort_by_depth};
 use crate::bundle::raster::{BundleFrame, ScreenTriangle, Viewport};
 
 /// A lit side of a triangle in the current viewport: its UV (LOD pixels) as an affine
@@ -120,7 +120,7 @@ impl FragmentBuffer {
                     self.frags[at] = Fragment {
                         depth: s.depth_at(cx, cy),
                         plus: if tri.emitter { plus | EMITTER_FLAG } else { plus },
-                        minus,
+                        minus: if s.front_faces_dir { minus | FRONT_LOOKS_PLUS } else { minus },
                     };
                 }
             });
@@ -130,7 +130,7 @@ impl FragmentBuffer {
         for p in 0..self.offsets.len() - 1 {
             let (a, b) = (self.offsets[p] as usize, self.offsets[p + 1] as usize);
             if b - a > 1 {
-                sort_by_depth(&mut self.frags[a..b]);
+                sort_by_depth(&mut self.frags[a..b], scene.coincident_depth);
             }
         }
     }

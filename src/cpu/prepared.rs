@@ -24,6 +24,9 @@ pub struct PreparedScene<'a> {
     /// Centre and radius of the scene's bounding sphere.
     pub centre: Vec3,
     pub radius: f32,
+    /// Depth difference (m) below which two fragments count as coincident surfaces: far
+    /// below any real wall thickness, above f32 rounding of depths at this scene's scale.
+    pub coincident_depth: f32,
 }
 
 impl<'a> PreparedScene<'a> {
@@ -51,6 +54,7 @@ impl<'a> PreparedScene<'a> {
             .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
         let centre = (lo + hi) * 0.5;
         let radius = geom.corners.iter().flatten().map(|p| (*p - centre).length()).fold(0.0f32, f32::max).max(1e-6);
-        PreparedScene { geom, texels, face_uv, importance, emitter_group, centre, radius }
+        let coincident_depth = 1e-5 * (radius + centre.abs().max_element());
+        PreparedScene { geom, texels, face_uv, importance, emitter_group, centre, radius, coincident_depth }
     }
 }

@@ -1,27 +1,12 @@
 //! Emissive quads seen from a point, against Lambert's exact point-to-polygon formula.
 
-use glam::{DVec3, Quat, Vec3};
+use glam::{Quat, Vec3};
 
 use super::{assert_estimate, estimate};
+use crate::analytic::polygon_irradiance;
 use crate::reference::ReferenceTracer;
 use crate::scene::builder::diffuse;
 use crate::scene::{Rgb, Scene, SceneBuilder};
-
-/// Irradiance at `p` (unit normal `n`) from a Lambertian polygon of radiance `le` entirely
-/// above p's horizon: E = (Le/2)·|Σ γᵢ n·(Rᵢ × Rᵢ₊₁)/|Rᵢ × Rᵢ₊₁||, Rᵢ the unit vectors to
-/// the vertices and γᵢ the angle between consecutive ones. In f64.
-fn lambert_polygon(p: Vec3, n: Vec3, poly: &[Vec3], le: Rgb) -> Rgb {
-    let (p, n) = (p.as_dvec3(), n.as_dvec3());
-    let r: Vec<DVec3> = poly.iter().map(|v| (v.as_dvec3() - p).normalize()).collect();
-    let mut sum = 0.0;
-    for i in 0..r.len() {
-        let (a, b) = (r[i], r[(i + 1) % r.len()]);
-        let c = a.cross(b);
-        let gamma = a.dot(b).clamp(-1.0, 1.0).acos();
-        sum += gamma * n.dot(c / c.length());
-    }
-    le * (0.5 * sum.abs()) as f32
-}
 
 /// A quad of half-size `h` centred at `c`, rotated by `rot` from facing −Y (down).
 fn quad_corners(c: Vec3, h: f32, rot: Quat) -> [Vec3; 4] {
@@ -66,7 +51,7 @@ fn quads_match_lamberts_polygon_formula() {
         let corners = quad_corners(c, h, rot);
         let s = emitter_scene(corners, le, false);
         let t = ReferenceTracer::new(&s);
-        let want = lambert_polygon(p, n, &corners, le);
+        let want = polygon_irradiance(p, n, &corners, le);
         // 16384 paths. NEE and cosine sampling are combined by MIS at the query, so the
         // per-path relative σ stays small from the tiny to the huge emitter (the light
         // strategy covers the tiny one, the cosine one the huge one): measured 0.16–0.18 for
@@ -91,13 +76,13 @@ fn single_sided_emitters_are_dark_from_behind_double_sided_lit_from_both_sides()
     assert_eq!(estimate(&t, Vec3::ZERO, Vec3::Y, 4096).e, Rgb::ZERO);
     // Above, looking down at its front: the polygon value.
     let above = Vec3::new(0.1, 2.0, 0.0);
-    let want = lambert_polygon(above, Vec3::NEG_Y, &corners, le);
+    let want = polygon_irradiance(above, Vec3::NEG_Y, &corners, le);
     assert_estimate(&estimate(&t, above, Vec3::NEG_Y, 16_384), want, 0.005, 1e-4, "single-sided front");
 
     let double = emitter_scene(corners, le, true);
     let t = ReferenceTracer::new(&double);
     for (p, n) in [(Vec3::ZERO, Vec3::Y), (above, Vec3::NEG_Y)] {
-        let want = lambert_polygon(p, n, &corners, le);
+        let want = polygon_irradiance(p, n, &corners, le);
         assert!(want.x > 0.1);
         // Same 16384-path budget, σ bound and 5σ rule as above.
         assert_estimate(&estimate(&t, p, n, 16_384), want, 0.005, 1e-4, &format!("double-sided at {p}"));
@@ -145,7 +130,7 @@ fn textured_emission_is_sampled_by_its_mean_and_integrated_exactly() {
             Vec3::new(u1 - 0.5, 1.0, 0.5),
             Vec3::new(u0 - 0.5, 1.0, 0.5),
         ];
-        want += lambert_polygon(p, n, &strip, le * mean);
+        want += polygon_irradiance(p, n, &strip, le * mean);
     }
     let t = ReferenceTracer::new(&s);
     // Half the quad is dark, so per-path σ is larger than for a uniform quad: measured
@@ -185,7 +170,7 @@ fn alpha_masked_emitters_emit_only_where_opaque() {
         [Vec3::new(0.0, 1.0, -0.5), Vec3::new(0.5, 1.0, -0.5), Vec3::new(0.5, 1.0, 0.5), Vec3::new(0.0, 1.0, 0.5)];
     let t = ReferenceTracer::new(&s);
     for p in [Vec3::ZERO, Vec3::new(-0.4, 0.0, 0.2)] {
-        let want = lambert_polygon(p, Vec3::Y, &half, le);
+        let want = polygon_irradiance(p, Vec3::Y, &half, le);
         // Half of the NEE samples land on the cut half (contributing 0): per-path σ ≈ 1·E
         // (measured 0.98–1.06), 16384 paths give σ_mean ≈ 0.8%; bound 1.2%; 5σ rule and the
         // 1e-4 ε floor.
