@@ -1,0 +1,319 @@
+//! The CPU ray-bundle baker against closed forms and the reference path tracer.
+//!
+//! Every tolerance is argued from the sample count in the test that uses it.
+
+use livebake::analytic::{furnace_irradiance, polygon_irradiance};
+use livebake::bake::{BackendKind, BakeConfig, BakeOutput, bake};
+use livebake::bundle::tiles::TilingMode;
+use livebake::glam::Vec3;
+use livebake::progress::NoProgress;
+use livebake::reference::ReferenceTracer;
+use livebake::scene::builder::diffuse;
+use livebake::scene::{Rgb, Scene, SceneBuilder};
+
+fn config(texel: f32, directions: u32) -> BakeConfig {
+    let mut c = BakeConfig { backend: BackendKind::Cpu, samples: directions, ..BakeConfig::default() };
+    c.atlas.texel_size = Some(texel);
+    c
+}
+
+fn run(scene: &Scene, config: &BakeConfig) -> BakeOutput {
+    bake(scene, config, &NoProgress).expect("bake")
+}
+
+/// A quad of half-size `h` at height `y`, facing down.
+fn ceiling_lamp(c: Vec3, h: f32) -> [Vec3; 4] {
+    [c + Vec3::new(-h, 0.0, -h), c + Vec3::new(h, 0.0, -h), c + Vec3::new(h, 0.0, h), c + Vec3::new(-h, 0.0, h)]
+}
+
+fn floor(c: Vec3, h: f32) -> [Vec3; 4] {
+    [c + Vec3::new(-h, 0.0, h), c + Vec3::new(h, 0.0, h), c + Vec3::new(h, 0.0, -h), c + Vec3::new(-h, 0.0, -h)]
+}
+
+/// Closed box, albedo ρ and emission Le on every face: the global bundles carry this large
+/// emitter. By symmetry every texel sees the same radiance, so there is no Monte Carlo noise
+/// at all; what remains is the start of the multi-bounce iteration: batch b (of B) reads a
+/// source holding b+1 bounces, L_b = Le·Σ_{k≤b} ρ^k, and the result weights batches by
+/// (b+1)². The test computes that expectation exactly and holds every texel to it within
+/// 2e-3 (texels a batch happens to miss fall back to the running estimate, a hair lower);
+/// the expectation itself is within 0.2% of the closed form π·Le/(1−ρ).
+#[test]
+fn furnace_converges_to_the_closed_form() {
+    let (rho, le) = (0.5f32, Rgb::splat(1.0));
+    let mut b = SceneBuilder::new();
+    let m = b.material(diffuse(Rgb::splat(rho), le, false));
+    b.cuboid("furnace", Vec3::ZERO, Vec3::new(2.0, 1.5, 1.0), true, m);
+    let scene = b.build();
+    let cfg = config(0.05, 256);
+    let out = run(&scene, &cfg);
+    let batches = (cfg.samples / cfg.bundle_config().batch_size()) as i32;
+    let (mut num, mut den) = (0.0f64, 0.0f64);
+    for k in 0..batches {
+        let w = ((k + 1) as f64).powi(2);
+        num += w * (1.0 - (rho as f64).powi(k + 1)) / (1.0 - rho as f64);
+        den += w;
+    }
+    let expected = std::f64::consts::PI * num / den;
+    let exact = furnace_irradiance(le, rho).x as f64;
+    assert!((expected / exact - 1.0).abs() < 2e-3);
+    let e = &out.lods[0].irradiance;
+    for (i, v) in e.iter().enumerate() {
+        assert!((v.x as f64 / expected - 1.0).abs() < 2e-3, "texel {i}: {v} vs {expected}");
+    }
+}
+
+/// An open single-sided plane under a uniform sky: every bundle hit on its top sees the sky,
+/// so E = π·L holds per texel to f32 rounding.
+#[test]
+fn open_plane_under_sky_is_pi_l() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(diffuse(Rgb::splat(0.7), Rgb::ZERO, false));
+    b.grid_quad("plane", floor(Vec3::ZERO, 2.0), 3, m);
+    b.sky(Rgb::new(1.0, 0.5, 0.25));
+    let scene = b.build();
+    let out = run(&scene, &config(0.05, 64));
+    let want = Rgb::new(1.0, 0.5, 0.25) * std::f32::consts::PI;
+    for e in &out.lods[0].irradiance {
+        assert!((*e - want).abs().max_element() < 1e-5 * want.x, "{e} vs {want}");
+    }
+}
+
+/// Punctual lights are a texel-space pass with shadow rays: exact at each texel centre.
+/// Directional light at 60° from the zenith over a floor with a cube on it: E = I·cosθ
+/// where the ray to the light misses the cube (tested here with an independent slab test),
+/// 0 where it hits; plus a point light: E = I·cosθ/d².
+#[test]
+fn punctual_lights_are_exact_per_texel() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(diffuse(Rgb::ZERO, Rgb::ZERO, false));
+    b.grid_quad("floor", floor(Vec3::ZERO, 2.0), 2, m);
+    let (lo, hi) = (Vec3::new(-0.3, 0.0, -0.3), Vec3::new(0.3, 0.6, 0.3));
+    b.cuboid("cube", lo, hi, false, m);
+    let to_sun = Vec3::new(60f32.to_radians().sin(), 60f32.to_radians().cos(), 0.0);
+    b.directional_light(-to_sun, Rgb::splat(3.0));
+    let lamp = Vec3::new(1.2, 1.5, 1.1);
+    b.point_light(lamp, Rgb::splat(2.0));
+    let scene = b.build();
+    let out = run(&scene, &config(0.04, 16));
+    let t = &out.lods[0].texels;
+    let mut shadowed = 0;
+    for i in 0..t.len() {
+        let (p, n) = (t.position[i], t.normal[i]);
+        if n.y < 0.99 || p.y > 1e-4 {
+            continue; // the cube's own faces
+        }
+        let blocked = |o: Vec3, d: Vec3, tmax: f32| {
+            let (t0, t1) = ((lo - o) / d, (hi - o) / d);
+            let (near, far) = (t0.min(t1).max_element(), t0.max(t1).min_element());
+            near <= far && far > 1e-4 && near < tmax
+        };
+        let sun = if blocked(p, to_sun, f32::INFINITY) { 0.0 } else { 3.0 * n.dot(to_sun) };
+        let d = lamp - p;
+        let point = if blocked(p, d.normalize(), d.length()) { 0.0 } else { 2.0 * n.dot(d.normalize()) / d.length_squared() };
+        let want = sun + point;
+        let got = out.lods[0].irradiance[i].x;
+        // Texels within a texel of the cube's shadow edge may fall either way: skip them.
+        let edge = [to_sun, d.normalize()].iter().any(|&dir| {
+            let probe = |o: Vec3| blocked(o, dir, if dir == to_sun { f32::INFINITY } else { (lamp - o).length() });
+            let r = 0.04;
+            [Vec3::X, Vec3::Z, -Vec3::X, -Vec3::Z].iter().any(|&s| probe(p + s * r) != probe(p))
+        });
+        if edge {
+            continue;
+        }
+        shadowed += (sun == 0.0) as u32;
+        assert!((got - want).abs() <= 1e-5 * want.max(1.0), "texel {i} at {p}: {got} vs {want}");
+    }
+    assert!(shadowed > 50, "the test must cover shadowed texels ({shadowed})");
+}
+
+/// A 0.5 × 0.5 m lamp 1 m over a black floor: direct light only, from the light pass.
+/// Each light direction ω lands on a floor texel in ≈ A/a_px pixels when the line through
+/// the texel along ω meets the lamp, so a texel collects ≈ N_l·Ω⊥/(2π)·A/a_px hits (Ω⊥ the
+/// lamp's projected solid angle = E/Le): a count that is Poisson-like, relative σ ≈ 1/√hits.
+/// We check that the per-texel errors are that size (RMS z-score below 1.5, ≈1 expected;
+/// stratified directions and jitter make it smaller) and that their mean over the texels is
+/// unbiased within 5 standard errors.
+#[test]
+fn small_emitter_light_pass_matches_lamberts_formula() {
+    let le = Rgb::splat(10.0);
+    let mut b = SceneBuilder::new();
+    let black = b.material(diffuse(Rgb::ZERO, Rgb::ZERO, false));
+    let lamp_m = b.material(diffuse(Rgb::ZERO, le, false));
+    b.grid_quad("floor", floor(Vec3::ZERO, 2.0), 4, black);
+    let lamp = ceiling_lamp(Vec3::new(0.2, 1.0, -0.1), 0.25);
+    b.quad("lamp", lamp, lamp_m);
+    let scene = b.build();
+    let texel = 0.05;
+    let cfg = config(texel, 256);
+    let out = run(&scene, &cfg);
+    let report = out.report.lods[0].bundle.as_ref().expect("bundle report");
+    assert_eq!(report.stats.light_pass_groups, 1, "a 0.25 m² lamp in 16 m² is small");
+    let n_light = report.stats.light_directions_per_group as f32;
+    let t = &out.lods[0].texels;
+    let a_px = texel * texel;
+    let (mut z2, mut rel_sum, mut rel2, mut n) = (0.0f64, 0.0f64, 0.0f64, 0usize);
+    for i in 0..t.len() {
+        if t.normal[i].y < 0.99 || t.position[i].y > 1e-4 {
+            continue;
+        }
+        let want = polygon_irradiance(t.position[i], t.normal[i], &lamp, le).x;
+        let hits = n_light * (want / le.x) / std::f32::consts::TAU * (t.area[i] / a_px);
+        if hits < 25.0 {
+            continue; // too few hits for a Gaussian z-score (far floor, slivers of edge texels)
+        }
+        let got = out.lods[0].irradiance[i].x;
+        let rel = (got - want) / want;
+        z2 += (rel * hits.sqrt()).powi(2) as f64;
+        rel_sum += rel as f64;
+        rel2 += (rel * rel) as f64;
+        n += 1;
+    }
+    assert!(n > 500, "{n} texels checked");
+    let rms_z = (z2 / n as f64).sqrt();
+    let mean = rel_sum / n as f64;
+    let sd = (rel2 / n as f64 - mean * mean).sqrt();
+    assert!(rms_z < 1.5, "per-texel errors are {rms_z:.2}× their Poisson size");
+    assert!(mean.abs() < 5.0 * sd / (n as f64).sqrt(), "mean relative error {mean:.4} (sd {sd:.4}, n {n})");
+}
+
+/// A Cornell-style room: 2 m box with a red and a green wall, white elsewhere (albedo 0.7),
+/// a box inside, a 0.5 m lamp under the ceiling. Error at 200 texels against the reference
+/// path tracer, as the normalised RMS error √(Σ(E−E_ref)²/ΣE_ref²) with the reference's own
+/// variance (it reports its standard error) removed in quadrature. Bundle noise falls as
+/// 1/√directions, so 64 → 256 → 1024 must fall (by > 1.5× per ×4, allowing for the bias
+/// floor of the estimate), and the default 256 directions must be under 5%.
+#[test]
+fn cornell_room_converges_to_the_reference() {
+    let mut b = SceneBuilder::new();
+    let white = b.material(diffuse(Rgb::splat(0.7), Rgb::ZERO, false));
+    let red = b.material(diffuse(Rgb::new(0.7, 0.1, 0.1), Rgb::ZERO, false));
+    let green = b.material(diffuse(Rgb::new(0.1, 0.7, 0.1), Rgb::ZERO, false));
+    let lamp = b.material(diffuse(Rgb::ZERO, Rgb::splat(15.0), false));
+    b.quad("floor", floor(Vec3::new(1.0, 0.0, 1.0), 1.0), white);
+    b.quad("ceiling", ceiling_lamp(Vec3::new(1.0, 2.0, 1.0), 1.0), white);
+    b.quad("back", [Vec3::new(0.0, 0.0, 0.0), Vec3::new(2.0, 0.0, 0.0), Vec3::new(2.0, 2.0, 0.0), Vec3::new(0.0, 2.0, 0.0)], white);
+    b.quad("front", [Vec3::new(0.0, 0.0, 2.0), Vec3::new(0.0, 2.0, 2.0), Vec3::new(2.0, 2.0, 2.0), Vec3::new(2.0, 0.0, 2.0)], white);
+    b.quad("left", [Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.0, 2.0, 0.0), Vec3::new(0.0, 2.0, 2.0), Vec3::new(0.0, 0.0, 2.0)], red);
+    b.quad("right", [Vec3::new(2.0, 0.0, 0.0), Vec3::new(2.0, 0.0, 2.0), Vec3::new(2.0, 2.0, 2.0), Vec3::new(2.0, 2.0, 0.0)], green);
+    b.cuboid("block", Vec3::new(0.4, 0.0, 0.5), Vec3::new(1.0, 1.1, 1.1), false, white);
+    b.quad("lamp", ceiling_lamp(Vec3::new(1.0, 1.99, 1.0), 0.25), lamp);
+    let scene = b.build();
+
+    let bakes: Vec<(u32, BakeOutput)> = [64, 256, 1024].map(|d| (d, run(&scene, &config(0.03, d)))).into();
+    let t = &bakes[0].1.lods[0].texels;
+    let tracer = ReferenceTracer::new(&scene);
+    let picks: Vec<usize> = (0..t.len()).step_by(t.len() / 200).filter(|&i| t.emission[i] == Rgb::ZERO).collect();
+    let queries: Vec<(Vec3, Vec3)> = picks.iter().map(|&i| (t.position[i], t.normal[i])).collect();
+    let (reference, _) = tracer.irradiance_batch_estimates(&queries, 8192, 7, &|_| {});
+    let err = |e: &[Rgb]| {
+        let (mut se, mut sr, mut var) = (0.0f64, 0.0f64, 0.0f64);
+        for (k, &i) in picks.iter().enumerate() {
+            for c in 0..3 {
+                let (got, want, sd) = (e[i][c] as f64, reference[k].e[c] as f64, reference[k].stderr[c] as f64);
+                se += (got - want).powi(2);
+                sr += want * want;
+                var += sd * sd;
+            }
+        }
+        ((se - var).max(0.0) / sr).sqrt()
+    };
+    let errors: Vec<f64> = bakes.iter().map(|(_, o)| err(&o.lods[0].irradiance)).collect();
+    eprintln!("relative RMS error at 64/256/1024 directions: {errors:?}");
+    assert!(errors[0] > 1.5 * errors[1] && errors[1] > 1.5 * errors[2], "{errors:?}");
+    assert!(errors[1] < 0.05, "{errors:?}");
+}
+
+/// A lit room beside a sealed dark room, sharing a zero-thickness wall (each room's wall
+/// faces into it, back to back at the same depth) or separated by a 10 cm gap. The lit room
+/// has a lamp (light pass) and a point light; the dark room must read exactly 0: nothing
+/// may cross the single-sided walls.
+#[test]
+fn no_light_leaks_into_a_sealed_room() {
+    for gap in [0.0f32, 0.1] {
+        let mut b = SceneBuilder::new();
+        let wall = b.material(diffuse(Rgb::splat(0.8), Rgb::ZERO, false));
+        let lamp = b.material(diffuse(Rgb::ZERO, Rgb::splat(20.0), false));
+        b.cuboid("lit", Vec3::ZERO, Vec3::new(2.0, 2.0, 2.0), true, wall);
+        b.cuboid("dark", Vec3::new(2.0 + gap, 0.0, 0.0), Vec3::new(4.0 + gap, 2.0, 2.0), true, wall);
+        b.quad("lamp", ceiling_lamp(Vec3::new(1.0, 1.99, 1.0), 0.2), lamp);
+        b.point_light(Vec3::new(1.5, 1.0, 1.0), Rgb::splat(5.0));
+        let scene = b.build();
+        let out = run(&scene, &config(0.05, 256));
+        let t = &out.lods[0].texels;
+        let mut dark = 0;
+        for i in 0..t.len() {
+            // Texels on the dark room's faces (its x range, or on its wall plane facing +x).
+            let p = t.position[i];
+            let in_dark = p.x > 2.0 + gap + 1e-4 || ((p.x - (2.0 + gap)).abs() < 1e-4 && t.normal[i].x > 0.5);
+            if in_dark {
+                dark += 1;
+                assert_eq!(out.lods[0].irradiance[i], Rgb::ZERO, "gap {gap}: dark texel {i} at {p} is lit");
+            }
+        }
+        assert!(dark > 1000, "{dark} dark texels");
+        let lit: f32 = out.lods[0].irradiance.iter().map(|e| e.x).sum();
+        assert!(lit > 0.0);
+    }
+}
+
+/// Overflow: with a node budget N far below a tile's fragments, every tile overflows and is
+/// redone as parts of its pixel grid. The parts sample exactly the pixels the whole would
+/// have, so with a fixed tiling (uniform 2×2, W = 64) the result equals the large-N bake up
+/// to float summation order (1e-4 relative, far above f32 reordering error over ~10² hits);
+/// the report counts the overflows and re-splits. With adaptive tiling and a tiny N the
+/// planner predicts smaller tiles, some still overflow and are redone, and no tile ever
+/// holds more than N fragments.
+#[test]
+fn overflowing_tiles_are_redone_without_losing_samples() {
+    let mut b = SceneBuilder::new();
+    let wall = b.material(diffuse(Rgb::splat(0.6), Rgb::ZERO, false));
+    let lamp = b.material(diffuse(Rgb::ZERO, Rgb::splat(10.0), false));
+    b.cuboid("room", Vec3::ZERO, Vec3::new(2.0, 2.0, 2.0), true, wall);
+    b.cuboid("block", Vec3::new(0.5, 0.0, 0.5), Vec3::new(1.2, 0.8, 1.2), false, wall);
+    b.quad("lamp", ceiling_lamp(Vec3::new(1.0, 1.99, 1.0), 0.25), lamp);
+    let scene = b.build();
+    let fixed = |n: u64| {
+        let mut c = config(0.05, 32);
+        c.bundle.tiling = TilingMode::Uniform { k: 2 };
+        c.bundle.head_side = 64;
+        c.bundle.node_capacity = n;
+        run(&scene, &c)
+    };
+    let (big, small) = (fixed(1 << 20), fixed(600));
+    let stats = &small.report.lods[0].bundle.as_ref().expect("report").stats.pass;
+    assert!(stats.overflowed_tiles > 0 && stats.resplits > 0);
+    assert_eq!(stats.unsplittable_tiles, 0);
+    assert!(stats.peak_tile_fragments <= 600);
+    assert_eq!(big.report.lods[0].bundle.as_ref().expect("report").stats.pass.overflowed_tiles, 0);
+    for (a, b) in big.lods[0].irradiance.iter().zip(&small.lods[0].irradiance) {
+        assert!((*a - *b).abs().max_element() <= 1e-4 * a.max_element().max(1e-3), "{a} vs {b}");
+    }
+
+    let mut c = config(0.05, 32);
+    c.bundle.node_capacity = 400;
+    let adaptive = run(&scene, &c);
+    let s = &adaptive.report.lods[0].bundle.as_ref().expect("report").stats.pass;
+    assert!(s.splits_for_memory > 0, "a tiny N must drive the plan");
+    assert!(s.peak_tile_fragments <= 400 || s.unsplittable_tiles > 0);
+    eprintln!("adaptive, N = 400: {} overflowed tiles, {} re-splits", s.overflowed_tiles, s.resplits);
+}
+
+/// Same options, same light map, whatever the thread count.
+#[test]
+fn bakes_are_deterministic_across_thread_counts() {
+    let mut b = SceneBuilder::new();
+    let wall = b.material(diffuse(Rgb::splat(0.6), Rgb::ZERO, true));
+    let lamp = b.material(diffuse(Rgb::ZERO, Rgb::splat(10.0), false));
+    b.cuboid("room", Vec3::ZERO, Vec3::new(2.0, 2.0, 2.0), true, wall);
+    b.quad("lamp", ceiling_lamp(Vec3::new(1.0, 1.99, 1.0), 0.25), lamp);
+    let scene = b.build();
+    let bake_with = |threads| {
+        let mut c = config(0.05, 32);
+        c.threads = Some(threads);
+        run(&scene, &c).lods.remove(0).irradiance
+    };
+    let one = bake_with(1);
+    assert_eq!(one, bake_with(2));
+    assert_eq!(one, bake_with(3));
+}
