@@ -109,6 +109,8 @@ fn parse_tiling(s: &str) -> Result<TilingMode, String> {
     }
 }
 
+/// What `livebake` without arguments uses: the same values as the command-line defaults above
+/// (a test holds them equal).
 impl Default for SceneOptions {
     fn default() -> Self {
         SceneOptions {
@@ -117,7 +119,7 @@ impl Default for SceneOptions {
             lods: 1,
             samples: None,
             sky: Rgb::ZERO,
-            backend: Backend::Reference,
+            backend: Backend::Cpu,
             seed: 0,
             threads: None,
             no_uv1: false,
@@ -195,6 +197,18 @@ mod tests {
         assert!(parse_rgb("-1,0,0").is_err());
         assert!(parse_rgb("nan,0,0").is_err());
         assert!(parse_rgb("a,b,c").is_err());
+    }
+
+    #[test]
+    fn default_options_are_the_command_line_defaults() {
+        // `livebake` with no arguments must bake as `livebake bake SCENE` does.
+        #[derive(clap::Parser)]
+        struct Wrap {
+            #[command(flatten)]
+            options: SceneOptions,
+        }
+        let parsed = <Wrap as clap::Parser>::parse_from(["livebake"]).options;
+        assert_eq!(format!("{parsed:?}"), format!("{:?}", SceneOptions::default()));
     }
 
     #[test]
