@@ -20,7 +20,9 @@ pub enum Backend {
 #[derive(Args, Debug, Clone)]
 pub struct SceneOptions {
     /// Light-map texel size at LOD 0, metres. Default: from a budget of --texel-budget texels.
-    #[arg(long, value_name = "M")]
+    // Negative numbers are taken as values so that `--texel-size -1` is refused with a
+    // message about the texel size rather than as an unknown flag `-1`.
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
     pub texel_size: Option<f32>,
     /// LOD-0 texel budget used when --texel-size is not given.
     #[arg(long, value_name = "N", default_value_t = 500_000)]
@@ -33,7 +35,7 @@ pub struct SceneOptions {
     #[arg(long, value_name = "N")]
     pub samples: Option<u32>,
     /// Uniform sky radiance W/(sr·m²) seen by rays leaving the scene.
-    #[arg(long, value_name = "R,G,B", default_value = "0,0,0", value_parser = parse_rgb)]
+    #[arg(long, value_name = "R,G,B", default_value = "0,0,0", value_parser = parse_rgb, allow_hyphen_values = true)]
     pub sky: Rgb,
     /// Estimator that computes irradiance.
     #[arg(long, value_enum, default_value_t = Backend::Cpu)]
