@@ -20,7 +20,9 @@ pub enum Backend {
 #[derive(Args, Debug, Clone)]
 pub struct SceneOptions {
     /// Light-map texel size at LOD 0, metres. Default: from a budget of --texel-budget texels.
-    #[arg(long, value_name = "M")]
+    // Negative numbers are taken as values so that `--texel-size -1` is refused with a
+    // message about the texel size rather than as an unknown flag `-1`.
+    #[arg(long, value_name = "M", allow_negative_numbers = true)]
     pub texel_size: Option<f32>,
     /// LOD-0 texel budget used when --texel-size is not given.
     #[arg(long, value_name = "N", default_value_t = 500_000)]
@@ -33,7 +35,7 @@ pub struct SceneOptions {
     #[arg(long, value_name = "N")]
     pub samples: Option<u32>,
     /// Uniform sky radiance W/(sr·m²) seen by rays leaving the scene.
-    #[arg(long, value_name = "R,G,B", default_value = "0,0,0", value_parser = parse_rgb)]
+    #[arg(long, value_name = "R,G,B", default_value = "0,0,0", value_parser = parse_rgb, allow_hyphen_values = true)]
     pub sky: Rgb,
     /// Estimator that computes irradiance.
     #[arg(long, value_enum, default_value_t = Backend::Cpu)]
@@ -109,6 +111,8 @@ fn parse_tiling(s: &str) -> Result<TilingMode, String> {
     }
 }
 
+/// What `livebake` without arguments uses: the same values as the command-line defaults above
+/// (a test holds them equal).
 impl Default for SceneOptions {
     fn default() -> Self {
         SceneOptions {
@@ -117,7 +121,7 @@ impl Default for SceneOptions {
             lods: 1,
             samples: None,
             sky: Rgb::ZERO,
-            backend: Backend::Reference,
+            backend: Backend::Cpu,
             seed: 0,
             threads: None,
             no_uv1: false,
@@ -195,6 +199,18 @@ mod tests {
         assert!(parse_rgb("-1,0,0").is_err());
         assert!(parse_rgb("nan,0,0").is_err());
         assert!(parse_rgb("a,b,c").is_err());
+    }
+
+    #[test]
+    fn default_options_are_the_command_line_defaults() {
+        // `livebake` with no arguments must bake as `livebake bake SCENE` does.
+        #[derive(clap::Parser)]
+        struct Wrap {
+            #[command(flatten)]
+            options: SceneOptions,
+        }
+        let parsed = <Wrap as clap::Parser>::parse_from(["livebake"]).options;
+        assert_eq!(format!("{parsed:?}"), format!("{:?}", SceneOptions::default()));
     }
 
     #[test]

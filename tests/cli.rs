@@ -1,0 +1,357 @@
+//! The `livebake` command, run as a process in temporary directories: output files and
+//! their contents, the no-argument default, `probe`, error messages for bad input, and
+//! identical results for identical options (and any thread count).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::{Value, json};
+
+const CORNELL: &str = "cornell_box/cornellBox-2.79-Cycles-gltf.gltf";
+
+fn asset(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("assets").join(rel)
+}
+
+fn cornell() -> String {
+    asset(CORNELL).display().to_string()
+}
+
+/// Runs `livebake args…` in `cwd` (no RUST_LOG from the environment: default logging).
+fn livebake(cwd: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_livebake"))
+        .args(args)
+        .current_dir(cwd)
+        .env_remove("RUST_LOG")
+        .output()
+        .expect("cannot run livebake")
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// Runs and requires success; returns stdout.
+#[track_caller]
+fn ok(cwd: &Path, args: &[&str]) -> String {
+    let out = livebake(cwd, args);
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "livebake {args:?} failed ({}):\n{stderr}", out.status);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    text(&out.stdout)
+}
+
+/// Runs and requires failure with an `error:` line containing every one of `needles`
+/// (case-insensitive) and no panic.
+#[track_caller]
+fn fails(cwd: &Path, args: &[&str], needles: &[&str]) {
+    let out = livebake(cwd, args);
+    let stderr = text(&out.stderr);
+    assert!(!out.status.success(), "livebake {args:?} succeeded but should not have:\n{stderr}");
+    assert!(!stderr.contains("panicked"), "livebake {args:?} panicked:\n{stderr}");
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("error:"))
+        .unwrap_or_else(|| panic!("livebake {args:?}: no `error:` line in\n{stderr}"));
+    for n in needles {
+        assert!(line.to_lowercase().contains(&n.to_lowercase()), "livebake {args:?}: {line:?} does not mention {n:?}");
+    }
+}
+
+fn read_json(path: &Path) -> Value {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Decodes an EXR (linear RGB f32) and checks every value is finite and non-negative.
+fn read_exr(path: &Path) -> image::Rgb32FImage {
+    let img = image::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).to_rgb32f();
+    for (x, y, p) in img.enumerate_pixels() {
+        assert!(p.0.iter().all(|v| v.is_finite() && *v >= 0.0), "{}: pixel ({x},{y}) = {:?}", path.display(), p.0);
+    }
+    img
+}
+
+fn dims(path: &Path) -> (u32, u32) {
+    image::image_dimensions(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Checks the files of a bake in `dir` against its report; returns the report.
+fn check_bake_dir(dir: &Path, lods: u32) -> Value {
+    let report = read_json(&dir.join("report.json"));
+    let (w, h) =
+        (report["atlas"]["width"].as_u64().unwrap() as u32, report["atlas"]["height"].as_u64().unwrap() as u32);
+    assert!(w > 0 && h > 0);
+    let levels = report["lods"].as_array().unwrap();
+    assert_eq!(levels.len(), lods as usize);
+    for k in 0..lods {
+        let l = &levels[k as usize];
+        assert_eq!(l["lod"], k);
+        assert!(l["texels"].as_u64().unwrap() > 0);
+        let (lw, lh) = (w << k, h << k);
+        assert_eq!((l["width"].as_u64().unwrap() as u32, l["height"].as_u64().unwrap() as u32), (lw, lh));
+        let exr = read_exr(&dir.join(format!("lightmap_lod{k}.exr")));
+        assert_eq!(exr.dimensions(), (lw, lh), "LOD {k} EXR size");
+        assert_eq!(dims(&dir.join(format!("lightmap_lod{k}.png"))), (lw, lh), "LOD {k} PNG size");
+        // The EXR holds the baked irradiance: some light, and at least as many non-empty
+        // pixels as texels (gutters copy texels too).
+        let lit = exr.pixels().filter(|p| p.0.iter().any(|&v| v > 0.0)).count();
+        assert!(lit > 0, "LOD {k}: black EXR");
+        let texels = l["texels"].as_u64().unwrap() as usize;
+        assert!(lit <= (lw * lh) as usize && texels <= (lw * lh) as usize);
+    }
+    assert!(!dir.join(format!("lightmap_lod{lods}.exr")).exists(), "more LODs than asked for");
+    // Nothing half-written left behind.
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let name = entry.unwrap().file_name();
+        assert!(!name.to_string_lossy().ends_with(".partial"), "{name:?} left behind");
+    }
+    // The CLI fills in the phases around the bake.
+    assert!(report["phases"]["load"].as_f64().unwrap() > 0.0);
+    assert!(report["phases"]["write"].as_f64().unwrap() > 0.0);
+    assert!(report["total_seconds"].as_f64().unwrap() > 0.0);
+    report
+}
+
+// ---------------------------------------------------------------------------------------------
+// bake
+
+#[test]
+fn bake_writes_exr_png_and_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out_dir = tmp.path().join("baked");
+    let out = out_dir.display().to_string();
+    let stdout = ok(tmp.path(), &["bake", &cornell(), "--out", &out, "--texel-size", "0.05", "--samples", "16"]);
+    let report = check_bake_dir(&out_dir, 1);
+    assert_eq!(report["backend"], "cpu", "cpu is the default backend");
+    assert_eq!(report["config"]["samples"], 16);
+    assert!((report["atlas"]["texel_size"].as_f64().unwrap() - 0.05).abs() < 1e-6);
+    assert!(report["lods"][0]["texels"].as_u64().unwrap() > 10_000);
+    assert_eq!(report["lods"][0]["non_finite_texels"], 0);
+    assert_eq!(report["scene"]["triangles"], 4410);
+    // The summary names what was written.
+    for f in ["lightmap_lod0.exr", "lightmap_lod0.png", "report.json"] {
+        assert!(stdout.contains(f), "summary does not mention {f}:\n{stdout}");
+    }
+}
+
+#[test]
+fn bake_with_two_lods_writes_both_levels() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("o");
+    let d = dir.display().to_string();
+    ok(tmp.path(), &["-q", "bake", &cornell(), "--out", &d, "--texel-size", "0.05", "--samples", "16", "--lods", "2"]);
+    let report = check_bake_dir(&dir, 2);
+    let (w0, h0) = dims(&dir.join("lightmap_lod0.exr"));
+    assert_eq!(dims(&dir.join("lightmap_lod1.exr")), (2 * w0, 2 * h0));
+    assert_eq!(dims(&dir.join("lightmap_lod1.png")), (2 * w0, 2 * h0));
+    let t0 = report["lods"][0]["texels"].as_u64().unwrap() as f64;
+    let t1 = report["lods"][1]["texels"].as_u64().unwrap() as f64;
+    assert!(t1 > 3.0 * t0 && t1 <= 4.0 * t0, "LOD 1 has {t1} texels, LOD 0 {t0}");
+}
+
+#[test]
+fn no_arguments_bakes_the_cornell_box_into_out() {
+    // The default bake: the Cornell box, every default (cpu backend, 256 directions,
+    // 500k-texel budget), into ./out. About 3 s in the test profile on 2 cores.
+    let tmp = tempfile::tempdir().unwrap();
+    let started = std::time::Instant::now();
+    let stdout = ok(tmp.path(), &[]);
+    let seconds = started.elapsed().as_secs_f64();
+    eprintln!("no-argument bake: {seconds:.1} s");
+    let report = check_bake_dir(&tmp.path().join("out"), 1);
+    assert_eq!(report["backend"], "cpu");
+    assert_eq!(report["config"]["samples"], 256);
+    assert_eq!(report["config"]["atlas"]["texel_budget"], 500_000);
+    assert!(report["scene"]["source"].as_str().unwrap().ends_with("cornellBox-2.79-Cycles-gltf.gltf"));
+    // A summary on stdout: the scene, the atlas, the LOD, the files.
+    assert!(stdout.contains("cornellBox-2.79-Cycles-gltf.gltf"), "{stdout}");
+    assert!(stdout.contains("atlas") && stdout.contains("LOD 0"), "{stdout}");
+    assert!(stdout.contains("lightmap_lod0.exr") && stdout.contains("report.json"), "{stdout}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// probe
+
+/// Points in the Cornell box: on the floor, the ceiling (away from the lamp), the red wall
+/// (x = −2), and one in mid-air.
+fn probe_points(dir: &Path) -> PathBuf {
+    let points = json!({ "points": [
+        { "p": [-1.0, 0.0, 1.0], "n": [0.0, 1.0, 0.0], "name": "floor" },
+        { "p": [1.0, 3.0, 1.0], "n": [0.0, -1.0, 0.0], "name": "ceiling" },
+        { "p": [-2.0, 1.5, 0.5], "n": [1.0, 0.0, 0.0], "name": "red wall" },
+        { "p": [0.0, 2.5, 1.0], "n": [0.0, 1.0, 0.0], "name": "mid-air" },
+    ]});
+    let path = dir.join("points.json");
+    std::fs::write(&path, serde_json::to_vec_pretty(&points).unwrap()).unwrap();
+    path
+}
+
+/// The E of each point (None where the output has an error instead), checking the input
+/// fields are kept.
+fn probe_results(doc: &Value) -> Vec<Option<[f64; 3]>> {
+    let list = doc["points"].as_array().expect("points");
+    assert_eq!(list.len(), 4);
+    list.iter()
+        .map(|p| {
+            assert!(p["name"].is_string() && p["p"].is_array() && p["n"].is_array(), "input fields kept: {p}");
+            match (p.get("E"), p.get("error")) {
+                (Some(e), None) => {
+                    let e: Vec<f64> = e.as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+                    assert_eq!(e.len(), 3);
+                    assert!(e.iter().all(|v| v.is_finite() && *v >= 0.0), "{p}");
+                    Some([e[0], e[1], e[2]])
+                }
+                (None, Some(err)) => {
+                    assert!(err.as_str().is_some_and(|s| !s.is_empty()), "{p}");
+                    None
+                }
+                _ => panic!("a point needs exactly one of E and error: {p}"),
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn probe_reports_irradiance_on_surfaces_and_errors_in_mid_air() {
+    let tmp = tempfile::tempdir().unwrap();
+    let points = probe_points(tmp.path());
+    let pts = points.display().to_string();
+
+    // Reference backend, no --out: JSON on stdout.
+    let stdout =
+        ok(tmp.path(), &["-q", "probe", &cornell(), "--points", &pts, "--backend", "reference", "--samples", "64"]);
+    let doc: Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("stdout is not JSON ({e}):\n{stdout}"));
+    let reference = probe_results(&doc);
+    assert!(doc["points"][3]["error"].as_str().unwrap().contains("no surface"), "{}", doc["points"][3]);
+
+    // Default backend (cpu bake, then light-map reads), written to a file.
+    let out = tmp.path().join("probed.json");
+    let stdout = ok(
+        tmp.path(),
+        &["probe", &cornell(), "--points", &pts, "--texel-size", "0.05", "--out", &out.display().to_string()],
+    );
+    assert!(serde_json::from_str::<Value>(&stdout).is_err(), "with --out, stdout is the summary, not the JSON");
+    let doc = read_json(&out);
+    let cpu = probe_results(&doc);
+    assert!(doc["points"][3]["error"].as_str().unwrap().contains("no surface"), "{}", doc["points"][3]);
+
+    for (i, (r, c)) in reference.iter().zip(&cpu).enumerate().take(3) {
+        let (r, c) = (r.expect("reference E"), c.expect("cpu E"));
+        // Every surface point here sees the lamp or its light: lit.
+        assert!(r.iter().all(|&v| v > 1e-3) && c.iter().all(|&v| v > 1e-3), "point {i}: {r:?} / {c:?}");
+        // The two estimates agree loosely: 64 paths leave the reference ~10–15% noise at
+        // these points and the light map is bilinear over 5 cm texels; a factor of 2 is
+        // > 5σ away and still catches a lost π or a wrong side.
+        let ratio = (r[0] + r[1] + r[2]) / (c[0] + c[1] + c[2]);
+        assert!((0.5..2.0).contains(&ratio), "point {i}: reference {r:?}, cpu {c:?}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// bad input
+
+#[test]
+fn bad_input_exits_with_an_error_line_and_no_panic() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let scene = cornell();
+    let out = dir.join("o").display().to_string();
+    let write = |name: &str, bytes: &[u8]| {
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        p.display().to_string()
+    };
+    let empty = write("empty.gltf", b"");
+    let full = std::fs::read(asset(CORNELL)).unwrap();
+    let truncated = write("truncated.gltf", &full[..full.len() / 3]);
+    let short_point = write("short.json", br#"{"points": [{"p": [0, 0], "n": [0, 1, 0]}]}"#);
+    let not_json = write("broken.json", br#"{"points": [{"p": [0, 0, 0], "#);
+    let no_list = write("nolist.json", br#"{"pts": []}"#);
+    let good_points = probe_points(dir).display().to_string();
+    let missing = dir.join("nowhere.gltf").display().to_string();
+
+    fails(dir, &["bake", &missing, "--out", &out], &["nowhere.gltf"]);
+    fails(dir, &["bake", &empty, "--out", &out], &["empty.gltf", "empty"]);
+    fails(dir, &["bake", &truncated, "--out", &out], &["truncated.gltf", "truncated"]);
+    fails(dir, &["probe", &scene, "--points", &short_point], &["short.json", "\"p\"", "three numbers"]);
+    fails(dir, &["probe", &scene, "--points", &not_json], &["broken.json", "not valid JSON"]);
+    fails(dir, &["probe", &scene, "--points", &no_list], &["nolist.json", "points"]);
+    fails(dir, &["probe", &scene, "--points", &dir.join("none.json").display().to_string()], &["none.json"]);
+    fails(dir, &["probe", &missing, "--points", &good_points], &["nowhere.gltf"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--sky", "1,2"], &["--sky", "R,G,B"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--sky", "-1,0,0"], &["--sky", "non-negative"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--texel-size", "-1"], &["--texel-size", "positive"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--texel-size=0"], &["--texel-size", "positive"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--texel-size", "0.05", "--lods", "0"], &["--lods"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--texel-size", "0.05", "--lods", "9"], &["--lods"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--texel-size", "0.05", "--samples", "0"], &["--samples"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--threads", "0"], &["--threads"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--texel-size", "0.0001"], &["--texel-size"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--backend", "gpu"], &["--backend", "gpu"]);
+    // Nothing was written by any of them.
+    assert!(!dir.join("o").exists());
+}
+
+// ---------------------------------------------------------------------------------------------
+// determinism
+
+#[test]
+fn same_options_give_identical_light_maps_whatever_the_thread_count() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = cornell();
+    for (backend, samples) in [("cpu", "32"), ("reference", "4")] {
+        let bake = |name: &str, threads: &str| -> (Vec<u8>, Vec<u8>) {
+            let dir = tmp.path().join(format!("{backend}-{name}"));
+            let d = dir.display().to_string();
+            let args = [
+                "-q",
+                "bake",
+                &scene,
+                "--out",
+                &d,
+                "--texel-size",
+                "0.05",
+                "--backend",
+                backend,
+                "--samples",
+                samples,
+                "--threads",
+                threads,
+            ];
+            ok(tmp.path(), &args);
+            let exr = std::fs::read(dir.join("lightmap_lod0.exr")).unwrap();
+            let png = std::fs::read(dir.join("lightmap_lod0.png")).unwrap();
+            (exr, png)
+        };
+        let a = bake("a", "2");
+        let b = bake("b", "2");
+        let single = bake("single", "1");
+        assert!(a.0 == b.0, "{backend}: two bakes with the same options differ (EXR)");
+        assert!(a.1 == b.1, "{backend}: two bakes with the same options differ (PNG)");
+        assert!(a.0 == single.0, "{backend}: --threads 1 and --threads 2 differ (EXR)");
+        assert!(a.1 == single.1, "{backend}: --threads 1 and --threads 2 differ (PNG)");
+        // And a different seed does change a Monte Carlo result (the comparison can fail).
+        let dir = tmp.path().join(format!("{backend}-seed"));
+        let d = dir.display().to_string();
+        ok(
+            tmp.path(),
+            &[
+                "-q",
+                "bake",
+                &scene,
+                "--out",
+                &d,
+                "--texel-size",
+                "0.05",
+                "--backend",
+                backend,
+                "--samples",
+                samples,
+                "--seed",
+                "1",
+            ],
+        );
+        assert!(std::fs::read(dir.join("lightmap_lod0.exr")).unwrap() != a.0, "{backend}: the seed changes nothing");
+    }
+}
