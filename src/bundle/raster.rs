@@ -38,20 +38,29 @@ impl BundleFrame {
     }
 }
 
-/// A rectangle of the projection plane sampled by `width × height` square pixels.
+/// A rectangle of `width × height` square pixels of a pixel grid on the projection plane.
+/// The grid is anchored at `origin`; the rectangle starts `offset` pixels into it. Parts of
+/// one grid snap vertices identically, so they cover exactly the pixels the whole would.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Viewport {
-    /// Frame coordinates (along t, along b) of the window's corner at pixel (0, 0).
+    /// Frame coordinates (along t, along b) of the grid's corner.
     pub origin: Vec2,
     /// Pixel side in metres.
     pub pixel: f32,
+    /// First pixel (x, y) of the rectangle in the grid.
+    pub offset: (u32, u32),
     pub width: u32,
     pub height: u32,
 }
 
 impl Viewport {
     pub fn square(origin: Vec2, pixel: f32, res: u32) -> Self {
-        Viewport { origin, pixel, width: res, height: res }
+        Viewport { origin, pixel, offset: (0, 0), width: res, height: res }
+    }
+
+    /// Frame coordinates of the rectangle's corner at its pixel (0, 0).
+    pub fn corner(&self) -> Vec2 {
+        self.origin + Vec2::new(self.offset.0 as f32, self.offset.1 as f32) * self.pixel
     }
 
     pub fn pixels(&self) -> u64 {
@@ -71,8 +80,9 @@ impl Viewport {
         for &(y0, h) in &cuts(self.height) {
             for &(x0, w) in &cuts(self.width) {
                 parts.push(Viewport {
-                    origin: self.origin + Vec2::new(x0 as f32, y0 as f32) * self.pixel,
+                    origin: self.origin,
                     pixel: self.pixel,
+                    offset: (self.offset.0 + x0, self.offset.1 + y0),
                     width: w,
                     height: h,
                 });
@@ -86,10 +96,10 @@ impl Viewport {
         self.pixel * self.pixel
     }
 
-    /// Continuous pixel coordinates of a frame-space point.
+    /// Continuous pixel coordinates of a frame-space point in the rectangle.
     #[inline]
     pub fn to_pixels(&self, c: Vec2) -> Vec2 {
-        (c - self.origin) / self.pixel
+        (c - self.origin) / self.pixel - Vec2::new(self.offset.0 as f32, self.offset.1 as f32)
     }
 }
 
@@ -106,8 +116,12 @@ pub struct ScreenTriangle {
     row_max: u32,
     /// Viewport width: spans are clipped to `[0, width)`.
     width: u32,
+    /// The viewport's offset in its pixel grid.
+    offset: (u32, u32),
     /// Barycentric weights of the *original* corners 1 and 2 and the depth, as affine
-    /// functions of continuous pixel coordinates: f(x, y) = c[0]·x + c[1]·y + c[2].
+    /// functions of continuous *grid* pixel coordinates: f(x, y) = c[0]·x + c[1]·y + c[2].
+    /// Grid, not rectangle, coordinates: a pixel gets bit-identical attributes whichever
+    /// part of a split viewport it is rasterised in.
     bary_u: [f32; 3],
     bary_v: [f32; 3],
     depth: [f32; 3],
@@ -177,12 +191,20 @@ impl ScreenTriangle {
     /// viewport's rows, or its coordinates are not finite.
     pub fn setup(frame: &BundleFrame, viewport: &Viewport, corners: &[Vec3; 3], normal: Vec3) -> Option<Self> {
         let c = corners.map(|p| frame.coords(p));
-        let p = c.map(|c| viewport.to_pixels(Vec2::new(c.x, c.y)));
+        // Snap in grid coordinates, then move to the rectangle by whole pixels: exact.
+        let p = c.map(|c| (Vec2::new(c.x, c.y) - viewport.origin) / viewport.pixel);
         if p.iter().any(|q| !q.is_finite()) {
             return None;
         }
-        let snap = |q: Vec2| ((q.x as f64 * SUBPIXEL as f64).round() as i64, (q.y as f64 * SUBPIXEL as f64).round() as i64);
+        let (ox, oy) = (viewport.offset.0 as i64 * SUBPIXEL, viewport.offset.1 as i64 * SUBPIXEL);
+        let snap =
+            |q: Vec2| ((q.x as f64 * SUBPIXEL as f64).round() as i64 - ox, (q.y as f64 * SUBPIXEL as f64).round() as i64 - oy);
         let mut v = p.map(snap);
+        // Attributes (depth, barycentrics) are planes through the *snapped* corners, so they
+        // agree with the coverage: where two triangles of a closed surface meet, a line
+        // covered by both crosses them in the order the snapped (still closed) surface
+        // dictates. Planes through the unsnapped corners can swap entry and exit near edges.
+        let ps = v.map(|(x, y)| Vec2::new((x + ox) as f32, (y + oy) as f32) / SUBPIXEL as f32);
         let area2 = (v[1].0 - v[0].0) as i128 * (v[2].1 - v[0].1) as i128
             - (v[2].0 - v[0].0) as i128 * (v[1].1 - v[0].1) as i128;
         if area2 == 0 {
@@ -211,11 +233,12 @@ impl ScreenTriangle {
             include_edge,
             row_min: row_min as u32,
             row_max: row_max as u32,
-            bary_u: affine(p, [0.0, 1.0, 0.0])?,
-            bary_v: affine(p, [0.0, 0.0, 1.0])?,
-            depth: affine(p, [c[0].z, c[1].z, c[2].z])?,
+            bary_u: affine(ps, [0.0, 1.0, 0.0])?,
+            bary_v: affine(ps, [0.0, 0.0, 1.0])?,
+            depth: affine(ps, [c[0].z, c[1].z, c[2].z])?,
             front_faces_dir: normal.dot(frame.dir) > 0.0,
             width: viewport.width,
+            offset: viewport.offset,
             narrow: v.iter().all(|q| q.0.abs() < 1 << 30 && q.1.abs() < 1 << 30),
         })
     }
@@ -271,20 +294,27 @@ impl ScreenTriangle {
         (lo <= hi).then(|| (lo.to_u32(), hi.to_u32() + 1))
     }
 
-    /// Barycentric weights (u, v) of the original corners 1 and 2 at a continuous pixel position.
+    /// Grid coordinates of the centre of the rectangle's pixel (x, y): where attributes are
+    /// evaluated.
+    #[inline]
+    pub fn grid_centre(&self, x: u32, y: u32) -> (f32, f32) {
+        ((x + self.offset.0) as f32 + 0.5, (y + self.offset.1) as f32 + 0.5)
+    }
+
+    /// Barycentric weights (u, v) of the original corners 1 and 2 at a grid position.
     #[inline]
     pub fn barycentrics(&self, x: f32, y: f32) -> (f32, f32) {
         (eval(&self.bary_u, x, y), eval(&self.bary_v, x, y))
     }
 
-    /// Depth along ω at a continuous pixel position.
+    /// Depth along ω at a grid position.
     #[inline]
     pub fn depth_at(&self, x: f32, y: f32) -> f32 {
         eval(&self.depth, x, y)
     }
 
-    /// Affine coefficients (per +1 pixel in x, per +1 pixel in y, at pixel (0,0)) of a value
-    /// interpolated from the three original corners, for stepping along spans.
+    /// Affine coefficients (per +1 pixel in x, per +1 pixel in y, at grid pixel (0,0)) of a
+    /// value interpolated from the three original corners.
     pub fn gradient(&self, values: [f32; 3]) -> [f32; 3] {
         let mut out = [0.0; 3];
         for (k, o) in out.iter_mut().enumerate() {
@@ -411,7 +441,7 @@ mod tests {
     #[test]
     fn split_viewports_cover_the_same_pixels() {
         let mut rng = Rng::new(9, 1);
-        let whole = Viewport { origin: Vec2::new(-0.37, 1.21), pixel: 0.25, width: 13, height: 6 };
+        let whole = Viewport { origin: Vec2::new(-0.37, 1.21), pixel: 0.25, offset: (0, 0), width: 13, height: 6 };
         let parts = whole.split().unwrap();
         assert_eq!(parts.len(), 4);
         assert_eq!(parts.iter().map(|p| p.pixels()).sum::<u64>(), whole.pixels());
@@ -421,10 +451,9 @@ mod tests {
             let n = (c[1] - c[0]).cross(c[2] - c[0]).normalize_or_zero();
             let centres = |v: &Viewport| -> Vec<(i64, i64)> {
                 let Some(t) = ScreenTriangle::setup(&frame_z(), v, &c, n) else { return Vec::new() };
-                // Pixel centres in units of a quarter pixel of the whole, relative to its origin.
-                let off = ((v.origin - whole.origin) / whole.pixel).round();
+                let (ox, oy) = (v.offset.0 as i64, v.offset.1 as i64);
                 let mut out = Vec::new();
-                t.for_each_span(|y, x0, x1| out.extend((x0..x1).map(|x| (x as i64 + off.x as i64, y as i64 + off.y as i64))));
+                t.for_each_span(|y, x0, x1| out.extend((x0..x1).map(|x| (x as i64 + ox, y as i64 + oy))));
                 out
             };
             let mut from_parts: Vec<_> = parts.iter().flat_map(centres).collect();
@@ -433,7 +462,7 @@ mod tests {
             from_whole.sort_unstable();
             assert_eq!(from_parts, from_whole);
         }
-        let strip = Viewport { origin: Vec2::ZERO, pixel: 1.0, width: 1, height: 5 };
+        let strip = Viewport { origin: Vec2::ZERO, pixel: 1.0, offset: (0, 0), width: 1, height: 5 };
         assert_eq!(strip.split().unwrap().len(), 2);
         assert!(Viewport::square(Vec2::ZERO, 1.0, 1).split().is_none());
     }

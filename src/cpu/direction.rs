@@ -102,7 +102,7 @@ fn tile_viewport(global: &Viewport, tile: &Tile) -> Viewport {
 
 /// The triangles that may touch `vp`, from the analysis bins over `global`.
 fn gather(analysis: &mut Analysis, global: &Viewport, vp: &Viewport, out: &mut Vec<u32>) {
-    let lo = (vp.origin - global.origin) / global.pixel;
+    let lo = (vp.corner() - global.origin) / global.pixel;
     let hi = lo + Vec2::new(vp.width as f32, vp.height as f32) * (vp.pixel / global.pixel);
     analysis.candidates(lo.x as f64, lo.y as f64, hi.x as f64, hi.y as f64, out);
 }

@@ -8,16 +8,14 @@
 use glam::Vec2;
 
 use super::prepared::{NO_GROUP, PreparedScene};
-use crate::atlas::TexelMap;
 use crate::atlas::texels::NO_TEXEL;
 use crate::bundle::estimator::{EMITTER_FLAG, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, sort_by_depth};
 use crate::bundle::raster::{BundleFrame, ScreenTriangle, Viewport};
 
 /// A lit side of a triangle in the current viewport: its UV (LOD pixels) as an affine
-/// function of pixel coordinates, and its UV corners.
+/// function of pixel coordinates.
 struct TileSide {
     gradient: [Vec2; 3],
-    corners: [Vec2; 3],
 }
 
 /// A triangle set up for the current viewport, with its sides looking +ω and −ω.
@@ -45,7 +43,7 @@ pub struct FragmentBuffer {
 fn tile_side(screen: &ScreenTriangle, uv: [Vec2; 3]) -> TileSide {
     let gx = screen.gradient([uv[0].x, uv[1].x, uv[2].x]);
     let gy = screen.gradient([uv[0].y, uv[1].y, uv[2].y]);
-    TileSide { gradient: [Vec2::new(gx[0], gy[0]), Vec2::new(gx[1], gy[1]), Vec2::new(gx[2], gy[2])], corners: uv }
+    TileSide { gradient: [Vec2::new(gx[0], gy[0]), Vec2::new(gx[1], gy[1]), Vec2::new(gx[2], gy[2])] }
 }
 
 impl FragmentBuffer {
@@ -104,16 +102,15 @@ impl FragmentBuffer {
         let mut cursor = std::mem::take(&mut self.cursor);
         cursor.clear();
         cursor.extend_from_slice(&self.offsets[..self.offsets.len() - 1]);
-        let texels = scene.texels;
+        let (tw, th) = (scene.texels.width, scene.texels.height);
         let mut lost = 0u64;
         for tri in &self.tris {
             let s = &tri.screen;
             s.for_each_span(|y, x0, x1| {
-                let cy = y as f32 + 0.5;
                 for x in x0..x1 {
-                    let cx = x as f32 + 0.5;
-                    let plus = tri.plus.as_ref().map_or(NO_SIDE, |side| lookup(texels, s, side, cx, cy, &mut lost));
-                    let minus = tri.minus.as_ref().map_or(NO_SIDE, |side| lookup(texels, s, side, cx, cy, &mut lost));
+                    let (cx, cy) = s.grid_centre(x, y);
+                    let plus = tri.plus.as_ref().map_or(NO_SIDE, |side| lookup(scene, tw, th, side, cx, cy, &mut lost));
+                    let minus = tri.minus.as_ref().map_or(NO_SIDE, |side| lookup(scene, tw, th, side, cx, cy, &mut lost));
                     let p = (y * self.width + x) as usize;
                     let at = cursor[p] as usize;
                     cursor[p] += 1;
@@ -149,37 +146,21 @@ impl FragmentBuffer {
 }
 
 /// The texel under the pixel centre (cx, cy) of one side. Pixel centres inside the triangle
-/// map inside its UV triangle, whose texels conservative rasterisation made valid; rounding
-/// can still land a hair outside, so a miss retries with the barycentrics clamped onto the
-/// triangle.
+/// map inside its UV triangle, whose pixels hold its chart's texels; rounding may land a
+/// hair outside, in the chart's gutter ring, which maps to the chart's nearest texel.
 #[inline]
-fn lookup(texels: &TexelMap, s: &ScreenTriangle, side: &TileSide, cx: f32, cy: f32, lost: &mut u64) -> u32 {
+fn lookup(scene: &PreparedScene, width: u32, height: u32, side: &TileSide, cx: f32, cy: f32, lost: &mut u64) -> u32 {
     let g = &side.gradient;
-    if let Some(t) = texel_at(texels, g[0] * cx + g[1] * cy + g[2]) {
-        return t;
-    }
-    let (u, v) = s.barycentrics(cx, cy);
-    let (u, v) = (u.clamp(0.0, 1.0), v.clamp(0.0, 1.0));
-    let k = (u + v).max(1.0);
-    let [a, b, c] = side.corners;
-    match texel_at(texels, a + (b - a) * (u / k) + (c - a) * (v / k)) {
-        Some(t) => t,
-        None => {
-            *lost += 1;
-            NO_SIDE
+    let uv = g[0] * cx + g[1] * cy + g[2];
+    if uv.x >= 0.0 && uv.y >= 0.0 {
+        let (x, y) = (uv.x as u32, uv.y as u32);
+        if x < width && y < height {
+            let t = scene.texel_lookup[(y * width + x) as usize];
+            if t != NO_TEXEL {
+                return t;
+            }
         }
     }
-}
-
-#[inline]
-fn texel_at(texels: &TexelMap, uv: Vec2) -> Option<u32> {
-    if !(uv.x >= 0.0 && uv.y >= 0.0) {
-        return None;
-    }
-    let (x, y) = (uv.x as u32, uv.y as u32);
-    if x >= texels.width || y >= texels.height {
-        return None;
-    }
-    let t = texels.slot[(y * texels.width + x) as usize];
-    (t != NO_TEXEL).then_some(t)
+    *lost += 1;
+    NO_SIDE
 }

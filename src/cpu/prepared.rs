@@ -21,11 +21,17 @@ pub struct PreparedScene<'a> {
     pub importance: Vec<f32>,
     /// Per triangle: the light-pass emitter group it belongs to, or [`NO_GROUP`].
     pub emitter_group: Vec<u32>,
+    /// Per atlas pixel: its texel, or for a gutter pixel the texel it copies (its chart's
+    /// nearest), else `NO_TEXEL`. A fragment whose UV rounds a hair outside its chart's
+    /// covered pixels lands in the gutter ring and still finds its own chart's texel.
+    pub texel_lookup: Vec<u32>,
     /// Centre and radius of the scene's bounding sphere.
     pub centre: Vec3,
     pub radius: f32,
     /// Depth difference (m) below which two fragments count as coincident surfaces: far
-    /// below any real wall thickness, above f32 rounding of depths at this scene's scale.
+    /// below any real wall thickness, above f32 rounding of depths at this scene's scale
+    /// (~10⁻⁷ relative). Kept small because it also catches lines grazing a convex edge,
+    /// where the tie-break (leak-safe: back sides face each other) costs that line's sample.
     pub coincident_depth: f32,
 }
 
@@ -54,7 +60,11 @@ impl<'a> PreparedScene<'a> {
             .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
         let centre = (lo + hi) * 0.5;
         let radius = geom.corners.iter().flatten().map(|p| (*p - centre).length()).fold(0.0f32, f32::max).max(1e-6);
-        let coincident_depth = 1e-5 * (radius + centre.abs().max_element());
-        PreparedScene { geom, texels, face_uv, importance, emitter_group, centre, radius, coincident_depth }
+        let coincident_depth = 1e-6 * (radius + centre.abs().max_element());
+        let mut texel_lookup = texels.slot.clone();
+        for &(pixel, texel) in &texels.gutter {
+            texel_lookup[pixel as usize] = texel;
+        }
+        PreparedScene { geom, texels, face_uv, importance, emitter_group, texel_lookup, centre, radius, coincident_depth }
     }
 }
