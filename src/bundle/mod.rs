@@ -46,7 +46,11 @@ pub struct BundleConfig {
     pub alpha: f32,
     #[serde(serialize_with = "serialize_tiling")]
     pub tiling: TilingMode,
-    /// Bundle pixels per texel side at the importance the texel density asks for.
+    /// Bundle pixels per texel side at the importance the texel density asks for. At 2 a
+    /// texel is hit from every direction (≈4·|cosθ| pixels), so its estimate averages all D
+    /// stratified directions instead of the ~D/2 that happen to land a pixel in it: on a
+    /// Cornell-style room 256 directions gave 2.9% error at 2 against 5.7% at 1, for ~2.3×
+    /// the time (error²·time 2.1e-4 against 3.6e-4).
     pub oversampling: f32,
     /// Light-pass directions per global direction, per small emitter group.
     pub light_directions: u32,
@@ -80,7 +84,7 @@ impl Default for BundleConfig {
             node_capacity: 1 << 20,
             alpha: tiles::DEFAULT_ALPHA,
             tiling: TilingMode::Adaptive,
-            oversampling: 1.0,
+            oversampling: 2.0,
             light_directions: 16,
             small_emitter_fraction: 0.05,
             directions_per_batch: 8,
