@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum LoadError {
     /// The glTF file itself could not be read.
-    #[error("{}: cannot read the file: {source}", file.display())]
+    #[error("{}: cannot read the file", file.display())]
     Io {
         file: PathBuf,
         #[source]
@@ -35,7 +35,7 @@ pub enum LoadError {
     Invalid { file: PathBuf, message: String },
 
     /// An external buffer file could not be read.
-    #[error("{}: buffer {buffer} ('{uri}', looked for at {}): {source}", file.display(), resolved.display())]
+    #[error("{}: buffer {buffer} ('{uri}', looked for at {}) cannot be read", file.display(), resolved.display())]
     MissingBuffer {
         file: PathBuf,
         buffer: usize,
