@@ -118,13 +118,10 @@ pub struct ScreenTriangle {
     width: u32,
     /// The viewport's offset in its pixel grid.
     offset: (u32, u32),
-    /// Barycentric weights of the *original* corners 1 and 2 and the depth, as affine
-    /// functions of continuous *grid* pixel coordinates: f(x, y) = c[0]·x + c[1]·y + c[2].
-    /// Grid, not rectangle, coordinates: a pixel gets bit-identical attributes whichever
-    /// part of a split viewport it is rasterised in.
-    bary_u: [f32; 3],
-    bary_v: [f32; 3],
-    depth: [f32; 3],
+    /// Snapped corners in grid pixel coordinates (original order) and their depths along ω:
+    /// what [`planes`](Self::planes) interpolates.
+    grid_corners: [Vec2; 3],
+    corner_depths: [f32; 3],
     /// The triangle's front face looks along +ω (its geometric normal n has n·ω > 0).
     pub front_faces_dir: bool,
     /// All snapped coordinates fit the fast i64 span arithmetic.
@@ -161,17 +158,41 @@ impl SpanInt for i128 {
     }
 }
 
-#[inline]
-fn affine(p: [Vec2; 3], values: [f32; 3]) -> Option<[f32; 3]> {
-    let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
-    let det = e1.x * e2.y - e1.y * e2.x;
-    if det == 0.0 || !det.is_finite() {
-        return None;
+/// Barycentric weights of the *original* corners 1 and 2 and the depth, as affine
+/// functions of continuous *grid* pixel coordinates: f(x, y) = c[0]·x + c[1]·y + c[2].
+/// Grid, not rectangle, coordinates: a pixel gets bit-identical attributes whichever part
+/// of a split viewport it is rasterised in.
+#[derive(Clone, Copy, Debug)]
+pub struct Planes {
+    bary_u: [f32; 3],
+    bary_v: [f32; 3],
+    depth: [f32; 3],
+}
+
+impl Planes {
+    /// Barycentric weights (u, v) of the original corners 1 and 2 at a grid position.
+    #[inline]
+    pub fn barycentrics(&self, x: f32, y: f32) -> (f32, f32) {
+        (eval(&self.bary_u, x, y), eval(&self.bary_v, x, y))
     }
-    let (d1, d2) = (values[1] - values[0], values[2] - values[0]);
-    let cx = (d1 * e2.y - d2 * e1.y) / det;
-    let cy = (d2 * e1.x - d1 * e2.x) / det;
-    Some([cx, cy, values[0] - cx * p[0].x - cy * p[0].y])
+
+    /// Depth along ω at a grid position.
+    #[inline]
+    pub fn depth_at(&self, x: f32, y: f32) -> f32 {
+        eval(&self.depth, x, y)
+    }
+
+    /// Affine coefficients (per +1 pixel in x, per +1 pixel in y, at grid pixel (0,0)) of a
+    /// value interpolated from the three original corners.
+    pub fn gradient(&self, values: [f32; 3]) -> [f32; 3] {
+        let mut out = [0.0; 3];
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = values[0] * (if k == 2 { 1.0 } else { 0.0 })
+                + (values[1] - values[0]) * self.bary_u[k]
+                + (values[2] - values[0]) * self.bary_v[k];
+        }
+        out
+    }
 }
 
 #[inline]
@@ -200,11 +221,7 @@ impl ScreenTriangle {
         let snap =
             |q: Vec2| ((q.x as f64 * SUBPIXEL as f64).round() as i64 - ox, (q.y as f64 * SUBPIXEL as f64).round() as i64 - oy);
         let mut v = p.map(snap);
-        // Attributes (depth, barycentrics) are planes through the *snapped* corners, so they
-        // agree with the coverage: where two triangles of a closed surface meet, a line
-        // covered by both crosses them in the order the snapped (still closed) surface
-        // dictates. Planes through the unsnapped corners can swap entry and exit near edges.
-        let ps = v.map(|(x, y)| Vec2::new((x + ox) as f32, (y + oy) as f32) / SUBPIXEL as f32);
+        let grid_corners = v.map(|(x, y)| Vec2::new((x + ox) as f32, (y + oy) as f32) / SUBPIXEL as f32);
         let area2 = (v[1].0 - v[0].0) as i128 * (v[2].1 - v[0].1) as i128
             - (v[2].0 - v[0].0) as i128 * (v[1].1 - v[0].1) as i128;
         if area2 == 0 {
@@ -233,9 +250,8 @@ impl ScreenTriangle {
             include_edge,
             row_min: row_min as u32,
             row_max: row_max as u32,
-            bary_u: affine(ps, [0.0, 1.0, 0.0])?,
-            bary_v: affine(ps, [0.0, 0.0, 1.0])?,
-            depth: affine(ps, [c[0].z, c[1].z, c[2].z])?,
+            grid_corners,
+            corner_depths: [c[0].z, c[1].z, c[2].z],
             front_faces_dir: normal.dot(frame.dir) > 0.0,
             width: viewport.width,
             offset: viewport.offset,
@@ -301,28 +317,23 @@ impl ScreenTriangle {
         ((x + self.offset.0) as f32 + 0.5, (y + self.offset.1) as f32 + 0.5)
     }
 
-    /// Barycentric weights (u, v) of the original corners 1 and 2 at a grid position.
-    #[inline]
-    pub fn barycentrics(&self, x: f32, y: f32) -> (f32, f32) {
-        (eval(&self.bary_u, x, y), eval(&self.bary_v, x, y))
-    }
-
-    /// Depth along ω at a grid position.
-    #[inline]
-    pub fn depth_at(&self, x: f32, y: f32) -> f32 {
-        eval(&self.depth, x, y)
-    }
-
-    /// Affine coefficients (per +1 pixel in x, per +1 pixel in y, at grid pixel (0,0)) of a
-    /// value interpolated from the three original corners.
-    pub fn gradient(&self, values: [f32; 3]) -> [f32; 3] {
-        let mut out = [0.0; 3];
-        for (k, o) in out.iter_mut().enumerate() {
-            *o = values[0] * (if k == 2 { 1.0 } else { 0.0 })
-                + (values[1] - values[0]) * self.bary_u[k]
-                + (values[2] - values[0]) * self.bary_v[k];
-        }
-        out
+    /// The attribute planes. They pass through the *snapped* corners, so they agree with the
+    /// coverage: where two triangles of a closed surface meet, a line covered by both crosses
+    /// them in the order the snapped (still closed) surface dictates; planes through the
+    /// unsnapped corners can swap entry and exit near edges. Computed on demand: coverage
+    /// alone (analysis, counting) does not need them.
+    pub fn planes(&self) -> Planes {
+        let p = self.grid_corners;
+        let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
+        // Non-zero: the snapped area was checked at setup (and is exact in f32 for sane sizes).
+        let inv = 1.0 / (e1.x * e2.y - e1.y * e2.x);
+        let plane = |v: [f32; 3]| {
+            let (d1, d2) = (v[1] - v[0], v[2] - v[0]);
+            let cx = (d1 * e2.y - d2 * e1.y) * inv;
+            let cy = (d2 * e1.x - d1 * e2.x) * inv;
+            [cx, cy, v[0] - cx * p[0].x - cy * p[0].y]
+        };
+        Planes { bary_u: plane([0.0, 1.0, 0.0]), bary_v: plane([0.0, 0.0, 1.0]), depth: plane(self.corner_depths) }
     }
 }
 
@@ -478,10 +489,11 @@ mod tests {
     fn attributes_interpolate_affinely() {
         let c = [Vec3::new(1.0, 1.0, 2.0), Vec3::new(9.0, 1.0, 4.0), Vec3::new(1.0, 9.0, 6.0)];
         let t = setup(c, 16).unwrap();
-        let (u, v) = t.barycentrics(5.0, 5.0);
+        let planes = t.planes();
+        let (u, v) = planes.barycentrics(5.0, 5.0);
         assert!((u - 0.5).abs() < 1e-5 && (v - 0.5).abs() < 1e-5);
-        assert!((t.depth_at(5.0, 5.0) - 5.0).abs() < 1e-5);
-        let g = t.gradient([10.0, 20.0, 30.0]);
+        assert!((planes.depth_at(5.0, 5.0) - 5.0).abs() < 1e-5);
+        let g = planes.gradient([10.0, 20.0, 30.0]);
         assert!((eval(&g, 1.0, 1.0) - 10.0).abs() < 1e-4);
         assert!((eval(&g, 9.0, 1.0) - 20.0).abs() < 1e-4);
         assert!(t.front_faces_dir);

@@ -2,6 +2,7 @@
 //! depend on the option names and output files.
 
 mod bake;
+mod bench;
 mod options;
 mod probe;
 mod progress;
@@ -53,6 +54,19 @@ enum Command {
         #[command(flatten)]
         options: SceneOptions,
     },
+    /// Measure: unwrap/pack, reference rays/s, startup bake, convergence against Mitsuba and
+    /// Cycles, tiling modes. Writes JSON (medians and ratios from one run).
+    Bench {
+        /// Output JSON.
+        #[arg(long, default_value = "bench.json")]
+        out: PathBuf,
+        /// Only these sections (atlas, reference, startup, convergence, tiling).
+        #[arg(long, value_delimiter = ',')]
+        only: Vec<String>,
+        /// Smaller sample sets and fewer repeats (a smoke run, not a measurement).
+        #[arg(long)]
+        quick: bool,
+    },
 }
 
 /// The scene baked when livebake runs without arguments.
@@ -68,6 +82,7 @@ pub fn run() -> Result<()> {
         None => bake::run(&default_scene(), &PathBuf::from("out"), &SceneOptions::default(), &ui),
         Some(Command::Bake { scene, out, options }) => bake::run(&scene, &out, &options, &ui),
         Some(Command::Probe { scene, points, out, options }) => probe::run(&scene, &points, out.as_deref(), &options, &ui),
+        Some(Command::Bench { out, only, quick }) => bench::run(&out, &only, quick, &ui),
     }
 }
 

@@ -272,18 +272,15 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
     s.candidates = candidates;
 }
 
-/// Triangles whose projection along the frame overlaps the square window.
+/// Triangles whose projection along the frame may overlap the square window: their bounding
+/// spheres' projections do (two dot products per triangle instead of six).
 fn cull_to_window(ctx: &PassContext, frame: &BundleFrame, origin: Vec2, side: f32, out: &mut Vec<u32>) {
     out.clear();
     let hi = origin + Vec2::splat(side);
     for &t in &ctx.all_triangles {
-        let c = ctx.scene.geom.corners[t as usize];
-        let p = c.map(|c| {
-            let f = frame.coords(c);
-            Vec2::new(f.x, f.y)
-        });
-        let (tlo, thi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
-        if thi.x >= origin.x && thi.y >= origin.y && tlo.x <= hi.x && tlo.y <= hi.y {
+        let (c, r) = ctx.scene.spheres[t as usize];
+        let (x, y) = (c.dot(frame.t), c.dot(frame.b));
+        if x + r >= origin.x && y + r >= origin.y && x - r <= hi.x && y - r <= hi.y {
             out.push(t);
         }
     }

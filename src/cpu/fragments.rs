@@ -10,7 +10,7 @@ use glam::Vec2;
 use super::prepared::{NO_GROUP, PreparedScene};
 use crate::atlas::texels::NO_TEXEL;
 use crate::bundle::estimator::{EMITTER_FLAG, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, sort_by_depth};
-use crate::bundle::raster::{BundleFrame, ScreenTriangle, Viewport};
+use crate::bundle::raster::{BundleFrame, Planes, ScreenTriangle, Viewport};
 
 /// A lit side of a triangle in the current viewport: its UV (LOD pixels) as an affine
 /// function of pixel coordinates.
@@ -21,6 +21,7 @@ struct TileSide {
 /// A triangle set up for the current viewport, with its sides looking +ω and −ω.
 struct TileTriangle {
     screen: ScreenTriangle,
+    planes: Planes,
     plus: Option<TileSide>,
     minus: Option<TileSide>,
     emitter: bool,
@@ -40,9 +41,9 @@ pub struct FragmentBuffer {
     pub lost_lookups: u64,
 }
 
-fn tile_side(screen: &ScreenTriangle, uv: [Vec2; 3]) -> TileSide {
-    let gx = screen.gradient([uv[0].x, uv[1].x, uv[2].x]);
-    let gy = screen.gradient([uv[0].y, uv[1].y, uv[2].y]);
+fn tile_side(planes: &Planes, uv: [Vec2; 3]) -> TileSide {
+    let gx = planes.gradient([uv[0].x, uv[1].x, uv[2].x]);
+    let gy = planes.gradient([uv[0].y, uv[1].y, uv[2].y]);
     TileSide { gradient: [Vec2::new(gx[0], gy[0]), Vec2::new(gx[1], gy[1]), Vec2::new(gx[2], gy[2])] }
 }
 
@@ -66,23 +67,26 @@ impl FragmentBuffer {
             };
             let [front, back] = scene.face_uv[t];
             let (plus, minus) = if screen.front_faces_dir { (front, back) } else { (back, front) };
+            let planes = screen.planes();
             self.tris.push(TileTriangle {
-                plus: plus.map(|uv| tile_side(&screen, uv)),
-                minus: minus.map(|uv| tile_side(&screen, uv)),
+                plus: plus.map(|uv| tile_side(&planes, uv)),
+                minus: minus.map(|uv| tile_side(&planes, uv)),
+                planes,
                 emitter: emitter_group.is_some_and(|g| g != NO_GROUP && scene.emitter_group[t] == g),
                 screen,
             });
         }
         let n = viewport.pixels() as usize;
+        // Spans as +1/−1 steps (a difference array), turned into per-pixel counts in `build`:
+        // one write per span end instead of one per fragment.
         self.offsets.clear();
         self.offsets.resize(n + 1, 0);
         let mut total = 0u64;
         for tri in &self.tris {
             tri.screen.for_each_span(|y, x0, x1| {
                 let row = (y * self.width) as usize;
-                for c in &mut self.offsets[row + x0 as usize + 1..row + x1 as usize + 1] {
-                    *c += 1;
-                }
+                self.offsets[row + x0 as usize] = self.offsets[row + x0 as usize].wrapping_add(1);
+                self.offsets[row + x1 as usize] = self.offsets[row + x1 as usize].wrapping_sub(1);
                 total += (x1 - x0) as u64;
             });
         }
@@ -92,8 +96,13 @@ impl FragmentBuffer {
     /// Fills and depth-sorts the fragments counted by [`prepare`](Self::prepare). The caller
     /// has checked the count against the node budget.
     pub fn build(&mut self, scene: &PreparedScene) {
-        for i in 1..self.offsets.len() {
-            self.offsets[i] += self.offsets[i - 1];
+        // Steps → per-pixel counts → exclusive prefix sum: offsets[p] = first fragment of p.
+        let mut running = 0u32;
+        let mut start = 0u32;
+        for o in self.offsets.iter_mut() {
+            running = running.wrapping_add(*o);
+            *o = start;
+            start += running;
         }
         let total = *self.offsets.last().unwrap_or(&0) as usize;
         self.frags.clear();
@@ -115,7 +124,7 @@ impl FragmentBuffer {
                     let at = cursor[p] as usize;
                     cursor[p] += 1;
                     self.frags[at] = Fragment {
-                        depth: s.depth_at(cx, cy),
+                        depth: tri.planes.depth_at(cx, cy),
                         plus: if tri.emitter { plus | EMITTER_FLAG } else { plus },
                         minus: if s.front_faces_dir { minus | FRONT_LOOKS_PLUS } else { minus },
                     };

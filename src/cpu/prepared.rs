@@ -25,6 +25,9 @@ pub struct PreparedScene<'a> {
     /// nearest), else `NO_TEXEL`. A fragment whose UV rounds a hair outside its chart's
     /// covered pixels lands in the gutter ring and still finds its own chart's texel.
     pub texel_lookup: Vec<u32>,
+    /// Per triangle: a bounding sphere (centre, radius), for cheap culling against bundle
+    /// windows along any direction.
+    pub spheres: Vec<(Vec3, f32)>,
     /// Centre and radius of the scene's bounding sphere.
     pub centre: Vec3,
     pub radius: f32,
@@ -60,11 +63,30 @@ impl<'a> PreparedScene<'a> {
             .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
         let centre = (lo + hi) * 0.5;
         let radius = geom.corners.iter().flatten().map(|p| (*p - centre).length()).fold(0.0f32, f32::max).max(1e-6);
+        let spheres = geom
+            .corners
+            .iter()
+            .map(|c| {
+                let m = (c[0].min(c[1]).min(c[2]) + c[0].max(c[1]).max(c[2])) * 0.5;
+                (m, c.iter().map(|p| (*p - m).length()).fold(0.0f32, f32::max))
+            })
+            .collect();
         let coincident_depth = 1e-6 * (radius + centre.abs().max_element());
         let mut texel_lookup = texels.slot.clone();
         for &(pixel, texel) in &texels.gutter {
             texel_lookup[pixel as usize] = texel;
         }
-        PreparedScene { geom, texels, face_uv, importance, emitter_group, texel_lookup, centre, radius, coincident_depth }
+        PreparedScene {
+            geom,
+            texels,
+            face_uv,
+            importance,
+            emitter_group,
+            texel_lookup,
+            spheres,
+            centre,
+            radius,
+            coincident_depth,
+        }
     }
 }

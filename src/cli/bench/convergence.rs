@@ -1,0 +1,210 @@
+//! Convergence against an independent reference on the 2 m Cornell-style room
+//! (`assets/cornell_2m`), at 1.2 cm texels, error measured at 332 surface points against
+//! Mitsuba 3 (`mitsuba_reference.json`, 65 536 spp, made with ../shared/tools/mitsuba_ref):
+//! normalised RMS error √(Σ(E−E_ref)²/ΣE_ref²) with Mitsuba's own variance removed.
+//!
+//! * `whole_command`: wall time of `livebake probe` (load, unwrap, bake, sample) as the
+//!   directions grow, and the time to reach 10%, 5% and 2%, against Blender Cycles on this
+//!   machine (~10 s, ~36 s, ~3 min for such a room; goal: at most 1/20 of that).
+//! * `efficiency`: bake time against error for the bundle bake and for the reference path
+//!   tracer baking the same light map per texel; at equal time the bundle error must be at
+//!   most half the reference's.
+
+use std::path::Path;
+use std::process::Command;
+use std::time::Instant;
+
+use anyhow::{Context, Result, bail};
+use livebake::glam::Vec3;
+use serde_json::{Value, json};
+
+use livebake::bake::{BackendKind, BakeConfig, bake};
+use livebake::probe::{LightmapSampler, SurfaceLocator};
+use livebake::progress::NoProgress;
+use livebake::reference::Bvh;
+use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
+
+use super::{assets, seconds};
+use crate::cli::progress::Ui;
+
+const TEXEL: f32 = 0.012;
+/// Blender Cycles (CPU, 2 threads, this machine) on a 2 m Cornell-style room at ~1.2 cm
+/// texels: seconds to 10%, 5%, 2% relative RMS error (the figures).
+const CYCLES_SECONDS: [(f64, f64); 3] = [(0.10, 10.0), (0.05, 36.0), (0.02, 180.0)];
+
+struct Reference {
+    points: Vec<(Vec3, Vec3)>,
+    e: Vec<[f64; 3]>,
+    stderr: Vec<[f64; 3]>,
+}
+
+fn triple(v: &Value) -> Option<[f64; 3]> {
+    let a = v.as_array()?;
+    Some([a.first()?.as_f64()?, a.get(1)?.as_f64()?, a.get(2)?.as_f64()?])
+}
+
+fn load_reference(path: &Path) -> Result<Reference> {
+    let doc: Value = serde_json::from_str(&std::fs::read_to_string(path)?)?;
+    let mut r = Reference { points: Vec::new(), e: Vec::new(), stderr: Vec::new() };
+    for p in doc["points"].as_array().context("points")? {
+        let (pos, n) = (triple(&p["p"]).context("p")?, triple(&p["n"]).context("n")?);
+        r.points.push((Vec3::new(pos[0] as f32, pos[1] as f32, pos[2] as f32), Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32)));
+        r.e.push(triple(&p["E"]).context("E")?);
+        r.stderr.push(triple(&p["E_stderr"]).context("E_stderr")?);
+    }
+    Ok(r)
+}
+
+impl Reference {
+    /// Normalised RMS error of `e` (per point, `None` = missing) with the reference's
+    /// variance removed in quadrature.
+    fn error(&self, e: &[Option<[f64; 3]>]) -> Result<f64> {
+        let (mut se, mut sr, mut var) = (0.0, 0.0, 0.0);
+        for (k, got) in e.iter().enumerate() {
+            let got = got.with_context(|| format!("no estimate at point {k}"))?;
+            for c in 0..3 {
+                se += (got[c] - self.e[k][c]).powi(2);
+                sr += self.e[k][c].powi(2);
+                var += self.stderr[k][c].powi(2);
+            }
+        }
+        Ok(((se - var).max(0.0) / sr).sqrt())
+    }
+}
+
+/// Time at which a falling error curve crosses `target` (log-log interpolation).
+fn time_to(curve: &[(f64, f64)], target: f64) -> Option<f64> {
+    curve.windows(2).find(|w| w[0].1 >= target && w[1].1 <= target).map(|w| {
+        let ((t0, e0), (t1, e1)) = (w[0], w[1]);
+        if e0 == e1 {
+            return t0;
+        }
+        let f = (target.ln() - e0.ln()) / (e1.ln() - e0.ln());
+        (t0.ln() + f * (t1.ln() - t0.ln())).exp()
+    })
+}
+
+/// Error of a falling curve at time `t` (log-log interpolation; `None` outside it).
+fn error_at(curve: &[(f64, f64)], t: f64) -> Option<f64> {
+    curve.windows(2).find(|w| w[0].0 <= t && t <= w[1].0).map(|w| {
+        let ((t0, e0), (t1, e1)) = (w[0], w[1]);
+        let f = (t.ln() - t0.ln()) / (t1.ln() - t0.ln());
+        (e0.ln() + f * (e1.ln() - e0.ln())).exp()
+    })
+}
+
+fn whole_command(scene: &Path, points: &Path, reference: &Reference, directions: &[u32]) -> Result<Vec<(u32, f64, f64)>> {
+    let exe = std::env::current_exe()?;
+    let out = std::env::temp_dir().join(format!("livebake-bench-probe-{}.json", std::process::id()));
+    let mut curve = Vec::new();
+    for &d in directions {
+        let t = Instant::now();
+        let status = Command::new(&exe)
+            .args(["-q", "probe"])
+            .arg(scene)
+            .arg("--points")
+            .arg(points)
+            .args(["--texel-size", &TEXEL.to_string(), "--samples", &d.to_string(), "--out"])
+            .arg(&out)
+            .status()?;
+        let secs = seconds(t);
+        if !status.success() {
+            bail!("livebake probe exited with {status}");
+        }
+        let doc: Value = serde_json::from_str(&std::fs::read_to_string(&out)?)?;
+        let e: Vec<Option<[f64; 3]>> =
+            doc["points"].as_array().context("points")?.iter().map(|p| triple(&p["E"])).collect();
+        curve.push((d, secs, reference.error(&e)?));
+    }
+    let _ = std::fs::remove_file(&out);
+    Ok(curve)
+}
+
+/// Bakes the light map with `config` and reads it at the reference points.
+fn bake_and_probe(scene: &Scene, config: &BakeConfig, reference: &Reference) -> Result<(f64, f64)> {
+    let t = Instant::now();
+    let baked = bake(scene, config, &NoProgress)?;
+    let secs = seconds(t);
+    let geom = SceneGeometry::new(scene);
+    let bvh = Bvh::new(&geom);
+    let locator = SurfaceLocator::new(&geom, &bvh);
+    let lod = baked.lods.last().context("no LOD")?;
+    let sampler = LightmapSampler::new(&baked.atlas, lod);
+    let e: Vec<Option<[f64; 3]>> = reference
+        .points
+        .iter()
+        .map(|&(p, n)| locator.locate(p, n).and_then(|at| sampler.irradiance(&at)).ok().map(|e| e.as_dvec3().to_array()))
+        .collect();
+    Ok((secs, reference.error(&e)?))
+}
+
+pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
+    let dir = assets().join("cornell_2m");
+    let (scene_path, points_path) = (dir.join("cornell_2m.gltf"), dir.join("points.json"));
+    let reference = load_reference(&dir.join("mitsuba_reference.json"))?;
+    let directions: &[u32] = if quick { &[32, 128, 512] } else { &[16, 32, 64, 128, 256, 512, 1024, 2048] };
+    let spps: &[u32] = if quick { &[1, 4] } else { &[1, 2, 4, 8, 16, 32] };
+
+    ui.say("  whole command (livebake probe) ...");
+    let cmd = whole_command(&scene_path, &points_path, &reference, directions)?;
+    let cmd_curve: Vec<(f64, f64)> = cmd.iter().map(|&(_, t, e)| (t, e)).collect();
+    let targets: Vec<Value> = CYCLES_SECONDS
+        .iter()
+        .map(|&(err, cycles)| {
+            let ours = time_to(&cmd_curve, err);
+            json!({ "error": err, "seconds": ours, "cycles_seconds": cycles, "speedup_vs_cycles": ours.map(|t| cycles / t), "goal_speedup": 20.0 })
+        })
+        .collect();
+
+    ui.say("  bundle and reference bakes ...");
+    let scene = load_gltf(&scene_path, &LoadOptions::default())?;
+    let mut base = BakeConfig::default();
+    base.atlas.texel_size = Some(TEXEL);
+    let mut bundle = Vec::new();
+    for &d in directions {
+        let (t, e) = bake_and_probe(&scene, &BakeConfig { samples: d, ..base.clone() }, &reference)?;
+        bundle.push((d, t, e));
+    }
+    let mut traced = Vec::new();
+    for &spp in spps {
+        let config = BakeConfig { samples: spp, backend: BackendKind::Reference, ..base.clone() };
+        let (t, e) = bake_and_probe(&scene, &config, &reference)?;
+        traced.push((spp, t, e));
+    }
+    let traced_curve: Vec<(f64, f64)> = traced.iter().map(|&(_, t, e)| (t, e)).collect();
+    let equal_time: Vec<Value> = bundle
+        .iter()
+        .filter_map(|&(d, t, e)| {
+            error_at(&traced_curve, t).map(|r| json!({ "directions": d, "seconds": t, "bundle_error": e, "reference_error": r, "ratio": r / e }))
+        })
+        .collect();
+    Ok(json!({
+        "scene": "cornell_2m/cornell_2m.gltf",
+        "texel_size_m": TEXEL,
+        "points": reference.points.len(),
+        "whole_command": cmd.iter().map(|&(d, t, e)| json!({ "directions": d, "seconds": t, "error": e })).collect::<Vec<_>>(),
+        "time_to_error": targets,
+        "efficiency": {
+            "bundle_bake": bundle.iter().map(|&(d, t, e)| json!({ "directions": d, "seconds": t, "error": e })).collect::<Vec<_>>(),
+            "reference_bake": traced.iter().map(|&(s, t, e)| json!({ "paths_per_texel": s, "seconds": t, "error": e })).collect::<Vec<_>>(),
+            "at_equal_time": equal_time,
+            "goal_ratio": 2.0,
+        },
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn interpolation_is_log_log() {
+        let c = [(1.0, 0.1), (4.0, 0.05), (16.0, 0.025)];
+        assert!((time_to(&c, 0.05).unwrap() - 4.0).abs() < 1e-9);
+        // Halfway in log error between 0.1 and 0.05 is halfway in log time: 2 s.
+        assert!((time_to(&c, (0.1f64 * 0.05).sqrt()).unwrap() - 2.0).abs() < 1e-9);
+        assert_eq!(time_to(&c, 0.01), None);
+        assert!((error_at(&c, 2.0).unwrap() - (0.1f64 * 0.05).sqrt()).abs() < 1e-12);
+        assert_eq!(error_at(&c, 20.0), None);
+    }
+}

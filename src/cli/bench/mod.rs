@@ -1,0 +1,69 @@
+//! `livebake bench`: the measurements the issues ask for, written as JSON. Medians and
+//! ratios are measured side by side in one run; nothing here is a pass/fail test.
+
+mod atlas;
+mod convergence;
+mod reference;
+mod startup;
+mod tiling;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use serde_json::{Value, json};
+
+use super::progress::Ui;
+
+/// Embree's incoherent rays/s per core on this kind of machine: the anchor of the issues'
+/// throughput targets.
+pub const EMBREE_RAYS_PER_CORE: f64 = 2.3e6;
+
+pub fn assets() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/assets"))
+}
+
+/// One bench: `quick` trades precision for time (smaller sample sets, fewer repeats).
+type Bench = fn(bool, &Ui) -> Result<Value>;
+
+/// The benches, in the order they run.
+pub const SECTIONS: [(&str, Bench); 5] = [
+    ("atlas", atlas::run),
+    ("reference", reference::run),
+    ("startup", startup::run),
+    ("convergence", convergence::run),
+    ("tiling", tiling::run),
+];
+
+/// Runs `f` `runs` times and returns the median of its results (seconds or rates).
+pub fn median(runs: usize, mut f: impl FnMut() -> Result<f64>) -> Result<f64> {
+    let mut v = (0..runs.max(1)).map(|_| f()).collect::<Result<Vec<f64>>>()?;
+    v.sort_by(f64::total_cmp);
+    Ok(v[v.len() / 2])
+}
+
+pub fn seconds(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64()
+}
+
+pub fn run(out: &Path, only: &[String], quick: bool, ui: &Ui) -> Result<()> {
+    let mut report = json!({
+        "livebake_version": env!("CARGO_PKG_VERSION"),
+        "threads": std::thread::available_parallelism().map_or(1, |n| n.get()),
+        "quick": quick,
+    });
+    for (section, bench) in SECTIONS {
+        if !only.is_empty() && !only.iter().any(|s| s == section) {
+            continue;
+        }
+        ui.say(format!("bench {section} ..."));
+        let t = Instant::now();
+        let value = bench(quick, ui).with_context(|| format!("bench {section}"))?;
+        ui.say(format!("  {}", serde_json::to_string(&value)?));
+        ui.say(format!("  ({:.1} s)", seconds(t)));
+        report[section] = value;
+    }
+    livebake::output::write_json(out, &report).with_context(|| format!("cannot write {}", out.display()))?;
+    ui.say(format!("wrote {}", out.display()));
+    Ok(())
+}
