@@ -167,11 +167,8 @@ fn cornell_box_loads_with_its_known_facts() {
             .iter()
             .all(|n| ["bloc", "suzanne", "cornellBox", "BJS-3D-logo_red01.000"].iter().any(|p| n.starts_with(p)))
     );
-    assert!(
-        s.stats.warnings.iter().any(|w| w.starts_with("15 primitive(s) have no TEXCOORD_1")),
-        "{:?}",
-        s.stats.warnings
-    );
+    // A missing TEXCOORD_1 is normal (the atlas unwraps those meshes): no warning.
+    assert!(s.stats.warnings.iter().all(|w| !w.contains("TEXCOORD_1")), "{:?}", s.stats.warnings);
     assert!(s.meshes.iter().all(|m| m.uv0.as_ref().is_some_and(|u| u.len() == m.positions.len())));
     assert!(s.meshes.iter().all(|m| m.normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-5)));
 }

@@ -12,7 +12,6 @@ pub(super) enum Kind {
     BadNormals,
     BadTexcoord0,
     BadTexcoord1,
-    MissingTexcoord1,
     TrailingIndices,
     TexCoordSet,
     UnnormalizedRotation,
@@ -42,9 +41,6 @@ impl Kind {
             Kind::BadTexcoord1 => format!(
                 "{count} primitive(s) have non-finite TEXCOORD_1 values: their TEXCOORD_1 is ignored (light-map UVs will be generated)"
             ),
-            Kind::MissingTexcoord1 => {
-                format!("{count} primitive(s) have no TEXCOORD_1 (light-map UVs will be generated)")
-            }
             Kind::TrailingIndices => {
                 format!("{count} trailing index/vertex value(s) that do not make a whole triangle were ignored")
             }

@@ -288,10 +288,10 @@ fn read_uv0(ctx: &Ctx, diag: &mut Diagnostics, inst: &Instance, n: usize) -> Res
     Ok(Some(uv))
 }
 
-/// TEXCOORD_1 (light-map UV candidates): missing or non-finite → `None` (warned).
+/// TEXCOORD_1 (light-map UV candidates): missing → `None` (normal: most files have none,
+/// and the atlas reports how many meshes it unwrapped); non-finite → `None` (warned).
 fn read_uv1(ctx: &Ctx, diag: &mut Diagnostics, inst: &Instance, n: usize) -> Result<Option<Vec<Vec2>>, LoadError> {
     let Some(acc) = attribute(inst.prim, Semantic::TexCoords(1)) else {
-        diag.note(Kind::MissingTexcoord1, 1, || inst.name.clone());
         return Ok(None);
     };
     let uv = accessor::read_vec2(ctx, acc, &format!("TEXCOORD_1 of '{}'", inst.name))?;
