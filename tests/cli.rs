@@ -181,6 +181,7 @@ fn probe_points(dir: &Path) -> PathBuf {
         { "p": [1.0, 3.0, 1.0], "n": [0.0, -1.0, 0.0], "name": "ceiling" },
         { "p": [-2.0, 1.5, 0.5], "n": [1.0, 0.0, 0.0], "name": "red wall" },
         { "p": [0.0, 2.5, 1.0], "n": [0.0, 1.0, 0.0], "name": "mid-air" },
+        { "p": [-2.0, 1.5, 0.5], "n": [-1.0, 0.0, 0.0], "name": "behind the single-sided red wall" },
     ]});
     let path = dir.join("points.json");
     std::fs::write(&path, serde_json::to_vec_pretty(&points).unwrap()).unwrap();
@@ -191,7 +192,7 @@ fn probe_points(dir: &Path) -> PathBuf {
 /// fields are kept.
 fn probe_results(doc: &Value) -> Vec<Option<[f64; 3]>> {
     let list = doc["points"].as_array().expect("points");
-    assert_eq!(list.len(), 4);
+    assert_eq!(list.len(), 5);
     list.iter()
         .map(|p| {
             assert!(p["name"].is_string() && p["p"].is_array() && p["n"].is_array(), "input fields kept: {p}");
@@ -224,6 +225,7 @@ fn probe_reports_irradiance_on_surfaces_and_errors_in_mid_air() {
     let doc: Value = serde_json::from_str(&stdout).unwrap_or_else(|e| panic!("stdout is not JSON ({e}):\n{stdout}"));
     let reference = probe_results(&doc);
     assert!(doc["points"][3]["error"].as_str().unwrap().contains("no surface"), "{}", doc["points"][3]);
+    assert!(doc["points"][4]["error"].as_str().unwrap().contains("single-sided"), "{}", doc["points"][4]);
 
     // Default backend (cpu bake, then light-map reads), written to a file.
     let out = tmp.path().join("probed.json");
@@ -235,6 +237,7 @@ fn probe_reports_irradiance_on_surfaces_and_errors_in_mid_air() {
     let doc = read_json(&out);
     let cpu = probe_results(&doc);
     assert!(doc["points"][3]["error"].as_str().unwrap().contains("no surface"), "{}", doc["points"][3]);
+    assert!(doc["points"][4]["error"].as_str().unwrap().contains("single-sided"), "{}", doc["points"][4]);
 
     for (i, (r, c)) in reference.iter().zip(&cpu).enumerate().take(3) {
         let (r, c) = (r.expect("reference E"), c.expect("cpu E"));

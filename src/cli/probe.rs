@@ -75,8 +75,15 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
         Backend::Reference => {
             let tracer = ReferenceTracer::new(&scene).with_threads(config.threads);
             let locator = SurfaceLocator::new(tracer.geometry(), tracer.bvh());
+            let geom = tracer.geometry();
+            // The back of a single-sided surface is the inside of closed geometry: reported
+            // as an error, as the light-map backends do (they have no texels there).
+            let lit_side = |at: SurfacePoint| {
+                let material = &scene.materials[geom.material[at.tri as usize] as usize];
+                if material.has_side(at.side) { Ok(at) } else { Err(ProbeError::BackOfSingleSided) }
+            };
             let located: Vec<Result<SurfacePoint, ProbeError>> =
-                queries.iter().map(|q| locator.locate(q.p, q.n)).collect();
+                queries.iter().map(|q| locator.locate(q.p, q.n).and_then(lit_side)).collect();
             // Trace at the given point, over the hemisphere of the given normal (as the
             // Mitsuba cross-check tool does); points on no surface are reported, not traced.
             let ok: Vec<(Vec3, Vec3)> = queries
