@@ -24,6 +24,7 @@
 //!   largest deviation 4.8σ, noise ratio 0.96–1.06, mean errors within 2.4σ.
 
 use glam::{DVec3, Quat, Vec3};
+use livebake::analytic::polygon_irradiance;
 use livebake::atlas::AtlasConfig;
 use livebake::bake::{BackendKind, BakeConfig, BakeOutput, bake};
 use livebake::progress::NoProgress;
@@ -167,27 +168,6 @@ fn assert_noisy(
     }
     eprintln!("{what}: {report:?}");
     report
-}
-
-/// Irradiance at `p` (unit normal `n`) from a planar Lambertian polygon of radiance `le`
-/// lying entirely above p's horizon (Lambert's formula):
-///
-///   E = (Le/2) · |Σᵢ γᵢ · n·(Rᵢ × Rᵢ₊₁) / |Rᵢ × Rᵢ₊₁||
-///
-/// with Rᵢ the unit vectors from p to the vertices and γᵢ = acos(Rᵢ·Rᵢ₊₁) the angle each
-/// edge subtends. (The sum is the vector form factor: each edge contributes the angle it
-/// subtends times the cosine of its plane with n.) In f64.
-fn lambert_polygon(p: Vec3, n: Vec3, poly: &[Vec3], le: Rgb) -> Rgb {
-    let (p, n) = (p.as_dvec3(), n.as_dvec3());
-    let r: Vec<DVec3> = poly.iter().map(|v| (v.as_dvec3() - p).normalize()).collect();
-    let mut sum = 0.0;
-    for i in 0..r.len() {
-        let (a, b) = (r[i], r[(i + 1) % r.len()]);
-        let c = a.cross(b);
-        let gamma = a.dot(b).clamp(-1.0, 1.0).acos();
-        sum += gamma * n.dot(c / c.length());
-    }
-    (le.as_dvec3() * (0.5 * sum.abs())).as_vec3()
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -424,7 +404,7 @@ fn floor_under_an_emissive_quad_matches_lamberts_polygon_formula() {
     let floor = texels_of_mesh(&scene, &out, 0);
     let lod = &out.lods[0];
     let exact: Vec<Rgb> =
-        floor.iter().map(|&i| lambert_polygon(lod.texels.position[i], lod.texels.normal[i], &emitter, le)).collect();
+        floor.iter().map(|&i| polygon_irradiance(lod.texels.position[i], lod.texels.normal[i], &emitter, le)).collect();
     // The formula spans a wide range over the floor: the check covers bright and dim texels.
     let (lo, hi) = exact.iter().fold((f32::MAX, 0f32), |(lo, hi), e| (lo.min(e.x), hi.max(e.x)));
     assert!(hi > 4.0 * lo, "exact E from {lo} to {hi}");

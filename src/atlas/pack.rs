@@ -169,14 +169,6 @@ mod tests {
     use super::*;
     use crate::atlas::raster::{PixelRect, conservative_pixels};
 
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f64 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (self.0 >> 11) as f64 / (1u64 << 53) as f64
-        }
-    }
-
     #[test]
     fn placement_offsets() {
         // Integer extent: aligned to the pixel grid, no extra column.
@@ -200,15 +192,15 @@ mod tests {
     /// interior.
     #[test]
     fn placed_charts_touch_only_their_interior_at_every_lod() {
-        let mut r = Lcg(3);
+        let mut r = crate::sampling::Rng::new(3, 0);
         for i in 0..3000 {
             let e = match i % 4 {
-                0 => DVec2::new((r.next() * 50.0).round(), (r.next() * 9.0).round()) + DVec2::splat(r.next() * 2e-5 - 1e-5).max(DVec2::ZERO),
-                1 => DVec2::new(r.next() * 0.8, r.next() * 3.0),
-                _ => DVec2::new(r.next() * 40.0, r.next() * 12.0),
+                0 => DVec2::new((r.next_f64() * 50.0).round(), (r.next_f64() * 9.0).round()) + DVec2::splat(r.next_f64() * 2e-5 - 1e-5).max(DVec2::ZERO),
+                1 => DVec2::new(r.next_f64() * 0.8, r.next_f64() * 3.0),
+                _ => DVec2::new(r.next_f64() * 40.0, r.next_f64() * 12.0),
             };
             let p = place_free(e).unwrap();
-            let rect_min = DVec2::new((r.next() * 100.0).floor(), (r.next() * 100.0).floor());
+            let rect_min = DVec2::new((r.next_f64() * 100.0).floor(), (r.next_f64() * 100.0).floor());
             let o = rect_min + p.offset;
             // Two triangles spanning the chart's bounding box (the worst case for coverage).
             let q = [o, o + DVec2::new(e.x, 0.0), o + e, o + DVec2::new(0.0, e.y)];
@@ -241,13 +233,13 @@ mod tests {
 
     #[test]
     fn skyline_rectangles_are_disjoint_inside_and_deterministic() {
-        let mut r = Lcg(11);
+        let mut r = crate::sampling::Rng::new(11, 0);
         let sizes: Vec<(u32, u32)> = (0..3000)
             .map(|i| {
                 if i % 10 == 0 {
-                    (3 + (r.next() * 60.0) as u32, 3 + (r.next() * 40.0) as u32)
+                    (3 + (r.next_f64() * 60.0) as u32, 3 + (r.next_f64() * 40.0) as u32)
                 } else {
-                    (3 + (r.next() * 6.0) as u32, 3 + (r.next() * 6.0) as u32)
+                    (3 + (r.next_f64() * 6.0) as u32, 3 + (r.next_f64() * 6.0) as u32)
                 }
             })
             .collect();

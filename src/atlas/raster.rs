@@ -302,14 +302,6 @@ mod tests {
         true
     }
 
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f64 {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (self.0 >> 11) as f64 / (1u64 << 53) as f64
-        }
-    }
-
     #[test]
     fn integer_floor_and_ceil() {
         for x in [-2.5, -2.0, -0.1, 0.0, 0.3, 1.0, 7.999, 1e12] {
@@ -340,11 +332,11 @@ mod tests {
 
     #[test]
     fn matches_exact_triangle_box_test_on_random_triangles() {
-        let mut r = Lcg(7);
+        let mut r = crate::sampling::Rng::new(7, 0);
         let b = PixelRect::new(-2, -2, 40, 40);
         for i in 0..2000 {
             let scale = if i % 3 == 0 { 2.0 } else { 30.0 };
-            let mut t = [0; 3].map(|_| DVec2::new(r.next() * scale, r.next() * scale));
+            let mut t = [0; 3].map(|_| DVec2::new(r.next_f64() * scale, r.next_f64() * scale));
             if i % 5 == 0 {
                 // Sliver: third corner almost on the first edge.
                 t[2] = t[0] + (t[1] - t[0]) * 0.37 + (t[1] - t[0]).perp() * 1e-5;

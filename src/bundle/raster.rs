@@ -136,27 +136,21 @@ trait SpanInt:
     fn to_u32(self) -> u32;
 }
 
-impl SpanInt for i64 {
-    #[inline]
-    fn floor_div(self, d: Self) -> Self {
-        self.div_euclid(d)
-    }
-    #[inline]
-    fn to_u32(self) -> u32 {
-        self as u32
-    }
+macro_rules! span_int {
+    ($($t:ty),*) => {$(
+        impl SpanInt for $t {
+            #[inline]
+            fn floor_div(self, d: Self) -> Self {
+                self.div_euclid(d)
+            }
+            #[inline]
+            fn to_u32(self) -> u32 {
+                self as u32
+            }
+        }
+    )*};
 }
-
-impl SpanInt for i128 {
-    #[inline]
-    fn floor_div(self, d: Self) -> Self {
-        self.div_euclid(d)
-    }
-    #[inline]
-    fn to_u32(self) -> u32 {
-        self as u32
-    }
-}
+span_int!(i64, i128);
 
 /// Barycentric weights of the *original* corners 1 and 2 and the depth, as affine
 /// functions of continuous *grid* pixel coordinates: f(x, y) = c[0]·x + c[1]·y + c[2].
