@@ -252,7 +252,7 @@ impl Atlas {
                 match uv1::validate(mesh, geom, &tris, texel, max) {
                     Ok(block) => {
                         stats.meshes_from_uv1 += 1;
-                        local = Some((ChartSource::Uv1, vec![block.chart(mesh, geom, &tris)]));
+                        local = Some((ChartSource::Uv1, block.charts(mesh, geom, &tris)));
                     }
                     Err(reason) => {
                         tracing::warn!(mesh = %mesh.name, "TEXCOORD_1 not used as light-map UVs: {reason}; unwrapping instead");

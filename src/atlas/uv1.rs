@@ -1,16 +1,18 @@
-//! TEXCOORD_1 as light-map UVs: validation and the block chart it becomes.
+//! TEXCOORD_1 as light-map UVs: validation and the charts it becomes.
 //!
 //! A mesh's TEXCOORD_1 is kept only if, at the resolution the atlas would give it —
 //! `s = ⌈√(world area / UV area) / texel_size⌉` LOD-0 texels for the unit square — it is a
-//! layout the atlas can use as is:
+//! valid light-map layout:
 //! - every used coordinate is finite and inside [0, 1], every UV triangle has area;
 //! - its UV islands (triangles connected by shared UV edges that are also shared in 3-D)
-//!   do not overlap and stay apart by the same gutter the packer leaves between charts:
-//!   each island's conservative coverage plus a one-texel ring must not meet another's;
+//!   do not overlap at that resolution (no pixel touched by two islands);
 //! - no two triangles contain the same texel centre (folds, overlaps inside an island).
 //!
-//! The kept layout becomes one block per side, cropped to the pixels it uses and placed
-//! by the packer at an integer offset, so the validated pixel grid is the atlas's LOD-0 grid.
+//! Each island of a kept layout becomes one chart, cropped to the pixels it touches and
+//! placed by the packer at an integer offset: its shape, scale and pixel grid are the
+//! layout's, its place in the atlas is the packer's. Islands therefore get the packer's
+//! gutters whatever spacing the layout had (exporters size gutters for their own
+//! resolution), and the empty space between them in the [0, 1] square is not kept.
 
 use glam::DVec2;
 
@@ -20,35 +22,68 @@ use crate::scene::{Mesh, SceneGeometry, TriangleId};
 
 const NONE: u32 = u32::MAX;
 
-/// A validated TEXCOORD_1 layout, ready to become a block chart.
+/// A validated TEXCOORD_1 layout, ready to become one chart per island.
 #[derive(Clone, Debug)]
 pub struct Uv1Block {
     /// LOD-0 texels per unit of TEXCOORD_1.
     pub scale: u32,
-    /// First pixel (at `scale`) of the crop the layout uses, and its size.
-    pub crop_min: (u32, u32),
-    pub crop_size: (u32, u32),
-    /// Number of UV islands found.
-    pub islands: usize,
+    /// Per triangle (in the order validated): its island.
+    pub island_of: Vec<u32>,
+    /// Per island: the pixels (at `scale`) it touches.
+    pub crops: Vec<PixelRect>,
 }
 
 impl Uv1Block {
-    /// The block as a chart: local UVs `uv1 · scale − crop_min`, in LOD-0 texels.
-    pub fn chart(&self, mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId]) -> LocalChart {
+    pub fn islands(&self) -> usize {
+        self.crops.len()
+    }
+
+    /// One chart per island: local UVs `uv1 · scale − crop corner`, in LOD-0 texels.
+    pub fn charts(&self, mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId]) -> Vec<LocalChart> {
         let uv1 = mesh.uv1.as_deref().unwrap_or(&[]);
         let s = self.scale as f64;
-        let o = DVec2::new(self.crop_min.0 as f64, self.crop_min.1 as f64);
-        let uv = tris
+        self.crops
             .iter()
-            .map(|&t| mesh.triangles[geom.local[t as usize] as usize].map(|v| uv1[v as usize].as_dvec2() * s - o))
-            .collect();
-        LocalChart {
-            tris: tris.to_vec(),
-            uv,
-            extent: DVec2::new(self.crop_size.0 as f64, self.crop_size.1 as f64),
-            fixed_interior: Some(self.crop_size),
+            .enumerate()
+            .map(|(i, crop)| {
+                let o = DVec2::new(crop.x0 as f64, crop.y0 as f64);
+                let mine: Vec<TriangleId> =
+                    tris.iter().zip(&self.island_of).filter(|&(_, &k)| k == i as u32).map(|(&t, _)| t).collect();
+                let uv = mine
+                    .iter()
+                    .map(|&t| mesh.triangles[geom.local[t as usize] as usize].map(|v| uv1[v as usize].as_dvec2() * s - o))
+                    .collect();
+                let size = (crop.width() as u32, crop.height() as u32);
+                LocalChart {
+                    tris: mine,
+                    uv,
+                    extent: DVec2::new(size.0 as f64, size.1 as f64),
+                    fixed_interior: Some(size),
+                }
+            })
+            .collect()
+    }
+}
+
+/// The pixels (at scale `s`) that triangles with corners `scaled` can touch: their bounding
+/// box rounded out, at least one pixel wide, clamped to the unit square's `s × s`.
+fn crop_of<'a>(scaled: impl Iterator<Item = &'a [DVec2; 3]>, s: u32) -> PixelRect {
+    let (mut lo, mut hi) = (DVec2::INFINITY, DVec2::NEG_INFINITY);
+    for t in scaled {
+        for p in t {
+            lo = lo.min(*p);
+            hi = hi.max(*p);
         }
     }
+    let clamp = |v: f64| (v as i64).clamp(0, s as i64);
+    let (mut x0, mut y0, mut x1, mut y1) = (clamp(lo.x.floor()), clamp(lo.y.floor()), clamp(hi.x.ceil()), clamp(hi.y.ceil()));
+    if x1 <= x0 {
+        (x0, x1) = if x0 > 0 { (x0 - 1, x0) } else { (0, 1) };
+    }
+    if y1 <= y0 {
+        (y0, y1) = if y0 > 0 { (y0 - 1, y0) } else { (0, 1) };
+    }
+    PixelRect::new(x0, y0, x1, y1)
 }
 
 /// Checks `mesh`'s TEXCOORD_1 over its lit triangles `tris` (global ids) for an atlas of
@@ -92,22 +127,7 @@ pub fn validate(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_si
     let scaled: Vec<[DVec2; 3]> = tris.iter().map(|&t| corners(t).map(|v| uv1[v as usize].as_dvec2() * s)).collect();
 
     // The crop: every pixel any triangle can touch.
-    let (mut lo, mut hi) = (DVec2::INFINITY, DVec2::NEG_INFINITY);
-    for t in &scaled {
-        for p in t {
-            lo = lo.min(*p);
-            hi = hi.max(*p);
-        }
-    }
-    let clamp = |v: f64| (v as i64).clamp(0, s_u as i64);
-    let (mut x0, mut y0, mut x1, mut y1) = (clamp(lo.x.floor()), clamp(lo.y.floor()), clamp(hi.x.ceil()), clamp(hi.y.ceil()));
-    if x1 <= x0 {
-        (x0, x1) = if x0 > 0 { (x0 - 1, x0) } else { (0, 1) };
-    }
-    if y1 <= y0 {
-        (y0, y1) = if y0 > 0 { (y0 - 1, y0) } else { (0, 1) };
-    }
-    let crop = PixelRect::new(x0, y0, x1, y1);
+    let crop = crop_of(scaled.iter(), s_u);
     if crop.width() > max_size as i64 || crop.height() > max_size as i64 {
         return Err(format!(
             "TEXCOORD_1 layout would be {}×{} texels ({s_u}×{s_u} for the unit square), above the limit of {max_size}",
@@ -178,8 +198,8 @@ pub fn validate(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_si
         islands += 1;
     }
 
-    // Conservative coverage per island; islands must not share a pixel, and their
-    // coverage + one-texel rings must not meet (Chebyshev distance ≥ 3 between coverages).
+    // Conservative coverage per island: islands must not share a pixel (the packer gives each
+    // its own gutter, so how close they are does not matter).
     owner.fill(NONE);
     for (k, t) in scaled.iter().enumerate() {
         let i = island[k];
@@ -195,32 +215,10 @@ pub fn validate(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_si
             return Err(format!("TEXCOORD_1 islands {j} and {i} overlap (texel ({x}, {y}) at {s_u}×{s_u})"));
         }
     }
-    for y in crop.y0..crop.y1 {
-        for x in crop.x0..crop.x1 {
-            let i = owner[idx(x, y)];
-            if i == NONE {
-                continue;
-            }
-            for yy in (y - 2).max(crop.y0)..(y + 3).min(crop.y1) {
-                for xx in (x - 2).max(crop.x0)..(x + 3).min(crop.x1) {
-                    let j = owner[idx(xx, yy)];
-                    if j != NONE && j != i {
-                        return Err(format!(
-                            "TEXCOORD_1 islands {} and {} are closer than the 2-texel gutter at {s_u}×{s_u} (texels ({x}, {y}) and ({xx}, {yy}))",
-                            i.min(j),
-                            i.max(j)
-                        ));
-                    }
-                }
-            }
-        }
-    }
-    Ok(Uv1Block {
-        scale: s_u,
-        crop_min: (x0 as u32, y0 as u32),
-        crop_size: (cw as u32, ch as u32),
-        islands: islands as usize,
-    })
+    let crops = (0..islands)
+        .map(|i| crop_of(scaled.iter().zip(&island).filter(|&(_, &k)| k == i).map(|(t, _)| t), s_u))
+        .collect();
+    Ok(Uv1Block { scale: s_u, island_of: island, crops })
 }
 
 #[cfg(test)]
@@ -287,17 +285,27 @@ mod tests {
             let a = build(&s, &config(0.05));
             assert_eq!((a.stats.meshes_from_uv1, a.stats.meshes_unwrapped), (1, 0));
             assert!(a.stats.uv1_rejected.is_empty());
-            assert_eq!(a.charts.len(), if double_sided { 2 } else { 1 });
+            // One chart per island (and per side).
+            assert_eq!(a.charts.len(), if double_sided { 4 } else { 2 });
             if double_sided {
-                assert_eq!((a.charts[0].side, a.charts[1].side), (Side::Front, Side::Back));
+                assert_eq!(a.charts.iter().filter(|c| c.side == Side::Back).count(), 2);
             }
             assert_affine_image_of_uv1(&s, &a);
-            // s = ⌈√(3 m² / 0.27) / 0.05⌉ = 67 texels for the unit square: the islands span
-            // 0.05..1.0 × 0.05..0.35 of it, i.e. pixels 3..67 × 3..24 (cropped, 1-texel border).
-            let c = &a.charts[0];
-            assert_eq!((c.rect_size.0 - 2, c.rect_size.1 - 2), (64, 21));
+            // s = ⌈√(3 m² / 0.27) / 0.05⌉ = 67 texels for the unit square: island a spans
+            // 0.05..0.65 × 0.05..0.35 (pixels 3..44 × 3..24), island b 0.7..1.0 × 0.05..0.35
+            // (pixels 46..67 × 3..24); each is cropped and gets a 1-texel border.
+            let mut sizes: Vec<(u32, u32)> = a.charts.iter().map(|c| (c.rect_size.0 - 2, c.rect_size.1 - 2)).collect();
+            sizes.sort_unstable();
+            sizes.dedup();
+            assert_eq!(sizes, vec![(21, 21), (41, 21)]);
             crate::atlas::tests::check_pub(&s, &a, 2, true);
         }
+        // Islands closer than the packer's gutter are fine: each gets its own.
+        let s = two_islands((0.05, 0.05, 0.3), (0.66, 0.05, 0.3), false);
+        let a = build(&s, &config(0.05));
+        assert_eq!(a.stats.meshes_from_uv1, 1, "{:?}", a.stats.uv1_rejected);
+        assert_affine_image_of_uv1(&s, &a);
+        crate::atlas::tests::check_pub(&s, &a, 2, true);
     }
 
     #[test]
@@ -305,7 +313,6 @@ mod tests {
         let cases = [
             ("overlap", two_islands((0.05, 0.05, 0.3), (0.5, 0.05, 0.3), false)),
             ("outside [0,1]", two_islands((0.05, 0.05, 0.3), (0.8, 0.05, 0.3), false)),
-            ("closer than the 2-texel gutter", two_islands((0.05, 0.05, 0.3), (0.66, 0.05, 0.3), false)),
         ];
         for (why, s) in cases {
             let a = build(&s, &config(0.05));
@@ -317,10 +324,6 @@ mod tests {
             assert!(a.charts.iter().all(|c| c.source == ChartSource::Unwrapped));
             crate::atlas::tests::check_pub(&s, &a, 1, true);
         }
-        // Gutter of 0.01 UV: 0.67 texel at 5 cm texels (refused), 17 texels at 2 mm (kept).
-        let s = two_islands((0.05, 0.05, 0.3), (0.66, 0.05, 0.3), false);
-        let a = build(&s, &config(0.002));
-        assert_eq!(a.stats.meshes_from_uv1, 1, "{:?}", a.stats.uv1_rejected);
     }
 
     #[test]
