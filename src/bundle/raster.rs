@@ -259,6 +259,12 @@ impl ScreenTriangle {
         })
     }
 
+    /// First and last row of the viewport the triangle may cover.
+    #[inline]
+    pub fn rows(&self) -> (u32, u32) {
+        (self.row_min, self.row_max)
+    }
+
     /// Calls `f(row, x_begin, x_end)` for every row of the viewport with covered pixel
     /// centres, pixels `x_begin..x_end`.
     #[inline]

@@ -13,6 +13,9 @@ pub struct PassStats {
     pub analysis_seconds: f64,
     pub mip_seconds: f64,
     pub subdivision_seconds: f64,
+    /// Build: triangle setup and the exact fragment count (the node-budget check). The CPU
+    /// backend builds per-pixel lists row by row while resolving, so its resolve includes
+    /// building them.
     pub build_seconds: f64,
     pub resolve_seconds: f64,
     pub light_seconds: f64,

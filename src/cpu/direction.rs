@@ -6,7 +6,7 @@ use std::time::Instant;
 use glam::Vec2;
 
 use super::analysis::Analysis;
-use super::fragments::FragmentBuffer;
+use super::fragments::TileFragments;
 use super::prepared::PreparedScene;
 use crate::bundle::estimator::{HitSink, emit, exchange};
 use crate::bundle::mips::MipChain;
@@ -35,7 +35,7 @@ pub struct PassContext<'a> {
 #[derive(Default)]
 pub struct Scratch {
     analysis: Analysis,
-    fragments: FragmentBuffer,
+    fragments: TileFragments,
     candidates: Vec<u32>,
     queue: Vec<Viewport>,
 }
@@ -147,7 +147,6 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
             stats.build_seconds += seconds(t);
             continue;
         }
-        s.fragments.build(ctx.scene);
         stats.build_seconds += seconds(t);
         stats.tiles += 1;
         stats.fragments += count;
@@ -157,7 +156,7 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
         let a_px = vp.pixel_area();
         let sky = ctx.sky;
         let mut sink = BundleHits(&mut sums.bundle);
-        stats.covered_pixels += s.fragments.for_each_pixel(|f| exchange(f, a_px, sky, |t| source[t as usize], &mut sink));
+        stats.covered_pixels += s.fragments.resolve(ctx.scene, |f| exchange(f, a_px, sky, |t| source[t as usize], &mut sink));
         stats.resolve_seconds += seconds(t);
     }
     stats.lost_lookups += std::mem::take(&mut s.fragments.lost_lookups);
@@ -260,14 +259,13 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
         if count > cfg.node_capacity && overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             continue;
         }
-        s.fragments.build(ctx.scene);
         stats.light_tiles += 1;
         stats.light_fragments += count;
         stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
         let a_px = vp.pixel_area();
         let emission = &ctx.scene.texels.emission;
         let mut sink = LightHits(&mut sums.light);
-        s.fragments.for_each_pixel(|f| emit(f, a_px, |t| emission[t as usize], &mut sink));
+        s.fragments.resolve(ctx.scene, |f| emit(f, a_px, |t| emission[t as usize], &mut sink));
     }
     s.candidates = candidates;
 }
