@@ -96,10 +96,11 @@ impl Viewport {
         self.pixel * self.pixel
     }
 
-    /// Continuous pixel coordinates of a frame-space point in the rectangle.
+    /// Continuous pixel coordinates in the grid (not the rectangle) of a point given by
+    /// its frame coordinates along t and b.
     #[inline]
-    pub fn to_pixels(&self, c: Vec2) -> Vec2 {
-        (c - self.origin) / self.pixel - Vec2::new(self.offset.0 as f32, self.offset.1 as f32)
+    pub fn grid_position(&self, c: Vec2) -> Vec2 {
+        (c - self.origin) / self.pixel
     }
 }
 
@@ -202,6 +203,14 @@ pub fn grid_centre(offset: u32, i: u32) -> f32 {
     (i + offset) as f32 + 0.5
 }
 
+/// Twice the signed area of snapped corners `v`, in integer type `I` (i64 when every
+/// coordinate is below 2^30).
+#[inline]
+fn orient<I: SpanInt>(v: &[(i64, i64); 3]) -> I {
+    let d = |a: i64, b: i64| I::from(a) - I::from(b);
+    d(v[1].0, v[0].0) * d(v[2].1, v[0].1) - d(v[2].0, v[0].0) * d(v[1].1, v[0].1)
+}
+
 /// The first and last of pixel centres `0..count` (pixel i has its centre at
 /// (i + 0.5)·SUBPIXEL) between the smallest and largest of snapped coordinates `q`.
 #[inline]
@@ -219,18 +228,28 @@ impl ScreenTriangle {
     /// viewport's rows or columns, or its coordinates are not finite.
     pub fn setup(frame: &BundleFrame, viewport: &Viewport, corners: &[Vec3; 3], normal: Vec3) -> Option<Self> {
         let c = corners.map(|p| frame.coords(p));
-        // Snap in grid coordinates, then move to the rectangle by whole pixels: exact.
-        let p = c.map(|c| (Vec2::new(c.x, c.y) - viewport.origin) / viewport.pixel);
-        if p.iter().any(|q| !q.is_finite()) {
+        let grid = c.map(|c| viewport.grid_position(Vec2::new(c.x, c.y)));
+        Self::setup_in_grid(viewport, grid, c.map(|c| c.z), normal.dot(frame.dir) > 0.0)
+    }
+
+    /// [`setup`](Self::setup) from the corners' positions in the viewport's grid (see
+    /// [`Viewport::grid_position`]) and depths along ω, for callers that need the positions
+    /// too.
+    pub fn setup_in_grid(viewport: &Viewport, grid: [Vec2; 3], depths: [f32; 3], front_faces_dir: bool) -> Option<Self> {
+        if grid.iter().any(|q| !q.is_finite()) {
             return None;
         }
+        // Snap in grid coordinates, then move to the rectangle by whole pixels: exact. (Scaling
+        // by SUBPIXEL and rounding are exact in f32.)
         let (ox, oy) = (viewport.offset.0 as i64 * SUBPIXEL, viewport.offset.1 as i64 * SUBPIXEL);
-        let snap =
-            |q: Vec2| ((q.x as f64 * SUBPIXEL as f64).round() as i64 - ox, (q.y as f64 * SUBPIXEL as f64).round() as i64 - oy);
-        let mut v = p.map(snap);
+        let snap = |q: Vec2| {
+            let s = (q * SUBPIXEL as f32).round();
+            (s.x as i64 - ox, s.y as i64 - oy)
+        };
+        let mut v = grid.map(snap);
         let grid_corners = v.map(|(x, y)| Vec2::new((x + ox) as f32, (y + oy) as f32) / SUBPIXEL as f32);
-        let area2 = (v[1].0 - v[0].0) as i128 * (v[2].1 - v[0].1) as i128
-            - (v[2].0 - v[0].0) as i128 * (v[1].1 - v[0].1) as i128;
+        let narrow = v.iter().all(|q| q.0.abs() < 1 << 30 && q.1.abs() < 1 << 30);
+        let area2 = if narrow { orient::<i64>(&v) as i128 } else { orient::<i128>(&v) };
         if area2 == 0 {
             return None;
         }
@@ -255,10 +274,10 @@ impl ScreenTriangle {
             column_min,
             column_max,
             grid_corners,
-            corner_depths: [c[0].z, c[1].z, c[2].z],
-            front_faces_dir: normal.dot(frame.dir) > 0.0,
+            corner_depths: depths,
+            front_faces_dir,
             width: viewport.width,
-            narrow: v.iter().all(|q| q.0.abs() < 1 << 30 && q.1.abs() < 1 << 30),
+            narrow,
         })
     }
 

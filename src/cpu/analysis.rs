@@ -48,14 +48,14 @@ impl Analysis {
         let bin_side = res as f32 / BINS as f32;
         for (t, corners) in scene.geom.corners.iter().enumerate() {
             let importance = scene.importance[t] * importance_scale;
-            let p = corners.map(|c| {
-                let f = frame.coords(c);
-                viewport.to_pixels(Vec2::new(f.x, f.y))
-            });
+            let c = corners.map(|p| frame.coords(p));
+            // The window's grid starts at its pixel (0, 0): grid and window positions agree.
+            let p = c.map(|c| viewport.grid_position(Vec2::new(c.x, c.y)));
             let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
             self.bin(t as u32, lo / bin_side, hi / bin_side);
             let mut covered = false;
-            if let Some(screen) = ScreenTriangle::setup(frame, viewport, corners, scene.geom.normals[t]) {
+            let front_faces_dir = scene.geom.normals[t].dot(frame.dir) > 0.0;
+            if let Some(screen) = ScreenTriangle::setup_in_grid(viewport, p, c.map(|c| c.z), front_faces_dir) {
                 screen.for_each_span(|y, x0, x1| {
                     let row = (y * res) as usize;
                     for x in x0 as usize..x1 as usize {
