@@ -26,9 +26,6 @@ pub struct PassContext<'a> {
     pub sky: Rgb,
     /// Light-pass bundle pixel side, metres.
     pub light_pixel: f32,
-    /// Per triangle: its corners' frame coordinates are recomputed per light direction;
-    /// this is the list of all triangles, the light pass's candidates before culling.
-    pub all_triangles: Vec<u32>,
 }
 
 /// Per-lane scratch buffers, reused across directions.
@@ -37,6 +34,8 @@ pub struct Scratch {
     analysis: Analysis,
     fragments: TileFragments,
     candidates: Vec<u32>,
+    /// Traversal stack of the triangles' sphere tree.
+    spheres: Vec<u32>,
     queue: Vec<Viewport>,
 }
 
@@ -245,7 +244,8 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
     let res = (extent / pixel).ceil().max(1.0) as u32;
     let per_side = res.div_ceil(cfg.head_side);
     let tile_res = res.div_ceil(per_side);
-    cull_to_window(ctx, &frame, origin, tile_res as f32 * per_side as f32 * pixel, &mut s.candidates);
+    let side = tile_res as f32 * per_side as f32 * pixel;
+    ctx.scene.spheres.overlapping(&frame, origin, side, &mut s.spheres, &mut s.candidates);
     let candidates = std::mem::take(&mut s.candidates);
     s.queue.clear();
     for ty in (0..per_side).rev() {
@@ -268,18 +268,4 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
         s.fragments.resolve(ctx.scene, |f| emit(f, a_px, |t| emission[t as usize], &mut sink));
     }
     s.candidates = candidates;
-}
-
-/// Triangles whose projection along the frame may overlap the square window: their bounding
-/// spheres' projections do (two dot products per triangle instead of six).
-fn cull_to_window(ctx: &PassContext, frame: &BundleFrame, origin: Vec2, side: f32, out: &mut Vec<u32>) {
-    out.clear();
-    let hi = origin + Vec2::splat(side);
-    for &t in &ctx.all_triangles {
-        let (c, r) = ctx.scene.spheres[t as usize];
-        let (x, y) = (c.dot(frame.t), c.dot(frame.b));
-        if x + r >= origin.x && y + r >= origin.y && x - r <= hi.x && y - r <= hi.y {
-            out.push(t);
-        }
-    }
 }
