@@ -149,8 +149,7 @@ impl TileFragments {
                 *count = 0;
             }
         }
-        self.spans.clear();
-        self.spans.resize(start as usize, Span { tri: 0, x0: 0, x1: 0 });
+        grow(&mut self.spans, start as usize, Span { tri: 0, x0: 0, x1: 0 });
     }
 
     /// Files every span, cut at strip borders, into its bucket; returns the fragment count.
@@ -259,8 +258,7 @@ impl TileFragments {
             *e = total;
             total += running;
         }
-        self.frags.clear();
-        self.frags.resize(total as usize, Fragment { depth: 0.0, plus: NO_SIDE, minus: NO_SIDE });
+        grow(&mut self.frags, total as usize, Fragment { depth: 0.0, plus: NO_SIDE, minus: NO_SIDE });
         let texels = TexelLookup { table: &scene.texel_lookup, width: scene.texels.width, height: scene.texels.height };
         let mut lost = 0u64;
         let cy = grid_centre(self.offset.1, row);
@@ -281,6 +279,15 @@ impl TileFragments {
             }
         }
         self.lost_lookups += lost;
+    }
+}
+
+/// Makes `buffer` at least `len` long. Its slots are all written before they are read, so
+/// the ones it already has are kept as they are: re-initialising them for every tile and
+/// row cost more than filling them.
+fn grow<T: Copy>(buffer: &mut Vec<T>, len: usize, value: T) {
+    if buffer.len() < len {
+        buffer.resize(len, value);
     }
 }
 
