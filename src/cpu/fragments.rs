@@ -259,26 +259,62 @@ impl TileFragments {
             total += running;
         }
         grow(&mut self.frags, total as usize, Fragment { depth: 0.0, plus: NO_SIDE, minus: NO_SIDE });
-        let texels = TexelLookup { table: &scene.texel_lookup, width: scene.texels.width, height: scene.texels.height };
+        let texels = TexelLookup::new(scene);
         let mut lost = 0u64;
         let cy = grid_centre(self.offset.1, row);
         for s in spans {
             let (x0, x1) = clip(s);
+            if x0 >= x1 {
+                continue;
+            }
             let p = &self.planes[s.tri as usize];
-            for x in x0..x1 {
-                let cx = grid_centre(self.offset.0, x);
-                let plus = p.plus.as_ref().map_or(NO_SIDE, |uv| texels.at(uv, cx, cy, &mut lost));
-                let minus = p.minus.as_ref().map_or(NO_SIDE, |uv| texels.at(uv, cx, cy, &mut lost));
-                let cursor = &mut self.ends[(x - lo) as usize + 1];
-                self.frags[*cursor as usize] = Fragment {
-                    depth: eval(&p.depth, cx, cy),
-                    plus: plus | p.plus_flag,
-                    minus: minus | p.minus_flag,
-                };
-                *cursor += 1;
+            let span = SpanFill {
+                frags: &mut self.frags,
+                cursors: &mut self.ends[(x0 - lo) as usize + 1..(x1 - lo) as usize + 1],
+                x0,
+                offset: self.offset.0,
+                cy,
+                planes: p,
+            };
+            // One loop per combination of lit sides, so the pixel loop tests none.
+            let lost = &mut lost;
+            match (&p.plus, &p.minus) {
+                (Some(plus), Some(minus)) => {
+                    span.fill(|cx| (texels.at(plus, cx, cy, lost), texels.at(minus, cx, cy, lost)))
+                }
+                (Some(plus), None) => span.fill(|cx| (texels.at(plus, cx, cy, lost), NO_SIDE)),
+                (None, Some(minus)) => span.fill(|cx| (NO_SIDE, texels.at(minus, cx, cy, lost))),
+                (None, None) => span.fill(|_| (NO_SIDE, NO_SIDE)),
             }
         }
         self.lost_lookups += lost;
+    }
+}
+
+/// The pixels of one span being filled into the row buffer.
+struct SpanFill<'a> {
+    frags: &'a mut [Fragment],
+    /// Per pixel of the span: its next free slot in `frags`.
+    cursors: &'a mut [u32],
+    /// The span's first pixel and the rectangle's offset in its grid, and the row's centre.
+    x0: u32,
+    offset: u32,
+    cy: f32,
+    planes: &'a FragmentPlanes,
+}
+
+impl SpanFill<'_> {
+    /// Writes each pixel's fragment; `sides(cx)` gives its (plus, minus) texels.
+    #[inline(always)]
+    fn fill(self, mut sides: impl FnMut(f32) -> (u32, u32)) {
+        let p = self.planes;
+        for (x, cursor) in (self.x0..).zip(self.cursors.iter_mut()) {
+            let cx = grid_centre(self.offset, x);
+            let (plus, minus) = sides(cx);
+            self.frags[*cursor as usize] =
+                Fragment { depth: eval(&p.depth, cx, self.cy), plus: plus | p.plus_flag, minus: minus | p.minus_flag };
+            *cursor += 1;
+        }
     }
 }
 
@@ -295,10 +331,17 @@ fn grow<T: Copy>(buffer: &mut Vec<T>, len: usize, value: T) {
 struct TexelLookup<'a> {
     table: &'a [u32],
     width: u32,
-    height: u32,
+    /// The atlas size in pixels, as far as f32 holds it exactly (2^24: far beyond any atlas).
+    size: Vec2,
 }
 
-impl TexelLookup<'_> {
+impl<'a> TexelLookup<'a> {
+    fn new(scene: &'a PreparedScene) -> Self {
+        let (width, height) = (scene.texels.width, scene.texels.height);
+        let exact = |n: u32| n.min(1 << 24) as f32;
+        TexelLookup { table: &scene.texel_lookup, width, size: Vec2::new(exact(width), exact(height)) }
+    }
+
     /// The texel under the pixel centre (cx, cy) of a side with UV function `uv`. Pixel
     /// centres inside the triangle map inside its UV triangle, whose pixels hold its chart's
     /// texels; rounding may land a hair outside, in the chart's gutter ring, which maps to
@@ -306,13 +349,11 @@ impl TexelLookup<'_> {
     #[inline]
     fn at(&self, uv: &[Vec2; 3], cx: f32, cy: f32, lost: &mut u64) -> u32 {
         let uv = uv[0] * cx + uv[1] * cy + uv[2];
-        if uv.x >= 0.0 && uv.y >= 0.0 {
-            let (x, y) = (uv.x as u32, uv.y as u32);
-            if x < self.width && y < self.height {
-                let t = self.table[(y * self.width + x) as usize];
-                if t != NO_TEXEL {
-                    return t;
-                }
+        // 0 ≤ uv < size, i.e. its pixel ⌊uv⌋ is in the atlas (the size is whole pixels).
+        if uv.cmpge(Vec2::ZERO).all() && uv.cmplt(self.size).all() {
+            let t = self.table[(uv.y as u32 * self.width + uv.x as u32) as usize];
+            if t != NO_TEXEL {
+                return t;
             }
         }
         *lost += 1;
