@@ -215,10 +215,12 @@ fn orient<I: SpanInt>(v: &[(i64, i64); 3]) -> I {
 /// (i + 0.5)·SUBPIXEL) between the smallest and largest of snapped coordinates `q`.
 #[inline]
 fn centres_between(q: [i64; 3], count: u32) -> Option<(u32, u32)> {
-    let (lo, hi) = (q[0].min(q[1]).min(q[2]) as i128, q[0].max(q[1]).max(q[2]) as i128);
-    let half = SUBPIXEL as i128 / 2;
-    let first = (lo - half + SUBPIXEL as i128 - 1).div_euclid(SUBPIXEL as i128).max(0);
-    let last = (hi - half).div_euclid(SUBPIXEL as i128).min(count as i128 - 1);
+    let (lo, hi) = (q[0].min(q[1]).min(q[2]), q[0].max(q[1]).max(q[2]));
+    // ⌈(lo − half) / SUBPIXEL⌉ and ⌊(hi − half) / SUBPIXEL⌋ (an arithmetic shift floors);
+    // saturation only moves coordinates near ±2^63 further out of the viewport.
+    let half = SUBPIXEL / 2;
+    let first = (lo.saturating_sub(half).saturating_add(SUBPIXEL - 1) >> SUBPIXEL_BITS).max(0);
+    let last = (hi.saturating_sub(half) >> SUBPIXEL_BITS).min(count as i64 - 1);
     (first <= last).then_some((first as u32, last as u32))
 }
 
@@ -502,6 +504,29 @@ mod tests {
         let s = spans_of(&t);
         assert_eq!(s, brute(&t, res));
         assert!(!s.is_empty());
+    }
+
+    /// The rows (or columns) a triangle may cover, against exact wide arithmetic, near pixel
+    /// centres and at the ends of the i64 range.
+    #[test]
+    fn centre_ranges_match_wide_arithmetic() {
+        let exact = |q: [i64; 3], count: u32| {
+            let (lo, hi) = (*q.iter().min().unwrap() as i128, *q.iter().max().unwrap() as i128);
+            let first = (lo - 128 + 255).div_euclid(256).max(0);
+            let last = (hi - 128).div_euclid(256).min(count as i128 - 1);
+            (first <= last).then_some((first as u32, last as u32))
+        };
+        let mut rng = Rng::new(23, 5);
+        let mut cases = vec![[i64::MIN, 0, 5], [i64::MAX, i64::MAX - 3, 0], [i64::MIN, i64::MIN, i64::MAX], [-129, 127, 128]];
+        for _ in 0..20_000 {
+            let mut q = || (rng.next_f32() * 10_000.0) as i64 - 2_000 + [-1, 0, 1][(rng.next_f32() * 3.0) as usize];
+            cases.push([q(), q(), q()]);
+        }
+        for q in cases {
+            for count in [1, 7, 30] {
+                assert_eq!(centres_between(q, count), exact(q, count), "{q:?} in {count}");
+            }
+        }
     }
 
     /// Splitting a viewport keeps every pixel centre where it was: the parts' coverage is
