@@ -44,6 +44,9 @@ pub struct PassStats {
     pub false_alarms: u64,
     pub light_tiles: u64,
     pub light_fragments: u64,
+    /// Light-bundle pixels whose line crosses the emitter group: the light pass's effective
+    /// rays (counted apart from the global bundles' `covered_pixels`).
+    pub light_covered_pixels: u64,
     /// Fragments whose UV missed every texel through rounding (they still occlude).
     pub lost_lookups: u64,
 }
@@ -80,6 +83,7 @@ impl PassStats {
         self.false_alarms += o.false_alarms;
         self.light_tiles += o.light_tiles;
         self.light_fragments += o.light_fragments;
+        self.light_covered_pixels += o.light_covered_pixels;
         self.lost_lookups += o.lost_lookups;
     }
 

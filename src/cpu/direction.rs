@@ -265,7 +265,10 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
         let a_px = vp.pixel_area();
         let emission = &ctx.scene.texels.emission;
         let mut sink = LightHits(&mut sums.light);
-        s.fragments.resolve(ctx.scene, |f| emit(f, a_px, |t| emission[t as usize], &mut sink));
+        s.fragments.resolve(ctx.scene, |f| {
+            stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
+            emit(f, a_px, |t| emission[t as usize], &mut sink)
+        });
     }
     s.candidates = candidates;
 }
