@@ -350,7 +350,7 @@ impl<'a> TexelLookup<'a> {
     fn at(&self, uv: &[Vec2; 3], cx: f32, cy: f32, lost: &mut u64) -> u32 {
         let uv = uv[0] * cx + uv[1] * cy + uv[2];
         // 0 ≤ uv < size, i.e. its pixel ⌊uv⌋ is in the atlas (the size is whole pixels).
-        if uv.cmpge(Vec2::ZERO).all() && uv.cmplt(self.size).all() {
+        if uv.x >= 0.0 && uv.y >= 0.0 && uv.x < self.size.x && uv.y < self.size.y {
             let t = self.table[(uv.y as u32 * self.width + uv.x as u32) as usize];
             if t != NO_TEXEL {
                 return t;
