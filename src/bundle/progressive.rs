@@ -63,24 +63,23 @@ impl BatchSums {
                 item.1.push(part);
             }
         }
-        par_for_each(items, threads, |((out_b, out_l), parts)| {
-            // The first lane is copied, not added to zeros: the same sums (0 + x = x), one
-            // pass fewer over the output.
-            for (k, (b, l)) in parts.into_iter().enumerate() {
-                for (o, x) in out_b.iter_mut().zip(b.iter_mut()) {
+        par_for_each(items, threads, |((out_b, out_l), mut parts)| {
+            // Texel by texel, so each output is written once; the first lane is taken as is
+            // and the others added to it in lane order.
+            for (i, (o_b, o_l)) in out_b.iter_mut().zip(out_l.iter_mut()).enumerate() {
+                let (mut b, mut l) = ([0.0f32; 4], Rgb::ZERO);
+                for (k, (lane_b, lane_l)) in parts.iter_mut().enumerate() {
+                    let (x_b, x_l) = (std::mem::take(&mut lane_b[i]), std::mem::take(&mut lane_l[i]));
                     if k == 0 {
-                        *o = *x;
+                        (b, l) = (x_b, x_l);
                     } else {
                         for c in 0..4 {
-                            o[c] += x[c];
+                            b[c] += x_b[c];
                         }
+                        l += x_l;
                     }
-                    *x = [0.0; 4];
                 }
-                for (o, x) in out_l.iter_mut().zip(l.iter_mut()) {
-                    *o = if k == 0 { *x } else { *o + *x };
-                    *x = Rgb::ZERO;
-                }
+                (*o_b, *o_l) = (b, l);
             }
         });
     }
