@@ -65,7 +65,11 @@ pub struct BundleReport {
     pub overflow_ratio: f64,
     pub false_alarm_ratio: f64,
     pub fragments_per_second: f64,
+    /// Global-bundle pixels with at least one fragment per second of bundle time.
     pub effective_rays_per_second: f64,
+    /// The same counting the light pass's rays too (light-bundle pixels that cross an
+    /// emitter), per second of bundle time.
+    pub effective_rays_per_second_with_light_pass: f64,
     #[serde(flatten)]
     pub stats: BundleLodStats,
 }
@@ -100,6 +104,7 @@ impl BundleReport {
             false_alarm_ratio: p.false_alarm_ratio(),
             fragments_per_second: (p.fragments + p.light_fragments) as f64 / secs,
             effective_rays_per_second: p.covered_pixels as f64 / secs,
+            effective_rays_per_second_with_light_pass: (p.covered_pixels + p.light_covered_pixels) as f64 / secs,
             stats,
         }
     }

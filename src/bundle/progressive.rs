@@ -63,20 +63,23 @@ impl BatchSums {
                 item.1.push(part);
             }
         }
-        par_for_each(items, threads, |((out_b, out_l), parts)| {
-            out_b.fill([0.0; 4]);
-            out_l.fill(Rgb::ZERO);
-            for (b, l) in parts {
-                for (o, x) in out_b.iter_mut().zip(b.iter_mut()) {
-                    for c in 0..4 {
-                        o[c] += x[c];
+        par_for_each(items, threads, |((out_b, out_l), mut parts)| {
+            // Texel by texel, so each output is written once; the first lane is taken as is
+            // and the others added to it in lane order.
+            for (i, (o_b, o_l)) in out_b.iter_mut().zip(out_l.iter_mut()).enumerate() {
+                let (mut b, mut l) = ([0.0f32; 4], Rgb::ZERO);
+                for (k, (lane_b, lane_l)) in parts.iter_mut().enumerate() {
+                    let (x_b, x_l) = (std::mem::take(&mut lane_b[i]), std::mem::take(&mut lane_l[i]));
+                    if k == 0 {
+                        (b, l) = (x_b, x_l);
+                    } else {
+                        for c in 0..4 {
+                            b[c] += x_b[c];
+                        }
+                        l += x_l;
                     }
-                    *x = [0.0; 4];
                 }
-                for (o, x) in out_l.iter_mut().zip(l.iter_mut()) {
-                    *o += *x;
-                    *x = Rgb::ZERO;
-                }
+                (*o_b, *o_l) = (b, l);
             }
         });
     }

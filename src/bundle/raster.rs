@@ -96,10 +96,11 @@ impl Viewport {
         self.pixel * self.pixel
     }
 
-    /// Continuous pixel coordinates of a frame-space point in the rectangle.
+    /// Continuous pixel coordinates in the grid (not the rectangle) of a point given by
+    /// its frame coordinates along t and b.
     #[inline]
-    pub fn to_pixels(&self, c: Vec2) -> Vec2 {
-        (c - self.origin) / self.pixel - Vec2::new(self.offset.0 as f32, self.offset.1 as f32)
+    pub fn grid_position(&self, c: Vec2) -> Vec2 {
+        (c - self.origin) / self.pixel
     }
 }
 
@@ -111,13 +112,13 @@ pub struct ScreenTriangle {
     v: [(i64, i64); 3],
     /// Per edge: whether a pixel centre exactly on it belongs to this triangle.
     include_edge: [bool; 3],
-    /// Rows of pixel centres the triangle can cover, clipped to the viewport.
+    /// Rows and columns of pixel centres the triangle can cover, clipped to the viewport.
     row_min: u32,
     row_max: u32,
+    column_min: u32,
+    column_max: u32,
     /// Viewport width: spans are clipped to `[0, width)`.
     width: u32,
-    /// The viewport's offset in its pixel grid.
-    offset: (u32, u32),
     /// Snapped corners in grid pixel coordinates (original order) and their depths along ω:
     /// what [`planes`](Self::planes) interpolates.
     grid_corners: [Vec2; 3],
@@ -164,16 +165,10 @@ pub struct Planes {
 }
 
 impl Planes {
-    /// Barycentric weights (u, v) of the original corners 1 and 2 at a grid position.
-    #[inline]
-    pub fn barycentrics(&self, x: f32, y: f32) -> (f32, f32) {
-        (eval(&self.bary_u, x, y), eval(&self.bary_v, x, y))
-    }
-
-    /// Depth along ω at a grid position.
-    #[inline]
-    pub fn depth_at(&self, x: f32, y: f32) -> f32 {
-        eval(&self.depth, x, y)
+    /// The depth along ω as an affine function of grid coordinates (coefficients as in
+    /// [`gradient`](Self::gradient); evaluate with [`eval`]).
+    pub fn depth_coefficients(&self) -> [f32; 3] {
+        self.depth
     }
 
     /// Affine coefficients (per +1 pixel in x, per +1 pixel in y, at grid pixel (0,0)) of a
@@ -189,48 +184,76 @@ impl Planes {
     }
 }
 
+/// An affine function f(x, y) = c[0]·x + c[1]·y + c[2] of grid coordinates at (x, y).
 #[inline]
-fn eval(c: &[f32; 3], x: f32, y: f32) -> f32 {
+pub fn eval(c: &[f32; 3], x: f32, y: f32) -> f32 {
     c[0] * x + c[1] * y + c[2]
 }
 
-/// floor(a / b) for b > 0.
+/// Grid coordinate of the centre of pixel `i` of a rectangle that starts `offset` pixels
+/// into its grid: where attributes are evaluated.
 #[inline]
-fn floor_div(a: i128, b: i128) -> i128 {
-    a.div_euclid(b)
+pub fn grid_centre(offset: u32, i: u32) -> f32 {
+    (i + offset) as f32 + 0.5
+}
+
+/// Twice the signed area of snapped corners `v`, in integer type `I` (i64 when every
+/// coordinate is below 2^30).
+#[inline]
+fn orient<I: SpanInt>(v: &[(i64, i64); 3]) -> I {
+    let d = |a: i64, b: i64| I::from(a) - I::from(b);
+    d(v[1].0, v[0].0) * d(v[2].1, v[0].1) - d(v[2].0, v[0].0) * d(v[1].1, v[0].1)
+}
+
+/// The first and last of pixel centres `0..count` (pixel i has its centre at
+/// (i + 0.5)·SUBPIXEL) between the smallest and largest of snapped coordinates `q`.
+#[inline]
+fn centres_between(q: [i64; 3], count: u32) -> Option<(u32, u32)> {
+    let (lo, hi) = (q[0].min(q[1]).min(q[2]), q[0].max(q[1]).max(q[2]));
+    // ⌈(lo − half) / SUBPIXEL⌉ and ⌊(hi − half) / SUBPIXEL⌋ (an arithmetic shift floors);
+    // saturation only moves coordinates near ±2^63 further out of the viewport.
+    let half = SUBPIXEL / 2;
+    let first = (lo.saturating_sub(half).saturating_add(SUBPIXEL - 1) >> SUBPIXEL_BITS).max(0);
+    let last = (hi.saturating_sub(half) >> SUBPIXEL_BITS).min(count as i64 - 1);
+    (first <= last).then_some((first as u32, last as u32))
 }
 
 impl ScreenTriangle {
     /// Sets up `corners` (world space, original winding) for `viewport` of `frame`.
     /// `None` when the triangle is edge-on to ω (covers no pixel centre), lies outside the
-    /// viewport's rows, or its coordinates are not finite.
+    /// viewport's rows or columns, or its coordinates are not finite.
     pub fn setup(frame: &BundleFrame, viewport: &Viewport, corners: &[Vec3; 3], normal: Vec3) -> Option<Self> {
         let c = corners.map(|p| frame.coords(p));
-        // Snap in grid coordinates, then move to the rectangle by whole pixels: exact.
-        let p = c.map(|c| (Vec2::new(c.x, c.y) - viewport.origin) / viewport.pixel);
-        if p.iter().any(|q| !q.is_finite()) {
+        let grid = c.map(|c| viewport.grid_position(Vec2::new(c.x, c.y)));
+        Self::setup_in_grid(viewport, grid, c.map(|c| c.z), normal.dot(frame.dir) > 0.0)
+    }
+
+    /// [`setup`](Self::setup) from the corners' positions in the viewport's grid (see
+    /// [`Viewport::grid_position`]) and depths along ω, for callers that need the positions
+    /// too.
+    pub fn setup_in_grid(viewport: &Viewport, grid: [Vec2; 3], depths: [f32; 3], front_faces_dir: bool) -> Option<Self> {
+        if grid.iter().any(|q| !q.is_finite()) {
             return None;
         }
+        // Snap in grid coordinates, then move to the rectangle by whole pixels: exact. (Scaling
+        // by SUBPIXEL and rounding are exact in f32.)
         let (ox, oy) = (viewport.offset.0 as i64 * SUBPIXEL, viewport.offset.1 as i64 * SUBPIXEL);
-        let snap =
-            |q: Vec2| ((q.x as f64 * SUBPIXEL as f64).round() as i64 - ox, (q.y as f64 * SUBPIXEL as f64).round() as i64 - oy);
-        let mut v = p.map(snap);
+        let snap = |q: Vec2| {
+            let s = (q * SUBPIXEL as f32).round();
+            (s.x as i64 - ox, s.y as i64 - oy)
+        };
+        let mut v = grid.map(snap);
         let grid_corners = v.map(|(x, y)| Vec2::new((x + ox) as f32, (y + oy) as f32) / SUBPIXEL as f32);
-        let area2 = (v[1].0 - v[0].0) as i128 * (v[2].1 - v[0].1) as i128
-            - (v[2].0 - v[0].0) as i128 * (v[1].1 - v[0].1) as i128;
+        let narrow = v.iter().all(|q| q.0.abs() < 1 << 30 && q.1.abs() < 1 << 30);
+        let area2 = if narrow { orient::<i64>(&v) as i128 } else { orient::<i128>(&v) };
         if area2 == 0 {
             return None;
         }
         if area2 < 0 {
             v.swap(1, 2);
         }
-        let (y_lo, y_hi) = (v.iter().map(|q| q.1).min()?, v.iter().map(|q| q.1).max()?);
-        // Pixel row r has its centre at (r + 0.5)·SUBPIXEL.
-        let row_min = floor_div((y_lo - SUBPIXEL / 2) as i128 + SUBPIXEL as i128 - 1, SUBPIXEL as i128).max(0);
-        let row_max = floor_div((y_hi - SUBPIXEL / 2) as i128, SUBPIXEL as i128).min(viewport.height as i128 - 1);
-        if row_min > row_max {
-            return None;
-        }
+        let (row_min, row_max) = centres_between(v.map(|q| q.1), viewport.height)?;
+        let (column_min, column_max) = centres_between(v.map(|q| q.0), viewport.width)?;
         let include_edge = std::array::from_fn(|e| {
             let (a, b) = (v[e], v[(e + 1) % 3]);
             // Gradient of the edge function is (−dy, dx); include the edge when it points
@@ -242,15 +265,28 @@ impl ScreenTriangle {
         Some(ScreenTriangle {
             v,
             include_edge,
-            row_min: row_min as u32,
-            row_max: row_max as u32,
+            row_min,
+            row_max,
+            column_min,
+            column_max,
             grid_corners,
-            corner_depths: [c[0].z, c[1].z, c[2].z],
-            front_faces_dir: normal.dot(frame.dir) > 0.0,
+            corner_depths: depths,
+            front_faces_dir,
             width: viewport.width,
-            offset: viewport.offset,
-            narrow: v.iter().all(|q| q.0.abs() < 1 << 30 && q.1.abs() < 1 << 30),
+            narrow,
         })
+    }
+
+    /// First and last row of the viewport the triangle may cover.
+    #[inline]
+    pub fn rows(&self) -> (u32, u32) {
+        (self.row_min, self.row_max)
+    }
+
+    /// First and last column of the viewport the triangle may cover.
+    #[inline]
+    pub fn columns(&self) -> (u32, u32) {
+        (self.column_min, self.column_max)
     }
 
     /// Calls `f(row, x_begin, x_end)` for every row of the viewport with covered pixel
@@ -302,13 +338,6 @@ impl ScreenTriangle {
             }
         }
         (lo <= hi).then(|| (lo.to_u32(), hi.to_u32() + 1))
-    }
-
-    /// Grid coordinates of the centre of the rectangle's pixel (x, y): where attributes are
-    /// evaluated.
-    #[inline]
-    pub fn grid_centre(&self, x: u32, y: u32) -> (f32, f32) {
-        ((x + self.offset.0) as f32 + 0.5, (y + self.offset.1) as f32 + 0.5)
     }
 
     /// The attribute planes. They pass through the *snapped* corners, so they agree with the
@@ -391,6 +420,36 @@ mod tests {
         assert!(nonempty > 200);
     }
 
+    /// Small and thin triangles (few rows, steep edges) and tall ones (hundreds of rows)
+    /// against the rule at every pixel centre.
+    #[test]
+    fn spans_match_brute_force_on_small_thin_and_tall_triangles() {
+        let mut rng = Rng::new(11, 3);
+        for (res, size, count, min_nonempty) in [(24, 3.0, 400, 100), (24, 0.7, 2000, 20), (300, 900.0, 40, 10)] {
+            let mut nonempty = 0;
+            for _ in 0..count {
+                let base = Vec3::new(rng.next_f32() * res as f32, rng.next_f32() * res as f32, 0.0);
+                let mut p = || base + Vec3::new(rng.next_f32() - 0.5, rng.next_f32() - 0.5, rng.next_f32()) * size;
+                let c = [p(), p(), p()];
+                match setup(c, res) {
+                    Some(t) => {
+                        let s = spans_of(&t);
+                        assert_eq!(s, brute(&t, res));
+                        nonempty += !s.is_empty() as u32;
+                    }
+                    // Skipped: the same grid, extended far enough to hold the triangle,
+                    // has no covered centre inside the viewport.
+                    None => {
+                        if let Some(t) = setup(c, 4 * res) {
+                            assert!(spans_of(&t).iter().all(|&(x, y)| x >= res || y >= res));
+                        }
+                    }
+                }
+            }
+            assert!(nonempty >= min_nonempty, "{nonempty} of {count} at size {size}");
+        }
+    }
+
     /// A fan of triangles around a centre and a grid of quads whose vertices sit exactly on
     /// pixel centres: every pixel centre inside the covered region is hit exactly once.
     #[test]
@@ -441,6 +500,29 @@ mod tests {
         assert!(!s.is_empty());
     }
 
+    /// The rows (or columns) a triangle may cover, against exact wide arithmetic, near pixel
+    /// centres and at the ends of the i64 range.
+    #[test]
+    fn centre_ranges_match_wide_arithmetic() {
+        let exact = |q: [i64; 3], count: u32| {
+            let (lo, hi) = (*q.iter().min().unwrap() as i128, *q.iter().max().unwrap() as i128);
+            let first = (lo - 128 + 255).div_euclid(256).max(0);
+            let last = (hi - 128).div_euclid(256).min(count as i128 - 1);
+            (first <= last).then_some((first as u32, last as u32))
+        };
+        let mut rng = Rng::new(23, 5);
+        let mut cases = vec![[i64::MIN, 0, 5], [i64::MAX, i64::MAX - 3, 0], [i64::MIN, i64::MIN, i64::MAX], [-129, 127, 128]];
+        for _ in 0..20_000 {
+            let mut q = || (rng.next_f32() * 10_000.0) as i64 - 2_000 + [-1, 0, 1][(rng.next_f32() * 3.0) as usize];
+            cases.push([q(), q(), q()]);
+        }
+        for q in cases {
+            for count in [1, 7, 30] {
+                assert_eq!(centres_between(q, count), exact(q, count), "{q:?} in {count}");
+            }
+        }
+    }
+
     /// Splitting a viewport keeps every pixel centre where it was: the parts' coverage is
     /// exactly the whole's.
     #[test]
@@ -472,6 +554,35 @@ mod tests {
         assert!(Viewport::square(Vec2::ZERO, 1.0, 1).split().is_none());
     }
 
+    /// Parts of a split viewport skip triangles outside their rows or columns: small
+    /// triangles straddling the cuts must still cover exactly what they cover in the whole.
+    #[test]
+    fn parts_keep_triangles_straddling_their_borders() {
+        let mut rng = Rng::new(13, 2);
+        let whole = Viewport { origin: Vec2::new(0.3, -0.2), pixel: 1.0, offset: (0, 0), width: 17, height: 9 };
+        let parts = whole.split().unwrap();
+        let centres = |v: &Viewport, c: &[Vec3; 3]| -> Vec<(u32, u32)> {
+            let n = (c[1] - c[0]).cross(c[2] - c[0]).normalize_or_zero();
+            let Some(t) = ScreenTriangle::setup(&frame_z(), v, c, n) else { return Vec::new() };
+            let mut out = Vec::new();
+            t.for_each_span(|y, x0, x1| out.extend((x0..x1).map(|x| (x + v.offset.0, y + v.offset.1))));
+            out
+        };
+        let mut covered = 0;
+        for _ in 0..2000 {
+            let base = Vec3::new(rng.next_f32() * 19.0 - 1.0, rng.next_f32() * 11.0 - 1.0, 0.0);
+            let mut p = || base + Vec3::new(rng.next_f32() - 0.5, rng.next_f32() - 0.5, rng.next_f32()) * 2.5;
+            let c = [p(), p(), p()];
+            let mut from_parts: Vec<_> = parts.iter().flat_map(|v| centres(v, &c)).collect();
+            let mut from_whole = centres(&whole, &c);
+            from_parts.sort_unstable();
+            from_whole.sort_unstable();
+            assert_eq!(from_parts, from_whole);
+            covered += from_whole.len();
+        }
+        assert!(covered > 500, "{covered}");
+    }
+
     #[test]
     fn edge_on_and_offscreen_triangles_give_nothing() {
         // Edge-on to ω = +Z: all three corners project onto a line.
@@ -484,9 +595,9 @@ mod tests {
         let c = [Vec3::new(1.0, 1.0, 2.0), Vec3::new(9.0, 1.0, 4.0), Vec3::new(1.0, 9.0, 6.0)];
         let t = setup(c, 16).unwrap();
         let planes = t.planes();
-        let (u, v) = planes.barycentrics(5.0, 5.0);
+        let (u, v) = (eval(&planes.gradient([0.0, 1.0, 0.0]), 5.0, 5.0), eval(&planes.gradient([0.0, 0.0, 1.0]), 5.0, 5.0));
         assert!((u - 0.5).abs() < 1e-5 && (v - 0.5).abs() < 1e-5);
-        assert!((planes.depth_at(5.0, 5.0) - 5.0).abs() < 1e-5);
+        assert!((eval(&planes.depth_coefficients(), 5.0, 5.0) - 5.0).abs() < 1e-5);
         let g = planes.gradient([10.0, 20.0, 30.0]);
         assert!((eval(&g, 1.0, 1.0) - 10.0).abs() < 1e-4);
         assert!((eval(&g, 9.0, 1.0) - 20.0).abs() < 1e-4);

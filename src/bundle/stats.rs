@@ -13,6 +13,9 @@ pub struct PassStats {
     pub analysis_seconds: f64,
     pub mip_seconds: f64,
     pub subdivision_seconds: f64,
+    /// Build: triangle setup and the exact fragment count (the node-budget check). The CPU
+    /// backend builds per-pixel lists row by row while resolving, so its resolve includes
+    /// building them.
     pub build_seconds: f64,
     pub resolve_seconds: f64,
     pub light_seconds: f64,
@@ -41,6 +44,9 @@ pub struct PassStats {
     pub false_alarms: u64,
     pub light_tiles: u64,
     pub light_fragments: u64,
+    /// Light-bundle pixels whose line crosses the emitter group: the light pass's effective
+    /// rays (counted apart from the global bundles' `covered_pixels`).
+    pub light_covered_pixels: u64,
     /// Fragments whose UV missed every texel through rounding (they still occlude).
     pub lost_lookups: u64,
 }
@@ -77,6 +83,7 @@ impl PassStats {
         self.false_alarms += o.false_alarms;
         self.light_tiles += o.light_tiles;
         self.light_fragments += o.light_fragments;
+        self.light_covered_pixels += o.light_covered_pixels;
         self.lost_lookups += o.lost_lookups;
     }
 

@@ -21,9 +21,9 @@ pub struct Analysis {
     pub fragments: Vec<f32>,
     /// Triangles whose projection touches each bin (row-major, BINS×BINS).
     bins: Vec<Vec<u32>>,
-    /// Per triangle: stamp of the last tile that collected it (dedupes bins).
-    stamp: Vec<u32>,
-    current_stamp: u32,
+    /// One bit per triangle: collected for the current window (dedupes bins). All clear
+    /// between windows.
+    collected: Vec<u64>,
 }
 
 impl Analysis {
@@ -42,20 +42,19 @@ impl Analysis {
         self.fragments.resize(n, 0.0);
         self.bins.resize_with((BINS * BINS) as usize, Vec::new);
         self.bins.iter_mut().for_each(Vec::clear);
-        self.stamp.clear();
-        self.stamp.resize(scene.geom.len(), 0);
-        self.current_stamp = 0;
+        self.collected.clear();
+        self.collected.resize(scene.geom.len().div_ceil(64), 0);
         let bin_side = res as f32 / BINS as f32;
         for (t, corners) in scene.geom.corners.iter().enumerate() {
             let importance = scene.importance[t] * importance_scale;
-            let p = corners.map(|c| {
-                let f = frame.coords(c);
-                viewport.to_pixels(Vec2::new(f.x, f.y))
-            });
+            let c = corners.map(|p| frame.coords(p));
+            // The window's grid starts at its pixel (0, 0): grid and window positions agree.
+            let p = c.map(|c| viewport.grid_position(Vec2::new(c.x, c.y)));
             let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
             self.bin(t as u32, lo / bin_side, hi / bin_side);
             let mut covered = false;
-            if let Some(screen) = ScreenTriangle::setup(frame, viewport, corners, scene.geom.normals[t]) {
+            let front_faces_dir = scene.geom.normals[t].dot(frame.dir) > 0.0;
+            if let Some(screen) = ScreenTriangle::setup_in_grid(viewport, p, c.map(|c| c.z), front_faces_dir) {
                 screen.for_each_span(|y, x0, x1| {
                     let row = (y * res) as usize;
                     for x in x0 as usize..x1 as usize {
@@ -92,23 +91,87 @@ impl Analysis {
     /// in ascending order (so fragment build order, and with it the result, is deterministic).
     pub fn candidates(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, out: &mut Vec<u32>) {
         out.clear();
-        self.current_stamp = self.current_stamp.wrapping_add(1);
-        if self.current_stamp == 0 {
-            self.stamp.fill(0);
-            self.current_stamp = 1;
-        }
         let bin_side = self.res as f64 / BINS as f64;
         let clamp = |v: f64| ((v / bin_side).max(0.0) as u32).min(BINS - 1);
+        let (mut first_word, mut last_word) = (usize::MAX, 0);
         for by in clamp(y0)..=clamp(y1 - 1e-9) {
             for bx in clamp(x0)..=clamp(x1 - 1e-9) {
                 for &t in &self.bins[(by * BINS + bx) as usize] {
-                    if self.stamp[t as usize] != self.current_stamp {
-                        self.stamp[t as usize] = self.current_stamp;
+                    let (word, bit) = ((t / 64) as usize, 1u64 << (t % 64));
+                    if self.collected[word] & bit == 0 {
+                        self.collected[word] |= bit;
                         out.push(t);
+                        first_word = first_word.min(word);
+                        last_word = last_word.max(word);
                     }
                 }
             }
         }
-        out.sort_unstable();
+        if out.is_empty() {
+            return;
+        }
+        // Ascending order: read back the bit set when it is dense, else sort the few
+        // collected; either way the set is left empty for the next window.
+        if out.len() * 8 >= last_word - first_word + 1 {
+            out.clear();
+            for word in first_word..=last_word {
+                let mut bits = std::mem::take(&mut self.collected[word]);
+                while bits != 0 {
+                    out.push(word as u32 * 64 + bits.trailing_zeros());
+                    bits &= bits - 1;
+                }
+            }
+        } else {
+            out.sort_unstable();
+            for &t in out.iter() {
+                self.collected[(t / 64) as usize] = 0;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Rng;
+
+    /// Windows collect the union of their bins' triangles, once each and ascending, whether
+    /// the triangles are dense in index (read back from the bit set) or sparse (sorted),
+    /// and leave nothing collected behind.
+    #[test]
+    fn candidates_are_the_union_of_the_bins_in_ascending_order() {
+        let mut rng = Rng::new(29, 1);
+        let triangles = 20_000u32;
+        let mut analysis = Analysis { res: 64, ..Analysis::default() };
+        analysis.collected = vec![0; (triangles as usize).div_ceil(64)];
+        analysis.bins = (0..BINS * BINS)
+            .map(|b| {
+                // Dense runs in some bins, a few scattered indices in others.
+                let mut bin: Vec<u32> = if b % 3 == 0 {
+                    let start = (rng.next_f32() * 19_000.0) as u32;
+                    (start..start + 300).collect()
+                } else {
+                    (0..4).map(|_| (rng.next_f32() * triangles as f32) as u32).collect()
+                };
+                bin.sort_unstable();
+                bin
+            })
+            .collect();
+        let mut out = Vec::new();
+        for _ in 0..300 {
+            let (x0, y0) = (rng.next_f32() as f64 * 64.0, rng.next_f32() as f64 * 64.0);
+            let (x1, y1) = (x0 + rng.next_f32() as f64 * 20.0 + 0.1, y0 + rng.next_f32() as f64 * 20.0 + 0.1);
+            analysis.candidates(x0, y0, x1, y1, &mut out);
+            let side = 64.0 / BINS as f64;
+            let clamp = |v: f64| ((v / side).max(0.0) as u32).min(BINS - 1);
+            let mut expected: Vec<u32> = (clamp(y0)..=clamp(y1 - 1e-9))
+                .flat_map(|by| (clamp(x0)..=clamp(x1 - 1e-9)).map(move |bx| by * BINS + bx))
+                .flat_map(|b| analysis.bins[b as usize].clone())
+                .collect();
+            expected.sort_unstable();
+            expected.dedup();
+            assert_eq!(out, expected);
+            assert!(analysis.collected.iter().all(|&w| w == 0));
+        }
     }
 }

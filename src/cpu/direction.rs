@@ -6,7 +6,7 @@ use std::time::Instant;
 use glam::Vec2;
 
 use super::analysis::Analysis;
-use super::fragments::FragmentBuffer;
+use super::fragments::TileFragments;
 use super::prepared::PreparedScene;
 use crate::bundle::estimator::{HitSink, emit, exchange};
 use crate::bundle::mips::MipChain;
@@ -26,17 +26,16 @@ pub struct PassContext<'a> {
     pub sky: Rgb,
     /// Light-pass bundle pixel side, metres.
     pub light_pixel: f32,
-    /// Per triangle: its corners' frame coordinates are recomputed per light direction;
-    /// this is the list of all triangles, the light pass's candidates before culling.
-    pub all_triangles: Vec<u32>,
 }
 
 /// Per-lane scratch buffers, reused across directions.
 #[derive(Default)]
 pub struct Scratch {
     analysis: Analysis,
-    fragments: FragmentBuffer,
+    fragments: TileFragments,
     candidates: Vec<u32>,
+    /// Traversal stack of the triangles' sphere tree.
+    spheres: Vec<u32>,
     queue: Vec<Viewport>,
 }
 
@@ -147,7 +146,6 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
             stats.build_seconds += seconds(t);
             continue;
         }
-        s.fragments.build(ctx.scene);
         stats.build_seconds += seconds(t);
         stats.tiles += 1;
         stats.fragments += count;
@@ -157,7 +155,7 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
         let a_px = vp.pixel_area();
         let sky = ctx.sky;
         let mut sink = BundleHits(&mut sums.bundle);
-        stats.covered_pixels += s.fragments.for_each_pixel(|f| exchange(f, a_px, sky, |t| source[t as usize], &mut sink));
+        stats.covered_pixels += s.fragments.resolve(ctx.scene, |f| exchange(f, a_px, sky, |t| source[t as usize], &mut sink));
         stats.resolve_seconds += seconds(t);
     }
     stats.lost_lookups += std::mem::take(&mut s.fragments.lost_lookups);
@@ -246,7 +244,8 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
     let res = (extent / pixel).ceil().max(1.0) as u32;
     let per_side = res.div_ceil(cfg.head_side);
     let tile_res = res.div_ceil(per_side);
-    cull_to_window(ctx, &frame, origin, tile_res as f32 * per_side as f32 * pixel, &mut s.candidates);
+    let side = tile_res as f32 * per_side as f32 * pixel;
+    ctx.scene.spheres.overlapping(&frame, origin, side, &mut s.spheres, &mut s.candidates);
     let candidates = std::mem::take(&mut s.candidates);
     s.queue.clear();
     for ty in (0..per_side).rev() {
@@ -260,28 +259,16 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
         if count > cfg.node_capacity && overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             continue;
         }
-        s.fragments.build(ctx.scene);
         stats.light_tiles += 1;
         stats.light_fragments += count;
         stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
         let a_px = vp.pixel_area();
         let emission = &ctx.scene.texels.emission;
         let mut sink = LightHits(&mut sums.light);
-        s.fragments.for_each_pixel(|f| emit(f, a_px, |t| emission[t as usize], &mut sink));
+        s.fragments.resolve(ctx.scene, |f| {
+            stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
+            emit(f, a_px, |t| emission[t as usize], &mut sink)
+        });
     }
     s.candidates = candidates;
-}
-
-/// Triangles whose projection along the frame may overlap the square window: their bounding
-/// spheres' projections do (two dot products per triangle instead of six).
-fn cull_to_window(ctx: &PassContext, frame: &BundleFrame, origin: Vec2, side: f32, out: &mut Vec<u32>) {
-    out.clear();
-    let hi = origin + Vec2::splat(side);
-    for &t in &ctx.all_triangles {
-        let (c, r) = ctx.scene.spheres[t as usize];
-        let (x, y) = (c.dot(frame.t), c.dot(frame.b));
-        if x + r >= origin.x && y + r >= origin.y && x - r <= hi.x && y - r <= hi.y {
-            out.push(t);
-        }
-    }
 }

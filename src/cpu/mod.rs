@@ -10,6 +10,7 @@ mod direction;
 mod fragments;
 pub mod prepared;
 pub mod punctual;
+mod spheres;
 
 use crate::bundle::emitters::EmitterGroup;
 use crate::bundle::progressive::BatchSums;
@@ -43,9 +44,8 @@ impl<'a> CpuBundleBackend<'a> {
     ) -> Self {
         let texels = scene.texels.len();
         let lanes = (0..config.lanes.max(1)).map(|_| Lane { sums: BatchSums::new(texels), scratch: Scratch::default() }).collect();
-        let all_triangles = (0..scene.geom.len() as u32).collect();
         CpuBundleBackend {
-            ctx: PassContext { scene, config, groups, sky, light_pixel, all_triangles },
+            ctx: PassContext { scene, config, groups, sky, light_pixel },
             lanes,
             threads: threads.max(1),
         }

@@ -3,6 +3,7 @@
 
 use glam::{Vec2, Vec3};
 
+use super::spheres::SphereTree;
 use crate::atlas::{Atlas, TexelMap};
 use crate::scene::{SceneGeometry, Side};
 
@@ -25,9 +26,9 @@ pub struct PreparedScene<'a> {
     /// nearest), else `NO_TEXEL`. A fragment whose UV rounds a hair outside its chart's
     /// covered pixels lands in the gutter ring and still finds its own chart's texel.
     pub texel_lookup: Vec<u32>,
-    /// Per triangle: a bounding sphere (centre, radius), for cheap culling against bundle
-    /// windows along any direction.
-    pub spheres: Vec<(Vec3, f32)>,
+    /// Bounding spheres of the triangles, for culling against bundle windows along any
+    /// direction.
+    pub spheres: SphereTree,
     /// Centre and radius of the scene's bounding sphere.
     pub centre: Vec3,
     pub radius: f32,
@@ -71,6 +72,7 @@ impl<'a> PreparedScene<'a> {
                 (m, c.iter().map(|p| (*p - m).length()).fold(0.0f32, f32::max))
             })
             .collect();
+        let spheres = SphereTree::new(spheres);
         let coincident_depth = 1e-6 * (radius + centre.abs().max_element());
         let mut texel_lookup = texels.slot.clone();
         for &(pixel, texel) in &texels.gutter {

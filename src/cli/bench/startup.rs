@@ -52,6 +52,7 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     let bundle = lod.bundle.as_ref().context("bundle report")?;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
     let per_core = bundle.effective_rays_per_second / cores;
+    let with_light_pass_per_core = bundle.effective_rays_per_second_with_light_pass / cores;
     Ok(json!({
         "scene": ROOM,
         "texel_size_m": 0.05,
@@ -62,6 +63,7 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
         "per_direction_ms": bundle.per_direction_ms,
         "effective_rays_per_second": bundle.effective_rays_per_second,
         "effective_rays_per_second_per_core": per_core,
+        "effective_rays_per_second_per_core_with_light_pass": with_light_pass_per_core,
         "ratio_to_embree_per_core": per_core / EMBREE_RAYS_PER_CORE,
         "target_ratio_to_embree_per_core": 10.0,
     }))
