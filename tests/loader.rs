@@ -1384,23 +1384,6 @@ fn flipped_bytes_never_panic() {
     }
 }
 
-/// Load-time report: `cargo test --release --test loader -- --ignored --nocapture load_times`.
-#[test]
-#[ignore = "timing report; run in a release build"]
-fn load_times() {
-    for rel in [CORNELL, VAN_GOGH] {
-        let path = asset(rel);
-        let s = load(&path).unwrap(); // also warms the file cache
-        let n = 20;
-        let start = std::time::Instant::now();
-        for _ in 0..n {
-            load(&path).unwrap();
-        }
-        let ms = start.elapsed().as_secs_f64() * 1e3 / f64::from(n);
-        println!("{rel}: {} triangles, {} textures: {ms:.2} ms per load", s.triangle_count(), s.textures.len());
-    }
-}
-
 /// Longer corruption run (not part of the default suite):
 /// `LOADER_FUZZ_ITERS=20000 cargo test --release --test loader -- --ignored fuzz_long`.
 #[test]

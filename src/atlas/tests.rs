@@ -1,94 +1,14 @@
 //! Whole-atlas tests: unwrap + pack + texel maps on synthetic scenes, checked by
 //! independent rasterisation.
 
-use std::collections::HashMap;
-
 use glam::{DVec2, Vec3};
 
 use super::raster::{self, PixelRect};
 use super::*;
 use crate::scene::builder::{diffuse, white};
+use crate::reference::scenes::{icosphere, torus};
 use crate::scene::{SceneBuilder, SceneGeometry};
 
-pub(crate) fn icosphere(centre: Vec3, r: f32, subdiv: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-    let t = (1.0 + 5f32.sqrt()) / 2.0;
-    let mut p: Vec<Vec3> = [
-        (-1.0, t, 0.0),
-        (1.0, t, 0.0),
-        (-1.0, -t, 0.0),
-        (1.0, -t, 0.0),
-        (0.0, -1.0, t),
-        (0.0, 1.0, t),
-        (0.0, -1.0, -t),
-        (0.0, 1.0, -t),
-        (t, 0.0, -1.0),
-        (t, 0.0, 1.0),
-        (-t, 0.0, -1.0),
-        (-t, 0.0, 1.0),
-    ]
-    .iter()
-    .map(|&(x, y, z)| Vec3::new(x, y, z).normalize())
-    .collect();
-    let mut f: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..subdiv {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut m = |a: u32, b: u32, p: &mut Vec<Vec3>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                p.push(((p[a as usize] + p[b as usize]) * 0.5).normalize());
-                (p.len() - 1) as u32
-            })
-        };
-        let mut g = Vec::new();
-        for [a, b, c] in f {
-            let (ab, bc, ca) = (m(a, b, &mut p), m(b, c, &mut p), m(c, a, &mut p));
-            g.extend([[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        f = g;
-    }
-    (p.into_iter().map(|q| centre + q * r).collect(), f)
-}
-
-pub(crate) fn torus(centre: Vec3, r0: f32, r1: f32, n0: u32, n1: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
-    let mut p = Vec::new();
-    for i in 0..n0 {
-        let a = i as f32 / n0 as f32 * std::f32::consts::TAU;
-        for j in 0..n1 {
-            let b = j as f32 / n1 as f32 * std::f32::consts::TAU;
-            let rr = r0 + r1 * b.cos();
-            p.push(centre + Vec3::new(rr * a.cos(), r1 * b.sin(), rr * a.sin()));
-        }
-    }
-    let id = |i: u32, j: u32| (i % n0) * n1 + (j % n1);
-    let mut f = Vec::new();
-    for i in 0..n0 {
-        for j in 0..n1 {
-            f.push([id(i, j), id(i, j + 1), id(i + 1, j + 1)]);
-            f.push([id(i, j), id(i + 1, j + 1), id(i + 1, j)]);
-        }
-    }
-    (p, f)
-}
 
 /// Thin triangles, 1e-4 of their length wide: alone, and inside a fan with big neighbours.
 fn slivers(b: &mut SceneBuilder, m: u32) {
@@ -518,61 +438,4 @@ fn degenerate_triangles_get_no_face() {
     let a = build(&s, &config(0.1));
     assert_eq!(a.face_of[1], [NO_FACE, NO_FACE]);
     assert_eq!(a.faces.len(), 1);
-}
-
-/// Timing on the largest synthetic scene (not a correctness test; run with
-/// `cargo test --release --lib atlas::tests::timing -- --ignored --nocapture`).
-/// A synthetic "temple complex": a 120 m courtyard, 400 columns (box shaft, torus base,
-/// icosphere capital), tiled floors. 312k triangles, 491k faces.
-pub(crate) fn temple() -> Scene {
-    let mut b = SceneBuilder::new();
-    let m = b.material(white());
-    let d = b.material(diffuse(Vec3::splat(0.7), Vec3::ZERO, true));
-    // A "temple complex": 120 m courtyard, rooms, 400 columns (tori + spheres), tiled floors.
-    b.cuboid("court", Vec3::new(-60.0, 0.0, -60.0), Vec3::new(60.0, 15.0, 60.0), true, m);
-    for i in 0..20 {
-        for j in 0..20 {
-            let c = Vec3::new(-50.0 + i as f32 * 5.2, 0.0, -50.0 + j as f32 * 5.2);
-            let (p, f) = icosphere(c + Vec3::Y * 6.0, 0.6, 2);
-            b.mesh("capital", p, f, m);
-            let (p, f) = torus(c + Vec3::Y * 0.3, 0.6, 0.2, 24, 8);
-            b.mesh("base", p, f, d);
-            b.cuboid("shaft", c - Vec3::new(0.3, 0.0, 0.3), c + Vec3::new(0.3, 5.5, 0.3), false, m);
-        }
-    }
-    for k in 0..8 {
-        let o = Vec3::new(-55.0 + k as f32 * 14.0, 0.0, 58.0);
-        b.grid_quad("tiles", [o, o + Vec3::X * 12.0, o + Vec3::new(12.0, 0.0, -12.0), o - Vec3::Z * 12.0], 40, d);
-    }
-    b.build()
-}
-
-#[test]
-#[ignore = "timing report, run in release by hand"]
-fn timing() {
-    let s = temple();
-    let g = SceneGeometry::new(&s);
-    println!("{} triangles", g.len());
-    let cfg = AtlasConfig::default();
-    let t = std::time::Instant::now();
-    let a = Atlas::build(&s, &g, &cfg).unwrap();
-    let build = t.elapsed().as_secs_f64();
-    println!(
-        "atlas {}×{}, texel {:.4} m, {} charts, {} faces: unwrap {:.1} ms, pack {:.1} ms, build total {:.1} ms, covered {} (fill {:.3})",
-        a.width,
-        a.height,
-        a.texel_size,
-        a.stats.charts,
-        a.stats.faces,
-        a.stats.unwrap_seconds * 1e3,
-        a.stats.pack_seconds * 1e3,
-        build * 1e3,
-        a.stats.covered_texels_lod0,
-        a.stats.fill_ratio
-    );
-    for lod in 0..3 {
-        let t = std::time::Instant::now();
-        let tm = TexelMap::build(&s, &g, &a, lod);
-        println!("LOD {lod}: {} texels, {} gutter, {:.1} ms", tm.len(), tm.gutter.len(), t.elapsed().as_secs_f64() * 1e3);
-    }
 }

@@ -9,8 +9,7 @@
 //! * [`batch`]: many queries on crossbeam worker threads, independent of thread count.
 //! * [`scenes`]: synthetic scenes for tests and benchmarks.
 //!
-//! Throughput on the ~10k-triangle [`scenes::furnished_room`]:
-//! `cargo test --release --lib reference::tests::bench -- --ignored --nocapture`.
+//! Throughput: `livebake bench --only reference`.
 
 mod alpha;
 pub mod batch;

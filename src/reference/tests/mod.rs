@@ -2,7 +2,6 @@
 //! sidedness and transport, batches. Tolerances are derived in comments next to each check.
 
 mod batch;
-mod bench;
 mod bvh;
 mod emissive;
 mod lights;
