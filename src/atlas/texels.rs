@@ -12,8 +12,7 @@ use crate::scene::{Rgb, Scene, SceneGeometry};
 /// Marks an atlas pixel that holds no texel (not covered by any face, or gutter).
 pub const NO_TEXEL: u32 = u32::MAX;
 
-/// Every valid texel of one LOD, stored compactly (covered texels only, in row-major pixel
-/// order), plus the pixel → texel lookup and the gutter pixels that copy a texel.
+/// Every valid texel of one LOD, stored compactly (covered texels only, in [`block_order`]), plus the pixel → texel lookup and the gutter pixels that copy a texel.
 #[derive(Clone, Debug, Default)]
 pub struct TexelMap {
     pub lod: u32,
@@ -81,7 +80,8 @@ impl TexelMap {
         } else {
             std::thread::available_parallelism().map_or(1, |n| n.get()).min(8)
         };
-        let band_rows = if threads == 1 { h.max(1) } else { h.div_ceil(threads * 8).max(4) };
+        // Whole texel blocks per band, so texel ids can follow the blocks (see [`block_order`]).
+        let band_rows = if threads == 1 { h.max(1) } else { h.div_ceil(threads * 8).max(4) }.next_multiple_of(BLOCK);
         let bands = h.div_ceil(band_rows);
 
         // Faces per band, in increasing id order.
@@ -142,7 +142,7 @@ impl TexelMap {
             *count = n;
         });
 
-        // Phase 2: texels, in row-major pixel order; `slot` turns from face into texel ids.
+        // Phase 2: texels, in block order ([`block_order`]); `slot` turns from face into texel ids.
         let total: usize = counts.iter().sum();
         let mut map = TexelMap {
             lod,
@@ -184,7 +184,8 @@ impl TexelMap {
             par_for_each(items, threads, |(b, first, chunk, pixel, face, position, normal, albedo, emission, area, band_area)| {
                 let y0 = b * band_rows;
                 let mut k = 0;
-                for (i, s) in chunk.iter_mut().enumerate() {
+                for i in block_order(w, chunk.len() / w.max(1)) {
+                    let s = &mut chunk[i];
                     if *s == NO_TEXEL {
                         continue;
                     }
@@ -281,6 +282,30 @@ impl TexelMap {
         }
         img
     }
+}
+
+/// Side of the square pixel blocks texel ids follow.
+const BLOCK: usize = 8;
+
+/// The pixel indices of a `w`×`rows` row-major band, block by block ([`BLOCK`]² pixels,
+/// blocks in row-major order), Z-order inside a block. Texels numbered this way keep
+/// surface neighbours close in memory in every direction, not only along rows: the
+/// bundle resolve walks lines across the atlas in all directions, reading and
+/// accumulating per-texel values as it goes.
+pub(crate) fn block_order(w: usize, rows: usize) -> impl Iterator<Item = usize> {
+    let blocks_x = w.div_ceil(BLOCK);
+    (0..rows.div_ceil(BLOCK) * blocks_x).flat_map(move |b| {
+        let (bx, by) = (b % blocks_x * BLOCK, b / blocks_x * BLOCK);
+        (0..BLOCK * BLOCK).filter_map(move |m| {
+            let (x, y) = (bx + deinterleave(m), by + deinterleave(m >> 1));
+            (x < w && y < rows).then_some(y * w + x)
+        })
+    })
+}
+
+/// The even bits of `m`, packed: one coordinate of a Z-order index.
+fn deinterleave(m: usize) -> usize {
+    (m & 1) | (m >> 1 & 2) | (m >> 2 & 4)
 }
 
 /// Splits the first `n` elements off a mutable slice.

@@ -16,7 +16,7 @@
 //! A pixel's fragments arrive in triangle order and are insertion-sorted, which is stable:
 //! ties keep a deterministic order, and results do not depend on how tiles were split.
 
-use super::prepared::{NO_GROUP, PreparedScene};
+use super::prepared::{BlockedTable, NO_GROUP, PreparedScene};
 use crate::atlas::texels::NO_TEXEL;
 use crate::bundle::estimator::{EMITTER_FLAG, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, sort_by_depth};
 use crate::bundle::raster::{BundleFrame, Planes, ScreenTriangle, Viewport, eval, grid_centre};
@@ -329,8 +329,7 @@ fn grow<T: Copy>(buffer: &mut Vec<T>, len: usize, value: T) {
 
 /// The atlas-pixel → texel table of the LOD being baked.
 struct TexelLookup<'a> {
-    table: &'a [u32],
-    width: u32,
+    table: &'a BlockedTable,
     /// The atlas size in pixels, as far as f32 holds it exactly (2^24: far beyond any atlas).
     size: Vec2,
 }
@@ -339,7 +338,7 @@ impl<'a> TexelLookup<'a> {
     fn new(scene: &'a PreparedScene) -> Self {
         let (width, height) = (scene.texels.width, scene.texels.height);
         let exact = |n: u32| n.min(1 << 24) as f32;
-        TexelLookup { table: &scene.texel_lookup, width, size: Vec2::new(exact(width), exact(height)) }
+        TexelLookup { table: &scene.texel_lookup, size: Vec2::new(exact(width), exact(height)) }
     }
 
     /// The texel under the pixel centre (cx, cy) of a side with UV function `uv`. Pixel
@@ -351,7 +350,7 @@ impl<'a> TexelLookup<'a> {
         let uv = uv[0] * cx + uv[1] * cy + uv[2];
         // 0 ≤ uv < size, i.e. its pixel ⌊uv⌋ is in the atlas (the size is whole pixels).
         if uv.x >= 0.0 && uv.y >= 0.0 && uv.x < self.size.x && uv.y < self.size.y {
-            let t = self.table[(uv.y as u32 * self.width + uv.x as u32) as usize];
+            let t = self.table.get(uv.x as u32, uv.y as u32);
             if t != NO_TEXEL {
                 return t;
             }

@@ -4,6 +4,7 @@
 use glam::{Vec2, Vec3};
 
 use super::spheres::SphereTree;
+use crate::atlas::texels::NO_TEXEL;
 use crate::atlas::{Atlas, TexelMap};
 use crate::scene::{SceneGeometry, Side};
 
@@ -25,7 +26,7 @@ pub struct PreparedScene<'a> {
     /// Per atlas pixel: its texel, or for a gutter pixel the texel it copies (its chart's
     /// nearest), else `NO_TEXEL`. A fragment whose UV rounds a hair outside its chart's
     /// covered pixels lands in the gutter ring and still finds its own chart's texel.
-    pub texel_lookup: Vec<u32>,
+    pub texel_lookup: BlockedTable,
     /// Bounding spheres of the triangles, for culling against bundle windows along any
     /// direction.
     pub spheres: SphereTree,
@@ -74,9 +75,9 @@ impl<'a> PreparedScene<'a> {
             .collect();
         let spheres = SphereTree::new(spheres);
         let coincident_depth = 1e-6 * (radius + centre.abs().max_element());
-        let mut texel_lookup = texels.slot.clone();
-        for &(pixel, texel) in &texels.gutter {
-            texel_lookup[pixel as usize] = texel;
+        let mut texel_lookup = BlockedTable::new(texels.width, texels.height, NO_TEXEL);
+        for (&pixel, texel) in texels.pixel.iter().zip(0..).chain(texels.gutter.iter().map(|(p, t)| (p, *t))) {
+            texel_lookup.set(pixel % texels.width, pixel / texels.width, texel);
         }
         PreparedScene {
             geom,
@@ -90,5 +91,66 @@ impl<'a> PreparedScene<'a> {
             radius,
             coincident_depth,
         }
+    }
+}
+
+/// A per-pixel table over the atlas stored in 8×8-pixel blocks (row-major blocks, row-major
+/// pixels inside): a bundle span walks a line across the atlas in any direction, and
+/// blocks keep the entries it reads next to each other far more often than rows do.
+#[derive(Clone, Debug, Default)]
+pub struct BlockedTable {
+    entries: Vec<u32>,
+    blocks_x: u32,
+}
+
+impl BlockedTable {
+    const SHIFT: u32 = 3;
+    const MASK: u32 = (1 << Self::SHIFT) - 1;
+
+    fn new(width: u32, height: u32, fill: u32) -> Self {
+        let blocks_x = width.div_ceil(1 << Self::SHIFT);
+        let blocks_y = height.div_ceil(1 << Self::SHIFT);
+        let len = blocks_x as usize * blocks_y as usize * (1 << (2 * Self::SHIFT));
+        BlockedTable { entries: vec![fill; len], blocks_x }
+    }
+
+    #[inline(always)]
+    fn index(&self, x: u32, y: u32) -> usize {
+        let block = (y >> Self::SHIFT) as usize * self.blocks_x as usize + (x >> Self::SHIFT) as usize;
+        block << (2 * Self::SHIFT) | ((y & Self::MASK) << Self::SHIFT | (x & Self::MASK)) as usize
+    }
+
+    fn set(&mut self, x: u32, y: u32, value: u32) {
+        let i = self.index(x, y);
+        self.entries[i] = value;
+    }
+
+    /// The entry of pixel (x, y), which must lie inside the table's width × height.
+    #[inline(always)]
+    pub fn get(&self, x: u32, y: u32) -> u32 {
+        self.entries[self.index(x, y)]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::BlockedTable;
+
+    #[test]
+    fn blocked_table_keeps_every_pixel_apart() {
+        // Sizes that are not whole blocks, so the ragged last block row and column count.
+        let (w, h) = (13, 10);
+        let mut t = BlockedTable::new(w, h, u32::MAX);
+        for y in 0..h {
+            for x in 0..w {
+                t.set(x, y, y * w + x);
+            }
+        }
+        for y in 0..h {
+            for x in 0..w {
+                assert_eq!(t.get(x, y), y * w + x);
+            }
+        }
+        assert_eq!(t.entries.iter().filter(|&&e| e != u32::MAX).count(), (w * h) as usize);
     }
 }
