@@ -54,13 +54,13 @@ enum Command {
         #[command(flatten)]
         options: SceneOptions,
     },
-    /// Measure: unwrap/pack, reference rays/s, startup bake, convergence against Mitsuba and
-    /// Cycles, tiling modes. Writes JSON (medians and ratios from one run).
+    /// Measure: load and unwrap/pack, reference rays/s, startup bake, bundle throughput,
+    /// convergence against Mitsuba and Cycles, tiling modes. Writes JSON (medians and ratios from one run).
     Bench {
         /// Output JSON.
         #[arg(long, default_value = "bench.json")]
         out: PathBuf,
-        /// Only these sections (atlas, reference, startup, convergence, tiling).
+        /// Only these sections (atlas, reference, startup, throughput, convergence, tiling).
         #[arg(long, value_delimiter = ',')]
         only: Vec<String>,
         /// Smaller sample sets and fewer repeats (a smoke run, not a measurement).

@@ -5,6 +5,7 @@ mod atlas;
 mod convergence;
 mod reference;
 mod startup;
+mod throughput;
 mod tiling;
 
 use std::path::{Path, PathBuf};
@@ -27,10 +28,11 @@ pub fn assets() -> PathBuf {
 type Bench = fn(bool, &Ui) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 5] = [
+pub const SECTIONS: [(&str, Bench); 6] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
+    ("throughput", throughput::run),
     ("convergence", convergence::run),
     ("tiling", tiling::run),
 ];
@@ -47,6 +49,10 @@ pub fn seconds(t: Instant) -> f64 {
 }
 
 pub fn run(out: &Path, only: &[String], quick: bool, ui: &Ui) -> Result<()> {
+    if let Some(unknown) = only.iter().find(|s| !SECTIONS.iter().any(|(name, _)| name == s)) {
+        let names: Vec<&str> = SECTIONS.iter().map(|(name, _)| *name).collect();
+        anyhow::bail!("unknown bench section {unknown:?} (sections: {})", names.join(", "));
+    }
     let mut report = json!({
         "livebake_version": env!("CARGO_PKG_VERSION"),
         "threads": std::thread::available_parallelism().map_or(1, |n| n.get()),
