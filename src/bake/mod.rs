@@ -115,6 +115,8 @@ pub enum BakeError {
     NoSamples,
     #[error(transparent)]
     Bundle(#[from] BundleConfigError),
+    #[error("{count} of {directions} bundle directions of LOD {lod} could not be planned (see the log); the light map would miss their samples")]
+    UnplannedDirections { lod: u32, count: u64, directions: u64 },
     #[error("LOD {lod} would have {texels} texels, above the limit of {max}; use fewer --lods or a larger --texel-size")]
     LodTooLarge { lod: u32, texels: u64, max: u64 },
 }
@@ -167,6 +169,10 @@ pub fn bake(scene: &Scene, config: &BakeConfig, progress: &dyn Progress) -> Resu
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
                 let (irradiance, bstats) =
                     bundle::bake_lod(&inputs, &texels, coarser, &bundle_config, config.threads(), progress);
+                if bstats.pass.unplanned_directions > 0 {
+                    let (count, directions) = (bstats.pass.unplanned_directions, bstats.directions);
+                    return Err(BakeError::UnplannedDirections { lod, count, directions });
+                }
                 let stats = BackendStats {
                     samples_per_texel: config.samples,
                     rays: bstats.pass.covered_pixels,

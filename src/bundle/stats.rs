@@ -33,6 +33,9 @@ pub struct PassStats {
     pub resplits: u64,
     /// Tiles of one pixel deeper than N, built anyway.
     pub unsplittable_tiles: u64,
+    /// Directions whose tiles could not be planned (invalid maps or parameters): their
+    /// samples are missing, so a bake with any is refused.
+    pub unplanned_directions: u64,
     /// Planner decisions summed over directions.
     pub tiles_planned: u64,
     pub splits_for_importance: u64,
@@ -75,6 +78,7 @@ impl PassStats {
         self.overflow_fragments += o.overflow_fragments;
         self.resplits += o.resplits;
         self.unsplittable_tiles += o.unsplittable_tiles;
+        self.unplanned_directions += o.unplanned_directions;
         self.tiles_planned += o.tiles_planned;
         self.splits_for_importance += o.splits_for_importance;
         self.splits_for_memory += o.splits_for_memory;

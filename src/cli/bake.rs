@@ -70,13 +70,17 @@ fn summarise(ui: &Ui, scene_path: &Path, baked: &BakeOutput, files: &[std::path:
         r.atlas.stats.fill_ratio * 100.0
     ));
     for l in &r.lods {
+        // A bundle backend's sample is a direction shared by every texel.
+        let samples = match l.bundle {
+            Some(_) => format!("{} directions", l.samples_per_texel),
+            None => format!("{} paths/texel", l.samples_per_texel),
+        };
         ui.say(format!(
-            "  LOD {}: {}×{}, {} texels, {} samples/texel, {:.2} s, {:.2} M rays/s, mean E {:.3} W/m²",
+            "  LOD {}: {}×{}, {} texels, {samples}, {:.2} s, {:.2} M rays/s, mean E {:.3} W/m²",
             l.lod,
             l.width,
             l.height,
             l.texels,
-            l.samples_per_texel,
             l.bake_seconds,
             l.rays_per_second / 1e6,
             (l.mean_irradiance[0] + l.mean_irradiance[1] + l.mean_irradiance[2]) / 3.0

@@ -120,15 +120,20 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
     let importance = MipChain::max_mips(res, std::mem::take(&mut s.analysis.importance));
     let fragments = MipChain::average_mips(res, std::mem::take(&mut s.analysis.fragments));
     stats.mip_seconds += seconds(t);
-    let (Ok(importance), Ok(fragments)) = (importance, fragments) else {
-        // R is validated as a power of two when the config is built.
-        return;
+    // The config is validated when it is built, so none of these fail in practice; if one
+    // does, the direction is counted as unplanned and the bake driver refuses the result.
+    let (importance, fragments) = match (importance, fragments) {
+        (Ok(i), Ok(f)) => (i, f),
+        (Err(e), _) | (_, Err(e)) => return unplanned(stats, &e),
     };
 
     let t = Instant::now();
     let params = TileParams { w: cfg.head_side, n: cfg.node_capacity, alpha: cfg.alpha, pixel_area: (global.pixel as f64).powi(2) };
-    let Ok(planner) = TilePlanner::new(&importance, &fragments, params) else { return };
-    let Ok(plan) = planner.plan(cfg.tiling) else { return };
+    let plan = match TilePlanner::new(&importance, &fragments, params).and_then(|p| Ok((p.plan(cfg.tiling)?, p))) {
+        Ok(plan) => plan,
+        Err(e) => return unplanned(stats, &e),
+    };
+    let (plan, planner) = plan;
     stats.subdivision_seconds += seconds(t);
     stats.add_plan(&plan.stats);
 
@@ -159,6 +164,11 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
         stats.resolve_seconds += seconds(t);
     }
     stats.lost_lookups += std::mem::take(&mut s.fragments.lost_lookups);
+}
+
+fn unplanned(stats: &mut PassStats, error: &dyn std::fmt::Display) {
+    tracing::error!("bundle direction not planned: {error}");
+    stats.unplanned_directions += 1;
 }
 
 /// A tile counted more fragments than the node buffer holds: record it and queue its parts

@@ -132,7 +132,8 @@ impl TileFragments {
             let (c0, c1) = tri.screen.columns();
             for strip in (c0 / STRIP) as usize..=(c1 / STRIP) as usize {
                 let column = &mut counts[strip * height..][..height];
-                column[r0 as usize] += 1;
+                // Modular: a cell may hold a "−1" from an earlier triangle's end.
+                column[r0 as usize] = column[r0 as usize].wrapping_add(1);
                 if let Some(below) = column.get_mut(r1 as usize + 1) {
                     *below = below.wrapping_sub(1);
                 }
@@ -248,7 +249,7 @@ impl TileFragments {
         for s in spans {
             let (x0, x1) = clip(s);
             if x0 < x1 {
-                self.ends[(x0 - lo) as usize + 1] += 1;
+                self.ends[(x0 - lo) as usize + 1] = self.ends[(x0 - lo) as usize + 1].wrapping_add(1);
                 self.ends[(x1 - lo) as usize + 1] = self.ends[(x1 - lo) as usize + 1].wrapping_sub(1);
             }
         }
