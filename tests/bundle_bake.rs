@@ -7,7 +7,7 @@ use livebake::bake::{BackendKind, BakeConfig, BakeOutput, bake};
 use livebake::bundle::tiles::TilingMode;
 use livebake::glam::Vec3;
 use livebake::progress::NoProgress;
-use livebake::reference::ReferenceTracer;
+use livebake::reference::{IrradianceEstimate, ReferenceTracer, RelativeRmsError};
 use livebake::scene::builder::diffuse;
 use livebake::scene::{Rgb, Scene, SceneBuilder};
 
@@ -22,6 +22,15 @@ fn run(scene: &Scene, config: &BakeConfig) -> BakeOutput {
 }
 
 /// A quad of half-size `h` at height `y`, facing down.
+/// Relative RMS error of light-map texels `picks` against reference estimates at them.
+fn relative_rms_error(e: &[Rgb], picks: &[usize], reference: &[IrradianceEstimate]) -> f64 {
+    let mut error = RelativeRmsError::default();
+    for (&i, r) in picks.iter().zip(reference) {
+        error.add(e[i].as_dvec3(), r.e.as_dvec3(), r.stderr.as_dvec3());
+    }
+    error.value()
+}
+
 fn ceiling_lamp(c: Vec3, h: f32) -> [Vec3; 4] {
     [c + Vec3::new(-h, 0.0, -h), c + Vec3::new(h, 0.0, -h), c + Vec3::new(h, 0.0, h), c + Vec3::new(-h, 0.0, h)]
 }
@@ -213,18 +222,7 @@ fn cornell_room_converges_to_the_reference() {
     let picks: Vec<usize> = (0..t.len()).step_by(t.len() / 200).filter(|&i| t.emission[i] == Rgb::ZERO).collect();
     let queries: Vec<(Vec3, Vec3)> = picks.iter().map(|&i| (t.position[i], t.normal[i])).collect();
     let (reference, _) = tracer.irradiance_batch_estimates(&queries, 8192, 7, &|_| {});
-    let err = |e: &[Rgb]| {
-        let (mut se, mut sr, mut var) = (0.0f64, 0.0f64, 0.0f64);
-        for (k, &i) in picks.iter().enumerate() {
-            for c in 0..3 {
-                let (got, want, sd) = (e[i][c] as f64, reference[k].e[c] as f64, reference[k].stderr[c] as f64);
-                se += (got - want).powi(2);
-                sr += want * want;
-                var += sd * sd;
-            }
-        }
-        ((se - var).max(0.0) / sr).sqrt()
-    };
+    let err = |e: &[Rgb]| relative_rms_error(e, &picks, &reference);
     let errors: Vec<f64> = bakes.iter().map(|(_, o)| err(&o.lods[0].irradiance)).collect();
     eprintln!("relative RMS error at 64/256/1024 directions: {errors:?}");
     assert!(errors[0] > 1.5 * errors[1] && errors[1] > 1.5 * errors[2], "{errors:?}");
@@ -262,15 +260,7 @@ fn finer_lods_converge_from_the_coarser_one() {
     let picks: Vec<usize> = (0..t.len()).step_by(t.len() / 200).filter(|&i| t.emission[i] == Rgb::ZERO).collect();
     let queries: Vec<(Vec3, Vec3)> = picks.iter().map(|&i| (t.position[i], t.normal[i])).collect();
     let (reference, _) = ReferenceTracer::new(&scene).irradiance_batch_estimates(&queries, 8192, 3, &|_| {});
-    let (mut se, mut sr, mut var) = (0.0f64, 0.0f64, 0.0f64);
-    for (k, &i) in picks.iter().enumerate() {
-        for c in 0..3 {
-            se += (lod1.irradiance[i][c] as f64 - reference[k].e[c] as f64).powi(2);
-            sr += (reference[k].e[c] as f64).powi(2);
-            var += (reference[k].stderr[c] as f64).powi(2);
-        }
-    }
-    let err = ((se - var).max(0.0) / sr).sqrt();
+    let err = relative_rms_error(&lod1.irradiance, &picks, &reference);
     eprintln!("LOD 1 relative RMS error: {err}");
     assert!(err < 0.05, "{err}");
 }

@@ -112,7 +112,8 @@ impl Analysis {
         }
         // Ascending order: read back the bit set when it is dense, else sort the few
         // collected; either way the set is left empty for the next window.
-        if out.len() * 8 >= last_word - first_word + 1 {
+        let words = last_word - first_word + 1;
+        if out.len() * 8 >= words {
             out.clear();
             for word in first_word..=last_word {
                 let mut bits = std::mem::take(&mut self.collected[word]);

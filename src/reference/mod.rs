@@ -6,6 +6,7 @@
 //! * [`tracer`]: [`ReferenceTracer`], irradiance E (W/m²) at a surface point by path tracing
 //!   with next-event estimation and MIS at every vertex; its docs state the conventions
 //!   (sidedness, emission, lights, sky, ray offset ε).
+//! * [`compare`]: [`RelativeRmsError`], the error figure against a noisy reference.
 //! * [`batch`]: many queries on crossbeam worker threads, independent of thread count.
 //! * [`scenes`]: synthetic scenes for tests and benchmarks.
 //!
@@ -15,6 +16,7 @@ mod alpha;
 pub mod batch;
 pub mod bvh;
 mod bvh_build;
+pub mod compare;
 pub mod emitters;
 pub mod scenes;
 pub mod tracer;
@@ -26,5 +28,6 @@ mod tests;
 pub use alpha::AlphaMasks;
 pub use batch::TraceStats;
 pub use bvh::{Bvh, Hit, Nearest};
+pub use compare::RelativeRmsError;
 pub use emitters::{EmitterSample, EmitterTable};
 pub use tracer::{IrradianceEstimate, ReferenceTracer, TracerOptions, ray_epsilon};

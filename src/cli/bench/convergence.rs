@@ -15,13 +15,13 @@ use std::process::Command;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use livebake::glam::Vec3;
+use livebake::glam::{DVec3, Vec3};
 use serde_json::{Value, json};
 
 use livebake::bake::{BackendKind, BakeConfig, bake};
 use livebake::probe::{LightmapSampler, SurfaceLocator};
 use livebake::progress::NoProgress;
-use livebake::reference::Bvh;
+use livebake::reference::{Bvh, RelativeRmsError};
 use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 
 use super::{assets, seconds};
@@ -59,16 +59,12 @@ impl Reference {
     /// Normalised RMS error of `e` (per point, `None` = missing) with the reference's
     /// variance removed in quadrature.
     fn error(&self, e: &[Option<[f64; 3]>]) -> Result<f64> {
-        let (mut se, mut sr, mut var) = (0.0, 0.0, 0.0);
+        let mut error = RelativeRmsError::default();
         for (k, got) in e.iter().enumerate() {
             let got = got.with_context(|| format!("no estimate at point {k}"))?;
-            for c in 0..3 {
-                se += (got[c] - self.e[k][c]).powi(2);
-                sr += self.e[k][c].powi(2);
-                var += self.stderr[k][c].powi(2);
-            }
+            error.add(DVec3::from(got), DVec3::from(self.e[k]), DVec3::from(self.stderr[k]));
         }
-        Ok(((se - var).max(0.0) / sr).sqrt())
+        Ok(error.value())
     }
 }
 

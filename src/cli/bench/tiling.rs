@@ -10,7 +10,7 @@ use serde_json::{Value, json};
 use livebake::bake::{BakeConfig, bake};
 use livebake::bundle::tiles::TilingMode;
 use livebake::progress::NoProgress;
-use livebake::reference::ReferenceTracer;
+use livebake::reference::{ReferenceTracer, RelativeRmsError};
 use livebake::scene::{LoadOptions, Rgb, load_gltf};
 
 use super::assets;
@@ -43,19 +43,15 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     let mut rows = Vec::new();
     for (name, secs, out) in &bakes {
         let e = &out.lods[0].irradiance;
-        let (mut se, mut sr, mut var) = (0.0f64, 0.0f64, 0.0f64);
+        let mut error = RelativeRmsError::default();
         for (k, &i) in picks.iter().enumerate() {
-            for c in 0..3 {
-                se += (e[i][c] as f64 - reference[k].e[c] as f64).powi(2);
-                sr += (reference[k].e[c] as f64).powi(2);
-                var += (reference[k].stderr[c] as f64).powi(2);
-            }
+            error.add(e[i].as_dvec3(), reference[k].e.as_dvec3(), reference[k].stderr.as_dvec3());
         }
         let b = out.report.lods[0].bundle.as_ref().context("bundle report")?;
         rows.push(json!({
             "tiling": name,
             "seconds": secs,
-            "error": ((se - var).max(0.0) / sr).sqrt(),
+            "error": error.value(),
             "tiles_per_direction": b.tiles_per_direction,
             "overflow_ratio": b.overflow_ratio,
             "false_alarm_ratio": b.false_alarm_ratio,
