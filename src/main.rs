@@ -5,11 +5,17 @@ mod cli;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    match cli::run() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
+    // Bad input is an `Err`; a panic can only be a bug. Say so in one line, exit 1 like any
+    // other failure, and leave earlier results alone (outputs are written atomically).
+    std::panic::set_hook(Box::new(|info| {
+        eprintln!("error: internal error, a bug in livebake (please report it): {info}");
+    }));
+    match std::panic::catch_unwind(cli::run) {
+        Ok(Ok(())) => ExitCode::SUCCESS,
+        Ok(Err(e)) => {
             eprintln!("error: {e:#}");
             ExitCode::FAILURE
         }
+        Err(_) => ExitCode::FAILURE,
     }
 }

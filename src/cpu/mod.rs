@@ -82,7 +82,8 @@ impl BundleBackend for CpuBundleBackend<'_> {
                     })
                 })
                 .collect();
-            handles.into_iter().map(|h| h.join().unwrap_or_default()).collect()
+            // A worker's panic is a bug: pass it on rather than bake with its samples missing.
+            handles.into_iter().map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p))).collect()
         });
         let mut lane_sums: Vec<BatchSums> = self.lanes.iter_mut().map(|l| std::mem::take(&mut l.sums)).collect();
         sums.reduce_from(&mut lane_sums, self.threads);

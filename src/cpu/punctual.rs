@@ -36,7 +36,8 @@ pub fn punctual_irradiance(scene: &Scene, bvh: &Bvh, texels: &TexelMap, epsilon:
                 })
             })
             .collect();
-        handles.into_iter().flat_map(|h| h.join().unwrap_or_default()).collect()
+        // A worker's panic is a bug: pass it on rather than leave its texels unlit.
+        handles.into_iter().flat_map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p))).collect()
     });
     for (start, values) in chunks {
         out[start..start + values.len()].copy_from_slice(&values);
