@@ -129,11 +129,11 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
 
     let t = Instant::now();
     let params = TileParams { w: cfg.head_side, n: cfg.node_capacity, alpha: cfg.alpha, pixel_area: (global.pixel as f64).powi(2) };
-    let plan = match TilePlanner::new(&importance, &fragments, params).and_then(|p| Ok((p.plan(cfg.tiling)?, p))) {
-        Ok(plan) => plan,
+    let planned = TilePlanner::new(&importance, &fragments, params).and_then(|p| p.plan(cfg.tiling).map(|plan| (p, plan)));
+    let (planner, plan) = match planned {
+        Ok(planned) => planned,
         Err(e) => return unplanned(stats, &e),
     };
-    let (plan, planner) = plan;
     stats.subdivision_seconds += seconds(t);
     stats.add_plan(&plan.stats);
 
