@@ -83,7 +83,12 @@ fn tone_map(c: Rgb) -> [u8; 3] {
     })
 }
 
-fn encode(path: &Path, w: &mut BufWriter<File>, img: impl Into<image::DynamicImage>, fmt: ImageFormat) -> Result<(), OutputError> {
+fn encode(
+    path: &Path,
+    w: &mut BufWriter<File>,
+    img: impl Into<image::DynamicImage>,
+    fmt: ImageFormat,
+) -> Result<(), OutputError> {
     img.into().write_to(w, fmt).map_err(|source| OutputError::Encode { path: path.to_path_buf(), source })
 }
 

@@ -113,12 +113,9 @@ impl<'a> LightmapSampler<'a> {
         let f = q - base;
         let mut sum = Rgb::ZERO;
         let mut wsum = 0.0;
-        for (dx, dy, w) in [
-            (0, 0, (1.0 - f.x) * (1.0 - f.y)),
-            (1, 0, f.x * (1.0 - f.y)),
-            (0, 1, (1.0 - f.x) * f.y),
-            (1, 1, f.x * f.y),
-        ] {
+        for (dx, dy, w) in
+            [(0, 0, (1.0 - f.x) * (1.0 - f.y)), (1, 0, f.x * (1.0 - f.y)), (0, 1, (1.0 - f.x) * f.y), (1, 1, f.x * f.y)]
+        {
             let (x, y) = (base.x as i64 + dx, base.y as i64 + dy);
             if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
                 continue;

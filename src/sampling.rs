@@ -68,10 +68,7 @@ pub fn basis(n: Vec3) -> (Vec3, Vec3) {
     let sign = 1.0f32.copysign(n.z);
     let a = -1.0 / (sign + n.z);
     let b = n.x * n.y * a;
-    (
-        Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
-        Vec3::new(b, sign + n.y * n.y * a, -n.y),
-    )
+    (Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x), Vec3::new(b, sign + n.y * n.y * a, -n.y))
 }
 
 /// Cosine-weighted direction on the hemisphere around unit `n`; pdf = cosθ/π.
@@ -108,10 +105,22 @@ mod tests {
 
     #[test]
     fn streams_are_deterministic_and_distinct() {
-        let a: Vec<u32> = { let mut r = Rng::new(7, 3); (0..8).map(|_| r.next_u32()).collect() };
-        let b: Vec<u32> = { let mut r = Rng::new(7, 3); (0..8).map(|_| r.next_u32()).collect() };
-        let c: Vec<u32> = { let mut r = Rng::new(7, 4); (0..8).map(|_| r.next_u32()).collect() };
-        let d: Vec<u32> = { let mut r = Rng::new(8, 3); (0..8).map(|_| r.next_u32()).collect() };
+        let a: Vec<u32> = {
+            let mut r = Rng::new(7, 3);
+            (0..8).map(|_| r.next_u32()).collect()
+        };
+        let b: Vec<u32> = {
+            let mut r = Rng::new(7, 3);
+            (0..8).map(|_| r.next_u32()).collect()
+        };
+        let c: Vec<u32> = {
+            let mut r = Rng::new(7, 4);
+            (0..8).map(|_| r.next_u32()).collect()
+        };
+        let d: Vec<u32> = {
+            let mut r = Rng::new(8, 3);
+            (0..8).map(|_| r.next_u32()).collect()
+        };
         assert_eq!(a, b);
         assert_ne!(a, c);
         assert_ne!(a, d);

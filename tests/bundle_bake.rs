@@ -125,7 +125,8 @@ fn punctual_lights_are_exact_per_texel() {
         };
         let sun = if blocked(p, to_sun, f32::INFINITY) { 0.0 } else { 3.0 * n.dot(to_sun) };
         let d = lamp - p;
-        let point = if blocked(p, d.normalize(), d.length()) { 0.0 } else { 2.0 * n.dot(d.normalize()) / d.length_squared() };
+        let point =
+            if blocked(p, d.normalize(), d.length()) { 0.0 } else { 2.0 * n.dot(d.normalize()) / d.length_squared() };
         let want = sun + point;
         let got = out.lods[0].irradiance[i].x;
         // Texels within a texel of the cube's shadow edge may fall either way: skip them.
@@ -208,10 +209,26 @@ fn cornell_room_converges_to_the_reference() {
     let lamp = b.material(diffuse(Rgb::ZERO, Rgb::splat(15.0), false));
     b.quad("floor", floor(Vec3::new(1.0, 0.0, 1.0), 1.0), white);
     b.quad("ceiling", ceiling_lamp(Vec3::new(1.0, 2.0, 1.0), 1.0), white);
-    b.quad("back", [Vec3::new(0.0, 0.0, 0.0), Vec3::new(2.0, 0.0, 0.0), Vec3::new(2.0, 2.0, 0.0), Vec3::new(0.0, 2.0, 0.0)], white);
-    b.quad("front", [Vec3::new(0.0, 0.0, 2.0), Vec3::new(0.0, 2.0, 2.0), Vec3::new(2.0, 2.0, 2.0), Vec3::new(2.0, 0.0, 2.0)], white);
-    b.quad("left", [Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.0, 2.0, 0.0), Vec3::new(0.0, 2.0, 2.0), Vec3::new(0.0, 0.0, 2.0)], red);
-    b.quad("right", [Vec3::new(2.0, 0.0, 0.0), Vec3::new(2.0, 0.0, 2.0), Vec3::new(2.0, 2.0, 2.0), Vec3::new(2.0, 2.0, 0.0)], green);
+    b.quad(
+        "back",
+        [Vec3::new(0.0, 0.0, 0.0), Vec3::new(2.0, 0.0, 0.0), Vec3::new(2.0, 2.0, 0.0), Vec3::new(0.0, 2.0, 0.0)],
+        white,
+    );
+    b.quad(
+        "front",
+        [Vec3::new(0.0, 0.0, 2.0), Vec3::new(0.0, 2.0, 2.0), Vec3::new(2.0, 2.0, 2.0), Vec3::new(2.0, 0.0, 2.0)],
+        white,
+    );
+    b.quad(
+        "left",
+        [Vec3::new(0.0, 0.0, 0.0), Vec3::new(0.0, 2.0, 0.0), Vec3::new(0.0, 2.0, 2.0), Vec3::new(0.0, 0.0, 2.0)],
+        red,
+    );
+    b.quad(
+        "right",
+        [Vec3::new(2.0, 0.0, 0.0), Vec3::new(2.0, 0.0, 2.0), Vec3::new(2.0, 2.0, 2.0), Vec3::new(2.0, 2.0, 0.0)],
+        green,
+    );
     b.cuboid("block", Vec3::new(0.4, 0.0, 0.5), Vec3::new(1.0, 1.1, 1.1), false, white);
     b.quad("lamp", ceiling_lamp(Vec3::new(1.0, 1.99, 1.0), 0.25), lamp);
     let scene = b.build();

@@ -308,8 +308,19 @@ fn same_options_give_identical_light_maps_whatever_the_thread_count() {
         let bake = |name: &str, extra: &[&str]| -> (Vec<u8>, Vec<u8>) {
             let dir = tmp.path().join(format!("{backend}-{name}"));
             let d = dir.display().to_string();
-            let mut args =
-                vec!["-q", "bake", &scene, "--out", &d, "--texel-size", "0.05", "--backend", backend, "--samples", samples];
+            let mut args = vec![
+                "-q",
+                "bake",
+                &scene,
+                "--out",
+                &d,
+                "--texel-size",
+                "0.05",
+                "--backend",
+                backend,
+                "--samples",
+                samples,
+            ];
             args.extend_from_slice(extra);
             ok(tmp.path(), &args);
             let exr = std::fs::read(dir.join("lightmap_lod0.exr")).unwrap();

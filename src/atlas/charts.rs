@@ -70,9 +70,8 @@ pub(crate) type FxMap<K, V> = HashMap<K, V, BuildHasherDefault<FxHasher>>;
 /// position per id (that of its lowest-index vertex).
 pub(crate) fn weld(positions: &[Vec3]) -> (Vec<u32>, Vec<DVec3>) {
     let finite = positions.iter().filter(|p| p.is_finite());
-    let (lo, hi) = finite.fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| {
-        (lo.min(p.as_dvec3()), hi.max(p.as_dvec3()))
-    });
+    let (lo, hi) =
+        finite.fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), p| (lo.min(p.as_dvec3()), hi.max(p.as_dvec3())));
     let diag = if lo.x <= hi.x { (hi - lo).length() } else { 0.0 };
     let q = if diag > 0.0 { diag * 1e-6 } else { 1.0 };
     let key = |p: Vec3| {
@@ -242,7 +241,13 @@ pub fn effective_max_angle(a: f32) -> f32 {
 
 /// Unwraps the lit triangles `tris` (global ids, increasing) of `mesh` into planar charts,
 /// in LOD-0 texels of `texel_size` metres.
-pub fn unwrap_mesh(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_size: f64, max_angle: f32) -> Vec<LocalChart> {
+pub fn unwrap_mesh(
+    mesh: &Mesh,
+    geom: &SceneGeometry,
+    tris: &[TriangleId],
+    texel_size: f64,
+    max_angle: f32,
+) -> Vec<LocalChart> {
     let n = tris.len();
     if n == 0 {
         return Vec::new();
@@ -251,10 +256,8 @@ pub fn unwrap_mesh(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel
     let max_angle = effective_max_angle(max_angle);
     let cos_max = (max_angle as f64).cos();
     let (wid, reps) = weld(&mesh.positions);
-    let corners: Vec<[u32; 3]> = tris
-        .iter()
-        .map(|&t| mesh.triangles[geom.local[t as usize] as usize].map(|v| wid[v as usize]))
-        .collect();
+    let corners: Vec<[u32; 3]> =
+        tris.iter().map(|&t| mesh.triangles[geom.local[t as usize] as usize].map(|v| wid[v as usize])).collect();
     let (adj_start, adj) = edge_adjacency(&corners);
     let pos: Vec<[DVec3; 3]> = corners.iter().map(|c| c.map(|v| reps[v as usize])).collect();
     let normal: Vec<DVec3> = tris.iter().map(|&t| geom.normals[t as usize].as_dvec3()).collect();
@@ -398,12 +401,7 @@ fn finish(members: &[u32], mut uv: Vec<[DVec2; 3]>, tris: &[TriangleId]) -> Loca
     if swap {
         extent = DVec2::new(extent.y, extent.x);
     }
-    LocalChart {
-        tris: members.iter().map(|&f| tris[f as usize]).collect(),
-        uv,
-        extent,
-        fixed_interior: None,
-    }
+    LocalChart { tris: members.iter().map(|&f| tris[f as usize]).collect(), uv, extent, fixed_interior: None }
 }
 
 /// Convex hull (Andrew's monotone chain), counter-clockwise, no collinear points.
@@ -511,7 +509,9 @@ mod tests {
         let axis = min_area_rect_axis(&h);
         assert!(axis.dot(u).abs() > 1.0 - 1e-9 || axis.dot(v).abs() > 1.0 - 1e-9, "{axis:?}");
         // A regular polygon with many sides: the calipers agree with brute force.
-        let poly: Vec<DVec2> = (0..37).map(|i| DVec2::from_angle(i as f64 * 0.17 + (i * i) as f64 * 0.001) * (3.0 + (i % 3) as f64)).collect();
+        let poly: Vec<DVec2> = (0..37)
+            .map(|i| DVec2::from_angle(i as f64 * 0.17 + (i * i) as f64 * 0.001) * (3.0 + (i % 3) as f64))
+            .collect();
         let h = convex_hull(&poly);
         let area_of = |d: DVec2| {
             let e = d.perp();
@@ -523,9 +523,8 @@ mod tests {
             }
             (hi - lo).x * (hi - lo).y
         };
-        let brute = (0..h.len())
-            .map(|i| area_of((h[(i + 1) % h.len()] - h[i]).normalize()))
-            .fold(f64::INFINITY, f64::min);
+        let brute =
+            (0..h.len()).map(|i| area_of((h[(i + 1) % h.len()] - h[i]).normalize())).fold(f64::INFINITY, f64::min);
         assert!((area_of(min_area_rect_axis(&h)) - brute).abs() < 1e-9 * brute);
     }
 
@@ -544,7 +543,10 @@ mod tests {
         let mut ext: Vec<(i64, i64)> =
             charts[0].iter().map(|c| ((c.extent.x * 1e3).round() as i64, (c.extent.y * 1e3).round() as i64)).collect();
         ext.sort();
-        assert_eq!(ext, vec![(30000, 25000), (30000, 25000), (40000, 25000), (40000, 25000), (40000, 30000), (40000, 30000)]);
+        assert_eq!(
+            ext,
+            vec![(30000, 25000), (30000, 25000), (40000, 25000), (40000, 25000), (40000, 30000), (40000, 30000)]
+        );
         assert_eq!(charts[1].len(), 1);
         let e = charts[1][0].extent;
         assert!((e.x - 20.0).abs() < 1e-4 && (e.y - 10.0).abs() < 1e-4, "{e:?}");

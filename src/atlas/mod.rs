@@ -276,7 +276,9 @@ impl Atlas {
         for (_, _, _, c) in &layouts {
             let p = match c.fixed_interior {
                 Some(interior) => pack::place_fixed(interior),
-                None => pack::place_free(c.extent).ok_or(AtlasError::TooLarge { width: u32::MAX, height: u32::MAX, max })?,
+                None => {
+                    pack::place_free(c.extent).ok_or(AtlasError::TooLarge { width: u32::MAX, height: u32::MAX, max })?
+                }
             };
             placements.push(p);
         }
@@ -356,7 +358,9 @@ impl Atlas {
     pub fn triangle_texel_densities(&self, geom: &SceneGeometry, lod: u32) -> Vec<f32> {
         self.face_of
             .iter()
-            .map(|fs| fs.iter().filter(|&&f| f != NO_FACE).map(|&f| self.texel_density(geom, f, lod)).fold(0.0, f32::max))
+            .map(|fs| {
+                fs.iter().filter(|&&f| f != NO_FACE).map(|&f| self.texel_density(geom, f, lod)).fold(0.0, f32::max)
+            })
             .collect()
     }
 

@@ -195,7 +195,10 @@ mod tests {
         let mut r = crate::sampling::Rng::new(3, 0);
         for i in 0..3000 {
             let e = match i % 4 {
-                0 => DVec2::new((r.next_f64() * 50.0).round(), (r.next_f64() * 9.0).round()) + DVec2::splat(r.next_f64() * 2e-5 - 1e-5).max(DVec2::ZERO),
+                0 => {
+                    DVec2::new((r.next_f64() * 50.0).round(), (r.next_f64() * 9.0).round())
+                        + DVec2::splat(r.next_f64() * 2e-5 - 1e-5).max(DVec2::ZERO)
+                }
                 1 => DVec2::new(r.next_f64() * 0.8, r.next_f64() * 3.0),
                 _ => DVec2::new(r.next_f64() * 40.0, r.next_f64() * 12.0),
             };
@@ -213,12 +216,8 @@ mod tests {
                     ((rect_min.x + rw as f64) * s) as i64,
                     ((rect_min.y + rh as f64) * s) as i64,
                 );
-                let interior = PixelRect::new(
-                    rect.x0 + s as i64,
-                    rect.y0 + s as i64,
-                    rect.x1 - s as i64,
-                    rect.y1 - s as i64,
-                );
+                let interior =
+                    PixelRect::new(rect.x0 + s as i64, rect.y0 + s as i64, rect.x1 - s as i64, rect.y1 - s as i64);
                 // Rasterise against a big window so that nothing is clipped away.
                 let window = PixelRect::new(-10, -10, 10_000, 10_000);
                 for t in [[q[0], q[1], q[2]], [q[0], q[2], q[3]]] {

@@ -294,7 +294,8 @@ mod tests {
             }
             let (a0, a1) = project(t, n);
             let b: Vec<f64> = corners.iter().map(|c| c.dot(n)).collect();
-            let (b0, b1) = (b.iter().cloned().fold(f64::INFINITY, f64::min), b.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
+            let (b0, b1) =
+                (b.iter().cloned().fold(f64::INFINITY, f64::min), b.iter().cloned().fold(f64::NEG_INFINITY, f64::max));
             if a1 < b0 || b1 < a0 {
                 return false;
             }

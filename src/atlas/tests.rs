@@ -5,10 +5,9 @@ use glam::{DVec2, Vec3};
 
 use super::raster::{self, PixelRect};
 use super::*;
-use crate::scene::builder::{diffuse, white};
 use crate::reference::scenes::{icosphere, torus};
+use crate::scene::builder::{diffuse, white};
 use crate::scene::{SceneBuilder, SceneGeometry};
-
 
 /// Thin triangles, 1e-4 of their length wide: alone, and inside a fan with big neighbours.
 fn slivers(b: &mut SceneBuilder, m: u32) {
@@ -120,7 +119,10 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
                 } else {
                     assert!(chart.rect(lod).contains(x, y), "face {fi} leaves its chart's rectangle at LOD {lod}");
                 }
-                assert!(chart_at[i] == u32::MAX || chart_at[i] == face.chart, "pixel ({x},{y}) LOD {lod} in two charts");
+                assert!(
+                    chart_at[i] == u32::MAX || chart_at[i] == face.chart,
+                    "pixel ({x},{y}) LOD {lod} in two charts"
+                );
                 chart_at[i] = face.chart;
                 if interior.contains(x, y) {
                     let t = tm.slot[i];
@@ -164,7 +166,10 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
             for yy in (y - 1).max(0)..=(y + 1).min(tm.height as i64 - 1) {
                 for xx in (x - 1).max(0)..=(x + 1).min(w - 1) {
                     let n = tm.slot[(yy * w + xx) as usize];
-                    assert!(n == texels::NO_TEXEL || chart_of_texel(n) == c, "gutter ({x},{y}) LOD {lod} next to two charts");
+                    assert!(
+                        n == texels::NO_TEXEL || chart_of_texel(n) == c,
+                        "gutter ({x},{y}) LOD {lod} next to two charts"
+                    );
                 }
             }
         }
@@ -360,7 +365,12 @@ fn budget_sets_the_texel_size() {
     let m = b.material(white());
     b.cuboid("house", Vec3::ZERO, Vec3::new(12.0, 3.0, 8.0), true, m);
     let dm = b.material(diffuse(Vec3::ONE, Vec3::ZERO, true));
-    b.grid_quad("partition", [Vec3::new(1.0, 0.0, 4.0), Vec3::new(11.0, 0.0, 4.0), Vec3::new(11.0, 3.0, 4.0), Vec3::new(1.0, 3.0, 4.0)], 5, dm);
+    b.grid_quad(
+        "partition",
+        [Vec3::new(1.0, 0.0, 4.0), Vec3::new(11.0, 0.0, 4.0), Vec3::new(11.0, 3.0, 4.0), Vec3::new(1.0, 3.0, 4.0)],
+        5,
+        dm,
+    );
     let s = b.build();
     let budget = 20_000u64;
     let a = build(&s, &AtlasConfig { texel_budget: budget, ..AtlasConfig::default() });
@@ -372,7 +382,10 @@ fn budget_sets_the_texel_size() {
     // at most one partly covered row and column per chart).
     let interiors: u64 = a.charts.iter().map(|c| (c.rect_size.0 as u64 - 2) * (c.rect_size.1 as u64 - 2)).sum();
     let covered = a.stats.covered_texels_lod0;
-    assert!(covered >= budget && covered <= interiors, "{covered} texels for a budget of {budget}, interiors {interiors}");
+    assert!(
+        covered >= budget && covered <= interiors,
+        "{covered} texels for a budget of {budget}, interiors {interiors}"
+    );
     assert!((covered as f64) < 1.03 * budget as f64, "{covered}");
     assert!(a.stats.fill_ratio > 0.6, "fill {}", a.stats.fill_ratio);
     check(&s, &a, 1, true);
@@ -404,7 +417,12 @@ fn builds_are_deterministic() {
     }
     let (t1, t2) = (TexelMap::build(&s, &g, &a1, 1), TexelMap::build(&s, &g, &a2, 1));
     assert_eq!((&t1.slot, &t1.face, &t1.gutter), (&t2.slot, &t2.face, &t2.gutter));
-    assert!(t1.position.iter().zip(&t2.position).all(|(p, q)| p.to_array().map(f32::to_bits) == q.to_array().map(f32::to_bits)));
+    assert!(
+        t1.position
+            .iter()
+            .zip(&t2.position)
+            .all(|(p, q)| p.to_array().map(f32::to_bits) == q.to_array().map(f32::to_bits))
+    );
 }
 
 #[test]

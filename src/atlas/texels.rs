@@ -1,7 +1,6 @@
 //! Inverse mapping (2017 thesis, 3.2.3): for every texel of a LOD, the surface point it stands
 //! for.
 
-
 use crate::parallel::par_for_each;
 use glam::{DVec2, Vec2, Vec3};
 
@@ -56,17 +55,16 @@ impl TexelMap {
     /// # Panics
     /// When the LOD's pixel count does not fit in `u32` (`width · height · 4^lod ≥ 2³²`).
     pub fn build(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, lod: u32) -> TexelMap {
-        let width = atlas.width.checked_shl(lod).filter(|w| w >> lod == atlas.width).expect("LOD too fine for u32 pixels");
-        let height = atlas.height.checked_shl(lod).filter(|h| h >> lod == atlas.height).expect("LOD too fine for u32 pixels");
+        let width =
+            atlas.width.checked_shl(lod).filter(|w| w >> lod == atlas.width).expect("LOD too fine for u32 pixels");
+        let height =
+            atlas.height.checked_shl(lod).filter(|h| h >> lod == atlas.height).expect("LOD too fine for u32 pixels");
         let (w, h) = (width as usize, height as usize);
         assert!(w.checked_mul(h).is_some_and(|n| n < u32::MAX as usize), "LOD {lod} has too many pixels for u32 ids");
 
         // Per face: LOD-k UV triangle, the pixels it may use, and the rows it may touch.
-        let pre: Vec<(PixelRect, [DVec2; 3])> = atlas
-            .faces
-            .iter()
-            .map(|f| (atlas.charts[f.chart as usize].interior(lod), f.uv_lod(lod)))
-            .collect();
+        let pre: Vec<(PixelRect, [DVec2; 3])> =
+            atlas.faces.iter().map(|f| (atlas.charts[f.chart as usize].interior(lod), f.uv_lod(lod))).collect();
         let rows: Vec<(i64, i64)> = pre
             .iter()
             .map(|(b, t)| {
@@ -76,11 +74,7 @@ impl TexelMap {
             })
             .collect();
 
-        let threads = if w * h < 1 << 16 {
-            1
-        } else {
-            std::thread::available_parallelism().map_or(1, |n| n.get()).min(8)
-        };
+        let threads = if w * h < 1 << 16 { 1 } else { crate::parallel::available_threads().min(8) };
         // Whole texel blocks per band, so texel ids can follow the blocks (see [`block_order`]).
         let band_rows = if threads == 1 { h.max(1) } else { h.div_ceil(threads * 8).max(4) }.next_multiple_of(BLOCK);
         let bands = h.div_ceil(band_rows);
@@ -117,31 +111,32 @@ impl TexelMap {
             slot.chunks_mut(band_rows * w).zip(counts.iter_mut()).zip(band_areas.iter_mut()).enumerate().collect(),
             threads,
             |(b, ((owner, count), areas))| {
-            let (y0, y1) = ((b * band_rows) as i64, ((b * band_rows) as i64 + (owner.len() / w.max(1)) as i64));
-            let mut best = vec![u64::MAX; owner.len()];
-            let mut area = vec![0f64; owner.len()];
-            for &fi in &per_band[b] {
-                let (bounds, tri) = &pre[fi as usize];
-                let ratio = world_per_uv[fi as usize];
-                raster::conservative(tri, *bounds, (y0, y1), |x, y| {
-                    let i = (y - y0) as usize * w + x as usize;
-                    area[i] += raster::clipped_area(tri, x, y) * ratio;
-                    if best[i] >> 32 == 0 {
-                        return; // the centre lies in a face with a lower id
-                    }
-                    let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
-                    let (_, _, d2) = raster::closest_barycentric(tri, c);
-                    best[i] = best[i].min(((d2 as f32).to_bits() as u64) << 32 | fi as u64);
-                });
-            }
-            *areas = area.into_iter().map(|a| a as f32).collect();
-            let mut n = 0;
-            for (o, &k) in owner.iter_mut().zip(&best) {
-                *o = if k == u64::MAX { NO_TEXEL } else { k as u32 };
-                n += usize::from(k != u64::MAX);
-            }
-            *count = n;
-        });
+                let (y0, y1) = ((b * band_rows) as i64, ((b * band_rows) as i64 + (owner.len() / w.max(1)) as i64));
+                let mut best = vec![u64::MAX; owner.len()];
+                let mut area = vec![0f64; owner.len()];
+                for &fi in &per_band[b] {
+                    let (bounds, tri) = &pre[fi as usize];
+                    let ratio = world_per_uv[fi as usize];
+                    raster::conservative(tri, *bounds, (y0, y1), |x, y| {
+                        let i = (y - y0) as usize * w + x as usize;
+                        area[i] += raster::clipped_area(tri, x, y) * ratio;
+                        if best[i] >> 32 == 0 {
+                            return; // the centre lies in a face with a lower id
+                        }
+                        let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+                        let (_, _, d2) = raster::closest_barycentric(tri, c);
+                        best[i] = best[i].min(((d2 as f32).to_bits() as u64) << 32 | fi as u64);
+                    });
+                }
+                *areas = area.into_iter().map(|a| a as f32).collect();
+                let mut n = 0;
+                for (o, &k) in owner.iter_mut().zip(&best) {
+                    *o = if k == u64::MAX { NO_TEXEL } else { k as u32 };
+                    n += usize::from(k != u64::MAX);
+                }
+                *count = n;
+            },
+        );
 
         // Phase 2: texels, in block order ([`block_order`]); `slot` turns from face into texel ids.
         let total: usize = counts.iter().sum();
@@ -162,7 +157,8 @@ impl TexelMap {
         {
             let mut items = Vec::with_capacity(bands);
             let (mut pixel, mut face, mut position) = (&mut map.pixel[..], &mut map.face[..], &mut map.position[..]);
-            let (mut normal, mut albedo, mut emission) = (&mut map.normal[..], &mut map.albedo[..], &mut map.emission[..]);
+            let (mut normal, mut albedo, mut emission) =
+                (&mut map.normal[..], &mut map.albedo[..], &mut map.emission[..]);
             let mut area = &mut map.area[..];
             let mut first = 0usize;
             for (b, chunk) in slot.chunks_mut(band_rows * w).enumerate() {
@@ -182,33 +178,37 @@ impl TexelMap {
                 ));
                 first += n;
             }
-            par_for_each(items, threads, |(b, first, chunk, pixel, face, position, normal, albedo, emission, area, band_area)| {
-                let y0 = b * band_rows;
-                let mut k = 0;
-                for i in block_order(w, chunk.len() / w.max(1)) {
-                    let s = &mut chunk[i];
-                    if *s == NO_TEXEL {
-                        continue;
+            par_for_each(
+                items,
+                threads,
+                |(b, first, chunk, pixel, face, position, normal, albedo, emission, area, band_area)| {
+                    let y0 = b * band_rows;
+                    let mut k = 0;
+                    for i in block_order(w, chunk.len() / w.max(1)) {
+                        let s = &mut chunk[i];
+                        if *s == NO_TEXEL {
+                            continue;
+                        }
+                        let fid = *s;
+                        let f = &atlas.faces[fid as usize];
+                        let (x, y) = (i % w, y0 + i / w);
+                        let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+                        let (u, v, _) = raster::closest_barycentric(&pre[fid as usize].1, c);
+                        let (u, v) = (u as f32, v as f32);
+                        let t = f.tri;
+                        pixel[k] = (y * w + x) as u32;
+                        area[k] = band_area[i];
+                        face[k] = fid;
+                        position[k] = geom.point(t, u, v);
+                        normal[k] = geom.normals[t as usize] * f.side.sign();
+                        albedo[k] = geom.albedo(scene, t, u, v);
+                        let m = &scene.materials[geom.material[t as usize] as usize];
+                        emission[k] = if m.emits_from(f.side) { geom.emission(scene, t, u, v) } else { Rgb::ZERO };
+                        *s = (first + k) as u32;
+                        k += 1;
                     }
-                    let fid = *s;
-                    let f = &atlas.faces[fid as usize];
-                    let (x, y) = (i % w, y0 + i / w);
-                    let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
-                    let (u, v, _) = raster::closest_barycentric(&pre[fid as usize].1, c);
-                    let (u, v) = (u as f32, v as f32);
-                    let t = f.tri;
-                    pixel[k] = (y * w + x) as u32;
-                    area[k] = band_area[i];
-                    face[k] = fid;
-                    position[k] = geom.point(t, u, v);
-                    normal[k] = geom.normals[t as usize] * f.side.sign();
-                    albedo[k] = geom.albedo(scene, t, u, v);
-                    let m = &scene.materials[geom.material[t as usize] as usize];
-                    emission[k] = if m.emits_from(f.side) { geom.emission(scene, t, u, v) } else { Rgb::ZERO };
-                    *s = (first + k) as u32;
-                    k += 1;
-                }
-            });
+                },
+            );
         }
 
         // Phase 3: gutters.
@@ -233,7 +233,9 @@ impl TexelMap {
                             (xm && yp, x.wrapping_sub(1), y + 1),
                             (xp && yp, x + 1, y + 1),
                         ];
-                        if let Some(t) = candidates.iter().filter(|c| c.0).map(|c| at(c.1, c.2)).find(|&t| t != NO_TEXEL) {
+                        if let Some(t) =
+                            candidates.iter().filter(|c| c.0).map(|c| at(c.1, c.2)).find(|&t| t != NO_TEXEL)
+                        {
                             out.push(((y * w + x) as u32, t));
                         }
                     }
@@ -315,4 +317,3 @@ fn take_front<'a, T>(s: &mut &'a mut [T], n: usize) -> &'a mut [T] {
     *s = rest;
     front
 }
-

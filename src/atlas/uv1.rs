@@ -51,7 +51,9 @@ impl Uv1Block {
                     tris.iter().zip(&self.island_of).filter(|&(_, &k)| k == i as u32).map(|(&t, _)| t).collect();
                 let uv = mine
                     .iter()
-                    .map(|&t| mesh.triangles[geom.local[t as usize] as usize].map(|v| uv1[v as usize].as_dvec2() * s - o))
+                    .map(|&t| {
+                        mesh.triangles[geom.local[t as usize] as usize].map(|v| uv1[v as usize].as_dvec2() * s - o)
+                    })
                     .collect();
                 let size = (crop.width() as u32, crop.height() as u32);
                 LocalChart {
@@ -76,7 +78,8 @@ fn crop_of<'a>(scaled: impl Iterator<Item = &'a [DVec2; 3]>, s: u32) -> PixelRec
         }
     }
     let clamp = |v: f64| (v as i64).clamp(0, s as i64);
-    let (mut x0, mut y0, mut x1, mut y1) = (clamp(lo.x.floor()), clamp(lo.y.floor()), clamp(hi.x.ceil()), clamp(hi.y.ceil()));
+    let (mut x0, mut y0, mut x1, mut y1) =
+        (clamp(lo.x.floor()), clamp(lo.y.floor()), clamp(hi.x.ceil()), clamp(hi.y.ceil()));
     if x1 <= x0 {
         (x0, x1) = if x0 > 0 { (x0 - 1, x0) } else { (0, 1) };
     }
@@ -89,7 +92,13 @@ fn crop_of<'a>(scaled: impl Iterator<Item = &'a [DVec2; 3]>, s: u32) -> PixelRec
 /// Checks `mesh`'s TEXCOORD_1 over its lit triangles `tris` (global ids) for an atlas of
 /// `texel_size` metres per LOD-0 texel. `Err` carries the reason, for the warning and the
 /// report.
-pub fn validate(mesh: &Mesh, geom: &SceneGeometry, tris: &[TriangleId], texel_size: f64, max_size: u32) -> Result<Uv1Block, String> {
+pub fn validate(
+    mesh: &Mesh,
+    geom: &SceneGeometry,
+    tris: &[TriangleId],
+    texel_size: f64,
+    max_size: u32,
+) -> Result<Uv1Block, String> {
     let Some(uv1) = mesh.uv1.as_deref() else {
         return Err("no TEXCOORD_1".into());
     };
@@ -248,7 +257,8 @@ mod tests {
         sb.mesh("islands", p.clone(), vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], m);
         let mut s = sb.build();
         let uv = |(x0, y0, k): (f32, f32, f32), q: Vec3, ox: f32| Vec2::new(x0 + (q.x - ox) * k, y0 + (1.0 - q.y) * k);
-        s.meshes[0].uv1 = Some(p.iter().enumerate().map(|(i, &q)| if i < 4 { uv(a, q, 0.0) } else { uv(b, q, 5.0) }).collect());
+        s.meshes[0].uv1 =
+            Some(p.iter().enumerate().map(|(i, &q)| if i < 4 { uv(a, q, 0.0) } else { uv(b, q, 5.0) }).collect());
         s
     }
 
@@ -334,7 +344,8 @@ mod tests {
         sb.quad("flat", [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y].map(|p| p + Vec3::Z), m);
         let mut s = sb.build();
         // 3×3 vertices over [0.1, 0.9]²; the middle one pulled past the right column.
-        let mut uv: Vec<Vec2> = (0..9).map(|i| Vec2::new(0.1 + 0.4 * (i % 3) as f32, 0.9 - 0.4 * (i / 3) as f32)).collect();
+        let mut uv: Vec<Vec2> =
+            (0..9).map(|i| Vec2::new(0.1 + 0.4 * (i % 3) as f32, 0.9 - 0.4 * (i / 3) as f32)).collect();
         uv[4] = Vec2::new(0.97, 0.5);
         s.meshes[0].uv1 = Some(uv);
         s.meshes[1].uv1 = Some(vec![Vec2::splat(0.5); 4]);

@@ -47,7 +47,13 @@ pub struct BundleInputs<'s> {
 }
 
 impl<'s> BundleInputs<'s> {
-    pub fn new(scene: &'s Scene, geom: &'s SceneGeometry, bvh: &'s Bvh, atlas: &'s Atlas, config: &BundleConfig) -> Self {
+    pub fn new(
+        scene: &'s Scene,
+        geom: &'s SceneGeometry,
+        bvh: &'s Bvh,
+        atlas: &'s Atlas,
+        config: &BundleConfig,
+    ) -> Self {
         let emitters = plan_emitters(scene, geom, atlas.stats.lit_area, config.small_emitter_fraction);
         let mut group_of = vec![NO_GROUP; geom.len()];
         for (g, group) in emitters.small.iter().enumerate() {

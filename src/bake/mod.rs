@@ -12,8 +12,8 @@ use serde::Serialize;
 
 use crate::atlas::{Atlas, AtlasConfig, AtlasError, TexelMap};
 use crate::bundle::{BundleConfig, BundleConfigError};
-use crate::reference::Bvh;
 use crate::progress::Progress;
+use crate::reference::Bvh;
 use crate::scene::{Rgb, Scene, SceneGeometry};
 
 pub use report::{BakeReport, LodReport};
@@ -77,9 +77,7 @@ impl BakeConfig {
     }
 
     pub fn threads(&self) -> usize {
-        self.threads
-            .unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1))
-            .max(1)
+        self.threads.unwrap_or_else(crate::parallel::available_threads).max(1)
     }
 }
 
@@ -93,9 +91,7 @@ impl BakedLod {
     /// Outgoing radiance of each texel of a diffuse surface: `Le + albedo/π · E`.
     pub fn radiance(&self) -> Vec<Rgb> {
         let t = &self.texels;
-        (0..t.len())
-            .map(|i| t.emission[i] + t.albedo[i] * self.irradiance[i] * std::f32::consts::FRAC_1_PI)
-            .collect()
+        (0..t.len()).map(|i| t.emission[i] + t.albedo[i] * self.irradiance[i] * std::f32::consts::FRAC_1_PI).collect()
     }
 }
 
@@ -115,9 +111,13 @@ pub enum BakeError {
     NoSamples,
     #[error(transparent)]
     Bundle(#[from] BundleConfigError),
-    #[error("{count} of {directions} bundle directions of LOD {lod} could not be planned (see the log); the light map would miss their samples")]
+    #[error(
+        "{count} of {directions} bundle directions of LOD {lod} could not be planned (see the log); the light map would miss their samples"
+    )]
     UnplannedDirections { lod: u32, count: u64, directions: u64 },
-    #[error("LOD {lod} would have {texels} texels, above the limit of {max}; use fewer --lods or a larger --texel-size")]
+    #[error(
+        "LOD {lod} would have {texels} texels, above the limit of {max}; use fewer --lods or a larger --texel-size"
+    )]
     LodTooLarge { lod: u32, texels: u64, max: u64 },
 }
 

@@ -27,7 +27,8 @@ impl<'s> ReferenceBackend<'s> {
         progress.begin(&format!("LOD {} reference", texels.lod), queries.len() as u64);
         // Each LOD draws from its own seed so levels are independent estimates.
         let seed = crate::sampling::mix64(self.seed ^ ((texels.lod as u64) << 56));
-        let (e, stats) = self.tracer.irradiance_batch(&queries, self.samples, seed, &|done| progress.reached(done as u64));
+        let (e, stats) =
+            self.tracer.irradiance_batch(&queries, self.samples, seed, &|done| progress.reached(done as u64));
         progress.end();
         let stats = BackendStats { samples_per_texel: self.samples, rays: stats.rays, seconds: stats.seconds };
         (e, stats)

@@ -106,9 +106,7 @@ impl BundleDirections {
         let [u, v] = sobol_2d(i);
         let [shift_u, shift_v] = self.direction_shift;
         let local = hemisphere_point(unit_interval(u ^ shift_u), unit_interval(v ^ shift_v));
-        let world = self.tangent * local.x as f32
-            + self.bitangent * local.y as f32
-            + self.pole * local.z as f32;
+        let world = self.tangent * local.x as f32 + self.bitangent * local.y as f32 + self.pole * local.z as f32;
         world.normalize()
     }
 
@@ -175,15 +173,8 @@ mod tests {
             assert!((dirs.pole().length() - 1.0).abs() < 1e-6);
             for i in (0..4096u64).chain([1 << 20, 1 << 40, u64::MAX]) {
                 let d = dirs.direction(i);
-                assert!(
-                    (d.length() - 1.0).abs() < 1e-6,
-                    "seed {seed} i {i}: |d| = {}",
-                    d.length()
-                );
-                assert!(
-                    d.dot(dirs.pole()) >= -1e-6,
-                    "seed {seed} i {i}: below the hemisphere"
-                );
+                assert!((d.length() - 1.0).abs() < 1e-6, "seed {seed} i {i}: |d| = {}", d.length());
+                assert!(d.dot(dirs.pole()) >= -1e-6, "seed {seed} i {i}: below the hemisphere");
             }
         }
     }
@@ -192,19 +183,7 @@ mod tests {
     fn sobol_points_are_the_textbook_ones() {
         let eighths: Vec<[u64; 2]> = (0..8).map(|i| sobol_2d(i).map(|c| c >> 61)).collect();
         // u = van der Corput, v = 0, 1/2, 3/4, 1/4, 5/8, 1/8, 3/8, 7/8 (natural order).
-        assert_eq!(
-            eighths,
-            [
-                [0, 0],
-                [4, 4],
-                [2, 6],
-                [6, 2],
-                [1, 5],
-                [5, 1],
-                [3, 3],
-                [7, 7]
-            ]
-        );
+        assert_eq!(eighths, [[0, 0], [4, 4], [2, 6], [6, 2], [1, 5], [5, 1], [3, 3], [7, 7]]);
     }
 
     /// The (0, m, 2)-net property, the reason for Sobol: at N = 2^m every dyadic box of area
@@ -271,12 +250,7 @@ mod tests {
         for (i, a) in sets.iter().enumerate() {
             for b in &sets[i + 1..] {
                 // Poles as lines: |cos| < 1 − 1e-4 means more than ~0.8° apart.
-                assert!(
-                    a.pole().dot(b.pole()).abs() < 1.0 - 1e-4,
-                    "seeds {} and {}",
-                    a.seed(),
-                    b.seed()
-                );
+                assert!(a.pole().dot(b.pole()).abs() < 1.0 - 1e-4, "seeds {} and {}", a.seed(), b.seed());
                 assert_ne!(a.first(16), b.first(16));
                 assert_ne!(a.jitter(0), b.jitter(0));
             }
@@ -294,17 +268,11 @@ mod tests {
             let mut counts = vec![0u32; m * m];
             for i in 0..n {
                 let j = dirs.jitter(i);
-                assert!(
-                    (0.0..1.0).contains(&j.x) && (0.0..1.0).contains(&j.y),
-                    "{j}"
-                );
+                assert!((0.0..1.0).contains(&j.x) && (0.0..1.0).contains(&j.y), "{j}");
                 let cell = (j.y * m as f32) as usize * m + (j.x * m as f32) as usize;
                 counts[cell] += 1;
             }
-            assert!(
-                counts.iter().all(|&c| c > 0),
-                "n = {n}: empty jitter cell: {counts:?}"
-            );
+            assert!(counts.iter().all(|&c| c > 0), "n = {n}: empty jitter cell: {counts:?}");
         }
     }
 
@@ -331,10 +299,8 @@ mod tests {
     /// Angular radius of the largest cap (of lines) around any of `centres` that holds none of
     /// `dirs`: the largest angle from a centre to its nearest line.
     fn largest_empty_cap(dirs: &[Vec3], centres: &[Vec3]) -> f64 {
-        let worst_cos = centres
-            .iter()
-            .map(|&c| dirs.iter().map(|&d| line_cos(c, d)).fold(0.0f32, f32::max))
-            .fold(1.0f32, f32::min);
+        let worst_cos =
+            centres.iter().map(|&c| dirs.iter().map(|&d| line_cos(c, d)).fold(0.0f32, f32::max)).fold(1.0f32, f32::min);
         (worst_cos.min(1.0) as f64).acos()
     }
 
@@ -375,13 +341,9 @@ mod tests {
                     expected_count(n, empty)
                 );
             }
-            let iid_holes = (0..4)
-                .filter(|&seed| largest_empty_cap(&iid_directions(seed, n), &centres) >= radius)
-                .count();
-            assert!(
-                iid_holes >= 3,
-                "N = {n}: only {iid_holes}/4 i.i.d. sets had a hole"
-            );
+            let iid_holes =
+                (0..4).filter(|&seed| largest_empty_cap(&iid_directions(seed, n), &centres) >= radius).count();
+            assert!(iid_holes >= 3, "N = {n}: only {iid_holes}/4 i.i.d. sets had a hole");
         }
     }
 
@@ -395,21 +357,12 @@ mod tests {
         for n in [256usize, 1024] {
             let ours: Vec<f64> = seeds
                 .clone()
-                .map(|s| {
-                    expected_count(
-                        n,
-                        largest_empty_cap(&BundleDirections::new(s).first(n), &centres),
-                    )
-                })
+                .map(|s| expected_count(n, largest_empty_cap(&BundleDirections::new(s).first(n), &centres)))
                 .collect();
-            let iid: Vec<f64> = seeds
-                .clone()
-                .map(|s| expected_count(n, largest_empty_cap(&iid_directions(s, n), &centres)))
-                .collect();
+            let iid: Vec<f64> =
+                seeds.clone().map(|s| expected_count(n, largest_empty_cap(&iid_directions(s, n), &centres))).collect();
             let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
-            println!(
-                "N = {n}: largest empty cap (expected count) ours {ours:.2?}, i.i.d. {iid:.2?}"
-            );
+            println!("N = {n}: largest empty cap (expected count) ours {ours:.2?}, i.i.d. {iid:.2?}");
             assert!(
                 mean(&iid) > 1.6 * mean(&ours),
                 "N = {n}: ours {ours:.2?} not clearly better than i.i.d. {iid:.2?}"
@@ -423,20 +376,14 @@ mod tests {
     /// σ/2 (measured: ≤ 0.2σ at N = 256–4096), where an i.i.d. 3σ tolerance would be lenient.
     #[test]
     fn mean_projected_cosine_is_one_half() {
-        let normals = [
-            Vec3::X,
-            Vec3::Y,
-            Vec3::Z,
-            Vec3::new(1.0, 1.0, 1.0).normalize(),
-            Vec3::new(-0.3, 0.8, 0.52).normalize(),
-        ];
+        let normals =
+            [Vec3::X, Vec3::Y, Vec3::Z, Vec3::new(1.0, 1.0, 1.0).normalize(), Vec3::new(-0.3, 0.8, 0.52).normalize()];
         for n in [256usize, 1024, 4096] {
             let sigma_iid = 1.0 / (12.0 * n as f64).sqrt();
             for seed in 0..3 {
                 let dirs = BundleDirections::new(seed).first(n);
                 for normal in normals {
-                    let mean =
-                        dirs.iter().map(|d| d.dot(normal).abs() as f64).sum::<f64>() / n as f64;
+                    let mean = dirs.iter().map(|d| d.dot(normal).abs() as f64).sum::<f64>() / n as f64;
                     assert!(
                         (mean - 0.5).abs() < 0.5 * sigma_iid,
                         "N = {n}, seed {seed}, n = {normal}: mean |ω·n| = {mean:.5}"

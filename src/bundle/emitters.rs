@@ -141,7 +141,9 @@ mod tests {
         b.cuboid("room", Vec3::ZERO, Vec3::splat(4.0), true, wall);
         // Two separate lamps in one mesh: two groups.
         let y = 3.9;
-        let quad = |x: f32| [Vec3::new(x, y, 1.0), Vec3::new(x + 0.5, y, 1.0), Vec3::new(x + 0.5, y, 1.5), Vec3::new(x, y, 1.5)];
+        let quad = |x: f32| {
+            [Vec3::new(x, y, 1.0), Vec3::new(x + 0.5, y, 1.0), Vec3::new(x + 0.5, y, 1.5), Vec3::new(x, y, 1.5)]
+        };
         let (q1, q2) = (quad(1.0), quad(2.5));
         let mut pos = q1.to_vec();
         pos.extend_from_slice(&q2);

@@ -201,10 +201,7 @@ mod tests {
         let frags = [frag(0.0, 1, 2), frag(1.0, 3, NO_SIDE)];
         let mut log = Log::default();
         exchange(&frags, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32 * 100.0), &mut log);
-        assert_eq!(
-            log.0,
-            vec![(1, Rgb::ZERO, 1.0), (2, Rgb::splat(4.0), 1.0), (3, Rgb::splat(4.0), 1.0)]
-        );
+        assert_eq!(log.0, vec![(1, Rgb::ZERO, 1.0), (2, Rgb::splat(4.0), 1.0), (3, Rgb::splat(4.0), 1.0)]);
     }
 
     #[test]
@@ -212,9 +209,9 @@ mod tests {
         // Lamp (emitter, emits along −ω only: its minus side is lit, plus is a single-sided
         // back) above a floor whose plus side faces the lamp; a wall beyond the lamp.
         let frags = [
-            frag(0.0, 5, NO_SIDE),                      // floor, looks +ω at the lamp
-            frag(1.0, NO_SIDE | EMITTER_FLAG, 6),       // lamp, emitting side looks −ω
-            frag(2.0, NO_SIDE, 7),                      // ceiling beyond, looks −ω at the lamp's back
+            frag(0.0, 5, NO_SIDE),                // floor, looks +ω at the lamp
+            frag(1.0, NO_SIDE | EMITTER_FLAG, 6), // lamp, emitting side looks −ω
+            frag(2.0, NO_SIDE, 7),                // ceiling beyond, looks −ω at the lamp's back
         ];
         let mut log = Log::default();
         emit(&frags, 0.25, |t| if t == 6 { Rgb::splat(8.0) } else { Rgb::ZERO }, &mut log);

@@ -30,11 +30,7 @@ pub enum MipError {
     #[error("map side {side} is not a power of two")]
     NotPowerOfTwo { side: u32 },
     #[error("a {side}x{side} map needs {expected} values, got {actual}")]
-    LengthMismatch {
-        side: u32,
-        expected: usize,
-        actual: usize,
-    },
+    LengthMismatch { side: u32, expected: usize, actual: usize },
     /// Both analysis maps hold counts or densities: a negative or non-finite value is a bug
     /// upstream, and NaN would silently win or lose every comparison of the planner.
     #[error("value {value} at index {index} is not a finite non-negative number")]
@@ -61,11 +57,7 @@ impl MipChain {
             let coarser = reduce_level(finer, side >> (level - 1), reduction);
             levels.push(coarser);
         }
-        Ok(MipChain {
-            reduction,
-            side,
-            levels,
-        })
+        Ok(MipChain { reduction, side, levels })
     }
 
     /// Importance map: max-reduced.
@@ -108,16 +100,9 @@ impl MipChain {
     /// If `level > L` or (x, y) lies outside that level: callers index within the chain they
     /// built, so this is a programming error, like slice indexing.
     pub fn get(&self, level: u32, x: u32, y: u32) -> f32 {
-        assert!(
-            level <= self.top_level(),
-            "level {level} above the top level {}",
-            self.top_level()
-        );
+        assert!(level <= self.top_level(), "level {level} above the top level {}", self.top_level());
         let side = self.level_side(level);
-        assert!(
-            x < side && y < side,
-            "pixel ({x}, {y}) outside the {side}x{side} level {level}"
-        );
+        assert!(x < side && y < side, "pixel ({x}, {y}) outside the {side}x{side} level {level}");
         self.levels[level as usize][y as usize * side as usize + x as usize]
     }
 }
@@ -128,17 +113,10 @@ fn validate(side: u32, finest: &[f32]) -> Result<(), MipError> {
     }
     let expected = side as usize * side as usize;
     if finest.len() != expected {
-        return Err(MipError::LengthMismatch {
-            side,
-            expected,
-            actual: finest.len(),
-        });
+        return Err(MipError::LengthMismatch { side, expected, actual: finest.len() });
     }
     match finest.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
-        Some(index) => Err(MipError::InvalidValue {
-            index,
-            value: finest[index],
-        }),
+        Some(index) => Err(MipError::InvalidValue { index, value: finest[index] }),
         None => Ok(()),
     }
 }
@@ -220,9 +198,7 @@ mod tests {
     fn max_chain_top_is_the_global_max_and_average_top_the_global_mean() {
         let side = 32u32;
         let mut rng = crate::sampling::Rng::new(11, 0);
-        let data: Vec<f32> = (0..side * side)
-            .map(|_| (rng.next_u32() % 17) as f32)
-            .collect();
+        let data: Vec<f32> = (0..side * side).map(|_| (rng.next_u32() % 17) as f32).collect();
         let max = MipChain::max_mips(side, data.clone()).unwrap();
         let avg = MipChain::average_mips(side, data.clone()).unwrap();
         let global_max = data.iter().cloned().fold(0.0f32, f32::max);
@@ -237,10 +213,7 @@ mod tests {
     fn rejects_sides_that_are_not_powers_of_two() {
         for side in [0u32, 3, 6, 12] {
             let n = (side * side) as usize;
-            assert_eq!(
-                MipChain::max_mips(side, vec![0.0; n]),
-                Err(MipError::NotPowerOfTwo { side })
-            );
+            assert_eq!(MipChain::max_mips(side, vec![0.0; n]), Err(MipError::NotPowerOfTwo { side }));
         }
     }
 
@@ -248,11 +221,7 @@ mod tests {
     fn rejects_data_of_the_wrong_length() {
         assert_eq!(
             MipChain::average_mips(4, vec![0.0; 15]),
-            Err(MipError::LengthMismatch {
-                side: 4,
-                expected: 16,
-                actual: 15
-            })
+            Err(MipError::LengthMismatch { side: 4, expected: 16, actual: 15 })
         );
     }
 
@@ -260,25 +229,13 @@ mod tests {
     fn rejects_negative_and_non_finite_values() {
         let mut data = vec![1.0; 4];
         data[2] = -1.0;
-        assert_eq!(
-            MipChain::max_mips(2, data),
-            Err(MipError::InvalidValue {
-                index: 2,
-                value: -1.0
-            })
-        );
+        assert_eq!(MipChain::max_mips(2, data), Err(MipError::InvalidValue { index: 2, value: -1.0 }));
         let mut data = vec![1.0; 4];
         data[3] = f32::INFINITY;
-        assert!(matches!(
-            MipChain::average_mips(2, data),
-            Err(MipError::InvalidValue { index: 3, .. })
-        ));
+        assert!(matches!(MipChain::average_mips(2, data), Err(MipError::InvalidValue { index: 3, .. })));
         let mut data = vec![1.0; 4];
         data[0] = f32::NAN;
-        assert!(matches!(
-            MipChain::average_mips(2, data),
-            Err(MipError::InvalidValue { index: 0, .. })
-        ));
+        assert!(matches!(MipChain::average_mips(2, data), Err(MipError::InvalidValue { index: 0, .. })));
     }
 
     #[test]

@@ -198,7 +198,14 @@ impl ProgressiveEstimate {
     /// `E_src` is the direct estimate so far plus the indirect light of `last` (the batch
     /// just folded in) alone — see the module docs — or, for a texel that batch missed, the
     /// running indirect estimate.
-    pub fn source_radiance(&self, texels: &TexelMap, carried: &[bool], last: Option<&BatchSums>, threads: usize, out: &mut Vec<Rgb>) {
+    pub fn source_radiance(
+        &self,
+        texels: &TexelMap,
+        carried: &[bool],
+        last: Option<&BatchSums>,
+        threads: usize,
+        out: &mut Vec<Rgb>,
+    ) {
         out.clear();
         out.resize(self.area.len(), Rgb::ZERO);
         par_chunks_mut(out, threads, |start, chunk| {

@@ -231,7 +231,12 @@ impl ScreenTriangle {
     /// [`setup`](Self::setup) from the corners' positions in the viewport's grid (see
     /// [`Viewport::grid_position`]) and depths along ω, for callers that need the positions
     /// too.
-    pub fn setup_in_grid(viewport: &Viewport, grid: [Vec2; 3], depths: [f32; 3], front_faces_dir: bool) -> Option<Self> {
+    pub fn setup_in_grid(
+        viewport: &Viewport,
+        grid: [Vec2; 3],
+        depths: [f32; 3],
+        front_faces_dir: bool,
+    ) -> Option<Self> {
         if grid.iter().any(|q| !q.is_finite()) {
             return None;
         }
@@ -303,11 +308,7 @@ impl ScreenTriangle {
     /// Covered pixels of one row, clipped to the viewport.
     #[inline]
     pub fn span(&self, row: u32) -> Option<(u32, u32)> {
-        if self.narrow {
-            self.span_in::<i64>(row, self.width)
-        } else {
-            self.span_in::<i128>(row, self.width)
-        }
+        if self.narrow { self.span_in::<i64>(row, self.width) } else { self.span_in::<i128>(row, self.width) }
     }
 
     /// [`span`](Self::span) in integer type `I`: i64 when every snapped coordinate is below
@@ -511,7 +512,8 @@ mod tests {
             (first <= last).then_some((first as u32, last as u32))
         };
         let mut rng = Rng::new(23, 5);
-        let mut cases = vec![[i64::MIN, 0, 5], [i64::MAX, i64::MAX - 3, 0], [i64::MIN, i64::MIN, i64::MAX], [-129, 127, 128]];
+        let mut cases =
+            vec![[i64::MIN, 0, 5], [i64::MAX, i64::MAX - 3, 0], [i64::MIN, i64::MIN, i64::MAX], [-129, 127, 128]];
         for _ in 0..20_000 {
             let mut q = || (rng.next_f32() * 10_000.0) as i64 - 2_000 + [-1, 0, 1][(rng.next_f32() * 3.0) as usize];
             cases.push([q(), q(), q()]);
@@ -595,7 +597,8 @@ mod tests {
         let c = [Vec3::new(1.0, 1.0, 2.0), Vec3::new(9.0, 1.0, 4.0), Vec3::new(1.0, 9.0, 6.0)];
         let t = setup(c, 16).unwrap();
         let planes = t.planes();
-        let (u, v) = (eval(&planes.gradient([0.0, 1.0, 0.0]), 5.0, 5.0), eval(&planes.gradient([0.0, 0.0, 1.0]), 5.0, 5.0));
+        let (u, v) =
+            (eval(&planes.gradient([0.0, 1.0, 0.0]), 5.0, 5.0), eval(&planes.gradient([0.0, 0.0, 1.0]), 5.0, 5.0));
         assert!((u - 0.5).abs() < 1e-5 && (v - 0.5).abs() < 1e-5);
         assert!((eval(&planes.depth_coefficients(), 5.0, 5.0) - 5.0).abs() < 1e-5);
         let g = planes.gradient([10.0, 20.0, 30.0]);

@@ -43,12 +43,7 @@ pub struct TileParams {
 
 impl TileParams {
     pub fn new(w: u32, n: u64, pixel_area: f64) -> Self {
-        TileParams {
-            w,
-            n,
-            alpha: DEFAULT_ALPHA,
-            pixel_area,
-        }
+        TileParams { w, n, alpha: DEFAULT_ALPHA, pixel_area }
     }
 
     /// A(i) = pixel_area · 4^i.
@@ -120,11 +115,7 @@ impl Tile {
     /// The window this tile covers, in finest analysis pixels. Exact: all values are dyadic.
     pub fn window(&self) -> TileWindow {
         let side = 2f64.powi(self.level);
-        TileWindow {
-            x: self.x as f64 * side,
-            y: self.y as f64 * side,
-            side,
-        }
+        TileWindow { x: self.x as f64 * side, y: self.y as f64 * side, side }
     }
 
     /// World area of one of its bundle pixels, A(i)/res²: the `a_px` weight of the estimator.
@@ -176,9 +167,7 @@ pub struct TilePlan {
 /// Why a plan cannot be made.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PlanError {
-    #[error(
-        "importance map is {importance}x{importance} but fragment-count map is {fragments}x{fragments}"
-    )]
+    #[error("importance map is {importance}x{importance} but fragment-count map is {fragments}x{fragments}")]
     MapSizeMismatch { importance: u32, fragments: u32 },
     #[error("the importance map must be max-reduced and the fragment-count map average-reduced")]
     WrongReduction,
@@ -231,26 +220,15 @@ pub struct TilePlanner<'a> {
 impl<'a> TilePlanner<'a> {
     /// `importance`: rays needed per unit area, max-mipped; `fragments`: fragments per
     /// analysis pixel, average-mipped; both R×R.
-    pub fn new(
-        importance: &'a MipChain,
-        fragments: &'a MipChain,
-        params: TileParams,
-    ) -> Result<Self, PlanError> {
+    pub fn new(importance: &'a MipChain, fragments: &'a MipChain, params: TileParams) -> Result<Self, PlanError> {
         params.validate()?;
         if importance.side() != fragments.side() {
-            return Err(PlanError::MapSizeMismatch {
-                importance: importance.side(),
-                fragments: fragments.side(),
-            });
+            return Err(PlanError::MapSizeMismatch { importance: importance.side(), fragments: fragments.side() });
         }
         if importance.reduction() != Reduction::Max || fragments.reduction() != Reduction::Average {
             return Err(PlanError::WrongReduction);
         }
-        Ok(TilePlanner {
-            importance,
-            fragments,
-            params,
-        })
+        Ok(TilePlanner { importance, fragments, params })
     }
 
     pub fn params(&self) -> &TileParams {
@@ -340,15 +318,7 @@ impl<'a> TilePlanner<'a> {
                 Verdict::Skip => return,
                 Verdict::Emit { res, undersampled } => {
                     if at_corner {
-                        plan.emit(
-                            Tile {
-                                level: level as i32,
-                                x,
-                                y,
-                                res,
-                            },
-                            undersampled,
-                        );
+                        plan.emit(Tile { level: level as i32, x, y, res }, undersampled);
                     }
                     return;
                 }
@@ -360,15 +330,7 @@ impl<'a> TilePlanner<'a> {
         let memory = ancestors.min(self.memory_bound(level, x, y));
         match self.judge(level, x, y, memory) {
             Verdict::Skip => {}
-            Verdict::Emit { res, undersampled } => plan.emit(
-                Tile {
-                    level: level as i32,
-                    x,
-                    y,
-                    res,
-                },
-                undersampled,
-            ),
+            Verdict::Emit { res, undersampled } => plan.emit(Tile { level: level as i32, x, y, res }, undersampled),
             Verdict::Split(reason) => {
                 plan.count_split(reason);
                 for (dx, dy) in QUADRANTS {
@@ -394,17 +356,10 @@ impl<'a> TilePlanner<'a> {
         let head = self.params.head_buffer_pixels();
         let bound = head.min(memory);
         if rays > bound && level > 0 {
-            let reason = if memory < head {
-                SplitReason::Memory
-            } else {
-                SplitReason::Importance
-            };
+            let reason = if memory < head { SplitReason::Memory } else { SplitReason::Importance };
             return Verdict::Split(reason);
         }
-        Verdict::Emit {
-            res: bundle_resolution(rays, bound),
-            undersampled: rays > bound,
-        }
+        Verdict::Emit { res: bundle_resolution(rays, bound), undersampled: rays > bound }
     }
 
     /// Every tile of one level with any importance, at bundle resolution W.
@@ -414,15 +369,7 @@ impl<'a> TilePlanner<'a> {
         for y in 0..side {
             for x in 0..side {
                 if self.importance.get(level, x, y) > 0.0 {
-                    plan.emit(
-                        Tile {
-                            level: level as i32,
-                            x,
-                            y,
-                            res: self.params.w,
-                        },
-                        false,
-                    );
+                    plan.emit(Tile { level: level as i32, x, y, res: self.params.w }, false);
                 }
             }
         }
@@ -476,10 +423,7 @@ mod tests {
     use crate::sampling::Rng;
 
     fn maps(side: u32, importance: Vec<f32>, fragments: Vec<f32>) -> (MipChain, MipChain) {
-        (
-            MipChain::max_mips(side, importance).unwrap(),
-            MipChain::average_mips(side, fragments).unwrap(),
-        )
+        (MipChain::max_mips(side, importance).unwrap(), MipChain::average_mips(side, fragments).unwrap())
     }
 
     fn plan(maps: &(MipChain, MipChain), params: TileParams, mode: TilingMode) -> TilePlan {
@@ -492,10 +436,7 @@ mod tests {
 
     /// α = 1 keeps the hand-computed budgets round.
     fn params(w: u32, n: u64, pixel_area: f64) -> TileParams {
-        TileParams {
-            alpha: 1.0,
-            ..TileParams::new(w, n, pixel_area)
-        }
+        TileParams { alpha: 1.0, ..TileParams::new(w, n, pixel_area) }
     }
 
     #[test]
@@ -504,15 +445,8 @@ mod tests {
         // Top: C_I = 4·4 = 16 > 4 → split. Children: C_I = 4, 1, 0, 0.25.
         let m = maps(2, vec![4.0, 1.0, 0.0, 0.25], vec![1.0; 4]);
         let p = plan(&m, params(2, 1 << 40, 1.0), TilingMode::Adaptive);
-        assert_eq!(
-            p.tiles,
-            [tile(0, 0, 0, 2), tile(0, 1, 0, 1), tile(0, 1, 1, 1)]
-        );
-        let expected = PlanStats {
-            tiles: 3,
-            splits_for_importance: 1,
-            ..Default::default()
-        };
+        assert_eq!(p.tiles, [tile(0, 0, 0, 2), tile(0, 1, 0, 1), tile(0, 1, 1, 1)]);
+        let expected = PlanStats { tiles: 3, splits_for_importance: 1, ..Default::default() };
         assert_eq!(p.stats, expected);
     }
 
@@ -523,13 +457,7 @@ mod tests {
         let m = maps(2, vec![1.0; 4], vec![1.0; 4]);
         let p = plan(&m, params(2, 1 << 20, 1.0), TilingMode::Adaptive);
         assert_eq!(p.tiles, [tile(1, 0, 0, 2)]);
-        assert_eq!(
-            p.stats,
-            PlanStats {
-                tiles: 1,
-                ..Default::default()
-            }
-        );
+        assert_eq!(p.stats, PlanStats { tiles: 1, ..Default::default() });
     }
 
     #[test]
@@ -547,20 +475,8 @@ mod tests {
         // F = 10 everywhere, αN = 90: C_max = 9 (W² = 4096 is far). Top: C_I = 4·3 = 12 > 9.
         let m = maps(2, vec![3.0; 4], vec![10.0; 4]);
         let p = plan(&m, params(64, 90, 1.0), TilingMode::Adaptive);
-        assert_eq!(
-            p.tiles,
-            [
-                tile(0, 0, 0, 2),
-                tile(0, 1, 0, 2),
-                tile(0, 0, 1, 2),
-                tile(0, 1, 1, 2)
-            ]
-        );
-        let expected = PlanStats {
-            tiles: 4,
-            splits_for_memory: 1,
-            ..Default::default()
-        };
+        assert_eq!(p.tiles, [tile(0, 0, 0, 2), tile(0, 1, 0, 2), tile(0, 0, 1, 2), tile(0, 1, 1, 2)]);
+        let expected = PlanStats { tiles: 4, splits_for_memory: 1, ..Default::default() };
         assert_eq!(p.stats, expected);
         // The same importance fits when fragments are fewer: one tile, ⌈√12⌉ = 4 wide.
         let sparse = maps(2, vec![3.0; 4], vec![5.0; 4]);
@@ -588,20 +504,8 @@ mod tests {
         assert_eq!(900.0 / m.1.get(1, 0, 0) as f64, 900.0);
         assert_eq!(planner.ray_bound(1, 0, 0), 900.0 / 75.25);
         let p = planner.plan(TilingMode::Adaptive).unwrap();
-        assert_eq!(
-            p.tiles,
-            [
-                tile(0, 0, 0, 2),
-                tile(0, 1, 0, 2),
-                tile(0, 0, 1, 2),
-                tile(0, 1, 1, 2)
-            ]
-        );
-        let expected = PlanStats {
-            tiles: 4,
-            splits_for_memory: 2,
-            ..Default::default()
-        };
+        assert_eq!(p.tiles, [tile(0, 0, 0, 2), tile(0, 1, 0, 2), tile(0, 0, 1, 2), tile(0, 1, 1, 2)]);
+        let expected = PlanStats { tiles: 4, splits_for_memory: 2, ..Default::default() };
         assert_eq!(p.stats, expected);
     }
 
@@ -612,11 +516,7 @@ mod tests {
         let m = maps(1, vec![100.0], vec![1.0]);
         let p = plan(&m, params(4, 1 << 30, 1.0), TilingMode::Adaptive);
         assert_eq!(p.tiles, [tile(0, 0, 0, 4)]);
-        let expected = PlanStats {
-            tiles: 1,
-            undersampled_tiles: 1,
-            ..Default::default()
-        };
+        let expected = PlanStats { tiles: 1, undersampled_tiles: 1, ..Default::default() };
         assert_eq!(p.stats, expected);
         // Memory bound: F = 50, αN = 90 → C_max = 1.8 → a single pixel.
         let m = maps(1, vec![100.0], vec![50.0]);
@@ -630,14 +530,7 @@ mod tests {
         // C_I = 10 ≤ C_max = 10.5: ⌈√10⌉ = 4 would put 16 pixels·F = 16 nodes in a 10.5
         // budget; the planner takes ⌊√10.5⌋ = 3.
         let m = maps(1, vec![10.0], vec![1.0]);
-        let p = plan(
-            &m,
-            TileParams {
-                alpha: 0.5,
-                ..TileParams::new(64, 21, 1.0)
-            },
-            TilingMode::Adaptive,
-        );
+        let p = plan(&m, TileParams { alpha: 0.5, ..TileParams::new(64, 21, 1.0) }, TilingMode::Adaptive);
         assert_eq!(p.tiles, [tile(0, 0, 0, 3)]);
         assert_eq!(p.stats.undersampled_tiles, 0);
         assert_eq!(bundle_resolution(10.0, 10.5), 3);
@@ -650,16 +543,8 @@ mod tests {
     #[test]
     fn zero_importance_is_never_planned() {
         let zeros = maps(4, vec![0.0; 16], vec![3.0; 16]);
-        for mode in [
-            TilingMode::None,
-            TilingMode::Uniform { k: 2 },
-            TilingMode::Adaptive,
-        ] {
-            assert_eq!(
-                plan(&zeros, params(8, 100, 1.0), mode),
-                TilePlan::default(),
-                "{mode:?}"
-            );
+        for mode in [TilingMode::None, TilingMode::Uniform { k: 2 }, TilingMode::Adaptive] {
+            assert_eq!(plan(&zeros, params(8, 100, 1.0), mode), TilePlan::default(), "{mode:?}");
         }
         // One lit pixel in a corner: after the splits only its branch is emitted.
         let mut importance = vec![0.0; 16];
@@ -675,27 +560,16 @@ mod tests {
         let m = maps(8, vec![1.0; 64], vec![1.0; 64]);
         let p = plan(&m, params(256, 1, 1.0), TilingMode::None);
         assert_eq!(p.tiles, [tile(3, 0, 0, 256)]);
-        assert_eq!(
-            p.stats,
-            PlanStats {
-                tiles: 1,
-                ..Default::default()
-            }
-        );
+        assert_eq!(p.stats, PlanStats { tiles: 1, ..Default::default() });
     }
 
     #[test]
     fn uniform_tiling_is_k_by_k_tiles_at_full_resolution() {
         // 8×8 with importance everywhere but the top-right quarter.
-        let importance: Vec<f32> = (0..64)
-            .map(|i| if i % 8 >= 4 && i / 8 < 4 { 0.0 } else { 1.0 })
-            .collect();
+        let importance: Vec<f32> = (0..64).map(|i| if i % 8 >= 4 && i / 8 < 4 { 0.0 } else { 1.0 }).collect();
         let m = maps(8, importance, vec![1.0; 64]);
         let p = plan(&m, params(32, 1, 1.0), TilingMode::Uniform { k: 2 });
-        assert_eq!(
-            p.tiles,
-            [tile(2, 0, 0, 32), tile(2, 0, 1, 32), tile(2, 1, 1, 32)]
-        );
+        assert_eq!(p.tiles, [tile(2, 0, 0, 32), tile(2, 0, 1, 32), tile(2, 1, 1, 32)]);
         let p = plan(&m, params(32, 1, 1.0), TilingMode::Uniform { k: 8 });
         assert_eq!(p.tiles.len(), 48);
         assert!(p.tiles.iter().all(|t| t.level == 0 && t.res == 32));
@@ -720,33 +594,15 @@ mod tests {
         let small = maps(2, vec![1.0; 4], vec![1.0; 4]);
         let ok = params(8, 100, 1.0);
         let new = |i: &MipChain, f: &MipChain, p: TileParams| TilePlanner::new(i, f, p).map(|_| ());
-        assert_eq!(
-            new(&m.0, &small.1, ok),
-            Err(PlanError::MapSizeMismatch {
-                importance: 4,
-                fragments: 2
-            })
-        );
+        assert_eq!(new(&m.0, &small.1, ok), Err(PlanError::MapSizeMismatch { importance: 4, fragments: 2 }));
         assert_eq!(new(&m.1, &m.0, ok), Err(PlanError::WrongReduction));
-        assert_eq!(
-            new(&m.0, &m.1, TileParams { w: 0, ..ok }),
-            Err(PlanError::EmptyHeadBuffer)
-        );
-        assert_eq!(
-            new(&m.0, &m.1, TileParams { n: 0, ..ok }),
-            Err(PlanError::EmptyNodeBuffer)
-        );
+        assert_eq!(new(&m.0, &m.1, TileParams { w: 0, ..ok }), Err(PlanError::EmptyHeadBuffer));
+        assert_eq!(new(&m.0, &m.1, TileParams { n: 0, ..ok }), Err(PlanError::EmptyNodeBuffer));
         for alpha in [0.0, -0.5, 1.5, f32::NAN] {
-            assert!(matches!(
-                new(&m.0, &m.1, TileParams { alpha, ..ok }),
-                Err(PlanError::AlphaOutOfRange(_))
-            ));
+            assert!(matches!(new(&m.0, &m.1, TileParams { alpha, ..ok }), Err(PlanError::AlphaOutOfRange(_))));
         }
         for pixel_area in [0.0, -1.0, f64::INFINITY, f64::NAN] {
-            assert!(matches!(
-                new(&m.0, &m.1, TileParams { pixel_area, ..ok }),
-                Err(PlanError::InvalidPixelArea(_))
-            ));
+            assert!(matches!(new(&m.0, &m.1, TileParams { pixel_area, ..ok }), Err(PlanError::InvalidPixelArea(_))));
         }
         assert_eq!(new(&m.0, &m.1, ok), Ok(()));
     }
@@ -757,14 +613,7 @@ mod tests {
         let params = params(64, 1000, 0.25);
         let planner = TilePlanner::new(&m.0, &m.1, params).unwrap();
         let t = tile(2, 1, 0, 8);
-        assert_eq!(
-            t.window(),
-            TileWindow {
-                x: 4.0,
-                y: 0.0,
-                side: 4.0
-            }
-        );
+        assert_eq!(t.window(), TileWindow { x: 4.0, y: 0.0, side: 4.0 });
         assert_eq!(params.tile_area(2), 4.0);
         assert_eq!(t.bundle_pixel_area(&params), 4.0 / 64.0);
         assert_eq!(planner.predicted_nodes(&t), 64.0 * m.1.get(2, 1, 0) as f64);
@@ -773,25 +622,12 @@ mod tests {
         assert_eq!(TileParams::new(1, 1, 1.0).alpha, DEFAULT_ALPHA);
     }
 
-
-
-
-
     #[test]
     fn tiles_come_in_morton_order() {
         let m = maps(4, vec![1.0; 16], vec![1.0; 16]);
         let p = plan(&m, params(1, 1 << 20, 1.0), TilingMode::Uniform { k: 4 });
         let order: Vec<(u32, u32)> = p.tiles.iter().map(|t| (t.x, t.y)).collect();
-        let z_curve = [
-            (0, 0),
-            (1, 0),
-            (0, 1),
-            (1, 1),
-            (2, 0),
-            (3, 0),
-            (2, 1),
-            (3, 1),
-        ];
+        let z_curve = [(0, 0), (1, 0), (0, 1), (1, 1), (2, 0), (3, 0), (2, 1), (3, 1)];
         assert_eq!(order[..8], z_curve);
         assert_eq!(order[8..10], [(0, 2), (1, 2)]);
     }
@@ -806,19 +642,14 @@ mod tests {
         let zero_share = [0.0, 0.5, 0.9, 0.99][rng.next_u32() as usize % 4];
         let block = 1u32 << (rng.next_u32() % 3).min(side.trailing_zeros());
         let blocks_per_row = side / block;
-        let zero_blocks: Vec<bool> = (0..blocks_per_row * blocks_per_row)
-            .map(|_| rng.next_f32() < zero_share)
-            .collect();
+        let zero_blocks: Vec<bool> =
+            (0..blocks_per_row * blocks_per_row).map(|_| rng.next_f32() < zero_share).collect();
         let mut importance = Vec::with_capacity((side * side) as usize);
         let mut fragments = Vec::with_capacity((side * side) as usize);
         for y in 0..side {
             for x in 0..side {
                 let zero = zero_blocks[((y / block) * blocks_per_row + x / block) as usize];
-                importance.push(if zero {
-                    0.0
-                } else {
-                    10f32.powf(rng.next_f32() * 6.0 - 3.0)
-                });
+                importance.push(if zero { 0.0 } else { 10f32.powf(rng.next_f32() * 6.0 - 3.0) });
                 fragments.push(match rng.next_u32() % 10 {
                     0 => 0.0,
                     1 => (rng.next_u32() % 2000) as f32,
@@ -843,22 +674,14 @@ mod tests {
         TileParams {
             w,
             n: nodes.max(1.0) as u64,
-            alpha: if rng.next_f32() < 0.5 {
-                DEFAULT_ALPHA
-            } else {
-                0.05 + 0.95 * rng.next_f32()
-            },
+            alpha: if rng.next_f32() < 0.5 { DEFAULT_ALPHA } else { 0.05 + 0.95 * rng.next_f32() },
             pixel_area: window_rays / (4f64.powi(top as i32) * max_importance),
         }
     }
 
     fn random_modes(rng: &mut Rng, side: u32) -> [TilingMode; 3] {
         let k = 1 << (rng.next_u32() % (side.trailing_zeros() + 1));
-        [
-            TilingMode::None,
-            TilingMode::Uniform { k },
-            TilingMode::Adaptive,
-        ]
+        [TilingMode::None, TilingMode::Uniform { k }, TilingMode::Adaptive]
     }
 
     /// How many tiles cover each finest pixel.
@@ -890,28 +713,16 @@ mod tests {
                 let covered = coverage(&p.tiles, side);
                 for (i, (&count, &importance)) in covered.iter().zip(m.0.level(0)).enumerate() {
                     let expected = if importance > 0.0 { 1 } else { count.min(1) };
-                    assert_eq!(
-                        count, expected,
-                        "case {case} {mode:?}: pixel {i} covered {count} times"
-                    );
+                    assert_eq!(count, expected, "case {case} {mode:?}: pixel {i} covered {count} times");
                 }
                 for t in &p.tiles {
                     let level = t.level as u32;
-                    assert!(
-                        m.0.get(level, t.x, t.y) > 0.0,
-                        "case {case} {mode:?}: dark tile {t:?}"
-                    );
-                    assert!(
-                        t.res >= 1 && t.res <= params.w,
-                        "case {case} {mode:?}: {t:?}"
-                    );
+                    assert!(m.0.get(level, t.x, t.y) > 0.0, "case {case} {mode:?}: dark tile {t:?}");
+                    assert!(t.res >= 1 && t.res <= params.w, "case {case} {mode:?}: {t:?}");
                 }
                 assert_eq!(p.stats.tiles, p.tiles.len());
                 let keys: Vec<u64> = p.tiles.iter().map(Tile::morton_key).collect();
-                assert!(
-                    keys.windows(2).all(|k| k[0] < k[1]),
-                    "case {case} {mode:?}: not in Z-order"
-                );
+                assert!(keys.windows(2).all(|k| k[0] < k[1]), "case {case} {mode:?}: not in Z-order");
             }
         }
     }
@@ -941,13 +752,9 @@ mod tests {
                 let level = t.level as u32;
                 let res2 = t.res as f64 * t.res as f64;
                 let fits_one_pixel = deepest_estimate(&m.1, t) <= params.node_budget();
-                let memory_ok =
-                    res2 * deepest_estimate(&m.1, t) <= params.node_budget() * (1.0 + 1e-12);
+                let memory_ok = res2 * deepest_estimate(&m.1, t) <= params.node_budget() * (1.0 + 1e-12);
                 assert!(t.res <= params.w, "case {case}: {t:?} wider than W");
-                assert!(
-                    memory_ok || (t.res == 1 && !fits_one_pixel),
-                    "case {case}: {t:?} overflows"
-                );
+                assert!(memory_ok || (t.res == 1 && !fits_one_pixel), "case {case}: {t:?} overflows");
                 let rays = planner.rays_needed(level, t.x, t.y);
                 let bound = planner.ray_bound(level, t.x, t.y);
                 if rays > bound {
@@ -955,15 +762,9 @@ mod tests {
                     undersampled += 1;
                 } else {
                     let rounded_down = (t.res as f64 + 1.0).powi(2) > bound;
-                    assert!(
-                        res2 >= rays || rounded_down,
-                        "case {case}: {t:?} undersamples"
-                    );
+                    assert!(res2 >= rays || rounded_down, "case {case}: {t:?} undersamples");
                 }
-                assert_eq!(
-                    planner.predicted_nodes(t),
-                    res2 * m.1.get(level, t.x, t.y) as f64
-                );
+                assert_eq!(planner.predicted_nodes(t), res2 * m.1.get(level, t.x, t.y) as f64);
             }
             assert_eq!(p.stats.undersampled_tiles, undersampled, "case {case}");
         }
@@ -1006,9 +807,7 @@ mod tests {
                     if split && is_reached(planner, level, x, y) {
                         dark += QUADRANTS
                             .iter()
-                            .filter(|(dx, dy)| {
-                                importance.get(level - 1, 2 * x + dx, 2 * y + dy) == 0.0
-                            })
+                            .filter(|(dx, dy)| importance.get(level - 1, 2 * x + dx, 2 * y + dy) == 0.0)
                             .count();
                     }
                 }
@@ -1032,11 +831,7 @@ mod tests {
         for case in 0..CASES {
             let m = random_maps(&mut rng);
             let planner = TilePlanner::new(&m.0, &m.1, random_params(&mut rng, &m)).unwrap();
-            assert_eq!(
-                planner.plan_adaptive_per_pixel(),
-                planner.plan_adaptive_recursive(),
-                "case {case}"
-            );
+            assert_eq!(planner.plan_adaptive_per_pixel(), planner.plan_adaptive_recursive(), "case {case}");
         }
     }
 
@@ -1062,9 +857,6 @@ mod tests {
         assert!(total.undersampled_tiles > 100, "{total:?}");
         assert!(above_finest > 1000, "{above_finest} tiles above level 0");
         let finest_met = total.tiles - above_finest - total.undersampled_tiles;
-        assert!(
-            finest_met > 1000,
-            "{finest_met} level-0 tiles that met their importance"
-        );
+        assert!(finest_met > 1000, "{finest_met} level-0 tiles that met their importance");
     }
 }

@@ -24,8 +24,7 @@ fn default_samples(backend: Backend) -> u32 {
 
 pub fn load_scene(path: &Path, options: &SceneOptions) -> Result<(Scene, f64)> {
     let t0 = Instant::now();
-    let mut scene = load_gltf(path, &LoadOptions::default())
-        .context("cannot load the scene")?;
+    let mut scene = load_gltf(path, &LoadOptions::default()).context("cannot load the scene")?;
     scene.sky = options.sky;
     Ok((scene, t0.elapsed().as_secs_f64()))
 }

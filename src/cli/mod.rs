@@ -81,7 +81,9 @@ pub fn run() -> Result<()> {
     match cli.command {
         None => bake::run(&default_scene(), &PathBuf::from("out"), &SceneOptions::default(), &ui),
         Some(Command::Bake { scene, out, options }) => bake::run(&scene, &out, &options, &ui),
-        Some(Command::Probe { scene, points, out, options }) => probe::run(&scene, &points, out.as_deref(), &options, &ui),
+        Some(Command::Probe { scene, points, out, options }) => {
+            probe::run(&scene, &points, out.as_deref(), &options, &ui)
+        }
         Some(Command::Bench { out, only, quick }) => bench::run(&out, &only, quick, &ui),
     }
 }
@@ -95,5 +97,6 @@ fn init_logging(quiet: bool, verbose: u8) {
         _ => "trace",
     };
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(level));
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).try_init();
+    let _ =
+        tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).try_init();
 }

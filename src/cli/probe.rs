@@ -45,10 +45,9 @@ fn vec3_field(point: &Value, key: &str, index: usize) -> Result<Vec3> {
 fn read_points(path: &Path) -> Result<(Value, Vec<Query>)> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read points file {}", path.display()))?;
     let doc: Value = serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
-    let list = doc
-        .get("points")
-        .and_then(Value::as_array)
-        .with_context(|| format!("{}: expected {{\"points\": [{{\"p\": [x,y,z], \"n\": [x,y,z]}}, ...]}}", path.display()))?;
+    let list = doc.get("points").and_then(Value::as_array).with_context(|| {
+        format!("{}: expected {{\"points\": [{{\"p\": [x,y,z], \"n\": [x,y,z]}}, ...]}}", path.display())
+    })?;
     let queries = list
         .iter()
         .enumerate()
@@ -86,12 +85,8 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
                 queries.iter().map(|q| locator.locate(q.p, q.n).and_then(lit_side)).collect();
             // Trace at the given point, over the hemisphere of the given normal (as the
             // Mitsuba cross-check tool does); points on no surface are reported, not traced.
-            let ok: Vec<(Vec3, Vec3)> = queries
-                .iter()
-                .zip(&located)
-                .filter(|(_, l)| l.is_ok())
-                .map(|(q, _)| (q.p, q.n.normalize()))
-                .collect();
+            let ok: Vec<(Vec3, Vec3)> =
+                queries.iter().zip(&located).filter(|(_, l)| l.is_ok()).map(|(q, _)| (q.p, q.n.normalize())).collect();
             ui.begin_phase("probe reference", ok.len() as u64);
             let (e, _) = tracer.irradiance_batch(&ok, config.samples, config.seed, &|done| ui.reached_at(done as u64));
             ui.end_phase();

@@ -77,7 +77,8 @@ impl Analysis {
 
     fn bin(&mut self, t: u32, lo: Vec2, hi: Vec2) {
         let clamp = |v: f32| (v.max(0.0) as u32).min(BINS - 1);
-        if !(lo.is_finite() && hi.is_finite()) || hi.x < 0.0 || hi.y < 0.0 || lo.x >= BINS as f32 || lo.y >= BINS as f32 {
+        if !(lo.is_finite() && hi.is_finite()) || hi.x < 0.0 || hi.y < 0.0 || lo.x >= BINS as f32 || lo.y >= BINS as f32
+        {
             return;
         }
         for by in clamp(lo.y)..=clamp(hi.y) {

@@ -8,6 +8,7 @@ use glam::Vec2;
 use super::analysis::Analysis;
 use super::fragments::TileFragments;
 use super::prepared::PreparedScene;
+use crate::bundle::emitters::EmitterGroup;
 use crate::bundle::estimator::{HitSink, emit, exchange};
 use crate::bundle::mips::MipChain;
 use crate::bundle::progressive::BatchSums;
@@ -15,7 +16,6 @@ use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
 use crate::bundle::tiles::{Tile, TileParams, TilePlanner, TilingMode, bundle_resolution};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
-use crate::bundle::emitters::EmitterGroup;
 use crate::scene::Rgb;
 
 /// Read-only inputs shared by every lane.
@@ -106,7 +106,14 @@ fn gather(analysis: &mut Analysis, global: &Viewport, vp: &Viewport, out: &mut V
     analysis.candidates(lo.x as f64, lo.y as f64, hi.x as f64, hi.y as f64, out);
 }
 
-fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mut BatchSums, s: &mut Scratch, stats: &mut PassStats) {
+fn trace_global(
+    ctx: &PassContext,
+    job: &DirectionJob,
+    source: &[Rgb],
+    sums: &mut BatchSums,
+    s: &mut Scratch,
+    stats: &mut PassStats,
+) {
     let cfg = ctx.config;
     let frame = BundleFrame::new(job.dir);
     let global = analysis_viewport(ctx, &frame, job.jitter);
@@ -128,8 +135,14 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
     };
 
     let t = Instant::now();
-    let params = TileParams { w: cfg.head_side, n: cfg.node_capacity, alpha: cfg.alpha, pixel_area: (global.pixel as f64).powi(2) };
-    let planned = TilePlanner::new(&importance, &fragments, params).and_then(|p| p.plan(cfg.tiling).map(|plan| (p, plan)));
+    let params = TileParams {
+        w: cfg.head_side,
+        n: cfg.node_capacity,
+        alpha: cfg.alpha,
+        pixel_area: (global.pixel as f64).powi(2),
+    };
+    let planned =
+        TilePlanner::new(&importance, &fragments, params).and_then(|p| p.plan(cfg.tiling).map(|plan| (p, plan)));
     let (planner, plan) = match planned {
         Ok(planned) => planned,
         Err(e) => return unplanned(stats, &e),
@@ -160,7 +173,8 @@ fn trace_global(ctx: &PassContext, job: &DirectionJob, source: &[Rgb], sums: &mu
         let a_px = vp.pixel_area();
         let sky = ctx.sky;
         let mut sink = BundleHits(&mut sums.bundle);
-        stats.covered_pixels += s.fragments.resolve(ctx.scene, |f| exchange(f, a_px, sky, |t| source[t as usize], &mut sink));
+        stats.covered_pixels +=
+            s.fragments.resolve(ctx.scene, |f| exchange(f, a_px, sky, |t| source[t as usize], &mut sink));
         stats.resolve_seconds += seconds(t);
     }
     stats.lost_lookups += std::mem::take(&mut s.fragments.lost_lookups);

@@ -107,7 +107,8 @@ impl TileFragments {
         self.tris.clear();
         for &t in candidates {
             let i = t as usize;
-            if let Some(screen) = ScreenTriangle::setup(frame, viewport, &scene.geom.corners[i], scene.geom.normals[i]) {
+            if let Some(screen) = ScreenTriangle::setup(frame, viewport, &scene.geom.corners[i], scene.geom.normals[i])
+            {
                 let emitter = emitter_group.is_some_and(|g| g != NO_GROUP && scene.emitter_group[i] == g);
                 self.tris.push(TileTriangle { index: t, screen, emitter });
             }

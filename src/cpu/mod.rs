@@ -16,6 +16,7 @@ use crate::bundle::emitters::EmitterGroup;
 use crate::bundle::progressive::BatchSums;
 use crate::bundle::stats::PassStats;
 use crate::bundle::{BundleBackend, BundleConfig, DirectionJob};
+use crate::parallel::par_map;
 use crate::scene::Rgb;
 
 use direction::{PassContext, Scratch, trace_direction};
@@ -43,7 +44,9 @@ impl<'a> CpuBundleBackend<'a> {
         threads: usize,
     ) -> Self {
         let texels = scene.texels.len();
-        let lanes = (0..config.lanes.max(1)).map(|_| Lane { sums: BatchSums::new(texels), scratch: Scratch::default() }).collect();
+        let lanes = (0..config.lanes.max(1))
+            .map(|_| Lane { sums: BatchSums::new(texels), scratch: Scratch::default() })
+            .collect();
         CpuBundleBackend {
             ctx: PassContext { scene, config, groups, sky, light_pixel },
             lanes,
@@ -59,31 +62,16 @@ impl BundleBackend for CpuBundleBackend<'_> {
 
     fn trace_batch(&mut self, batch: &[DirectionJob], source: &[Rgb], sums: &mut BatchSums) -> PassStats {
         let n_lanes = self.lanes.len();
-        let workers = self.threads.min(n_lanes).max(1);
         let ctx = &self.ctx;
-        // Lane l traces directions l, l + n_lanes, ...; worker w runs lanes w, w + workers, ...
-        let mut lane_refs: Vec<(usize, &mut Lane)> = self.lanes.iter_mut().enumerate().collect();
-        let mut per_worker: Vec<Vec<(usize, &mut Lane)>> = (0..workers).map(|_| Vec::new()).collect();
-        for (i, lane) in lane_refs.drain(..) {
-            per_worker[i % workers].push((i, lane));
-        }
-        let stats: Vec<PassStats> = std::thread::scope(|scope| {
-            let handles: Vec<_> = per_worker
-                .into_iter()
-                .map(|lanes| {
-                    scope.spawn(move || {
-                        let mut stats = PassStats::default();
-                        for (l, lane) in lanes {
-                            for job in batch.iter().skip(l).step_by(n_lanes) {
-                                trace_direction(ctx, job, source, &mut lane.sums, &mut lane.scratch, &mut stats);
-                            }
-                        }
-                        stats
-                    })
-                })
-                .collect();
-            // A worker's panic is a bug: pass it on rather than bake with its samples missing.
-            handles.into_iter().map(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p))).collect()
+        // Lane l traces directions l, l + n_lanes, ... in order into its own sums; lanes are
+        // independent, so which worker runs which lane does not change the result.
+        let lanes: Vec<(usize, &mut Lane)> = self.lanes.iter_mut().enumerate().collect();
+        let stats = par_map(lanes, self.threads, |(l, lane)| {
+            let mut stats = PassStats::default();
+            for job in batch.iter().skip(l).step_by(n_lanes) {
+                trace_direction(ctx, job, source, &mut lane.sums, &mut lane.scratch, &mut stats);
+            }
+            stats
         });
         let mut lane_sums: Vec<BatchSums> = self.lanes.iter_mut().map(|l| std::mem::take(&mut l.sums)).collect();
         sums.reduce_from(&mut lane_sums, self.threads);

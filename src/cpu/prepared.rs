@@ -46,7 +46,8 @@ impl<'a> PreparedScene<'a> {
         let mut face_uv = Vec::with_capacity(geom.len());
         let mut importance = Vec::with_capacity(geom.len());
         for t in 0..geom.len() {
-            let sides = Side::BOTH.map(|s| atlas.face(t as u32, s).map(|f| atlas.faces[f as usize].uv.map(|uv| uv * scale)));
+            let sides =
+                Side::BOTH.map(|s| atlas.face(t as u32, s).map(|f| atlas.faces[f as usize].uv.map(|uv| uv * scale)));
             let density = sides
                 .iter()
                 .flatten()

@@ -67,10 +67,12 @@ impl SphereTree {
     /// A sphere around the spheres of `triangles`, grown by a relative 10⁻⁵ so that float
     /// rounding in the window test never rejects a node whose triangles pass it.
     fn enclosing(&self, triangles: &[u32]) -> (Vec3, f32) {
-        let (lo, hi) = triangles.iter().map(|&t| self.spheres[t as usize]).fold(
-            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
-            |(lo, hi), (c, r)| (lo.min(c - Vec3::splat(r)), hi.max(c + Vec3::splat(r))),
-        );
+        let (lo, hi) = triangles
+            .iter()
+            .map(|&t| self.spheres[t as usize])
+            .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), (c, r)| {
+                (lo.min(c - Vec3::splat(r)), hi.max(c + Vec3::splat(r)))
+            });
         let centre = (lo + hi) * 0.5;
         let radius = triangles
             .iter()

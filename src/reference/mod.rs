@@ -7,7 +7,7 @@
 //!   with next-event estimation and MIS at every vertex; its docs state the conventions
 //!   (sidedness, emission, lights, sky, ray offset ε).
 //! * [`compare`]: [`RelativeRmsError`], the error figure against a noisy reference.
-//! * [`batch`]: many queries on crossbeam worker threads, independent of thread count.
+//! * [`batch`]: many queries on worker threads, independent of thread count.
 //! * [`scenes`]: synthetic scenes for tests and benchmarks.
 //!
 //! Throughput: `livebake bench --only reference`.

@@ -38,7 +38,13 @@ impl SceneBuilder {
 
     /// Adds a mesh from world-space positions and CCW triangles; normals are the face normals
     /// averaged per vertex.
-    pub fn mesh(&mut self, name: &str, positions: Vec<Vec3>, triangles: Vec<[u32; 3]>, material: MaterialId) -> &mut Self {
+    pub fn mesh(
+        &mut self,
+        name: &str,
+        positions: Vec<Vec3>,
+        triangles: Vec<[u32; 3]>,
+        material: MaterialId,
+    ) -> &mut Self {
         let mut normals = vec![Vec3::ZERO; positions.len()];
         for t in &triangles {
             let [a, b, c] = t.map(|i| positions[i as usize]);
@@ -108,9 +114,7 @@ impl SceneBuilder {
     /// An axis-aligned box from `lo` to `hi`. With `inward` its faces look into the box
     /// (a closed room); otherwise out of it (a solid block).
     pub fn cuboid(&mut self, name: &str, lo: Vec3, hi: Vec3, inward: bool, material: MaterialId) -> &mut Self {
-        let p = |x: usize, y: usize, z: usize| {
-            Vec3::new([lo.x, hi.x][x], [lo.y, hi.y][y], [lo.z, hi.z][z])
-        };
+        let p = |x: usize, y: usize, z: usize| Vec3::new([lo.x, hi.x][x], [lo.y, hi.y][y], [lo.z, hi.z][z]);
         // Outward-facing CCW quads.
         let faces = [
             [p(0, 0, 0), p(0, 0, 1), p(0, 1, 1), p(0, 1, 0)], // -X
@@ -206,12 +210,7 @@ mod tests {
     fn grid_quad_covers_the_quad() {
         let mut b = SceneBuilder::new();
         let m = b.material(white());
-        b.grid_quad(
-            "g",
-            [Vec3::ZERO, Vec3::X * 2.0, Vec3::new(2.0, 0.0, -3.0), Vec3::new(0.0, 0.0, -3.0)],
-            4,
-            m,
-        );
+        b.grid_quad("g", [Vec3::ZERO, Vec3::X * 2.0, Vec3::new(2.0, 0.0, -3.0), Vec3::new(0.0, 0.0, -3.0)], 4, m);
         let s = b.build();
         let g = SceneGeometry::new(&s);
         assert_eq!(g.len(), 32);

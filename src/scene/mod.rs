@@ -211,7 +211,10 @@ pub enum LightKind {
     Point,
     /// Cone angles in radians from the axis. Between them the intensity falls off with glTF's
     /// recommended curve: `t²` with `t = (cosθ − cos outer) / (cos inner − cos outer)` clamped.
-    Spot { inner_cone: f32, outer_cone: f32 },
+    Spot {
+        inner_cone: f32,
+        outer_cone: f32,
+    },
 }
 
 impl PunctualLight {

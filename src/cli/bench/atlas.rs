@@ -13,8 +13,11 @@ use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 use super::{assets, median, seconds};
 use crate::cli::progress::Ui;
 
-pub const SCENES: [&str; 3] =
-    ["cornell_box/cornellBox-2.79-Cycles-gltf.gltf", "van_gogh_room/van_gogh_room_lit.gltf", "cornell_2m/cornell_2m.gltf"];
+pub const SCENES: [&str; 3] = [
+    "cornell_box/cornellBox-2.79-Cycles-gltf.gltf",
+    "van_gogh_room/van_gogh_room_lit.gltf",
+    "cornell_2m/cornell_2m.gltf",
+];
 
 pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     let runs = if quick { 3 } else { 7 };

@@ -48,7 +48,10 @@ fn load_reference(path: &Path) -> Result<Reference> {
     let mut r = Reference { points: Vec::new(), e: Vec::new(), stderr: Vec::new() };
     for p in doc["points"].as_array().context("points")? {
         let (pos, n) = (triple(&p["p"]).context("p")?, triple(&p["n"]).context("n")?);
-        r.points.push((Vec3::new(pos[0] as f32, pos[1] as f32, pos[2] as f32), Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32)));
+        r.points.push((
+            Vec3::new(pos[0] as f32, pos[1] as f32, pos[2] as f32),
+            Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32),
+        ));
         r.e.push(triple(&p["E"]).context("E")?);
         r.stderr.push(triple(&p["E_stderr"]).context("E_stderr")?);
     }
@@ -89,7 +92,12 @@ fn error_at(curve: &[(f64, f64)], t: f64) -> Option<f64> {
     })
 }
 
-fn whole_command(scene: &Path, points: &Path, reference: &Reference, directions: &[u32]) -> Result<Vec<(u32, f64, f64)>> {
+fn whole_command(
+    scene: &Path,
+    points: &Path,
+    reference: &Reference,
+    directions: &[u32],
+) -> Result<Vec<(u32, f64, f64)>> {
     let exe = std::env::current_exe()?;
     let out = std::env::temp_dir().join(format!("livebake-bench-probe-{}.json", std::process::id()));
     let mut curve = Vec::new();
@@ -129,7 +137,9 @@ fn bake_and_probe(scene: &Scene, config: &BakeConfig, reference: &Reference) -> 
     let e: Vec<Option<[f64; 3]>> = reference
         .points
         .iter()
-        .map(|&(p, n)| locator.locate(p, n).and_then(|at| sampler.irradiance(&at)).ok().map(|e| e.as_dvec3().to_array()))
+        .map(|&(p, n)| {
+            locator.locate(p, n).and_then(|at| sampler.irradiance(&at)).ok().map(|e| e.as_dvec3().to_array())
+        })
         .collect();
     Ok((secs, reference.error(&e)?))
 }
@@ -171,7 +181,9 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     let equal_time: Vec<Value> = bundle
         .iter()
         .filter_map(|&(d, t, e)| {
-            error_at(&traced_curve, t).map(|r| json!({ "directions": d, "seconds": t, "bundle_error": e, "reference_error": r, "ratio": r / e }))
+            error_at(&traced_curve, t).map(
+                |r| json!({ "directions": d, "seconds": t, "bundle_error": e, "reference_error": r, "ratio": r / e }),
+            )
         })
         .collect();
     Ok(json!({

@@ -55,7 +55,7 @@ pub fn run(out: &Path, only: &[String], quick: bool, ui: &Ui) -> Result<()> {
     }
     let mut report = json!({
         "livebake_version": env!("CARGO_PKG_VERSION"),
-        "threads": std::thread::available_parallelism().map_or(1, |n| n.get()),
+        "threads": livebake::parallel::available_threads(),
         "quick": quick,
     });
     for (section, bench) in SECTIONS {

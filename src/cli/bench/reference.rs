@@ -16,7 +16,7 @@ const SCENES: [&str; 2] = ["van_gogh_room/van_gogh_room_lit.gltf", "cornell_box/
 
 pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     let (points, spp, runs) = if quick { (2_000, 8, 3) } else { (20_000, 16, 5) };
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let cores = livebake::parallel::available_threads();
     let mut out = Vec::new();
     for name in SCENES {
         let scene = load_gltf(&assets().join(name), &LoadOptions::default())?;

@@ -50,7 +50,7 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     let _ = std::fs::remove_dir_all(&dir);
     let lod = &out.report.lods[0];
     let bundle = lod.bundle.as_ref().context("bundle report")?;
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
+    let cores = livebake::parallel::available_threads() as f64;
     let per_core = bundle.effective_rays_per_second / cores;
     let with_light_pass_per_core = bundle.effective_rays_per_second_with_light_pass / cores;
     Ok(json!({

@@ -17,7 +17,7 @@ const TEXEL_SIZE: f32 = 0.012;
 
 pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     let (runs, samples) = if quick { (1, 64) } else { (3, 256) };
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
+    let cores = livebake::parallel::available_threads() as f64;
     let mut out = Vec::new();
     for name in SCENES {
         let scene = load_gltf(&assets().join(name), &LoadOptions::default())?;

@@ -25,7 +25,8 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     base.atlas.texel_size = Some(0.02);
     base.bundle.head_side = 256;
     base.bundle.node_capacity = 1 << 17;
-    let modes = [("none", TilingMode::None), ("uniform:4", TilingMode::Uniform { k: 4 }), ("adaptive", TilingMode::Adaptive)];
+    let modes =
+        [("none", TilingMode::None), ("uniform:4", TilingMode::Uniform { k: 4 }), ("adaptive", TilingMode::Adaptive)];
     let mut bakes = Vec::new();
     for (name, mode) in modes {
         let mut config = base.clone();
@@ -36,7 +37,10 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     }
     // Reference at texels spread over the light map (the three bakes share the layout).
     let texels = &bakes[0].2.lods[0].texels;
-    let picks: Vec<usize> = (0..texels.len()).step_by((texels.len() / ref_points).max(1)).filter(|&i| texels.emission[i] == Rgb::ZERO).collect();
+    let picks: Vec<usize> = (0..texels.len())
+        .step_by((texels.len() / ref_points).max(1))
+        .filter(|&i| texels.emission[i] == Rgb::ZERO)
+        .collect();
     let queries: Vec<(Vec3, Vec3)> = picks.iter().map(|&i| (texels.position[i], texels.normal[i])).collect();
     let tracer = ReferenceTracer::new(&scene);
     let (reference, _) = tracer.irradiance_batch_estimates(&queries, ref_spp, 11, &|_| {});
