@@ -445,9 +445,16 @@ fn errors() {
     let cfg = AtlasConfig { texel_size: Some(0.01), max_size: 390, ..AtlasConfig::default() };
     assert!(matches!(Atlas::build(&s, &g, &cfg), Err(AtlasError::TooLarge { max: 390, .. })));
     assert!(matches!(Atlas::build(&Scene::default(), &SceneGeometry::default(), &config(0.1)), Err(AtlasError::Empty)));
-    // Zero budget: no texel size can be derived.
+    // Zero budget: no texel size can be derived; a budget beyond the largest atlas cannot be
+    // met; nor can a zero or u32-overflowing atlas side.
     let cfg = AtlasConfig { texel_budget: 0, ..AtlasConfig::default() };
-    assert!(matches!(Atlas::build(&s, &g, &cfg), Err(AtlasError::BadTexelSize(_))));
+    assert!(matches!(Atlas::build(&s, &g, &cfg), Err(AtlasError::BadBudget { budget: 0, .. })));
+    let cfg = AtlasConfig { texel_budget: 4097 * 4097, max_size: 4096, ..AtlasConfig::default() };
+    assert!(matches!(Atlas::build(&s, &g, &cfg), Err(AtlasError::BadBudget { most: 16_777_216, .. })));
+    for max_size in [0, MAX_ATLAS_SIDE + 1] {
+        let cfg = AtlasConfig { max_size, ..AtlasConfig::default() };
+        assert!(matches!(Atlas::build(&s, &g, &cfg), Err(AtlasError::BadMaxSize(_))));
+    }
 }
 
 #[test]
