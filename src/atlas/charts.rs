@@ -777,10 +777,11 @@ fn merge(faces: &MeshFaces, charts: Vec<Vec<u32>>, uv: &mut [[DVec2; 3]], seen: 
         };
         let moved: Vec<[DVec2; 3]> =
             clusters[m].faces.iter().map(|&f| uv[f as usize].map(|p| motion.apply(p))).collect();
+        // Near in UV (within the clearance) is a conflict for faces apart on the surface;
+        // for the others only an overlap is.
         let conflict = |f: u32, t: &[DVec2; 3], g: u32| {
-            let other = &uv[g as usize];
-            triangles_overlap(t, other, OVERLAP_TOL)
-                || (triangles_overlap(t, other, -clearance) && faces.box_distance(f, g) > clearance)
+            let tol = if faces.box_distance(f, g) > clearance { -clearance } else { OVERLAP_TOL };
+            triangles_overlap(t, &uv[g as usize], tol)
         };
         let r = DVec2::splat(clearance);
         let blocked = if clusters[m].faces.len() * clusters[i].faces.len() <= BRUTE_FORCE_PAIRS {
@@ -907,7 +908,9 @@ fn finish(members: &[u32], uv: &[[DVec2; 3]], tris: &[TriangleId], texel: f64) -
     }
 }
 
-/// Convex hull (Andrew's monotone chain), counter-clockwise, no collinear points.
+/// Convex hull (Andrew's monotone chain), counter-clockwise, without collinear points (nor
+/// points off the line through their neighbours by less than 10⁻⁹ of the edges' length:
+/// float noise along a straight chart edge would otherwise keep every vertex on it).
 pub(crate) fn convex_hull(points: &[DVec2]) -> Vec<DVec2> {
     let mut p: Vec<DVec2> = points.to_vec();
     p.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
@@ -915,7 +918,11 @@ pub(crate) fn convex_hull(points: &[DVec2]) -> Vec<DVec2> {
     if p.len() < 3 {
         return p;
     }
-    let cross = |o: DVec2, a: DVec2, b: DVec2| (a - o).perp_dot(b - o);
+    let cross = |o: DVec2, a: DVec2, b: DVec2| {
+        let (u, v) = (a - o, b - o);
+        let c = u.perp_dot(v);
+        if c.abs() <= 1e-9 * (u.length_squared() + v.length_squared()) { 0.0 } else { c }
+    };
     let chain = |it: &mut dyn Iterator<Item = DVec2>| {
         let mut h: Vec<DVec2> = Vec::new();
         for q in it {

@@ -22,6 +22,7 @@ pub mod charts;
 pub mod pack;
 pub mod raster;
 pub mod texels;
+pub mod update;
 pub mod uv1;
 
 #[cfg(test)]
@@ -36,6 +37,7 @@ use crate::lod::LodHierarchy;
 use crate::scene::{Scene, SceneGeometry, Side, TriangleId};
 
 pub use texels::TexelMap;
+pub use update::{AtlasUpdate, MeshOrigin};
 
 /// Index into [`Atlas::faces`].
 pub type FaceId = u32;
@@ -442,33 +444,26 @@ fn solve_texel_size(
     Ok(best.1)
 }
 
-/// Lays charts out at the given corners and orientations: face UVs, chart list.
-fn assemble(
+/// Lays chart `c` out as chart `id` with its rectangle's corner at `rect_min`, turned by `o`:
+/// its faces' UVs and chart id, and the chart.
+fn lay_out(
     faces: &mut [AtlasFace],
     face_of: &[[FaceId; 2]],
-    placed: Vec<(TexelChart, (u32, u32), pack::Orient)>,
-) -> Vec<Chart> {
-    let mut charts = Vec::with_capacity(placed.len());
-    for (ci, (c, rect_min, o)) in placed.into_iter().enumerate() {
-        let (p, uv) = c.oriented(o);
-        let origin = DVec2::new(rect_min.0 as f64, rect_min.1 as f64) + p.offset;
-        let mut ids = Vec::with_capacity(c.tris.len());
-        for (t, uv) in c.tris.iter().zip(uv) {
-            let f = face_of[*t as usize][c.side.index()];
-            faces[f as usize].chart = ci as u32;
-            faces[f as usize].uv = uv.map(|q| (q + origin).as_vec2());
-            ids.push(f);
-        }
-        charts.push(Chart {
-            mesh: c.mesh,
-            side: c.side,
-            source: c.source,
-            rect_min,
-            rect_size: p.rect_size(),
-            faces: ids,
-        });
+    id: u32,
+    c: TexelChart,
+    rect_min: (u32, u32),
+    o: pack::Orient,
+) -> Chart {
+    let (p, uv) = c.oriented(o);
+    let origin = DVec2::new(rect_min.0 as f64, rect_min.1 as f64) + p.offset;
+    let mut ids = Vec::with_capacity(c.tris.len());
+    for (t, uv) in c.tris.iter().zip(uv) {
+        let f = face_of[*t as usize][c.side.index()];
+        faces[f as usize].chart = id;
+        faces[f as usize].uv = uv.map(|q| (q + origin).as_vec2());
+        ids.push(f);
     }
-    charts
+    Chart { mesh: c.mesh, side: c.side, source: c.source, rect_min, rect_size: p.rect_size(), faces: ids }
 }
 
 impl Atlas {
@@ -533,9 +528,12 @@ impl Atlas {
         let sizes: Vec<(u32, u32)> = charts.iter().map(|c| c.placement.rect_size()).collect();
         let max = config.max_size;
         let packing = pack::pack(&sizes, max).map_err(|(width, height)| AtlasError::TooLarge { width, height, max })?;
-        let placed =
-            charts.into_iter().zip(packing.positions).zip(packing.orient).map(|((c, p), o)| (c, p, o)).collect();
-        let charts = assemble(&mut faces, &face_of, placed);
+        let charts: Vec<Chart> = charts
+            .into_iter()
+            .zip(packing.positions.iter().zip(&packing.orient))
+            .enumerate()
+            .map(|(id, (c, (&p, &o)))| lay_out(&mut faces, &face_of, id as u32, c, p, o))
+            .collect();
         stats.charts = charts.len();
         stats.pack_seconds = packing_started.elapsed().as_secs_f64();
 

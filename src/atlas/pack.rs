@@ -448,10 +448,10 @@ impl FreeMap {
 /// `out[x] = bits[x + s]` over a row of bits (zeros shifted in at the end).
 fn shift_down(bits: &[u64], s: u32, out: &mut [u64]) {
     let (wq, r) = ((s / 64) as usize, s % 64);
-    for k in 0..bits.len() {
+    for (k, o) in out.iter_mut().enumerate() {
         let lo = bits.get(k + wq).copied().unwrap_or(0);
         let hi = bits.get(k + wq + 1).copied().unwrap_or(0);
-        out[k] = if r == 0 { lo } else { (lo >> r) | (hi << (64 - r)) };
+        *o = if r == 0 { lo } else { (lo >> r) | (hi << (64 - r)) };
     }
 }
 
