@@ -458,7 +458,7 @@ pub fn unwrap_mesh(
 fn grow(faces: &MeshFaces, cos_max: f64, uv: &mut [[DVec2; 3]], seen: &mut Visited) -> Vec<Vec<u32>> {
     let n = faces.len();
     let mut seeds: Vec<u32> = (0..n as u32).filter(|&f| !faces.degenerate[f as usize]).collect();
-    seeds.sort_unstable_by(|&a, &b| faces.area[b as usize].total_cmp(&faces.area[a as usize]).then(a.cmp(&b)));
+    seeds.sort_unstable_by_key(|&f| (std::cmp::Reverse(coarse(faces.area[f as usize] as f64)), f));
 
     let mut chart_of = vec![u32::MAX; n];
     let mut tried = vec![u32::MAX; n];
@@ -608,6 +608,21 @@ struct Hinge {
     len2: f64,
 }
 
+impl Hinge {
+    /// The longer edge ([`coarse`] lengths; ties: the lower face pair).
+    fn longer_than(&self, o: &Hinge) -> bool {
+        (coarse(self.len2), std::cmp::Reverse((self.a, self.b))) > (coarse(o.len2), std::cmp::Reverse((o.a, o.b)))
+    }
+}
+
+/// A positive value with its last bits dropped (about 5 significant digits), so that
+/// values equal up to float noise — the areas of a box's opposite faces after it moved —
+/// compare equal and fall to the tie-break: the unwrap of a moved mesh is the unwrap of the
+/// mesh, made in the same order.
+fn coarse(x: f64) -> u32 {
+    (x as f32).to_bits() >> 6
+}
+
 /// The hinge moving face `h.a`'s chart so that its copy of the edge lies on face `h.b`'s,
 /// unfolded (the moved face on the other side of the edge); `None` for a zero-length edge.
 fn hinge_motion(faces: &MeshFaces, uv: &[[DVec2; 3]], h: &Hinge) -> Option<Rigid> {
@@ -696,7 +711,7 @@ fn merge(faces: &MeshFaces, charts: Vec<Vec<u32>>, uv: &mut [[DVec2; 3]], seen: 
             let len2 = faces.pos[f as usize][k].distance_squared(faces.pos[f as usize][l]);
             let h = Hinge { a: f, b: g, v, len2 };
             let e = clusters[cf as usize].links.entry(cg).or_insert(h);
-            if (len2, std::cmp::Reverse((f, g))) > (e.len2, std::cmp::Reverse((e.a, e.b))) {
+            if h.longer_than(e) {
                 *e = h;
             }
         }
@@ -843,7 +858,7 @@ fn merge(faces: &MeshFaces, charts: Vec<Vec<u32>>, uv: &mut [[DVec2; 3]], seen: 
             }
             // The moved chart's link to k now belongs to i (its faces moved with it).
             let e = ci.links.entry(k).or_insert(h);
-            if (h.len2, std::cmp::Reverse((h.a, h.b))) > (e.len2, std::cmp::Reverse((e.a, e.b))) {
+            if h.longer_than(e) {
                 *e = h;
             }
         }
@@ -908,9 +923,9 @@ fn finish(members: &[u32], uv: &[[DVec2; 3]], tris: &[TriangleId], texel: f64) -
     }
 }
 
-/// Convex hull (Andrew's monotone chain), counter-clockwise, without collinear points (nor
-/// points off the line through their neighbours by less than 10⁻⁹ of the edges' length:
-/// float noise along a straight chart edge would otherwise keep every vertex on it).
+/// Convex hull (Andrew's monotone chain), counter-clockwise, without collinear points nor
+/// points within 10⁻⁹ of the edges' length of the segment between their neighbours (float
+/// noise along a straight chart edge would otherwise keep every vertex on it).
 pub(crate) fn convex_hull(points: &[DVec2]) -> Vec<DVec2> {
     let mut p: Vec<DVec2> = points.to_vec();
     p.sort_by(|a, b| a.x.total_cmp(&b.x).then(a.y.total_cmp(&b.y)));
@@ -918,11 +933,7 @@ pub(crate) fn convex_hull(points: &[DVec2]) -> Vec<DVec2> {
     if p.len() < 3 {
         return p;
     }
-    let cross = |o: DVec2, a: DVec2, b: DVec2| {
-        let (u, v) = (a - o, b - o);
-        let c = u.perp_dot(v);
-        if c.abs() <= 1e-9 * (u.length_squared() + v.length_squared()) { 0.0 } else { c }
-    };
+    let cross = |o: DVec2, a: DVec2, b: DVec2| (a - o).perp_dot(b - o);
     let chain = |it: &mut dyn Iterator<Item = DVec2>| {
         let mut h: Vec<DVec2> = Vec::new();
         for q in it {
@@ -936,7 +947,22 @@ pub(crate) fn convex_hull(points: &[DVec2]) -> Vec<DVec2> {
     };
     let mut hull = chain(&mut p.iter().copied());
     hull.extend(chain(&mut p.iter().rev().copied()));
-    if hull.len() < 3 { vec![p[0], p[p.len() - 1]] } else { hull }
+    if hull.len() < 3 {
+        return vec![p[0], p[p.len() - 1]];
+    }
+    // Drop vertices lying (up to noise) on the segment between their neighbours.
+    let mut k = 0;
+    while hull.len() > 3 && k < hull.len() {
+        let n = hull.len();
+        let (a, v, b) = (hull[(k + n - 1) % n], hull[k], hull[(k + 1) % n]);
+        let (u, w) = (v - a, b - v);
+        if u.perp_dot(w).abs() <= 1e-9 * (u.length_squared() + w.length_squared()) && u.dot(w) > 0.0 {
+            hull.remove(k);
+        } else {
+            k += 1;
+        }
+    }
+    hull
 }
 
 /// Unit direction of the x axis of the minimum-area bounding rectangle of a convex polygon

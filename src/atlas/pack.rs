@@ -271,11 +271,11 @@ pub struct Rect {
 }
 
 impl Rect {
-    fn contains(&self, o: &Rect) -> bool {
+    pub fn contains(&self, o: &Rect) -> bool {
         o.x >= self.x && o.y >= self.y && o.x + o.w <= self.x + self.w && o.y + o.h <= self.y + self.h
     }
 
-    fn intersects(&self, o: &Rect) -> bool {
+    pub fn intersects(&self, o: &Rect) -> bool {
         o.x < self.x + self.w && self.x < o.x + o.w && o.y < self.y + self.h && self.y < o.y + o.h
     }
 }

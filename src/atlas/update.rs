@@ -330,3 +330,254 @@ fn keep_chart(
         uv,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use glam::{Affine3A, Vec3};
+
+    use super::*;
+    use crate::atlas::tests::{check_pub, config};
+    use crate::scene::builder::white;
+    use crate::scene::{Scene, SceneBuilder};
+
+    /// A room, boxes (big enough never to merge) and a shelf of thin boards (whose sides
+    /// merge into their faces), one mesh each; `edit(name, positions)` may move a mesh.
+    fn scene(mut edit: impl FnMut(&str, &mut Vec<Vec3>)) -> Scene {
+        let mut b = SceneBuilder::new();
+        let m = b.material(white());
+        b.cuboid("room", Vec3::ZERO, Vec3::new(6.0, 3.0, 5.0), true, m);
+        for k in 0..4 {
+            let o = Vec3::new(0.5 + 1.3 * k as f32, 0.0, 1.0);
+            b.cuboid(&format!("box{k}"), o, o + Vec3::new(0.5 + 0.1 * k as f32, 0.7, 0.6), false, m);
+        }
+        for k in 0..3 {
+            let o = Vec3::new(0.3, 0.4 + 0.5 * k as f32, 4.2);
+            b.cuboid(&format!("board{k}"), o, o + Vec3::new(1.6, 0.03, 0.4), false, m);
+        }
+        b.grid_quad(
+            "floor panel",
+            [
+                Vec3::new(2.8, 0.01, 4.0),
+                Vec3::new(5.8, 0.01, 4.0),
+                Vec3::new(5.8, 0.01, 1.0),
+                Vec3::new(2.8, 0.01, 1.0),
+            ],
+            4,
+            m,
+        );
+        let mut s = b.build();
+        for mesh in &mut s.meshes {
+            edit(&mesh.name.clone(), &mut mesh.positions);
+        }
+        s
+    }
+
+    fn transform(xf: Affine3A) -> impl Fn(&mut Vec<Vec3>) {
+        move |p: &mut Vec<Vec3>| p.iter_mut().for_each(|q| *q = xf.transform_point3(*q))
+    }
+
+    fn index(s: &Scene, name: &str) -> u32 {
+        s.meshes.iter().position(|m| m.name == name).expect("mesh") as u32
+    }
+
+    /// Rectangles of a mesh's charts, sorted.
+    fn rects(a: &Atlas, mesh: u32) -> Vec<Rect> {
+        let mut v: Vec<Rect> = a.charts.iter().filter(|c| c.mesh == mesh).map(rect_of).collect();
+        v.sort_by_key(|r| (r.x, r.y, r.w, r.h));
+        v
+    }
+
+    /// Every face of new mesh `new` has the UV bits, side and rectangle of the same triangle
+    /// of old mesh `old`.
+    fn assert_kept(old: &Atlas, a: &Atlas, old_mesh: u32, new_mesh: u32) {
+        let (o0, o1) = (old.mesh_offsets[old_mesh as usize], old.mesh_offsets[old_mesh as usize + 1]);
+        let n0 = a.mesh_offsets[new_mesh as usize];
+        assert_eq!(o1 - o0, a.mesh_offsets[new_mesh as usize + 1] - n0);
+        for k in 0..o1 - o0 {
+            for side in Side::BOTH {
+                let (fo, fa) =
+                    (old.face_of[(o0 + k) as usize][side.index()], a.face_of[(n0 + k) as usize][side.index()]);
+                assert_eq!(fo == NO_FACE, fa == NO_FACE);
+                if fo == NO_FACE {
+                    continue;
+                }
+                let (x, y) = (&old.faces[fo as usize], &a.faces[fa as usize]);
+                assert_eq!(x.uv.map(|p| p.to_array().map(f32::to_bits)), y.uv.map(|p| p.to_array().map(f32::to_bits)));
+                let (cx, cy) = (&old.charts[x.chart as usize], &a.charts[y.chart as usize]);
+                assert_eq!((cx.rect_min, cx.rect_size, cx.side), (cy.rect_min, cy.rect_size, cy.side));
+                assert_eq!(cy.mesh, new_mesh);
+            }
+        }
+    }
+
+    fn unchanged_all(s: &Scene) -> Vec<MeshOrigin> {
+        (0..s.meshes.len() as u32).map(MeshOrigin::Unchanged).collect()
+    }
+
+    /// Meshes reordered and one dropped: every kept mesh keeps its face UVs bit for bit, the
+    /// atlas its size, and nothing was laid out anew.
+    #[test]
+    fn unchanged_meshes_keep_their_face_uvs() {
+        let s0 = scene(|_, _| {});
+        let g0 = SceneGeometry::new(&s0);
+        let old = Atlas::build(&s0, &g0, &config(0.05)).unwrap();
+        let mut s1 = s0.clone();
+        s1.meshes.reverse();
+        let dropped = s1.meshes.iter().position(|m| m.name == "box2").unwrap();
+        s1.meshes.remove(dropped);
+        let g1 = SceneGeometry::new(&s1);
+        let origins: Vec<MeshOrigin> = s1.meshes.iter().map(|m| MeshOrigin::Unchanged(index(&s0, &m.name))).collect();
+        let (a, up) = Atlas::update(&old, &s1, &g1, &config(0.05), &origins).unwrap();
+        assert_eq!(up, AtlasUpdate::default());
+        assert_eq!((a.width, a.height, a.texel_size), (old.width, old.height, old.texel_size));
+        for (mi, m) in s1.meshes.iter().enumerate() {
+            assert_kept(&old, &a, index(&s0, &m.name), mi as u32);
+        }
+        check_pub(&s1, &a, 1, true);
+        // The same scene unchanged: the same atlas.
+        let (same, up) = Atlas::update(&old, &s0, &g0, &config(0.05), &unchanged_all(&s0)).unwrap();
+        assert_eq!(up, AtlasUpdate::default());
+        assert_eq!(same.covered_texels(0), old.covered_texels(0));
+    }
+
+    /// A box and a board moved (off the texel grid): unwrapped anew, their charts take
+    /// exactly the rectangles they had; everything else keeps its UVs.
+    #[test]
+    fn a_moved_mesh_keeps_its_rectangles() {
+        let s0 = scene(|_, _| {});
+        let old = Atlas::build(&s0, &SceneGeometry::new(&s0), &config(0.05)).unwrap();
+        let shift = transform(Affine3A::from_translation(Vec3::new(0.37, 0.0, -0.61)));
+        let s1 = scene(|name, p| {
+            if name == "box1" || name == "board2" {
+                shift(p)
+            }
+        });
+        let g1 = SceneGeometry::new(&s1);
+        let moved = [index(&s1, "box1"), index(&s1, "board2")];
+        let origins: Vec<MeshOrigin> = (0..s1.meshes.len() as u32)
+            .map(|m| if moved.contains(&m) { MeshOrigin::Changed(m) } else { MeshOrigin::Unchanged(m) })
+            .collect();
+        let (a, up) = Atlas::update(&old, &s1, &g1, &config(0.05), &origins).unwrap();
+        assert_eq!(
+            up,
+            AtlasUpdate { relaid: moved.to_vec(), reused_space: moved.to_vec(), grown: false, repacked: false }
+        );
+        assert!(
+            old.charts.iter().filter(|c| c.mesh == moved[1]).count() < 6,
+            "the board's sides merged: the test covers merges"
+        );
+        for m in 0..s1.meshes.len() as u32 {
+            assert_eq!(rects(&a, m), rects(&old, m), "mesh {m}");
+            if !moved.contains(&m) {
+                assert_kept(&old, &a, m, m);
+            }
+        }
+        assert_eq!((a.width, a.height), (old.width, old.height));
+        check_pub(&s1, &a, 1, true);
+    }
+
+    /// A box grown 1.4× and the floor panel removed: the box's charts no longer fit its old
+    /// space and take free space (the panel's); nothing else moves and the atlas keeps its
+    /// size.
+    #[test]
+    fn a_grown_mesh_takes_free_space() {
+        let s0 = scene(|_, _| {});
+        let old = Atlas::build(&s0, &SceneGeometry::new(&s0), &config(0.05)).unwrap();
+        let grow = transform(Affine3A::from_scale(Vec3::splat(1.4)));
+        let mut s1 = scene(|name, p| {
+            if name == "box3" {
+                grow(p)
+            }
+        });
+        s1.meshes.retain(|m| m.name != "floor panel");
+        let g1 = SceneGeometry::new(&s1);
+        let b3 = index(&s1, "box3");
+        let origins: Vec<MeshOrigin> = s1
+            .meshes
+            .iter()
+            .enumerate()
+            .map(|(mi, m)| {
+                let o = index(&s0, &m.name);
+                if mi as u32 == b3 { MeshOrigin::Changed(o) } else { MeshOrigin::Unchanged(o) }
+            })
+            .collect();
+        let (a, up) = Atlas::update(&old, &s1, &g1, &config(0.05), &origins).unwrap();
+        assert_eq!(up, AtlasUpdate { relaid: vec![b3], reused_space: vec![], grown: false, repacked: false });
+        assert_eq!((a.width, a.height), (old.width, old.height));
+        let (old_box, new_box) = (rects(&old, index(&s0, "box3")), rects(&a, b3));
+        assert!(new_box.iter().all(|r| !old_box.iter().any(|o| o.contains(r))), "{new_box:?} in {old_box:?}");
+        for (mi, m) in s1.meshes.iter().enumerate() {
+            if mi as u32 != b3 {
+                assert_kept(&old, &a, index(&s0, &m.name), mi as u32);
+            }
+        }
+        check_pub(&s1, &a, 1, true);
+    }
+
+    /// The floor panel grown into a wall as big as half the atlas, under a size limit the
+    /// atlas cannot grow into: nothing fits, the atlas is packed anew and says so.
+    #[test]
+    fn an_impossible_fit_repacks_and_says_so() {
+        let s0 = scene(|_, _| {});
+        let old = Atlas::build(&s0, &SceneGeometry::new(&s0), &config(0.05)).unwrap();
+        // The panel (3 m × 3 m) scaled so that its side is 0.7 × the atlas height.
+        let k = 0.7 * old.height as f32 * 0.05 / 3.0;
+        let centre = Vec3::new(4.3, 0.01, 2.5);
+        let grow = transform(
+            Affine3A::from_translation(centre)
+                * Affine3A::from_scale(Vec3::new(k, 1.0, k))
+                * Affine3A::from_translation(-centre),
+        );
+        let s1 = scene(|name, p| {
+            if name == "floor panel" {
+                grow(p)
+            }
+        });
+        let g1 = SceneGeometry::new(&s1);
+        let panel = index(&s1, "floor panel");
+        let origins: Vec<MeshOrigin> = (0..s1.meshes.len() as u32)
+            .map(|m| if m == panel { MeshOrigin::Changed(m) } else { MeshOrigin::Unchanged(m) })
+            .collect();
+        let limit = AtlasConfig { max_size: old.width.max(old.height) * 3 / 2, ..config(0.05) };
+        let (a, up) = Atlas::update(&old, &s1, &g1, &limit, &origins).unwrap();
+        assert!(up.repacked && !up.grown && up.reused_space.is_empty());
+        assert_eq!(up.relaid, (0..s1.meshes.len() as u32).collect::<Vec<_>>());
+        assert!(a.width <= limit.max_size && a.height <= limit.max_size);
+        // A repack is a build at the old texel size.
+        let fresh = Atlas::build(&s1, &g1, &limit).unwrap();
+        assert_eq!((a.width, a.height), (fresh.width, fresh.height));
+        check_pub(&s1, &a, 0, true);
+        // Without the limit the atlas grows instead, keeping everything else in place.
+        let (b, up) = Atlas::update(&old, &s1, &g1, &config(0.05), &origins).unwrap();
+        assert!(up.grown && !up.repacked && b.width == old.width && b.height > old.height);
+        for m in 0..s1.meshes.len() as u32 {
+            if m != panel {
+                assert_kept(&old, &b, m, m);
+            }
+        }
+        check_pub(&s1, &b, 0, true);
+    }
+
+    #[test]
+    fn bad_origins_are_refused() {
+        let s0 = scene(|_, _| {});
+        let g0 = SceneGeometry::new(&s0);
+        let old = Atlas::build(&s0, &g0, &config(0.05)).unwrap();
+        let bad = |origins: &[MeshOrigin], s: &Scene| {
+            matches!(
+                Atlas::update(&old, s, &SceneGeometry::new(s), &config(0.05), origins),
+                Err(AtlasError::BadUpdate(_))
+            )
+        };
+        let mut o = unchanged_all(&s0);
+        assert!(bad(&o[1..], &s0), "too few origins");
+        o[1] = MeshOrigin::Unchanged(0);
+        assert!(bad(&o, &s0), "one old mesh for two");
+        o[1] = MeshOrigin::Changed(99);
+        assert!(bad(&o, &s0), "no such old mesh");
+        // "Unchanged" but a triangle fewer.
+        let mut s1 = s0.clone();
+        s1.meshes[2].triangles.pop();
+        assert!(bad(&unchanged_all(&s1), &s1));
+    }
+}
