@@ -42,13 +42,16 @@ fn ok(cwd: &Path, args: &[&str]) -> String {
 }
 
 /// Runs and requires failure with an `error:` line containing every one of `needles`
-/// (case-insensitive) and no panic.
+/// (case-insensitive), an exit code (not an abort) and no panic. Returns the exit code: 1, or
+/// 2 for what the argument parser refuses.
 #[track_caller]
-fn fails(cwd: &Path, args: &[&str], needles: &[&str]) {
+fn fails(cwd: &Path, args: &[&str], needles: &[&str]) -> i32 {
     let out = livebake(cwd, args);
     let stderr = text(&out.stderr);
     assert!(!out.status.success(), "livebake {args:?} succeeded but should not have:\n{stderr}");
     assert!(!stderr.contains("panicked"), "livebake {args:?} panicked:\n{stderr}");
+    let code = out.status.code().unwrap_or_else(|| panic!("livebake {args:?} was killed ({}):\n{stderr}", out.status));
+    assert!(code == 1 || code == 2, "livebake {args:?} exited with {code}:\n{stderr}");
     let line = stderr
         .lines()
         .find(|l| l.starts_with("error:"))
@@ -56,6 +59,7 @@ fn fails(cwd: &Path, args: &[&str], needles: &[&str]) {
     for n in needles {
         assert!(line.to_lowercase().contains(&n.to_lowercase()), "livebake {args:?}: {line:?} does not mention {n:?}");
     }
+    code
 }
 
 fn read_json(path: &Path) -> Value {
@@ -292,6 +296,17 @@ fn bad_input_exits_with_an_error_line_and_no_panic() {
     fails(dir, &["bake", &scene, "--out", &out, "--threads", "0"], &["--threads"]);
     fails(dir, &["bake", &scene, "--out", &out, "--texel-size", "0.0001"], &["--texel-size"]);
     fails(dir, &["bake", &scene, "--out", &out, "--backend", "gpu"], &["--backend", "gpu"]);
+    // Absurd options (issue 8): each refused with exit code 1 before any work, the limit named.
+    let absurd = |dir: &Path, args: &[&str], needles: &[&str]| assert_eq!(fails(dir, args, needles), 1, "{args:?}");
+    absurd(dir, &["bake", &scene, "--out", &out, "--lanes", "100000"], &["--lanes", "64", "100000"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--oversampling", "100000"], &["--oversampling", "16"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--threads", "50000"], &["--threads", "1024", "50000"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--light-directions", "0"], &["--light-directions", "small emitters"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--head-side", "1"], &["--head-side", "16"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--nodes", "1"], &["--nodes", "surfaces"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--samples", "4000000000"], &["--samples", "1048576"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--texel-budget", "0"], &["--texel-budget"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--texel-budget", "1000000000000"], &["--texel-budget", "268435456"]);
     // Nothing was written by any of them.
     assert!(!dir.join("o").exists());
 }

@@ -215,7 +215,7 @@ pub enum AtlasError {
     Empty,
     #[error("texel size {0} m is not a positive finite number")]
     BadTexelSize(f32),
-    #[error("texel budget {budget} is not between 1 and {most} (the texels of the largest atlas)")]
+    #[error("texel budget (--texel-budget) {budget} is not between 1 and {most} (the texels of the largest atlas)")]
     BadBudget { budget: u64, most: u64 },
     #[error("largest atlas side {0} is not between 1 and {MAX_ATLAS_SIDE} texels")]
     BadMaxSize(u32),

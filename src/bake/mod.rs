@@ -109,6 +109,12 @@ pub enum BakeError {
     BadLodCount { got: u32, max: u32 },
     #[error("--samples must be at least 1")]
     NoSamples,
+    #[error("--samples must be at most {max}, got {got}")]
+    TooManySamples { got: u32, max: u32 },
+    #[error(
+        "--nodes {nodes} cannot hold one bundle pixel of this scene: a line through it crosses {depth} surfaces, a node each, and tiles plan for {alpha} of the nodes; use --nodes {need} or more"
+    )]
+    NodesBelowDepthComplexity { nodes: u64, depth: u64, alpha: f32, need: u64 },
     #[error(transparent)]
     Bundle(#[from] BundleConfigError),
     #[error(
@@ -119,6 +125,46 @@ pub enum BakeError {
         "LOD {lod} would have {texels} texels, above the limit of {max}; use fewer --lods or a larger --texel-size"
     )]
     LodTooLarge { lod: u32, texels: u64, max: u64 },
+}
+
+/// Most samples a bake may take, a time bound: at the few milliseconds a bundle direction
+/// (or a path per texel) costs on a room, 2²⁰ of them already take hours, at an error 64×
+/// below that of the default 256.
+pub const MAX_SAMPLES: u32 = 1 << 20;
+
+/// Lines through the scene sampled to find its depth complexity (surfaces crossed by one
+/// line, hence nodes taken by one bundle pixel).
+const DEPTH_LINES: u32 = 1024;
+
+/// Surfaces counted along a line before the count stops (beyond the node budget too).
+const DEPTH_COUNT_CAP: u64 = 1024;
+
+/// The most surfaces any of [`DEPTH_LINES`] lines through the scene's bounds (random
+/// directions and offsets, fixed seed) crosses, counted up to `cap`: a lower bound of the
+/// fragments one bundle pixel can hold.
+fn depth_complexity(bvh: &Bvh, cap: u64) -> u64 {
+    let Some((lo, hi)) = bvh.bounds() else { return 0 };
+    let diag = (hi - lo).length().max(1e-6);
+    let step = diag * 1e-5;
+    let mut rng = crate::sampling::Rng::new(0xdeb7, 0);
+    let mut most = 0u64;
+    for _ in 0..DEPTH_LINES {
+        let dir = crate::sampling::uniform_sphere(rng.next_vec2());
+        let through = lo + (hi - lo) * glam::Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        let origin = through - dir * diag;
+        let (mut t, mut crossed) = (0.0f32, 0u64);
+        while crossed < cap {
+            match bvh.intersect(origin, dir, t, 2.0 * diag) {
+                Some(hit) => {
+                    crossed += 1;
+                    t = hit.t + step;
+                }
+                None => break,
+            }
+        }
+        most = most.max(crossed);
+    }
+    most
 }
 
 /// Largest atlas (pixels) a single LOD may have: 2^28 pixels is ~8 GB of texel data.
@@ -132,6 +178,9 @@ pub fn bake(scene: &Scene, config: &BakeConfig, progress: &dyn Progress) -> Resu
     }
     if config.samples == 0 {
         return Err(BakeError::NoSamples);
+    }
+    if config.samples > MAX_SAMPLES {
+        return Err(BakeError::TooManySamples { got: config.samples, max: MAX_SAMPLES });
     }
     config.bundle_config().validate()?;
     let started = Instant::now();
@@ -161,6 +210,15 @@ pub fn bake(scene: &Scene, config: &BakeConfig, progress: &dyn Progress) -> Resu
         BackendKind::Cpu => {
             let bvh = Bvh::for_scene(scene, &geom);
             let bundle_config = config.bundle_config();
+            // A bundle pixel deeper than the node budget can never fit a tile: every such
+            // pixel would be built alone, over budget (minutes per bake at `--nodes 1`).
+            let budget = (bundle_config.alpha as f64 * bundle_config.node_capacity as f64).floor() as u64;
+            let depth = depth_complexity(&bvh, (budget + 1).max(DEPTH_COUNT_CAP));
+            if depth > budget {
+                let (nodes, alpha) = (bundle_config.node_capacity, bundle_config.alpha);
+                let need = (depth as f64 / alpha as f64).ceil() as u64;
+                return Err(BakeError::NodesBelowDepthComplexity { nodes, depth, alpha, need });
+            }
             let inputs = bundle::BundleInputs::new(scene, &geom, &bvh, &atlas, &bundle_config);
             for lod in 0..config.lods {
                 let t0 = Instant::now();
