@@ -725,8 +725,10 @@ fn merge(faces: &MeshFaces, charts: Vec<Vec<u32>>, uv: &mut [[DVec2; 3]], seen: 
         moving: u32,
         into: u32,
         versions: (u32, u32),
-        /// Convex hull of the merged chart (in the target's frame).
+        /// Convex hull of the merged chart (in the target's frame), once exact.
         hull: Vec<DVec2>,
+        /// Whether `gain` is the gain (else a bound of it).
+        exact: bool,
     }
     impl Ord for Candidate {
         fn cmp(&self, o: &Self) -> std::cmp::Ordering {
@@ -746,34 +748,43 @@ fn merge(faces: &MeshFaces, charts: Vec<Vec<u32>>, uv: &mut [[DVec2; 3]], seen: 
     impl Eq for Candidate {}
     // Moves one of `x` and `y` into the other: the one with the smaller rectangle (ties: the
     // higher id) if it is thin enough, else the other if that one is.
-    let evaluate = |clusters: &[Cluster], uv: &[[DVec2; 3]], x: u32, y: u32| -> Option<Candidate> {
+    // A candidate first enters the heap with a bound of its gain: the merged rectangle holds
+    // the larger of the two, so the gain is at most the smaller's cost. Only when it comes
+    // out on top is the gain worked out (hinge, merged hull, rectangle) and the candidate put
+    // back exact: candidates made stale by other merges before their turn cost nothing.
+    let propose = |clusters: &[Cluster], x: u32, y: u32| -> Option<Candidate> {
         let (cx, cy) = (&clusters[x as usize], &clusters[y as usize]);
         let x_first = (cx.cost, std::cmp::Reverse(x)) < (cy.cost, std::cmp::Reverse(y));
         let order = if x_first { [(x, y), (y, x)] } else { [(y, x), (x, y)] };
         let (moving, into) = order.into_iter().find(|&(m, _)| clusters[m as usize].short_side <= MOVABLE_SIDE)?;
         let (cm, ci) = (&clusters[moving as usize], &clusters[into as usize]);
-        let link = ci.links.get(&moving)?;
+        Some(Candidate {
+            gain: cm.cost.min(ci.cost),
+            pair: (x.min(y), x.max(y)),
+            moving,
+            into,
+            versions: (cm.version, ci.version),
+            hull: Vec::new(),
+            exact: false,
+        })
+    };
+    let evaluate = |clusters: &[Cluster], uv: &[[DVec2; 3]], c: Candidate| -> Option<Candidate> {
+        let (cm, ci) = (&clusters[c.moving as usize], &clusters[c.into as usize]);
+        let link = ci.links.get(&c.moving)?;
         let hinge = Hinge { a: link.b, b: link.a, v: link.v, len2: link.len2 };
         let m = hinge_motion(faces, uv, &hinge)?;
         let mut pts: Vec<DVec2> = cm.hull.iter().map(|&p| m.apply(p)).collect();
         pts.extend_from_slice(&ci.hull);
         let hull = convex_hull(&pts);
         let gain = cm.cost + ci.cost - rect_cost(&hull).0;
-        (gain > 0.0).then(|| Candidate {
-            gain,
-            pair: (x.min(y), x.max(y)),
-            moving,
-            into,
-            versions: (cm.version, ci.version),
-            hull,
-        })
+        (gain > 0.0).then_some(Candidate { gain, hull, exact: true, ..c })
     };
     let mut heap = BinaryHeap::new();
     for x in 0..clusters.len() as u32 {
         let mut ns: Vec<u32> = clusters[x as usize].links.keys().copied().filter(|&y| y > x).collect();
         ns.sort_unstable();
         for y in ns {
-            if let Some(c) = evaluate(&clusters, uv, x, y) {
+            if let Some(c) = propose(&clusters, x, y) {
                 heap.push(c);
             }
         }
@@ -784,6 +795,12 @@ fn merge(faces: &MeshFaces, charts: Vec<Vec<u32>>, uv: &mut [[DVec2; 3]], seen: 
     while let Some(cand) = heap.pop() {
         let (m, i) = (cand.moving as usize, cand.into as usize);
         if !clusters[m].alive || !clusters[i].alive || (clusters[m].version, clusters[i].version) != cand.versions {
+            continue;
+        }
+        if !cand.exact {
+            if let Some(c) = evaluate(&clusters, uv, cand) {
+                heap.push(c);
+            }
             continue;
         }
         let link = clusters[i].links[&cand.moving];
@@ -870,7 +887,7 @@ fn merge(faces: &MeshFaces, charts: Vec<Vec<u32>>, uv: &mut [[DVec2; 3]], seen: 
             kc.links.remove(&cand.moving);
             let flipped = Hinge { a: back.b, b: back.a, v: back.v, len2: back.len2 };
             kc.links.insert(cand.into, flipped);
-            if let Some(c) = evaluate(&clusters, uv, cand.into, k) {
+            if let Some(c) = propose(&clusters, cand.into, k) {
                 heap.push(c);
             }
         }

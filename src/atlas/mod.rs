@@ -28,6 +28,7 @@ pub mod uv1;
 #[cfg(test)]
 mod tests;
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use glam::{DVec2, Vec2};
@@ -301,12 +302,6 @@ impl TexelChart {
         let p = if o == pack::Orient::Turned { self.placement.turned(self.fixed()) } else { self.placement };
         (p, self.uv.iter().map(move |t| t.map(|q| o.apply(q, self.extent))))
     }
-
-    /// Pixels its faces cover at LOD 0 (each side's copy counts: call once per chart).
-    fn coverage(&self, mask: &mut Vec<bool>) -> u64 {
-        let (p, uv) = self.oriented(pack::Orient::AsIs);
-        pack::coverage(uv.map(|t| t.map(|q| q + p.offset)), &p, mask)
-    }
 }
 
 /// A mesh's charts before scaling: unwrapped (UVs in metres, any texel size) and, when its
@@ -321,6 +316,20 @@ struct MeshCharts {
     /// Texel size the unwrapper was told to expect.
     hint: f64,
     try_uv1: bool,
+}
+
+/// A local chart's extent at `scale` (LOD-0 texels per unit of its UVs) and its placement.
+fn placement(c: &charts::LocalChart, scale: f64, config: &AtlasConfig) -> Result<(DVec2, pack::Placement), AtlasError> {
+    let extent = c.extent * scale;
+    let p = match c.fixed_interior {
+        Some(interior) => pack::place_fixed(interior),
+        None => pack::place_free(extent).ok_or(AtlasError::TooLarge {
+            width: u32::MAX,
+            height: u32::MAX,
+            max: config.max_size,
+        })?,
+    };
+    Ok((extent, p))
 }
 
 /// A mesh's charts at one texel size.
@@ -353,6 +362,35 @@ impl MeshCharts {
         })
     }
 
+    /// The mesh's local charts at `texel`: its TEXCOORD_1 blocks when they validate there
+    /// (LOD-0 texels, scale 1), else its unwrapped charts (metres, scale 1/texel); and why
+    /// TEXCOORD_1 was refused.
+    fn local_at(
+        &self,
+        scene: &Scene,
+        geom: &SceneGeometry,
+        texel: f64,
+        config: &AtlasConfig,
+    ) -> (ChartSource, Cow<'_, [charts::LocalChart]>, f64, Option<String>) {
+        let mesh = &scene.meshes[self.mesh as usize];
+        let mut rejected = None;
+        if self.try_uv1 {
+            match uv1::validate(mesh, geom, &self.tris, texel, config.max_size) {
+                Ok(block) => return (ChartSource::Uv1, Cow::Owned(block.charts(mesh, geom, &self.tris)), 1.0, None),
+                Err(reason) => rejected = Some(reason),
+            }
+        }
+        let unwrapped = self
+            .unwrapped
+            .get_or_init(|| charts::unwrap_mesh(mesh, geom, &self.tris, self.hint, config.chart_max_angle));
+        (ChartSource::Unwrapped, Cow::Borrowed(unwrapped.as_slice()), 1.0 / texel, rejected)
+    }
+
+    fn sides(&self) -> &'static [Side] {
+        if self.back { &Side::BOTH } else { &[Side::Front] }
+    }
+
+    /// The mesh's charts at `texel`, in LOD-0 texels, ready to pack.
     fn at(
         &self,
         scene: &Scene,
@@ -360,33 +398,11 @@ impl MeshCharts {
         texel: f64,
         config: &AtlasConfig,
     ) -> Result<MeshAtTexel, AtlasError> {
-        let mesh = &scene.meshes[self.mesh as usize];
-        let mut rejected = None;
-        let (source, local, scale) = 'uv: {
-            if self.try_uv1 {
-                match uv1::validate(mesh, geom, &self.tris, texel, config.max_size) {
-                    Ok(block) => break 'uv (ChartSource::Uv1, block.charts(mesh, geom, &self.tris), 1.0),
-                    Err(reason) => rejected = Some(reason),
-                }
-            }
-            let unwrapped = self
-                .unwrapped
-                .get_or_init(|| charts::unwrap_mesh(mesh, geom, &self.tris, self.hint, config.chart_max_angle));
-            (ChartSource::Unwrapped, unwrapped.clone(), 1.0 / texel)
-        };
-        let sides: &[Side] = if self.back { &Side::BOTH } else { &[Side::Front] };
-        let mut out = Vec::with_capacity(local.len() * sides.len());
-        for &side in sides {
-            for c in &local {
-                let extent = c.extent * scale;
-                let placement = match c.fixed_interior {
-                    Some(interior) => pack::place_fixed(interior),
-                    None => pack::place_free(extent).ok_or(AtlasError::TooLarge {
-                        width: u32::MAX,
-                        height: u32::MAX,
-                        max: config.max_size,
-                    })?,
-                };
+        let (source, local, scale, rejected) = self.local_at(scene, geom, texel, config);
+        let mut out = Vec::with_capacity(local.len() * self.sides().len());
+        for &side in self.sides() {
+            for c in local.iter() {
+                let (extent, placement) = placement(c, scale, config)?;
                 out.push(TexelChart {
                     mesh: self.mesh,
                     side,
@@ -399,6 +415,25 @@ impl MeshCharts {
             }
         }
         Ok(MeshAtTexel { source, charts: out, uv1_rejected: rejected })
+    }
+
+    /// LOD-0 texels the mesh's faces cover at `texel` (both sides): what [`Self::at`]'s
+    /// charts cover, without making them.
+    fn coverage_at(
+        &self,
+        scene: &Scene,
+        geom: &SceneGeometry,
+        texel: f64,
+        config: &AtlasConfig,
+    ) -> Result<u64, AtlasError> {
+        let (_, local, scale, _) = self.local_at(scene, geom, texel, config);
+        let mut mask = Vec::new();
+        let mut total = 0;
+        for c in local.iter() {
+            let (_, p) = placement(c, scale, config)?;
+            total += pack::coverage(c.uv.iter().map(|t| t.map(|q| q * scale + p.offset)), &p, &mut mask);
+        }
+        Ok(total * self.sides().len() as u64)
     }
 }
 
@@ -500,11 +535,9 @@ impl Atlas {
         let texel = match config.texel_size {
             Some(_) => t0,
             None => solve_texel_size(config.texel_budget, t0, |t| {
-                let per_mesh = crate::parallel::par_map(layout(t)?, threads, |m| {
-                    let mut mask = Vec::new();
-                    m.charts.iter().map(|c| c.coverage(&mut mask)).sum::<u64>()
-                });
-                Ok(per_mesh.into_iter().sum())
+                crate::parallel::par_map(meshes.iter().collect(), threads, |m| m.coverage_at(scene, geom, t, config))
+                    .into_iter()
+                    .sum()
             })?,
         };
         let laid = layout(texel)?;
