@@ -19,14 +19,16 @@
 //!    neighbour, projected onto its plane, or get a chart of their own when they have none.
 //! 3. **Merge** charts across welded edges, greedily by gain: every rectangle the packer
 //!    places costs its interior plus a one-texel border on each side ([`super::pack`]), so a
-//!    small chart costs far more atlas than its texels. Two neighbouring charts are merged
-//!    when the merged chart's rectangle is smaller than their two rectangles together. The
-//!    smaller chart is unfolded rigidly about the longest edge they share (a hinge: its faces
-//!    keep their shape exactly, a box's sides become a strip, a cap folds out next to its
-//!    side). A merge is refused when a moved face would overlap a face of the other chart,
-//!    or come closer than [`MERGE_CLEARANCE`] texels in UV to one that is farther than that
-//!    on the surface (faces that meet in UV must meet on the surface, so bilinear sampling
-//!    and filtering within the chart never mix distant places).
+//!    small or thin chart costs far more atlas than its texels. Two neighbouring charts are
+//!    merged when the merged chart's rectangle is smaller than their two rectangles
+//!    together and one of them is thin (its rectangle at most [`MOVABLE_SIDE`] texels
+//!    across): that one is unfolded rigidly about the longest edge they share (a hinge: its
+//!    faces keep their shape exactly, a box's sides become a strip, a cap folds out next to
+//!    its side). Large charts never move: a room's walls stay one chart each. A merge is
+//!    refused when a moved face would overlap a face of the other chart, or come closer than
+//!    [`MERGE_CLEARANCE`] texels in UV to one that is farther than that on the surface
+//!    (faces that meet in UV must meet on the surface, so bilinear sampling and filtering
+//!    within the chart never mix distant places).
 //! 4. **Finish**: rotate to the minimum-area bounding rectangle (convex hull + rotating
 //!    calipers) with the long side along x, move to the origin.
 //!
@@ -668,7 +670,7 @@ struct Cluster {
 /// hint) are moved by merges: such a chart pays at least half its texels again in border, while
 /// a hinge across a hard edge shares texels between the two sides of the edge along it (one
 /// texel either side) — a price worth paying only where the border costs more.
-const MOVABLE_SIDE: u32 = 4;
+pub const MOVABLE_SIDE: u32 = 4;
 
 /// Merges whose two charts have at most this many face pairs are tested pair by pair; larger
 /// ones through a grid of the target chart, kept between merges.

@@ -5,18 +5,22 @@
 //! texels (architectural models are full of single-face walls lit from both sides).
 //!
 //! Faces are grouped into *charts* (from TEXCOORD_1 when the file has valid light-map UVs,
-//! otherwise by our planar unwrapper), charts are packed into one atlas with gutters wide
-//! enough for bilinear sampling at LOD 0 (the coarsest level), and [`texels::TexelMap`] gives,
-//! per LOD, every texel's surface point (inverse mapping).
+//! otherwise by our unwrapper), charts are packed into one atlas with gutters wide enough for
+//! bilinear sampling at LOD 0 (the coarsest level), and [`texels::TexelMap`] gives, per LOD,
+//! every texel's surface point (inverse mapping). Without a texel size, the size is searched
+//! so that the faces cover `texel_budget` texels ([`Atlas::build`]). [`Atlas::update`]
+//! changes an atlas for an edited scene, keeping unchanged meshes' charts in place.
 //!
 //! UV units: atlas UVs are stored in **LOD-0 texel units** (x right, y down, origin at the
 //! atlas's top-left corner). LOD k coordinates are `uv · 2^k`; normalised UVs in \[0, 1\] are
 //! `uv / (width, height)`.
 //!
-//! Pieces: [`charts`] (planar unwrapper), [`uv1`] (TEXCOORD_1 validation), [`pack`] (chart
-//! rectangles and skyline packing), [`raster`] (the conservative coverage rule every part
-//! shares: what a face touches at LOD k is what the packer reserved room for, what the
-//! TEXCOORD_1 check tested and what the texel map rasterises), [`texels`] (inverse mapping).
+//! Pieces: [`charts`] (unwrapper: welding, planar charts, hinge merges), [`uv1`]
+//! (TEXCOORD_1 validation), [`pack`] (chart rectangles, skyline packing with quarter turns,
+//! free space), [`update`] (incremental layout), [`raster`] (the conservative coverage rule
+//! every part shares: what a face touches at LOD k is what the packer reserved room for,
+//! what the TEXCOORD_1 check tested and what the texel map rasterises), [`texels`] (inverse
+//! mapping).
 
 pub mod charts;
 pub mod pack;
