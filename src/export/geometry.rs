@@ -43,7 +43,7 @@ pub(super) fn build_side(
         Side::Front => [0, 1, 2],
         Side::Back => [0, 2, 1],
     };
-    let scale = Vec2::new(atlas.width as f32, atlas.height as f32).recip();
+    let size = Vec2::new(atlas.width as f32, atlas.height as f32);
     let mut out =
         SidePrimitive { original_uv1: if keep_uv1 { Some(Vec::new()) } else { None }, ..SidePrimitive::default() };
     // (source vertex, light-map UV bits) → new vertex: a vertex is shared only by faces that
@@ -55,7 +55,8 @@ pub(super) fn build_side(
         let mut corners = [0u32; 3];
         for (slot, &k) in corners.iter_mut().zip(&order) {
             let v = tri[k];
-            let uv = face.uv[k] * scale;
+            // Correctly rounded division: within 2⁻²⁴ (relative) of the exact normalised UV.
+            let uv = face.uv[k] / size;
             *slot = *index.entry((v, [uv.x.to_bits(), uv.y.to_bits()])).or_insert_with(|| {
                 let vi = v as usize;
                 out.positions.push(mesh.positions[vi]);
@@ -120,9 +121,9 @@ mod tests {
             assert_eq!(p, mesh.corners(t), "corner order of triangle {t}");
             // The new TEXCOORD_1 is the atlas UV of that corner, normalised.
             let f = atlas.face(t as TriangleId, Side::Front).unwrap();
-            for k in 0..3 {
-                let expected = atlas.faces[f as usize].uv[k] / Vec2::new(atlas.width as f32, atlas.height as f32);
-                assert_eq!(front.lightmap_uv[tri[k] as usize], expected);
+            for (&vertex, uv) in tri.iter().zip(atlas.faces[f as usize].uv) {
+                let expected = uv / Vec2::new(atlas.width as f32, atlas.height as f32);
+                assert_eq!(front.lightmap_uv[vertex as usize], expected);
             }
         }
         assert!(front.lightmap_uv.iter().all(|uv| (0.0..=1.0).contains(&uv.x) && (0.0..=1.0).contains(&uv.y)));

@@ -191,10 +191,15 @@ fn lod_of(atlas: &Atlas, map: &Rgb32FImage) -> Result<u32, ExportError> {
 fn check_source(scene: &Scene, file: &Path, source: &crate::scene::SourceDocument) -> Result<(), ExportError> {
     let changed = |detail: String| ExportError::SourceChanged { file: file.to_path_buf(), detail };
     let count = |key: &str| source.json.get(key).and_then(|v| v.as_array()).map_or(0, Vec::len);
-    let file_materials = count("materials");
-    // The loader appends glTF's default material once when a primitive has none.
-    if scene.materials.len() != file_materials && scene.materials.len() != file_materials + 1 {
-        return Err(changed(format!("it has {file_materials} materials, the loaded scene {}", scene.materials.len())));
+    // The loader appends glTF's default material once when a loaded primitive has none.
+    let uses_default = source.nodes.iter().any(|&n| {
+        let mesh = source.json.pointer(&format!("/nodes/{n}/mesh")).and_then(|m| m.as_u64());
+        let primitives = mesh.and_then(|m| source.json.pointer(&format!("/meshes/{m}/primitives")));
+        primitives.and_then(|p| p.as_array()).is_some_and(|p| p.iter().any(|p| p.get("material").is_none()))
+    });
+    let expected = count("materials") + usize::from(uses_default);
+    if scene.materials.len() != expected {
+        return Err(changed(format!("it has {expected} materials, the loaded scene {}", scene.materials.len())));
     }
     if count("images") != source.images.len() {
         return Err(changed("its images could not all be read".into()));
