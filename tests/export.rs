@@ -174,8 +174,8 @@ fn bilinear(img: &Rgb32FImage, p: Vec2) -> Vec3 {
         + texel(x + 1, y + 1) * f.x * f.y
 }
 
-/// Largest minus smallest channel value over the 4×4 pixels around `p`.
-fn local_range(img: &Rgb32FImage, p: Vec2) -> f32 {
+/// Largest minus smallest channel value over the 4×4 pixels around `p`, and the largest.
+fn local_range(img: &Rgb32FImage, p: Vec2) -> (f32, f32) {
     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
     for dy in -2..2 {
         for dx in -2..2 {
@@ -187,7 +187,7 @@ fn local_range(img: &Rgb32FImage, p: Vec2) -> f32 {
             }
         }
     }
-    hi - lo
+    (hi - lo, hi)
 }
 
 /// Deterministic barycentrics strictly inside a triangle (margin 0.05 from every edge).
@@ -201,7 +201,27 @@ fn barycentrics(i: usize) -> (f32, f32) {
     (0.05 + 0.85 * a, 0.05 + 0.85 * b)
 }
 
+/// One compared surface point, in terms an engine can find: the exported glTF mesh and
+/// primitive, the triangle's corner positions, the point's weight on each of those corners.
+#[derive(serde::Serialize)]
+struct Sample {
+    mesh: u64,
+    primitive: u64,
+    corners: [[f32; 3]; 3],
+    weights: [f32; 3],
+    /// What probe's sampler gives on the original bake.
+    #[serde(skip)]
+    expected: Vec3,
+    /// The position part of the round-trip bound (see [`round_trip`]).
+    #[serde(skip)]
+    position_bound: f32,
+    /// Largest channel value of the 4×4 pixels around the point.
+    #[serde(skip)]
+    local_max: f32,
+}
+
 struct RoundTrip {
+    samples: Vec<Sample>,
     points: usize,
     double_sided_points: usize,
     /// Double-sided points whose front and back values differ by more than 10× the bound:
@@ -230,6 +250,7 @@ fn round_trip(scene: &Scene, baked: &BakeOutput, report: &ExportReport, stride: 
     let delta = 8.0 * size.max_element() * f32::EPSILON / 2.0;
 
     let back = load(&report.gltf);
+    let exported = read_json(&report.gltf);
     let mut by_corners: HashMap<[[u32; 3]; 3], Vec<(usize, usize)>> = HashMap::new();
     for (mi, m) in back.meshes.iter().enumerate() {
         assert!(m.uv1.is_some(), "{}: exported primitive without TEXCOORD_1", m.name);
@@ -237,7 +258,7 @@ fn round_trip(scene: &Scene, baked: &BakeOutput, report: &ExportReport, stride: 
             by_corners.entry(corner_key(&m.corners(t))).or_default().push((mi, t));
         }
     }
-    let mut rt = RoundTrip { points: 0, double_sided_points: 0, sides_differ: 0 };
+    let mut rt = RoundTrip { samples: Vec::new(), points: 0, double_sided_points: 0, sides_differ: 0 };
     let mut ambiguous = 0;
     for (fi, face) in atlas.faces.iter().enumerate().step_by(stride) {
         let corners = geom.corners[face.tri as usize];
@@ -260,20 +281,22 @@ fn round_trip(scene: &Scene, baked: &BakeOutput, report: &ExportReport, stride: 
         }
         let &(m, t) = candidates[0];
         let mesh = &back.meshes[m];
-        let exported = mesh.corners(t);
+        let exported_corners = mesh.corners(t);
         let uv1 = mesh.uv1.as_ref().unwrap();
         let (u, v) = barycentrics(fi);
         let weights = [1.0 - u - v, u, v];
-        // Exported corner j is original corner perm[j].
+        // Exported corner j is original corner k.
         let uv = (0..3).fold(Vec2::ZERO, |acc, j| {
-            let k = corners.iter().position(|c| *c == exported[j]).unwrap();
+            let k = corners.iter().position(|c| *c == exported_corners[j]).unwrap();
             acc + uv1[mesh.triangles[t][j] as usize] * weights[k]
         });
         let p = uv * size;
         let got = bilinear(&exr, p);
         let at = |side| SurfacePoint { tri: face.tri, u, v, side, distance: 0.0 };
         let expected = sampler.irradiance(&at(face.side)).unwrap();
-        let bound = 2.0 * delta * local_range(&exr, p) + 1e-6 * expected.abs().max_element().max(1e-6);
+        let (range, local_max) = local_range(&exr, p);
+        let position_bound = 2.0 * delta * range;
+        let bound = position_bound + 1e-6 * expected.abs().max_element().max(1e-6);
         let err = (got - expected).abs().max_element();
         assert!(
             err <= bound,
@@ -282,6 +305,17 @@ fn round_trip(scene: &Scene, baked: &BakeOutput, report: &ExportReport, stride: 
             face.side
         );
         rt.points += 1;
+        // The loader names a mesh instance `node/mesh/primitive`; the export's node says which mesh.
+        let primitive = mesh.name.rsplit('/').next().and_then(|p| p.parse().ok()).unwrap();
+        rt.samples.push(Sample {
+            mesh: exported["nodes"][mesh.node.unwrap()]["mesh"].as_u64().unwrap(),
+            primitive,
+            corners: corners.map(|c| c.to_array()),
+            weights,
+            expected,
+            position_bound,
+            local_max,
+        });
         if let Ok(other) = sampler.irradiance(&at(match face.side {
             Side::Front => Side::Back,
             Side::Back => Side::Front,
@@ -664,4 +698,133 @@ fn cli_bake_exports_gltf() {
     let line = stderr.lines().find(|l| l.starts_with("error:")).unwrap_or_else(|| panic!("{stderr}"));
     assert!(line.contains("room.glb") && line.contains(".gltf"), "{line}");
     assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+// ---------------------------------------------------------------------------------------
+// Engines: the README's snippets, run on an export
+
+/// Runs `tests/node/HARNESS` (with the README's snippet files beside it and the npm tools as
+/// its node_modules) on an export and the samples; returns its JSON.
+fn run_harness(harness: &str, gltf: &Path, samples: &[Sample]) -> Value {
+    let work = tempfile::tempdir().unwrap();
+    let node_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/node");
+    for f in std::fs::read_dir(&node_dir).unwrap().filter_map(|e| e.ok()) {
+        std::fs::copy(f.path(), work.path().join(f.file_name())).unwrap();
+    }
+    std::os::unix::fs::symlink(node_tools().join("node_modules"), work.path().join("node_modules")).unwrap();
+    let samples_file = work.path().join("samples.json");
+    std::fs::write(&samples_file, serde_json::to_vec(samples).unwrap()).unwrap();
+    let out = node(&work.path().join(harness), &[gltf.to_str().unwrap(), samples_file.to_str().unwrap()]);
+    serde_json::from_str(&out).unwrap_or_else(|e| panic!("{harness}: {e}: {}", &out[..out.len().min(2000)]))
+}
+
+/// A bake of the lit Van Gogh room exported, and every 7th face's sample point.
+fn engine_fixture(dir: &Path) -> (ExportReport, RoundTrip) {
+    let scene = load(&asset(VAN_GOGH_LIT));
+    let baked = quick_bake(&scene, 0.1);
+    let report = export(&scene, &baked, &dir.join("room.gltf"));
+    let rt = round_trip(&scene, &baked, &report, 7);
+    (report, rt)
+}
+
+/// Compares what an engine shades with (`values`, E in W/m² per sample) with the bake.
+/// Bound: the PNG's 8-bit sRGB rounding for the values of the texels filtered there
+/// ([`livebake::export::lightmap::png_error_below`] their largest value, × intensity; a
+/// weighted mean of texel errors is no larger), the UV position bound of [`round_trip`], and
+/// the harness's f32 → f64 arithmetic (1e-6 of intensity).
+fn check_engine_values(engine: &str, values: &Value, rt: &RoundTrip, intensity: f32) {
+    let values = values.as_array().unwrap();
+    assert_eq!(values.len(), rt.samples.len());
+    let mut worst = 0.0f32;
+    for (s, v) in rt.samples.iter().zip(values) {
+        let got =
+            Vec3::from_slice(&v.as_array().unwrap().iter().map(|c| c.as_f64().unwrap() as f32).collect::<Vec<_>>());
+        let png_bound = livebake::export::lightmap::png_error_below(s.local_max / intensity) * intensity;
+        let bound = png_bound + s.position_bound + 1e-6 * intensity;
+        let err = (got - s.expected).abs().max_element();
+        worst = worst.max(err / bound);
+        assert!(
+            err <= bound,
+            "{engine}: mesh {} primitive {}: {got} vs bake {} (error {err:e} > {bound:e})",
+            s.mesh,
+            s.primitive,
+            s.expected
+        );
+    }
+    eprintln!("{engine}: {} points, worst error {:.2} of the bound", values.len(), worst);
+}
+
+/// three.js (the pinned `three` of scripts/test) with the README's `MozLightmap` plugin: every
+/// material gets the PNG as `lightMap` on channel 1 (TEXCOORD_1 = three's `uv1`), sRGB, with
+/// `lightMapIntensity` = the file's intensity; the installed shader adds `lightMap ×
+/// lightMapIntensity` to the irradiance it shades with; and that irradiance, computed from
+/// three.js's parsed geometry and the PNG at each point, is the bake's E within the PNG's
+/// rounding.
+#[test]
+fn engines_three_js_reads_the_light_map_as_irradiance() {
+    if npm_package("three").is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (report, rt) = engine_fixture(dir.path());
+    let out = run_harness("three_check.mjs", &report.gltf, &rt.samples);
+    let revision: u32 = out["revision"].as_str().unwrap().trim_end_matches("dev").parse().unwrap();
+    assert!(revision >= 151, "three r{revision}: lightMap.channel needs r151");
+    let chunk = out["shaderChunk"].as_str().unwrap();
+    assert!(chunk.contains("vec3 lightMapIrradiance = lightMapTexel.rgb * lightMapIntensity;"), "{chunk}");
+    assert!(chunk.contains("irradiance += lightMapIrradiance;"), "{chunk}");
+    let materials = out["materials"].as_array().unwrap();
+    assert_eq!(materials.len(), report.primitives);
+    for m in materials {
+        assert_eq!(m["hasLightMap"], true, "{m}");
+        assert_eq!(m["channel"], 1, "{m}");
+        assert_eq!(m["colorSpace"], "srgb", "{m}");
+        assert_eq!(m["flipY"], false, "{m}");
+        assert_eq!(m["lightMapIntensity"].as_f64().unwrap() as f32, report.png_intensity, "{m}");
+        assert_eq!(m["side"], 0, "{m}: every exported material is single-sided (THREE.FrontSide)");
+        assert_eq!(m["uv1"], true, "{m}");
+    }
+    check_engine_values("three.js", &out["values"], &rt, report.png_intensity);
+}
+
+/// Babylon.js (the pinned `@babylonjs/core` + `@babylonjs/loaders`, NullEngine) with the
+/// README's MOZ_lightmap extension: every PBR material gets the PNG as `lightmapTexture` on
+/// coordinates index 1 (UV2 = TEXCOORD_1), as a colour (sRGB) texture, `level` = intensity/π,
+/// `useLightmapAsShadowmap` with white ambient; the installed shaders multiply the final
+/// colour by `lightmap × level` and make the ambient term `ambient × albedo`, so the surface
+/// shows albedo × level × map; π × level × map at each point is the bake's E within the PNG's
+/// rounding.
+#[test]
+fn engines_babylon_js_reads_the_light_map_as_irradiance_over_pi() {
+    if npm_package("@babylonjs/core").is_none() || npm_package("@babylonjs/loaders").is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (report, rt) = engine_fixture(dir.path());
+    let out = run_harness("babylon_check.mjs", &report.gltf, &rt.samples);
+    let shaders: Vec<&str> = out["shaders"].as_array().unwrap().iter().map(|s| s.as_str().unwrap()).collect();
+    let [init, compose, unlit] = shaders[..] else { panic!("{shaders:?}") };
+    assert!(init.contains("lightmapColor.rgb*=vLightmapInfos.y;"), "{init}");
+    assert!(compose.contains("#ifdef USELIGHTMAPASSHADOWMAP\nfinalColor.rgb*=lightmapColor.rgb;"), "{compose}");
+    assert!(unlit.contains("vec3 finalAmbient=vAmbientColor;finalAmbient*=surfaceAlbedo.rgb;"), "{unlit}");
+    let materials = out["materials"].as_array().unwrap();
+    assert_eq!(materials.len(), report.primitives);
+    for m in materials {
+        assert_eq!(m["className"], "PBRMaterial", "{m}");
+        assert_eq!(m["hasLightmap"], true, "{m}");
+        assert_eq!(m["coordinatesIndex"], 1, "{m}");
+        let level = m["level"].as_f64().unwrap();
+        assert!((level - report.png_intensity as f64 / std::f64::consts::PI).abs() < 1e-6 * level, "{m}");
+        assert!(m["gammaSpace"] == true || m["srgbBuffer"] == true, "{m}: the PNG must be decoded as sRGB");
+        assert_eq!(m["useLightmapAsShadowmap"], true, "{m}");
+        for key in ["ambient", "sceneAmbient"] {
+            assert!(m[key].as_array().unwrap().iter().all(|c| c.as_f64() == Some(1.0)), "{m}: {key} must be white");
+        }
+        assert_eq!(m["uv2"], true, "{m}");
+        assert!(
+            m["pointers"].as_array().unwrap().iter().any(|p| p.as_str().unwrap().ends_with("/extensions/MOZ_lightmap")),
+            "{m}"
+        );
+    }
+    check_engine_values("Babylon.js", &out["values"], &rt, report.png_intensity);
 }

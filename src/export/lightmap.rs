@@ -27,6 +27,15 @@ pub fn srgb_decode(encoded: f32) -> f32 {
 /// `|intensity · decode(png) − E| ≤ PNG_ERROR · intensity` for E in [0, intensity].
 pub const PNG_ERROR: f32 = 0.5 / 255.0 * 2.4 / 1.055 + 1e-6;
 
+/// The same bound for values up to `fraction` of `intensity`: half an 8-bit step through the
+/// sRGB decoding curve where it is steepest below that value's code (the curve steepens with
+/// the value, so the code half a step above `encode(fraction)` bounds it).
+pub fn png_error_below(fraction: f32) -> f32 {
+    let y = (srgb_encode(fraction.clamp(0.0, 1.0)) + 0.5 / 255.0).min(1.0);
+    let slope = if y <= 0.040_45 { 1.0 / 12.92 } else { 2.4 / 1.055 * ((y + 0.055) / 1.055).powf(1.4) };
+    0.5 / 255.0 * slope + 1e-6
+}
+
 /// The scale of the PNG: the largest channel value of `map` (so nothing clips), or 1 for an
 /// all-black map.
 pub fn png_intensity(map: &Rgb32FImage) -> f32 {
@@ -77,6 +86,19 @@ mod tests {
             }
         }
         assert!(worst <= PNG_ERROR, "worst {worst} > bound {PNG_ERROR}");
+        assert!((png_error_below(1.0) - PNG_ERROR).abs() < 1e-7);
+        // Below a tenth of the intensity, the finer bound holds too and is ~3× tighter.
+        let mut worst_low = 0.0f32;
+        for x in 0..n {
+            let (e, q) = (map.get_pixel(x, 0).0, png.get_pixel(x, 0).0);
+            for c in 0..3 {
+                if e[c] <= 0.1 * s {
+                    worst_low = worst_low.max((s * srgb_decode(q[c] as f32 / 255.0) - e[c]).abs() / s);
+                }
+            }
+        }
+        assert!(worst_low <= png_error_below(0.1), "{worst_low} > {}", png_error_below(0.1));
+        assert!(png_error_below(0.1) < PNG_ERROR / 2.5);
         // The bound is not loose by more than a few times: the steep end uses most of it.
         assert!(worst > PNG_ERROR / 3.0, "worst {worst} vs bound {PNG_ERROR}");
     }
