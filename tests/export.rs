@@ -111,7 +111,7 @@ fn node(script: &Path, args: &[&str]) -> String {
 /// The Khronos validator's report of `gltf`; panics on any error or warning.
 fn validate(gltf: &Path) -> Option<Value> {
     npm_package("gltf-validator")?;
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/node/validate.cjs");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/engines/validate.cjs");
     let tools = node_tools();
     let report: Value = serde_json::from_str(&node(&script, &[tools.to_str().unwrap(), gltf.to_str().unwrap()]))
         .expect("validator report is JSON");
@@ -703,11 +703,11 @@ fn cli_bake_exports_gltf() {
 // ---------------------------------------------------------------------------------------
 // Engines: the README's snippets, run on an export
 
-/// Runs `tests/node/HARNESS` (with the README's snippet files beside it and the npm tools as
+/// Runs `tests/engines/HARNESS` (with the README's snippet files beside it and the npm tools as
 /// its node_modules) on an export and the samples; returns its JSON.
 fn run_harness(harness: &str, gltf: &Path, samples: &[Sample]) -> Value {
     let work = tempfile::tempdir().unwrap();
-    let node_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/node");
+    let node_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/engines");
     for f in std::fs::read_dir(&node_dir).unwrap().filter_map(|e| e.ok()) {
         std::fs::copy(f.path(), work.path().join(f.file_name())).unwrap();
     }
@@ -827,4 +827,77 @@ fn engines_babylon_js_reads_the_light_map_as_irradiance_over_pi() {
         );
     }
     check_engine_values("Babylon.js", &out["values"], &rt, report.png_intensity);
+}
+
+/// The README's engine snippets are the files the engine tests run (and the Bevy one the
+/// file the Bevy test reads), word for word.
+#[test]
+fn readme_snippets_are_the_tested_files() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    for (file, lang) in
+        [("three_moz_lightmap.mjs", "js"), ("babylon_moz_lightmap.mjs", "js"), ("bevy_lightmap.rs", "rust")]
+    {
+        let text = std::fs::read_to_string(root.join("tests/engines").join(file)).unwrap();
+        assert!(
+            readme.contains(&format!("```{lang}\n{text}```")),
+            "README.md does not show tests/engines/{file} as it is"
+        );
+    }
+}
+
+/// Bevy is not built here (a full Bevy build is far too heavy for this project's CI). What the
+/// README's Bevy snippet relies on is checked on an export named as in the snippet: the image
+/// it loads exists and `intensity × ` its sRGB-decoded texels is E (the EXR) at every texel
+/// within the PNG's rounding; its `intensity` is `MOZ_lightmap.intensity`; and TEXCOORD_1 of
+/// every primitive lies in [0, 1] over the whole image, so `uv_rect` is the full rectangle.
+/// The snippet's Bevy calls and Bevy's shader arithmetic (README) are read, not run.
+#[test]
+fn engines_bevy_snippet_matches_the_files() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let snippet = std::fs::read_to_string(root.join("tests/engines/bevy_lightmap.rs")).unwrap();
+    for needle in [
+        r#"from_asset("room.gltf")"#,
+        r#"assets.load("room.lightmap.png")"#,
+        "uv_rect: Rect::new(0.0, 0.0, 1.0, 1.0)",
+        "m.lightmap_exposure = lightmap.intensity / std::f32::consts::PI;",
+    ] {
+        assert!(snippet.contains(needle), "the Bevy snippet no longer says {needle}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let scene = load(&asset(VAN_GOGH_LIT));
+    let baked = quick_bake(&scene, 0.1);
+    let report = export(&scene, &baked, &dir.path().join("room.gltf"));
+    assert_eq!(report.png, dir.path().join("room.lightmap.png"));
+    let g = read_json(&report.gltf);
+    let bin = std::fs::read(&report.bin).unwrap();
+    let s = report.png_intensity;
+    assert_eq!(g["asset"]["extras"]["livebake"]["lightmap"]["png_intensity"].as_f64().unwrap() as f32, s);
+    for m in g["materials"].as_array().unwrap() {
+        assert_eq!(m["extensions"]["MOZ_lightmap"]["intensity"].as_f64().unwrap() as f32, s);
+    }
+    // TEXCOORD_1 in [0, 1], and together the primitives reach across the image.
+    let (mut lo, mut hi) = (Vec2::splat(f32::INFINITY), Vec2::splat(f32::NEG_INFINITY));
+    for mesh in g["meshes"].as_array().unwrap() {
+        for p in mesh["primitives"].as_array().unwrap() {
+            for uv in accessor_f32(&g, &bin, p["attributes"]["TEXCOORD_1"].as_u64().unwrap(), 2) {
+                let uv = Vec2::new(uv[0], uv[1]);
+                lo = lo.min(uv);
+                hi = hi.max(uv);
+            }
+        }
+    }
+    assert!(lo.cmpge(Vec2::ZERO).all() && hi.cmple(Vec2::ONE).all(), "TEXCOORD_1 spans {lo}..{hi}");
+    assert!(lo.max_element() < 0.1 && hi.min_element() > 0.9, "TEXCOORD_1 spans only {lo}..{hi}: not the full image");
+    // The PNG Bevy loads (sRGB) times intensity is the EXR.
+    let png = image::open(&report.png).unwrap().to_rgb8();
+    let exr = image::open(&report.hdr).unwrap().to_rgb32f();
+    assert_eq!(png.dimensions(), exr.dimensions());
+    for (q, e) in png.pixels().zip(exr.pixels()) {
+        for c in 0..3 {
+            let decoded = s * livebake::export::lightmap::srgb_decode(q.0[c] as f32 / 255.0);
+            let bound = livebake::export::lightmap::png_error_below(e.0[c] / s) * s;
+            assert!((decoded - e.0[c]).abs() <= bound, "PNG {} vs EXR {} (bound {bound})", decoded, e.0[c]);
+        }
+    }
 }
