@@ -210,7 +210,11 @@ pub(super) fn build(
     let mut materials = Vec::with_capacity(scene.materials.len());
     let mut reads_uv1 = Vec::with_capacity(scene.materials.len());
     for (m, material) in scene.materials.iter().enumerate() {
-        let mut value = file_materials.get(m).cloned().unwrap_or_else(|| json!({ "name": material.name }));
+        // (The loader's glTF parser has made sure every material and node is a JSON object.)
+        let mut value = match file_materials.get(m) {
+            Some(v @ Value::Object(_)) => v.clone(),
+            _ => json!({ "name": material.name }),
+        };
         let mut usage = TexCoordUse::default();
         remap_tex_coords(&mut value, &format!("materials[{m}]"), &mut usage);
         if !usage.dropped.is_empty() {
@@ -220,13 +224,14 @@ pub(super) fn build(
             ));
         }
         reads_uv1.push(usage.reads_uv1);
-        let obj = value.as_object_mut().expect("glTF materials are objects (checked by the loader)");
-        obj.remove("doubleSided");
-        let ext = obj.entry("extensions").or_insert_with(|| json!({}));
-        if !ext.is_object() {
-            *ext = json!({});
+        if let Value::Object(obj) = &mut value {
+            obj.remove("doubleSided");
+            let ext = obj.entry("extensions").or_insert_with(|| json!({}));
+            if !ext.is_object() {
+                *ext = json!({});
+            }
+            ext["MOZ_lightmap"] = json!({ "index": lightmap_texture, "texCoord": 1, "intensity": info.png_intensity });
         }
-        ext["MOZ_lightmap"] = json!({ "index": lightmap_texture, "texCoord": 1, "intensity": info.png_intensity });
         materials.push(value);
     }
 
@@ -286,8 +291,7 @@ pub(super) fn build(
     }
     let mut nodes: Vec<Value> = Vec::new();
     for &n in source.nodes.iter().filter(|&&n| keep[n]) {
-        let mut node = file_nodes[n].clone();
-        let obj = node.as_object_mut().expect("glTF nodes are objects (checked by the loader)");
+        let mut obj = file_nodes[n].as_object().cloned().unwrap_or_default();
         for key in ["mesh", "skin", "weights"] {
             obj.remove(key);
         }
@@ -302,7 +306,7 @@ pub(super) fn build(
         } else {
             obj.insert("children".into(), json!(children));
         }
-        nodes.push(node);
+        nodes.push(Value::Object(obj));
     }
     let hierarchy_roots: Vec<usize> =
         source.roots.iter().filter(|&&r| keep.get(r).copied().unwrap_or(false)).map(|&r| new_index[r]).collect();

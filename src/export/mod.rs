@@ -155,7 +155,8 @@ pub fn export_gltf(
     // The .gltf goes last: until it is renamed, an older export stays whole.
     write_all(
         &files.dir,
-        &[(&files.bin.path, &built.bin), (&files.hdr.path, &exr), (&files.png.path, &png), (&files.gltf, &gltf)],
+        &[(&files.bin.path, &built.bin), (&files.hdr.path, &exr), (&files.png.path, &png), (&files.gltf, &gltf)]
+            .map(|(p, b)| (p.as_path(), b.as_slice())),
     )?;
     Ok(ExportReport {
         gltf: files.gltf,
@@ -279,7 +280,7 @@ fn uri_encode(name: &str) -> String {
 /// unwritable directory) removes the temporary files and replaces nothing; a target that is a
 /// directory is refused before anything is written, which leaves renames within one directory
 /// nothing ordinary to fail on.
-fn write_all(dir: &Path, files: &[(&PathBuf, &Vec<u8>)]) -> Result<(), ExportError> {
+fn write_all(dir: &Path, files: &[(&Path, &[u8])]) -> Result<(), ExportError> {
     std::fs::create_dir_all(dir).map_err(|source| ExportError::CreateDir { path: dir.to_path_buf(), source })?;
     if let Some((path, _)) = files.iter().find(|(p, _)| p.is_dir()) {
         let source = std::io::Error::other("a directory is in the way");
@@ -338,8 +339,7 @@ mod tests {
         let second = dir.path().join("b.gltf");
         std::fs::create_dir(&second).unwrap();
         std::fs::write(second.join("keep"), b"x").unwrap();
-        let (new_a, new_b) = (b"new".to_vec(), b"{}".to_vec());
-        let r = write_all(dir.path(), &[(&first, &new_a), (&second, &new_b)]);
+        let r = write_all(dir.path(), &[(&first, b"new"), (&second, b"{}")]);
         assert!(matches!(r, Err(ExportError::Io { .. })), "{r:?}");
         let leftovers: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
