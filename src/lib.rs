@@ -13,12 +13,14 @@ pub mod bake;
 pub mod bundle;
 pub mod cpu;
 pub mod export;
+pub mod grid;
 pub mod lod;
 pub mod output;
 pub mod parallel;
 pub mod probe;
 pub mod progress;
 pub mod reference;
+pub mod runtime;
 pub mod sampling;
 pub mod scene;
 

@@ -47,7 +47,7 @@ fn quick_bake(scene: &Scene, texel: f32) -> BakeOutput {
         seed: 5,
         ..BakeConfig::default()
     };
-    bake(scene, &config, &NoProgress).unwrap_or_else(|e| panic!("bake: {e}"))
+    bake(&std::sync::Arc::new(scene.clone()), &config, &NoProgress).unwrap_or_else(|e| panic!("bake: {e}"))
 }
 
 fn export(scene: &Scene, baked: &BakeOutput, out: &Path) -> ExportReport {
