@@ -125,7 +125,8 @@ fn remap_tex_coords(value: &mut Value, path: &str, usage: &mut TexCoordUse) -> b
                     .and_then(|t| t.get_mut("texCoord"));
                 return !(keep && remap_set(transform, path, usage));
             }
-            let keys: Vec<String> = obj.keys().cloned().collect();
+            // `extras` is the application's own data, not texture references.
+            let keys: Vec<String> = obj.keys().filter(|k| *k != "extras").cloned().collect();
             for k in keys {
                 let remove =
                     obj.get_mut(&k).is_some_and(|child| remap_tex_coords(child, &format!("{path}.{k}"), usage));
@@ -459,6 +460,7 @@ mod tests {
         let mut m = json!({
             "pbrMetallicRoughness": { "baseColorTexture": { "index": 0 }, "metallicRoughnessTexture": { "index": 1, "texCoord": 1 } },
             "occlusionTexture": { "index": 2, "texCoord": 3 },
+            "extras": { "note": { "index": 7, "texCoord": 9 } },
             "emissiveTexture": { "index": 3, "extensions": { "KHR_texture_transform": { "texCoord": 1, "scale": [2, 2] } } }
         });
         let mut usage = TexCoordUse::default();
@@ -466,6 +468,7 @@ mod tests {
         assert!(usage.reads_uv1);
         assert_eq!(usage.dropped, vec!["materials[0].occlusionTexture (TEXCOORD_3)".to_string()]);
         assert!(m.get("occlusionTexture").is_none());
+        assert_eq!(m.pointer("/extras/note"), Some(&json!({ "index": 7, "texCoord": 9 })));
         assert_eq!(m.pointer("/pbrMetallicRoughness/baseColorTexture"), Some(&json!({ "index": 0 })));
         assert_eq!(m.pointer("/pbrMetallicRoughness/metallicRoughnessTexture/texCoord"), Some(&json!(2)));
         assert_eq!(m.pointer("/emissiveTexture/extensions/KHR_texture_transform/texCoord"), Some(&json!(2)));
