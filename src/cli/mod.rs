@@ -40,6 +40,11 @@ enum Command {
         /// Output directory (created if missing).
         #[arg(long, default_value = "out")]
         out: PathBuf,
+        /// Also write a copy of the scene with the finest baked light map attached, for other
+        /// engines (TEXCOORD_1 + MOZ_lightmap; OUT.bin, OUT.lightmap.exr and OUT.lightmap.png
+        /// beside it).
+        #[arg(long, value_name = "OUT.gltf")]
+        export_gltf: Option<PathBuf>,
         #[command(flatten)]
         options: SceneOptions,
     },
@@ -99,7 +104,9 @@ pub fn run() -> Result<()> {
             &ui,
         ),
         Some(Command::Run { scene, options, run }) => run::run(&scene, &options, &run, &ui),
-        Some(Command::Bake { scene, out, options }) => bake::run(&scene, &out, &options, &ui),
+        Some(Command::Bake { scene, out, export_gltf, options }) => {
+            bake::run(&scene, &out, export_gltf.as_deref(), &options, &ui)
+        }
         Some(Command::Probe { scene, points, out, options }) => {
             probe::run(&scene, &points, out.as_deref(), &options, &ui)
         }
