@@ -4,7 +4,7 @@
 //! per-LOD texel maps), [`lod`], [`reference`] (CPU reference path tracer), [`bundle`] (the
 //! adaptive ray-bundle algorithm: directions, analysis mips, tile planner, estimator),
 //! [`cpu`] (the CPU bundle backend), [`bake`] (bake driver), [`output`] (EXR/PNG/JSON),
-//! [`probe`] (irradiance at surface points).
+//! [`probe`] (irradiance at surface points), [`watch`] (hot reload: file watching and scene diffs).
 
 pub mod analytic;
 pub mod atlas;
@@ -19,5 +19,6 @@ pub mod progress;
 pub mod reference;
 pub mod sampling;
 pub mod scene;
+pub mod watch;
 
 pub use glam;

@@ -51,6 +51,7 @@ mod lights;
 mod materials;
 mod nodes;
 mod primitive;
+mod references;
 mod uri;
 
 use std::path::{Path, PathBuf};
@@ -58,6 +59,7 @@ use std::path::{Path, PathBuf};
 use ::gltf::json;
 
 pub use error::LoadError;
+pub use references::{ExternalFile, ExternalKind, external_files};
 
 use super::{Material, MaterialId, Scene};
 use buffers::Buffers;
