@@ -415,3 +415,166 @@ impl BulkHasher {
         self.hasher.finish()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::builder::{SceneBuilder, diffuse, white};
+    use crate::scene::{Rgb, WrapMode};
+
+    /// Three unit boxes at x = 0, 3, 6 and one light; `moves` shifts box i by the offset.
+    fn boxes(moves: &[(usize, Vec3)], albedo: [f32; 3]) -> Scene {
+        let mut b = SceneBuilder::new();
+        let white = b.material(white());
+        let grey = b.material(diffuse(Rgb::from(albedo), Rgb::ZERO, false));
+        for i in 0..3 {
+            let offset = moves.iter().filter(|(k, _)| *k == i).map(|(_, d)| *d).sum::<Vec3>();
+            let lo = Vec3::new(3.0 * i as f32, 0.0, 0.0) + offset;
+            b.cuboid(&format!("box{i}"), lo, lo + Vec3::ONE, false, if i == 1 { grey } else { white });
+        }
+        b.point_light(Vec3::new(0.0, 5.0, 0.0), Rgb::splat(10.0));
+        b.build()
+    }
+
+    #[test]
+    fn identical_scenes_differ_in_nothing() {
+        let d = SceneDiff::between(&boxes(&[], [0.5; 3]), &boxes(&[], [0.5; 3]));
+        assert!(d.is_empty(), "{d:?}");
+        assert_eq!(d.unchanged, vec![(0, 0), (1, 1), (2, 2)]);
+        assert_eq!(d.touched_bounds().count(), 0);
+    }
+
+    #[test]
+    fn a_moved_box_is_the_only_change_with_its_old_and_new_bounds() {
+        let d = SceneDiff::between(&boxes(&[], [0.5; 3]), &boxes(&[(2, Vec3::new(0.0, 0.0, 2.0))], [0.5; 3]));
+        assert_eq!(d.unchanged, vec![(0, 0), (1, 1)]);
+        assert!(d.added.is_empty() && d.removed.is_empty());
+        assert!(!d.lights_changed && !d.sky_changed && !d.materials_changed);
+        let [c] = d.changed.as_slice() else { panic!("{d:?}") };
+        assert_eq!((c.old, c.new), (2, 2));
+        assert!(c.geometry_changed && !c.material_changed);
+        assert_eq!(c.old_bounds, Aabb { min: Vec3::new(6.0, 0.0, 0.0), max: Vec3::new(7.0, 1.0, 1.0) });
+        assert_eq!(c.new_bounds, Aabb { min: Vec3::new(6.0, 0.0, 2.0), max: Vec3::new(7.0, 1.0, 3.0) });
+        assert_eq!(d.touched_bounds().collect::<Vec<_>>(), vec![c.old_bounds, c.new_bounds]);
+    }
+
+    #[test]
+    fn a_mesh_added_in_front_shifts_indices_but_changes_nothing_else() {
+        let old = boxes(&[], [0.5; 3]);
+        let mut new = old.clone();
+        let mut extra = new.meshes[0].clone();
+        extra.name = "newcomer".into();
+        extra.positions.iter_mut().for_each(|p| *p += Vec3::new(0.0, 10.0, 0.0));
+        new.meshes.insert(0, extra);
+        let d = SceneDiff::between(&old, &new);
+        assert_eq!(d.unchanged, vec![(0, 1), (1, 2), (2, 3)]);
+        assert_eq!(d.old_to_new(3), vec![Some(1), Some(2), Some(3)]);
+        assert!(d.changed.is_empty() && d.removed.is_empty());
+        assert_eq!(d.added, vec![MeshAt { index: 0, bounds: Aabb { min: Vec3::Y * 10.0, max: Vec3::new(1.0, 11.0, 1.0) } }]);
+        // And back: the same mesh is removed.
+        let back = SceneDiff::between(&new, &old);
+        assert_eq!(back.unchanged, vec![(1, 0), (2, 1), (3, 2)]);
+        assert_eq!(back.removed.len(), 1);
+        assert_eq!(back.removed[0].index, 0);
+    }
+
+    #[test]
+    fn a_renamed_and_moved_mesh_pairs_by_topology() {
+        // Unnamed glTF nodes are named by index, so a move plus a node inserted before it
+        // renames the mesh; its triangles and uvs still say it is the same one.
+        let old = boxes(&[], [0.5; 3]);
+        let mut new = boxes(&[(0, Vec3::X * 0.5)], [0.5; 3]);
+        new.meshes[0].name = "node7/box/0".into();
+        let d = SceneDiff::between(&old, &new);
+        assert_eq!(d.changed.len(), 1, "{d:?}");
+        assert_eq!((d.changed[0].old, d.changed[0].new), (0, 0));
+        assert!(d.added.is_empty() && d.removed.is_empty());
+    }
+
+    #[test]
+    fn materials_compare_by_content_not_index() {
+        let old = boxes(&[], [0.5; 3]);
+        // Same materials in the other order, indices remapped: no change.
+        let mut reordered = old.clone();
+        reordered.materials.swap(0, 1);
+        for m in &mut reordered.meshes {
+            m.material = 1 - m.material;
+        }
+        assert!(SceneDiff::between(&old, &reordered).is_empty());
+        // The grey box's albedo changes: that mesh changed, by material only.
+        let d = SceneDiff::between(&old, &boxes(&[], [0.25, 0.5, 0.5]));
+        assert!(d.materials_changed);
+        let [c] = d.changed.as_slice() else { panic!("{d:?}") };
+        assert_eq!(c.new, 1);
+        assert!(c.material_changed && !c.geometry_changed);
+        assert_eq!(c.old_bounds, c.new_bounds);
+    }
+
+    #[test]
+    fn a_texture_pixel_is_material_content() {
+        let texture = Texture {
+            name: "t".into(),
+            width: 2,
+            height: 1,
+            rgba8: vec![[255, 0, 0, 255], [0, 255, 0, 255]],
+            srgb: true,
+            wrap_s: WrapMode::Repeat,
+            wrap_t: WrapMode::Repeat,
+        };
+        let mut old = boxes(&[], [0.5; 3]);
+        old.textures.push(texture);
+        old.materials[1].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
+        let mut new = old.clone();
+        assert!(SceneDiff::between(&old, &new).is_empty());
+        new.textures[0].rgba8[1] = [0, 254, 0, 255];
+        let d = SceneDiff::between(&old, &new);
+        assert!(d.materials_changed);
+        assert_eq!(d.changed.iter().map(|c| c.new).collect::<Vec<_>>(), vec![1]);
+    }
+
+    #[test]
+    fn lights_compare_as_a_set_and_the_sky_by_value() {
+        let mut old = boxes(&[], [0.5; 3]);
+        old.lights.push(PunctualLight { name: "second".into(), position: Vec3::X, ..old.lights[0].clone() });
+        let mut reordered = old.clone();
+        reordered.lights.reverse();
+        reordered.lights[0].name = "renamed".into();
+        assert!(SceneDiff::between(&old, &reordered).is_empty());
+        let mut brighter = old.clone();
+        brighter.lights[1].intensity *= 2.0;
+        let d = SceneDiff::between(&old, &brighter);
+        assert!(d.lights_changed && d.changed.is_empty() && !d.sky_changed);
+        let mut sky = old.clone();
+        sky.sky = Rgb::new(0.0, 0.0, 1e-3);
+        let d = SceneDiff::between(&old, &sky);
+        assert!(d.sky_changed && !d.lights_changed && d.changed.is_empty());
+    }
+
+    #[test]
+    fn identical_copies_keep_their_own_names() {
+        // Two instances with equal content (a mesh placed twice at one spot): each unchanged
+        // mesh maps to the old one of the same name, whatever the order.
+        let mut old = boxes(&[], [0.5; 3]);
+        let mut twin = old.meshes[0].clone();
+        twin.name = "twin".into();
+        old.meshes.push(twin);
+        let mut new = old.clone();
+        new.meshes.swap(0, 3);
+        let d = SceneDiff::between(&old, &new);
+        assert!(d.is_empty());
+        assert_eq!(d.old_to_new(4), vec![Some(3), Some(1), Some(2), Some(0)]);
+    }
+
+    #[test]
+    fn removed_mesh_and_changed_normals_are_seen() {
+        let old = boxes(&[], [0.5; 3]);
+        let mut new = old.clone();
+        new.meshes.remove(1);
+        new.meshes[0].normals[0] = -new.meshes[0].normals[0];
+        let d = SceneDiff::between(&old, &new);
+        assert_eq!(d.unchanged, vec![(2, 1)]);
+        assert_eq!(d.removed, vec![MeshAt { index: 1, bounds: Aabb::of_points(&old.meshes[1].positions) }]);
+        let [c] = d.changed.as_slice() else { panic!("{d:?}") };
+        assert!(c.geometry_changed && (c.old, c.new) == (0, 0) && c.old_bounds == c.new_bounds);
+    }
+}
