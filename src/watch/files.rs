@@ -25,16 +25,8 @@ impl SceneFiles {
         self.external = external.into_iter().map(|f| ExternalFile { path: normalise(&f.path), ..f }).collect();
     }
 
-    pub fn is_scene(&self, path: &Path) -> bool {
-        path == self.scene
-    }
-
-    pub fn is_buffer(&self, path: &Path) -> bool {
-        self.external.iter().any(|f| f.path == path && matches!(f.kind, ExternalKind::Buffer { .. }))
-    }
-
     pub fn contains(&self, path: &Path) -> bool {
-        self.is_scene(path) || self.external.iter().any(|f| f.path == path)
+        path == self.scene || self.external.iter().any(|f| f.path == path)
     }
 
     /// The scene file, then every external file.
@@ -106,23 +98,46 @@ pub(super) fn stamp(path: &Path) -> Option<Stamp> {
     Some(Stamp { len: meta.len(), modified: meta.modified().ok(), inode })
 }
 
-/// Stamps of every file of `files`, in [`SceneFiles::paths`] order.
+/// Stamps of every file of `files`, in [`SceneFiles::paths`] order: one snapshot that the
+/// checks below all read, so they judge the same state of the files.
 pub(super) fn stamps(files: &SceneFiles) -> Vec<Option<Stamp>> {
     files.paths().map(stamp).collect()
 }
 
-/// How long until every file of `files` has gone `quiet` unmodified (by its modification
-/// time against the wall clock), or `None` when they all have. A modification time in the
-/// future (a skewed clock on a network file system) counts as quiet, so it never stalls a
-/// reload.
-pub(super) fn time_to_quiet(files: &SceneFiles, quiet: Duration) -> Option<Duration> {
+/// How long ago `stamp`'s file was modified, by the wall clock; `None` when unknown or in the
+/// future (a skewed clock on a network file system), which the rules treat as long ago so a
+/// bad clock never stalls a reload.
+fn age(stamp: &Option<Stamp>, now: SystemTime) -> Option<Duration> {
+    now.duration_since(stamp.as_ref()?.modified?).ok()
+}
+
+/// How long until every file of the snapshot has gone unmodified for `quiet`, or `None` when
+/// all have.
+pub(super) fn time_to_quiet(snapshot: &[Option<Stamp>], quiet: Duration) -> Option<Duration> {
+    let now = SystemTime::now();
+    snapshot.iter().filter_map(|s| age(s, now)).filter(|&a| a < quiet).map(|a| quiet - a).max()
+}
+
+/// When a buffer file is newer than the scene file: how long until the newest such buffer is
+/// `settle` old. Blender writes the `.bin` first and the `.gltf` last, so a complete save has
+/// the `.gltf` no older than its `.bin`s; a newer `.bin` is a save whose `.gltf` is still
+/// to come (or, after `settle`, a `.bin` edited on its own).
+pub(super) fn time_for_scene_to_follow(
+    files: &SceneFiles,
+    snapshot: &[Option<Stamp>],
+    settle: Duration,
+) -> Option<Duration> {
+    let scene_modified = snapshot.first()?.as_ref()?.modified?;
     let now = SystemTime::now();
     files
-        .paths()
-        .filter_map(|p| stamp(p)?.modified)
-        .filter_map(|m| now.duration_since(m).ok())
-        .filter(|&age| age < quiet)
-        .map(|age| quiet - age)
+        .external
+        .iter()
+        .zip(snapshot.get(1..).unwrap_or_default())
+        .filter(|(f, _)| matches!(f.kind, ExternalKind::Buffer { .. }))
+        .filter(|(_, s)| s.as_ref().and_then(|s| s.modified).is_some_and(|m| m > scene_modified))
+        .filter_map(|(_, s)| age(s, now))
+        .filter(|&a| a < settle)
+        .map(|a| settle - a)
         .max()
 }
 
@@ -138,9 +153,9 @@ pub(super) struct Mismatch {
 /// as its `byteLength`. The loader itself only rejects a short buffer; a longer one would
 /// load, but under a watcher it means the `.bin` and the `.gltf` come from different saves
 /// (or the `.bin` is being written), so the pair is not loaded.
-pub(super) fn check_external(files: &SceneFiles) -> Result<(), Mismatch> {
-    for f in &files.external {
-        let Some(s) = stamp(&f.path) else {
+pub(super) fn check_external(files: &SceneFiles, snapshot: &[Option<Stamp>]) -> Result<(), Mismatch> {
+    for (f, s) in files.external.iter().zip(snapshot.get(1..).unwrap_or_default()) {
+        let Some(s) = s else {
             return Err(Mismatch {
                 path: f.path.clone(),
                 message: format!("'{}' (referred to as '{}') is missing", f.path.display(), f.uri),

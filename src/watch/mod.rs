@@ -18,34 +18,40 @@
 //! that renames the `.bin` is followed. Open and read events are ignored (the watcher's own
 //! loads make them).
 //!
-//! # Debounce, quiet, settle
+//! # Debounce, quiet, order, settle
 //!
-//! - **Debounce** ([`WatchConfig::debounce`], 150 ms): `notify-debouncer-full` holds each
-//!   file event for this long and merges a burst (the many writes of one save, the create,
-//!   write and rename of a temp-file save) into one. 150 ms is far below what a person notices
-//!   after pressing save and above the gaps inside one save.
-//! - **Quiet**: before loading, every one of the scene's files must have a modification time at
-//!   least `debounce` in the past; otherwise the load waits until it has. The debouncer lets a
-//!   long continuous write through while it is still going (it times events one by one), so
-//!   this is what keeps a large file from being read half-written.
-//! - **Settle** ([`WatchConfig::settle`], 2 s, counted from the first event of the change):
-//!   how long a set of files that does not fit together may take to become one. Every
-//!   external buffer must exist and be exactly as long as its `byteLength` (a `.bin` shorter
-//!   *or longer* than declared is a save caught mid-write or a `.bin` from another save than
-//!   the `.gltf`; the loader alone would accept a longer one and read the wrong bytes), and
-//!   every referenced image must exist. A mismatch that could still resolve is waited for;
-//!   one that outlasts the settle time is reported as `Failed` ([`FailureKind::Incomplete`]).
-//!   And when a change touches a buffer but not the scene file, the load waits up to the
-//!   settle time for the scene file: Blender's exporter writes the `.bin` first, then the
-//!   images, then the `.gltf`, so a `.bin` alone is most likely the first half of a save
-//!   (a `.bin` that is the whole save still loads, `settle` later). 2 s covers an export
-//!   that writes images between the two files and costs only that rare lone-`.bin` save.
-//! - **Stability**: the stamps (length, modification time, inode) of every file are taken
-//!   before and after loading; if any changed, the result (success or error) is dropped and the
-//!   load is repeated once the files are quiet again.
-//! - **Errors**: a document that does not parse or a load that fails on files that were stable
-//!   throughout is reported at once ([`FailureKind::Load`]); the last good scene is the
-//!   caller's to keep, and the next save is tried as usual.
+//! Every look at the files reads the scene file once, parses it for the files it refers to,
+//! and judges one snapshot of every file's stamp (length, modification time, inode):
+//!
+//! - **Debounce** ([`WatchConfig::debounce`], 100 ms): `notify-debouncer-full` holds each
+//!   file event this long and merges a burst (the writes of one save; the create, write and
+//!   rename of a temp-file save, which it stitches into one rename) into one batch. 100 ms is
+//!   well below what a person notices after pressing save and above the gaps inside one save.
+//! - **Quiet** (twice the debounce): every file must have gone unmodified that long, else the
+//!   look waits until it has. The debouncer times events one by one, so it lets a long
+//!   continuous write through while it is still going; and by twice its timeout it has handed
+//!   over the events of any older write (it emits at the next tick, a quarter-timeout later).
+//! - **Order** ([`WatchConfig::settle`], 2 s): no external buffer may be newer than the scene
+//!   file. Blender's exporter writes the `.bin` first, then the images, then the `.gltf`, so
+//!   a complete save has the `.gltf` last and a newer `.bin` is a save whose `.gltf` is yet to
+//!   come (the old `.gltf` with the new `.bin` would load garbage whenever the lengths happen
+//!   to agree). It is waited for until the `.bin` is `settle` old; then the `.bin` is taken
+//!   as an edit on its own and loads. Images are not ordered (texture painters save them
+//!   alone). Judged by modification times, not by event arrival, so a slow writer or a
+//!   stalled thread cannot reorder it.
+//! - **Lengths** (settle again, from the first event of the change): every external buffer
+//!   must exist and be exactly as long as its `byteLength` (shorter *or longer* is a save
+//!   caught mid-write or a `.bin` from another save; the loader alone would accept a longer
+//!   one and read the wrong bytes), and every referenced image must exist. A mismatch is
+//!   waited for (the next event, or the end of the settle time); one that outlasts the settle
+//!   time is reported as `Failed` ([`FailureKind::Incomplete`]). 2 s covers an export that
+//!   writes images between its two files, and is the longest a lone `.bin` edit waits.
+//! - **Stability**: the load reads the bytes judged; the stamps are taken again after it and
+//!   must be unchanged, else the result (success or error) is dropped and the look repeated.
+//! - **Errors**: a document that does not parse, or a load that fails on files that stayed
+//!   put, is reported at once ([`FailureKind::Load`]), as is a document still being written
+//!   only when its stamp did not move while it was parsed. The last good scene is the
+//!   caller's to keep; the next save is tried as usual.
 //!
 //! A change episode is one `Started`, then exactly one `Loaded` or `Failed`; changes arriving
 //! while an episode is open join it, those arriving during a load open the next one.
@@ -60,10 +66,12 @@
 //!
 //! # Limits
 //!
-//! A writer that saves the `.gltf` first and then a `.bin` of the *same length* (a geometry
-//! edit that keeps every accessor's size) can be caught between the two after the quiet time:
-//! that pair loads with the old numbers and the `.bin`'s own events load the right one right
-//! after. Lengths are the only cross-file check the format affords without decoding.
+//! Only lengths and modification order tie a `.bin` to its `.gltf` (nothing else in the
+//! format does without decoding). A writer that saves the `.gltf` first and then a `.bin` of
+//! the same length can be caught between the two: that pair loads, and the `.bin`'s own
+//! events load the right one right after (for such a writer each save also waits the settle
+//! time, the `.bin` being newer). A file system with coarse modification times (1–2 s: FAT,
+//! some network shares) makes the order rule see ties, which pass.
 
 mod diff;
 mod files;

@@ -19,13 +19,13 @@ use crate::scene::{LoadError, LoadOptions, Rgb, Scene, external_files, load_gltf
 /// How the watcher waits before and while loading. See the module documentation.
 #[derive(Clone, Debug)]
 pub struct WatchConfig {
-    /// Quiet time: a burst of file events is handled once no event has arrived for this long
-    /// (the debouncer's timeout), and a file modified less than this long ago is waited for.
+    /// The debouncer's timeout: a burst of file events is handled once its events are this
+    /// old, and a file is read only once it has been left alone for twice this long.
     pub debounce: Duration,
-    /// How long an incomplete set of files (a `.bin` whose length disagrees with its
-    /// `.gltf`, a missing referenced file, a `.bin` saved without its `.gltf`) may take to
-    /// become complete, counted from the first event of the change, before it is reported
-    /// as a failure (or, for a lone `.bin`, loaded as it is).
+    /// How long a set of files that does not fit together may take to become one: a `.bin`
+    /// newer than its `.gltf` waits this long (from its modification) for the `.gltf` to
+    /// follow; a buffer whose length disagrees with its `byteLength`, or a missing file, is
+    /// reported as a failure once this long has passed since the change was first seen.
     pub settle: Duration,
     pub load: LoadOptions,
     /// Sky radiance set on every loaded scene (the sky comes from configuration, not the file).
@@ -35,7 +35,7 @@ pub struct WatchConfig {
 impl Default for WatchConfig {
     fn default() -> Self {
         WatchConfig {
-            debounce: Duration::from_millis(150),
+            debounce: Duration::from_millis(100),
             settle: Duration::from_secs(2),
             load: LoadOptions::default(),
             sky: Rgb::ZERO,
@@ -278,16 +278,8 @@ impl Watch {
 struct Episode {
     seen_at: Instant,
     paths: BTreeSet<PathBuf>,
-    scene_touched: bool,
-    buffer_touched: bool,
-    /// When to try loading next.
+    /// When to look at the files next.
     next_attempt: Instant,
-}
-
-impl Episode {
-    fn settle_deadline(&self, config: &WatchConfig) -> Instant {
-        self.seen_at + config.settle
-    }
 }
 
 /// What one look at the files concluded.
@@ -346,30 +338,19 @@ impl Worker {
             return true;
         }
         let now = Instant::now();
-        let scene_touched = paths.iter().any(|p| self.files.is_scene(p));
-        let buffer_touched = paths.iter().any(|p| self.files.is_buffer(p));
-        let episode = match self.episode.take() {
-            Some(mut e) => {
+        match &mut self.episode {
+            Some(e) => {
                 e.paths.extend(paths);
-                e.scene_touched |= scene_touched;
-                e.buffer_touched |= buffer_touched;
-                e
+                e.next_attempt = now;
             }
             None => {
                 let seen_at = batch.first_seen.unwrap_or(now).min(now);
                 if !self.send(WatchEvent::Started { paths: paths.iter().cloned().collect(), seen_at }) {
                     return false;
                 }
-                Episode { seen_at, paths, scene_touched, buffer_touched, next_attempt: now }
+                self.episode = Some(Episode { seen_at, paths, next_attempt: now });
             }
-        };
-        let next_attempt = if episode.buffer_touched && !episode.scene_touched {
-            // A .bin without its .gltf: the exporter (Blender) writes the .gltf next.
-            episode.settle_deadline(&self.config)
-        } else {
-            now
-        };
-        self.episode = Some(Episode { next_attempt, ..episode });
+        }
         true
     }
 
@@ -415,13 +396,15 @@ impl Worker {
     }
 }
 
-/// One look at the files. Order matters: the scene file is read once and parsed for the
-/// files it refers to; every file must have been quiet for `debounce`; every referenced file
-/// must exist and every buffer file have its declared length; the pair loads; and no file
-/// changed while all that happened (else the events of that change are on their way and the
-/// look is repeated). `files` takes the external files of the document just read.
+/// One look at the files; see the module documentation for the rules. The scene file is
+/// read once and parsed for the files it refers to (`files` takes them); then one snapshot
+/// of every file's stamp is judged: all quiet, no buffer newer than the scene file, every
+/// referenced file present and every buffer of its declared length. Then the bytes read
+/// load, and a second snapshot must equal the first: otherwise a file changed meanwhile, its
+/// events are on their way, and the look is repeated.
 fn look(files: &mut SceneFiles, config: &WatchConfig, settle_deadline: Instant) -> Attempt {
     let now = Instant::now();
+    let retry_soon = Attempt::Retry(now + config.debounce);
     let incomplete = |m: Mismatch| {
         if now < settle_deadline {
             tracing::debug!("waiting for the save to complete: {}", m.message);
@@ -430,6 +413,9 @@ fn look(files: &mut SceneFiles, config: &WatchConfig, settle_deadline: Instant) 
             Attempt::Failed { path: m.path, error: m.message, kind: FailureKind::Incomplete }
         }
     };
+    let load_failed =
+        |e: LoadError| Attempt::Failed { path: e.file().to_path_buf(), error: error_chain(&e), kind: FailureKind::Load };
+
     let scene_before = files::stamp(&files.scene);
     let bytes = match std::fs::read(&files.scene) {
         Ok(b) => b,
@@ -438,23 +424,25 @@ fn look(files: &mut SceneFiles, config: &WatchConfig, settle_deadline: Instant) 
             return incomplete(Mismatch { path: files.scene.clone(), message });
         }
     };
-    let retry_soon = Attempt::Retry(now + config.debounce);
-    let load_failed = |e: LoadError| Attempt::Failed { path: e.file().to_path_buf(), error: error_chain(&e), kind: FailureKind::Load };
     match external_files(&files.scene, &bytes) {
         Ok(external) => files.set_external(external),
         // Still being written: its next events will say when it is done.
         Err(_) if files::stamp(&files.scene) != scene_before => return retry_soon,
         Err(e) => return load_failed(e),
     }
-    if let Some(wait) = files::time_to_quiet(files, config.debounce) {
-        return Attempt::Retry(now + wait);
-    }
-    if let Err(m) = files::check_external(files) {
-        return incomplete(m);
-    }
     let before = files::stamps(files);
     if before.first() != Some(&scene_before) {
         return retry_soon;
+    }
+    if let Some(wait) = files::time_to_quiet(&before, quiet_time(config)) {
+        return Attempt::Retry(now + wait);
+    }
+    if let Some(wait) = files::time_for_scene_to_follow(files, &before, config.settle) {
+        tracing::debug!("a buffer is newer than {}: waiting for it to follow", files.scene.display());
+        return Attempt::Retry(now + wait);
+    }
+    if let Err(m) = files::check_external(files, &before) {
+        return incomplete(m);
     }
     let loaded = load_gltf_bytes(&files.scene, &bytes, &config.load);
     if files::stamps(files) != before {
@@ -464,6 +452,13 @@ fn look(files: &mut SceneFiles, config: &WatchConfig, settle_deadline: Instant) 
         Ok(scene) => Attempt::Loaded(Box::new(scene)),
         Err(e) => load_failed(e),
     }
+}
+
+/// How long every file must have been left alone before it is read: twice the debounce, so
+/// that the debouncer (which holds an event `debounce` and hands it over at its next tick, a
+/// quarter of that later) has delivered the events of any write older than that.
+fn quiet_time(config: &WatchConfig) -> Duration {
+    config.debounce * 2
 }
 
 /// An error and its causes on one line.
