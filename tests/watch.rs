@@ -39,9 +39,7 @@ impl Layout {
 
     fn moved(&self, i: usize, by: [f32; 3]) -> Layout {
         let mut l = self.clone();
-        for k in 0..3 {
-            l.at[i][k] += by[k];
-        }
+        l.at[i] = (Vec3::from(l.at[i]) + Vec3::from(by)).to_array();
         l
     }
 
@@ -266,7 +264,7 @@ fn truncated_json_fails_then_a_good_save_recovers() {
 }
 
 #[test]
-fn a_short_bin_is_reported_after_the_settle_time_then_a_good_save_recovers() {
+fn a_bin_of_the_wrong_length_is_reported_after_the_settle_time_then_a_good_save_recovers() {
     let layout = Layout::three_boxes();
     let f = Fixture::new(&layout, "scene.bin", config());
     let bin = f.bin_bytes(&layout);
@@ -276,7 +274,17 @@ fn a_short_bin_is_reported_after_the_settle_time_then_a_good_save_recovers() {
     assert_eq!(path.file_name(), f.bin.file_name());
     assert!(error.contains(&format!("is {} bytes but", bin.len() - 10)), "{error}");
 
+    // Longer than declared: the loader alone would read its first bytes; the watcher waits,
+    // then reports.
+    let mut longer = bin.clone();
+    longer.extend_from_slice(&[0; 8]);
+    save_by_rename(&f.bin, &longer);
+    let (_, error, kind) = f.failed();
+    assert_eq!(kind, FailureKind::Incomplete);
+    assert!(error.contains(&format!("is {} bytes but", bin.len() + 8)), "{error}");
+
     // The .gltf saved as well, the .bin still short: still incomplete, still not loaded.
+    save_in_place(&f.bin, &bin[..bin.len() - 10]);
     let moved = layout.moved(2, [1.0, 0.0, 0.0]);
     save_in_place(&f.gltf, &f.gltf_bytes(&moved));
     assert_eq!(f.failed().2, FailureKind::Incomplete);
@@ -295,7 +303,8 @@ fn bin_then_gltf_with_a_delay_loads_only_the_matching_pair() {
     let layout = Layout::three_boxes();
     let f = Fixture::new(&layout, "scene.bin", config());
     let longer = Layout { extra: true, ..layout.moved(0, [0.0, 0.0, -1.0]) };
-    let same_length = Layout { vertex_scale: 2.0, ..longer.clone() };
+    // New vertices and a new translation: the old .gltf read with this .bin would differ from both saves.
+    let same_length = Layout { vertex_scale: 2.0, ..longer.moved(1, [0.0, 2.0, 0.0]) };
     assert_ne!(f.bin_bytes(&longer).len(), f.bin_bytes(&layout).len());
     assert_eq!(f.bin_bytes(&same_length).len(), f.bin_bytes(&longer).len());
     for next in [&longer, &same_length] {
@@ -423,7 +432,11 @@ fn soak_of_rapid_saves_never_half_applies_and_ends_on_the_final_file() {
                 save_in_place(&f.gltf, &gltf);
             }
         }
-        if action < 2 { good += 1 } else { corrupt += 1 }
+        if action < 2 {
+            good += 1
+        } else {
+            corrupt += 1
+        }
         std::thread::sleep(Duration::from_millis(next() % 30));
     }
     let log = reader.join().unwrap();

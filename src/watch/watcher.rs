@@ -145,9 +145,12 @@ impl SceneWatcher {
         let (events_tx, events) = bounded(EVENT_QUEUE);
         let (stop_tx, stop_rx) = bounded(0);
         let scene = files.scene.clone();
-        let worker = Worker { config, files, watch, inbox, wake: wake_rx, stop: stop_rx, events: events_tx, episode: None };
         let worker =
-            std::thread::Builder::new().name("livebake-watch".into()).spawn(move || worker.run()).map_err(WatchError::Thread)?;
+            Worker { config, files, watch, inbox, wake: wake_rx, stop: stop_rx, events: events_tx, episode: None };
+        let worker = std::thread::Builder::new()
+            .name("livebake-watch".into())
+            .spawn(move || worker.run())
+            .map_err(WatchError::Thread)?;
         Ok(SceneWatcher { events, stop: Some(stop_tx), worker: Some(worker), scene })
     }
 
@@ -285,7 +288,11 @@ struct Episode {
 /// What one look at the files concluded.
 enum Attempt {
     Loaded(Box<Scene>),
-    Failed { path: PathBuf, error: String, kind: FailureKind },
+    Failed {
+        path: PathBuf,
+        error: String,
+        kind: FailureKind,
+    },
     /// Not ready: look again at this time (or at the next event, whichever comes first).
     Retry(Instant),
 }
@@ -310,7 +317,12 @@ impl Worker {
             };
             select! {
                 recv(self.stop) -> _ => break,
-                recv(self.wake) -> _ => {
+                recv(self.wake) -> woken => {
+                    // Disconnected: the debouncer's thread is gone and no event will come again.
+                    if woken.is_err() {
+                        tracing::error!("{}: the file watcher stopped; hot reload is off", self.files.scene.display());
+                        break;
+                    }
                     if !self.absorb() {
                         break;
                     }
@@ -375,7 +387,11 @@ impl Worker {
                     scene.meshes.len(),
                     e.seen_at.elapsed().as_secs_f64() * 1e3
                 );
-                self.send(WatchEvent::Loaded { scene: Arc::from(scene), seen_at: e.seen_at, paths: e.paths.into_iter().collect() })
+                self.send(WatchEvent::Loaded {
+                    scene: Arc::from(scene),
+                    seen_at: e.seen_at,
+                    paths: e.paths.into_iter().collect(),
+                })
             }
             Attempt::Failed { path, error, kind } => {
                 self.watch.update(&self.files);
@@ -413,8 +429,11 @@ fn look(files: &mut SceneFiles, config: &WatchConfig, settle_deadline: Instant) 
             Attempt::Failed { path: m.path, error: m.message, kind: FailureKind::Incomplete }
         }
     };
-    let load_failed =
-        |e: LoadError| Attempt::Failed { path: e.file().to_path_buf(), error: error_chain(&e), kind: FailureKind::Load };
+    let load_failed = |e: LoadError| Attempt::Failed {
+        path: e.file().to_path_buf(),
+        error: error_chain(&e),
+        kind: FailureKind::Load,
+    };
 
     let scene_before = files::stamp(&files.scene);
     let bytes = match std::fs::read(&files.scene) {

@@ -40,7 +40,11 @@ pub fn external_files(path: &Path, bytes: &[u8]) -> Result<Vec<ExternalFile>, Lo
     });
     let images = parsed.root.images.iter().enumerate().filter_map(|(index, image)| {
         let uri = image.uri.as_ref()?;
-        Some(ExternalFile { uri: uri.clone(), path: uri::file_path(base_dir, uri)?, kind: ExternalKind::Image { index } })
+        Some(ExternalFile {
+            uri: uri.clone(),
+            path: uri::file_path(base_dir, uri)?,
+            kind: ExternalKind::Image { index },
+        })
     });
     Ok(buffers.chain(images).collect())
 }
