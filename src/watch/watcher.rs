@@ -2,7 +2,7 @@
 //! a worker thread that turns debounced changes into loaded scenes or failures. The rules
 //! (what is watched, debounce, quiet, settle) are in the [module documentation](super).
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
@@ -195,10 +195,10 @@ struct Inbox {
 
 #[derive(Default)]
 struct Batch {
-    paths: BTreeSet<PathBuf>,
-    first_seen: Option<Instant>,
-    /// The backend dropped events: any file may have changed.
-    rescan: bool,
+    /// Each path touched, with when its first event arrived.
+    paths: BTreeMap<PathBuf, Instant>,
+    /// The backend dropped events (then): any file may have changed.
+    rescan: Option<Instant>,
 }
 
 impl Inbox {
@@ -217,9 +217,13 @@ impl Inbox {
         let mut any = false;
         for e in events.iter().filter(|e| e.need_rescan() || is_change(e.kind)) {
             any = true;
-            batch.rescan |= e.need_rescan();
-            batch.paths.extend(e.paths.iter().cloned());
-            batch.first_seen = Some(batch.first_seen.map_or(e.time, |t| t.min(e.time)));
+            if e.need_rescan() {
+                batch.rescan = Some(batch.rescan.map_or(e.time, |t| t.min(e.time)));
+            }
+            for p in &e.paths {
+                let first = batch.paths.entry(p.clone()).or_insert(e.time);
+                *first = (*first).min(e.time);
+            }
         }
         drop(batch);
         // A full wake channel already holds a wake-up; the worker will see this batch too.
@@ -342,13 +346,13 @@ impl Worker {
     /// Returns false when the watcher should stop.
     fn absorb(&mut self) -> bool {
         let batch = self.inbox.take();
-        let mut paths: BTreeSet<PathBuf> = batch.paths.into_iter().filter(|p| self.files.contains(p)).collect();
-        if batch.rescan {
-            paths.insert(self.files.scene.clone());
+        let mut touched: BTreeMap<PathBuf, Instant> =
+            batch.paths.into_iter().filter(|(p, _)| self.files.contains(p)).collect();
+        if let Some(at) = batch.rescan {
+            touched.entry(self.files.scene.clone()).or_insert(at);
         }
-        if paths.is_empty() {
-            return true;
-        }
+        let Some(&first_seen) = touched.values().min() else { return true };
+        let paths: BTreeSet<PathBuf> = touched.into_keys().collect();
         let now = Instant::now();
         match &mut self.episode {
             Some(e) => {
@@ -356,7 +360,7 @@ impl Worker {
                 e.next_attempt = now;
             }
             None => {
-                let seen_at = batch.first_seen.unwrap_or(now).min(now);
+                let seen_at = first_seen.min(now);
                 if !self.send(WatchEvent::Started { paths: paths.iter().cloned().collect(), seen_at }) {
                     return false;
                 }
