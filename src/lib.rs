@@ -5,7 +5,7 @@
 //! adaptive ray-bundle algorithm: directions, analysis mips, tile planner, estimator),
 //! [`cpu`] (the CPU bundle backend), [`bake`] (bake driver), [`output`] (EXR/PNG/JSON),
 //! [`probe`] (irradiance at surface points), [`export`] (glTF with the light map, for other
-//! engines).
+//! engines), [`watch`] (hot reload: file watching and scene diffs).
 
 pub mod analytic;
 pub mod atlas;
@@ -23,5 +23,6 @@ pub mod reference;
 pub mod runtime;
 pub mod sampling;
 pub mod scene;
+pub mod watch;
 
 pub use glam;

@@ -61,6 +61,12 @@ fn error_estimate_is_calibrated() {
         let mse: f64 = ea.iter().zip(&er).map(|(x, y)| (luminance(*x) - luminance(*y)).powi(2)).sum::<f64>() / n;
         let mean: f64 = er.iter().map(|y| luminance(*y)).sum::<f64>() / n;
         let actual = mse.sqrt() / mean;
-        eprintln!("cell {cell}: {} texels, estimate {:.4} (ref {:.4}), actual {:.4}", a.texels.len(), a.error(), r.error(), actual);
+        eprintln!(
+            "cell {cell}: {} texels, estimate {:.4} (ref {:.4}), actual {:.4}",
+            a.texels.len(),
+            a.error(),
+            r.error(),
+            actual
+        );
     }
 }

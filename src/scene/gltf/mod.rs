@@ -51,6 +51,7 @@ mod lights;
 mod materials;
 mod nodes;
 mod primitive;
+mod references;
 mod source;
 mod uri;
 
@@ -59,6 +60,7 @@ use std::path::{Path, PathBuf};
 use ::gltf::json;
 
 pub use error::LoadError;
+pub use references::{ExternalFile, ExternalKind, external_files};
 pub use source::{SourceDocument, SourceImage, read_source};
 
 use super::{Material, MaterialId, Scene};
