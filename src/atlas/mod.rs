@@ -23,8 +23,10 @@
 //! mapping).
 
 pub mod charts;
+pub mod lookup;
 pub mod pack;
 pub mod raster;
+pub mod sparse;
 pub mod texels;
 pub mod update;
 pub mod uv1;

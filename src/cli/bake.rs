@@ -1,11 +1,13 @@
 //! `livebake bake`: load, bake, write light maps and the report, print a summary.
 
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use livebake::bake::{BakeOutput, bake};
-use livebake::output::{write_json, write_lightmaps};
+use livebake::export::{ExportOptions, export_gltf};
+use livebake::output::{irradiance_image, write_json, write_lightmaps};
 use livebake::scene::{LoadOptions, Scene, load_gltf};
 
 use super::SceneOptions;
@@ -22,14 +24,14 @@ fn default_samples(backend: Backend) -> u32 {
     }
 }
 
-pub fn load_scene(path: &Path, options: &SceneOptions) -> Result<(Scene, f64)> {
+pub fn load_scene(path: &Path, options: &SceneOptions) -> Result<(Arc<Scene>, f64)> {
     let t0 = Instant::now();
     let mut scene = load_gltf(path, &LoadOptions::default()).context("cannot load the scene")?;
     scene.sky = options.sky;
-    Ok((scene, t0.elapsed().as_secs_f64()))
+    Ok((Arc::new(scene), t0.elapsed().as_secs_f64()))
 }
 
-pub fn run(scene_path: &Path, out: &Path, options: &SceneOptions, ui: &Ui) -> Result<()> {
+pub fn run(scene_path: &Path, out: &Path, export: Option<&Path>, options: &SceneOptions, ui: &Ui) -> Result<()> {
     let config = options.bake_config(default_samples)?;
     let (scene, load_seconds) = load_scene(scene_path, options)?;
     tracing::info!(
@@ -42,7 +44,14 @@ pub fn run(scene_path: &Path, out: &Path, options: &SceneOptions, ui: &Ui) -> Re
     );
     let mut baked = bake(&scene, &config, ui).with_context(|| format!("cannot bake {}", scene_path.display()))?;
     let t_write = Instant::now();
-    let files = write_lightmaps(out, &baked)?;
+    let mut files = write_lightmaps(out, &baked)?;
+    if let Some(gltf) = export {
+        // The finest level baked.
+        let lod = baked.lods.last().context("the bake produced no light-map level")?;
+        let report = export_gltf(&scene, &baked.atlas, &irradiance_image(lod), gltf, &ExportOptions::default())
+            .with_context(|| format!("cannot export {}", gltf.display()))?;
+        files.extend([report.gltf, report.bin, report.hdr, report.png]);
+    }
     baked.report.phases.load = load_seconds;
     baked.report.phases.write = t_write.elapsed().as_secs_f64();
     let report_path = out.join("report.json");
