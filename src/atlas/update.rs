@@ -54,7 +54,8 @@ impl Atlas {
     /// texel size is `old`'s; `config`'s other settings apply to the meshes laid out anew.
     ///
     /// An `Unchanged` mesh must have as many triangles, and the same faces, as the old mesh
-    /// (checked: [`AtlasError::BadUpdate`] otherwise).
+    /// (checked: [`AtlasError::BadUpdate`] otherwise). The new atlas's `stats.uv1_rejected`
+    /// lists the meshes laid out in this update only.
     pub fn update(
         old: &Atlas,
         scene: &Scene,
