@@ -242,8 +242,12 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 let texels = TexelMap::build(scene, &geom, &atlas, lod);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
-                let bundle::LodIrradiance { irradiance, stats: bstats, .. } =
-                    bundle::bake_lod(&bundle, &bvh, &mut backend, &texels, coarser, config.threads(), progress);
+                let never = std::sync::atomic::AtomicBool::new(false);
+                let Ok(bundle::LodIrradiance { irradiance, stats: bstats, .. }) =
+                    bundle::bake_lod(&bundle, &bvh, &mut backend, &texels, coarser, config.threads(), progress, &never)
+                else {
+                    unreachable!("an offline bake is never cancelled")
+                };
                 if bstats.pass.unplanned_directions > 0 {
                     let (count, directions) = (bstats.pass.unplanned_directions, bstats.directions);
                     return Err(BakeError::UnplannedDirections { lod, count, directions });
