@@ -11,13 +11,17 @@ pub mod atlas;
 pub mod bake;
 pub mod bundle;
 pub mod cpu;
+pub mod gpu;
+pub mod grid;
 pub mod lod;
 pub mod output;
 pub mod parallel;
 pub mod probe;
 pub mod progress;
 pub mod reference;
+pub mod runtime;
 pub mod sampling;
 pub mod scene;
+pub mod viewer;
 
 pub use glam;
