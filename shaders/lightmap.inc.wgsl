@@ -33,10 +33,10 @@ struct LightmapParams {
 @group(1) @binding(2) var<storage, read> page_table: array<u32>;
 @group(1) @binding(3) var lm_pool: texture_2d<f32>;
 
-// One pixel of LOD k: (E, 1) when valid, 0 outside the map, in a missing page or invalid.
+// One pixel of LOD k: (E, 1) when published, 0 outside the page table, in a missing page
+// or where nothing was published.
 fn lm_tap(k: u32, px: vec2<i32>) -> vec4<f32> {
-    let size = vec2<i32>(lm.atlas_size << vec2<u32>(k));
-    if any(px < vec2<i32>(0)) || any(px >= size) {
+    if any(px < vec2<i32>(0)) {
         return vec4<f32>(0.0);
     }
     let page = px / PAGE_SIDE;
@@ -58,7 +58,7 @@ fn lm_tap(k: u32, px: vec2<i32>) -> vec4<f32> {
 
 // Bilinear at uv·2^k − 0.5 over the valid taps; where none is valid, the next coarser LOD.
 fn lm_value(lod: u32, uv: vec2<f32>) -> vec3<f32> {
-    var k = i32(lod);
+    var k = i32(min(lod, lm.lod_count - 1u));
     loop {
         if k < 0 {
             break;
@@ -105,8 +105,12 @@ fn shown_irradiance(p: vec3<f32>, uv: vec2<f32>) -> vec3<f32> {
     let k = cell_lod[lm_cell_index(c)];
     let base = lm_value(k, uv);
     let lo = lm.grid_origin + vec3<f32>(c) * lm.cell_size;
+    if k == 0u || lm.blend_band <= 0.0 {
+        return base;
+    }
     var w = 0.0;
     var k_low = k;
+    var near_coarser = false;
     for (var axis = 0u; axis < 3u; axis++) {
         for (var side = 0u; side < 2u; side++) {
             var n = c;
@@ -124,19 +128,20 @@ fn shown_irradiance(p: vec3<f32>, uv: vec2<f32>) -> vec3<f32> {
                 n[axis] = c[axis] + 1u;
                 d = lo[axis] + lm.cell_size - p[axis];
             }
-            let kn = cell_lod[lm_cell_index(n)];
-            if kn >= k || d >= lm.blend_band {
+            if d >= lm.blend_band {
                 continue;
             }
-            let wn = 1.0 - d / lm.blend_band;
-            if wn > 0.0 {
-                w = max(w, wn);
-                k_low = min(k_low, kn);
+            let kn = cell_lod[lm_cell_index(n)];
+            if kn >= k {
+                continue;
             }
+            w = max(w, clamp(1.0 - max(d, 0.0) / lm.blend_band, 0.0, 1.0));
+            k_low = min(k_low, kn);
+            near_coarser = true;
         }
     }
-    if w > 0.0 {
-        return (1.0 - w) * base + w * lm_value(k_low, uv);
+    if near_coarser {
+        return base * (1.0 - w) + lm_value(k_low, uv) * w;
     }
     return base;
 }

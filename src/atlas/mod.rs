@@ -21,6 +21,7 @@
 pub mod charts;
 pub mod pack;
 pub mod raster;
+pub mod sparse;
 pub mod texels;
 pub mod uv1;
 

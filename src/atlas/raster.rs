@@ -143,6 +143,25 @@ pub fn conservative(t: &[DVec2; 3], bounds: PixelRect, rows: (i64, i64), mut f: 
     }
 }
 
+/// [`conservative`] restricted to the pixels of `clip` (a window of a larger raster): the
+/// pixels visited are exactly those of the unrestricted raster that lie in `clip`, the
+/// centroid fallback included (it is decided over the whole of `bounds`).
+pub fn conservative_in(t: &[DVec2; 3], bounds: PixelRect, clip: PixelRect, mut f: impl FnMut(i64, i64)) {
+    let window =
+        PixelRect::new(bounds.x0.max(clip.x0), bounds.y0.max(clip.y0), bounds.x1.min(clip.x1), bounds.y1.min(clip.y1));
+    let any = !window.is_empty()
+        && scan(t, window, i64::MIN, i64::MAX, |x, y| {
+            f(x, y);
+            true
+        });
+    if !any && !bounds.is_empty() && !scan(t, bounds, i64::MIN, i64::MAX, |_, _| false) {
+        let (x, y) = fallback_pixel(t, bounds);
+        if clip.contains(x, y) {
+            f(x, y);
+        }
+    }
+}
+
 /// Every pixel of `bounds` that `t` touches (convenience for tests and small rasters).
 pub fn conservative_pixels(t: &[DVec2; 3], bounds: PixelRect) -> Vec<(i64, i64)> {
     let mut v = Vec::new();

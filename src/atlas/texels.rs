@@ -98,15 +98,8 @@ impl TexelMap {
         // Per band, per pixel: world area of all faces inside the pixel square (m²).
         let mut band_areas: Vec<Vec<f32>> = vec![Vec::new(); bands];
         // World m² per LOD-k pixel² of each face's parametrisation.
-        let world_per_uv: Vec<f64> = atlas
-            .faces
-            .iter()
-            .zip(&pre)
-            .map(|(f, (_, t))| {
-                let uv = 0.5 * raster::area2(t).abs();
-                if uv > 0.0 { geom.areas[f.tri as usize] as f64 / uv } else { 0.0 }
-            })
-            .collect();
+        let world_per_uv: Vec<f64> =
+            pre.iter().enumerate().map(|(f, (_, t))| world_per_pixel(geom, atlas, f as FaceId, t)).collect();
         par_for_each(
             slot.chunks_mut(band_rows * w).zip(counts.iter_mut()).zip(band_areas.iter_mut()).enumerate().collect(),
             threads,
@@ -190,20 +183,15 @@ impl TexelMap {
                             continue;
                         }
                         let fid = *s;
-                        let f = &atlas.faces[fid as usize];
                         let (x, y) = (i % w, y0 + i / w);
-                        let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
-                        let (u, v, _) = raster::closest_barycentric(&pre[fid as usize].1, c);
-                        let (u, v) = (u as f32, v as f32);
-                        let t = f.tri;
+                        let a = TexelAttributes::at(scene, geom, atlas, fid, &pre[fid as usize].1, x as i64, y as i64);
                         pixel[k] = (y * w + x) as u32;
                         area[k] = band_area[i];
                         face[k] = fid;
-                        position[k] = geom.point(t, u, v);
-                        normal[k] = geom.normals[t as usize] * f.side.sign();
-                        albedo[k] = geom.albedo(scene, t, u, v);
-                        let m = &scene.materials[geom.material[t as usize] as usize];
-                        emission[k] = if m.emits_from(f.side) { geom.emission(scene, t, u, v) } else { Rgb::ZERO };
+                        position[k] = a.position;
+                        normal[k] = a.normal;
+                        albedo[k] = a.albedo;
+                        emission[k] = a.emission;
                         *s = (first + k) as u32;
                         k += 1;
                     }
@@ -216,27 +204,21 @@ impl TexelMap {
         {
             let slot = &slot;
             par_for_each(gutters.iter_mut().enumerate().collect(), threads, |(b, out)| {
-                let at = |x: usize, y: usize| slot[y * w + x];
+                let at = |x: i64, y: i64| {
+                    if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+                        NO_TEXEL
+                    } else {
+                        slot[y as usize * w + x as usize]
+                    }
+                };
                 for y in b * band_rows..((b + 1) * band_rows).min(h) {
                     for x in 0..w {
-                        if at(x, y) != NO_TEXEL {
+                        let (xi, yi) = (x as i64, y as i64);
+                        if at(xi, yi) != NO_TEXEL {
                             continue;
                         }
-                        let (xm, xp, ym, yp) = (x > 0, x + 1 < w, y > 0, y + 1 < h);
-                        let candidates = [
-                            (xm, x.wrapping_sub(1), y),
-                            (xp, x + 1, y),
-                            (ym, x, y.wrapping_sub(1)),
-                            (yp, x, y + 1),
-                            (xm && ym, x.wrapping_sub(1), y.wrapping_sub(1)),
-                            (xp && ym, x + 1, y.wrapping_sub(1)),
-                            (xm && yp, x.wrapping_sub(1), y + 1),
-                            (xp && yp, x + 1, y + 1),
-                        ];
-                        if let Some(t) =
-                            candidates.iter().filter(|c| c.0).map(|c| at(c.1, c.2)).find(|&t| t != NO_TEXEL)
-                        {
-                            out.push(((y * w + x) as u32, t));
+                        if let Some((dx, dy)) = gutter_source(|dx, dy| at(xi + dx, yi + dy) != NO_TEXEL) {
+                            out.push(((y * w + x) as u32, at(xi + dx, yi + dy)));
                         }
                     }
                 }
@@ -285,6 +267,57 @@ impl TexelMap {
         }
         img
     }
+}
+
+/// What a texel holds: the centre of pixel (x, y) mapped onto face `face` (barycentrics of
+/// the closest point of its LOD-k UV triangle `uv`), and the surface there. The one place
+/// that computes it, for whole-LOD and per-region texel maps alike.
+pub(crate) struct TexelAttributes {
+    pub position: Vec3,
+    pub normal: Vec3,
+    pub albedo: Rgb,
+    pub emission: Rgb,
+}
+
+impl TexelAttributes {
+    pub(crate) fn at(
+        scene: &Scene,
+        geom: &SceneGeometry,
+        atlas: &Atlas,
+        face: FaceId,
+        uv: &[DVec2; 3],
+        x: i64,
+        y: i64,
+    ) -> TexelAttributes {
+        let f = &atlas.faces[face as usize];
+        let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+        let (u, v, _) = raster::closest_barycentric(uv, c);
+        let (u, v) = (u as f32, v as f32);
+        let t = f.tri;
+        let m = &scene.materials[geom.material[t as usize] as usize];
+        TexelAttributes {
+            position: geom.point(t, u, v),
+            normal: geom.normals[t as usize] * f.side.sign(),
+            albedo: geom.albedo(scene, t, u, v),
+            emission: if m.emits_from(f.side) { geom.emission(scene, t, u, v) } else { Rgb::ZERO },
+        }
+    }
+}
+
+/// World m² per LOD-`lod` pixel² of a face's parametrisation (0 for a degenerate UV triangle):
+/// turns the part of the face inside a pixel square into the texel's world area.
+pub(crate) fn world_per_pixel(geom: &SceneGeometry, atlas: &Atlas, face: FaceId, uv: &[DVec2; 3]) -> f64 {
+    let area = 0.5 * raster::area2(uv).abs();
+    if area > 0.0 { geom.areas[atlas.faces[face as usize].tri as usize] as f64 / area } else { 0.0 }
+}
+
+/// The gutter rule: an empty pixel next to a texel copies its left, right, upper or lower
+/// neighbour if one is a texel, else a diagonal one, in that order. `covered(dx, dy)` says
+/// whether the neighbour at that offset holds a texel; returns the offset copied.
+#[inline]
+pub(crate) fn gutter_source(covered: impl Fn(i64, i64) -> bool) -> Option<(i64, i64)> {
+    const ORDER: [(i64, i64); 8] = [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)];
+    ORDER.into_iter().find(|&(dx, dy)| covered(dx, dy))
 }
 
 /// Side of the square pixel blocks texel ids follow.

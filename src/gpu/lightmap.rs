@@ -169,7 +169,7 @@ impl LightmapGpu {
         let params_buffer = buffer("lightmap params", size_of::<LightmapParams>() as u64, wgpu::BufferUsages::UNIFORM);
         let cell_lod_buffer = buffer("cell lods", 4 * shown.cell_lod.len() as u64, wgpu::BufferUsages::STORAGE);
         let page_table_buffer = buffer("page table", 4 * table_len as u64, wgpu::BufferUsages::STORAGE);
-        let pages = shown.levels.iter().flat_map(|l| &l.pages).filter(|p| p.is_some()).count() as u32;
+        let pages = shown.levels.iter().map(|l| l.live_pages()).sum::<usize>() as u32;
         let pool_rows = pages.div_ceil(pool_columns).max(1).next_power_of_two();
         let pool = create_pool(device, pool_columns, pool_rows)?;
         let bind_group = create_bind_group(device, layout, &params_buffer, &cell_lod_buffer, &page_table_buffer, &pool);
@@ -233,7 +233,7 @@ impl LightmapGpu {
         let mut uploads: Vec<(u32, Arc<Page>)> = Vec::new();
         let mut entry = 0usize;
         for level in &shown.levels {
-            for page in &level.pages {
+            for page in level.rows.iter().flat_map(|row| row.iter()) {
                 let held = self.resident[entry];
                 match (held, page) {
                     (Some((id, _)), Some(p)) if id == p.id => {}
@@ -273,7 +273,7 @@ impl LightmapGpu {
                     origin: wgpu::Origin3d { x: col * PAGE_SIDE, y: row * PAGE_SIDE, z: 0 },
                     aspect: wgpu::TextureAspect::All,
                 },
-                cast_slice(&page.texels),
+                cast_slice(&page.texels[..]),
                 wgpu::TexelCopyBufferLayout {
                     offset: 0,
                     bytes_per_row: Some(PAGE_SIDE * TEXEL_BYTES),

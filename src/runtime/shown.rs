@@ -1,84 +1,168 @@
-//! The shown light map: an immutable snapshot of what the viewer displays.
+//! The shown light map: what the viewer draws, what `probe` and `run --points` read, and
+//! what the bundles of a cell bake see of the surfaces around them. One sampling function,
+//! [`ShownLightmap::irradiance`], serves them all, so what the user sees is what the tests
+//! measure.
 //!
-//! STAND-IN written on the `viewer` branch to the lead's specification (issue 10 brief);
-//! replaced by main's `src/runtime/shown.rs` at the merge.
+//! Storage is a sparse pyramid over the one atlas layout: LOD k is a grid of pages of
+//! [`PAGE_SIDE`]² pixels of LOD k, allocated only where a cell was published at that level.
+//! A snapshot is immutable and cheap to share (`Arc`): a publish builds the next snapshot,
+//! copying only the page-table rows and the pages it writes (copy-on-write, each written page
+//! gets a new id), so a reader sees a cell before or after its publish, never half of it, and
+//! a GPU mirror uploads exactly the pages whose id changed.
+//!
+//! A cell shown at LOD k keeps its pages at every coarser level: sampling falls back to them
+//! where LOD k has no texel yet (next to a coarser neighbour), and blends toward the coarser
+//! neighbour across [`ShownLightmap::blend_band`] metres of a border between cells of
+//! different LOD, so the border shows no step beyond the noise.
 
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::{Vec2, Vec3};
 
-use crate::grid::Grid;
+use crate::grid::{CellId, Grid};
 use crate::scene::Rgb;
 
-/// Pixels per page side.
+/// Side of a page, in pixels of its LOD.
 pub const PAGE_SIDE: u32 = 64;
+const PAGE_TEXELS: usize = (PAGE_SIDE * PAGE_SIDE) as usize;
 
-/// 64×64 pixels of one LOD, row-major: rgb = irradiance E (W/m²), a = 1 valid, 0 none.
-#[derive(Clone, Debug)]
+/// Unique ids for pages (a written page is a new page).
+static NEXT_PAGE_ID: AtomicU64 = AtomicU64::new(1);
+
+/// 64×64 pixels of one LOD: rgb = irradiance E (W/m²), a = 1 where a texel (or a gutter pixel
+/// copying one) was published, 0 elsewhere.
+#[derive(Debug)]
 pub struct Page {
     pub id: u64,
-    pub texels: Vec<[f32; 4]>,
+    pub texels: Box<[[f32; 4]]>,
+    /// Pixels with a = 1.
+    pub valid: u32,
 }
 
+impl Page {
+    fn empty() -> Page {
+        Page { id: NEXT_PAGE_ID.fetch_add(1, Ordering::Relaxed), texels: vec![[0.0; 4]; PAGE_TEXELS].into(), valid: 0 }
+    }
+
+    fn copy(&self) -> Page {
+        Page { id: NEXT_PAGE_ID.fetch_add(1, Ordering::Relaxed), texels: self.texels.clone(), valid: self.valid }
+    }
+
+    pub const BYTES: usize = PAGE_TEXELS * 16;
+}
+
+/// One LOD's page table: `pages_y` rows of `pages_x` entries (rows are shared between
+/// snapshots until written).
 #[derive(Clone, Debug)]
 pub struct LodPages {
     pub pages_x: u32,
     pub pages_y: u32,
-    pub pages: Vec<Option<Arc<Page>>>,
+    pub rows: Vec<Arc<Vec<Option<Arc<Page>>>>>,
 }
 
+impl LodPages {
+    fn new(width: u64, height: u64) -> LodPages {
+        let pages_x = width.div_ceil(PAGE_SIDE as u64) as u32;
+        let pages_y = height.div_ceil(PAGE_SIDE as u64) as u32;
+        let row = Arc::new(vec![None; pages_x as usize]);
+        LodPages { pages_x, pages_y, rows: vec![row; pages_y as usize] }
+    }
+
+    #[inline]
+    pub fn page(&self, px: u32, py: u32) -> Option<&Arc<Page>> {
+        self.rows.get(py as usize)?.get(px as usize)?.as_ref()
+    }
+
+    /// The published value of LOD pixel (x, y), if any.
+    #[inline]
+    pub fn texel(&self, x: i64, y: i64) -> Option<Rgb> {
+        if x < 0 || y < 0 {
+            return None;
+        }
+        let (x, y) = (x as u64, y as u64);
+        let page = self.page((x / PAGE_SIDE as u64) as u32, (y / PAGE_SIDE as u64) as u32)?;
+        let t = page.texels[((y % PAGE_SIDE as u64) * PAGE_SIDE as u64 + x % PAGE_SIDE as u64) as usize];
+        (t[3] > 0.0).then(|| Rgb::new(t[0], t[1], t[2]))
+    }
+
+    /// Pages allocated.
+    pub fn live_pages(&self) -> usize {
+        self.rows.iter().map(|r| r.iter().filter(|p| p.is_some()).count()).sum()
+    }
+}
+
+/// An immutable snapshot of the shown light map.
 #[derive(Clone, Debug)]
 pub struct ShownLightmap {
     pub grid: Grid,
-    pub cell_lod: Vec<u8>,
+    /// Shown LOD of each cell (every cell starts at 0 once LOD 0 is published).
+    pub cell_lod: Arc<Vec<u8>>,
+    /// LOD-0 atlas size in texels; LOD k is `2^k` times larger.
     pub atlas_width: u32,
     pub atlas_height: u32,
+    /// Width (metres) of the band along a border with a coarser cell over which the finer
+    /// cell blends into the coarser LOD.
     pub blend_band: f32,
     pub levels: Vec<LodPages>,
+    /// Incremented by every publish or eviction.
+    pub version: u64,
 }
 
 impl ShownLightmap {
-    /// One pixel of LOD `k`: `(E, valid)`; outside the map or in a missing page: invalid.
-    fn pixel(&self, k: usize, x: i64, y: i64) -> ([f32; 4], bool) {
-        let level = &self.levels[k];
-        let (w, h) = ((self.atlas_width as i64) << k, (self.atlas_height as i64) << k);
-        if x < 0 || y < 0 || x >= w || y >= h {
-            return ([0.0; 4], false);
-        }
-        let side = PAGE_SIDE as i64;
-        let (px, py) = (x / side, y / side);
-        if px >= level.pages_x as i64 || py >= level.pages_y as i64 {
-            return ([0.0; 4], false);
-        }
-        match &level.pages[(py * level.pages_x as i64 + px) as usize] {
-            Some(page) => {
-                let t = page.texels[((y % side) * side + x % side) as usize];
-                (t, t[3] > 0.0)
-            }
-            None => ([0.0; 4], false),
+    /// An empty map (nothing published: every sample is 0) for `levels` LODs.
+    pub fn new(grid: Grid, atlas_width: u32, atlas_height: u32, levels: u32, blend_band: f32) -> Self {
+        let levels =
+            (0..levels.max(1)).map(|k| LodPages::new((atlas_width as u64) << k, (atlas_height as u64) << k)).collect();
+        ShownLightmap {
+            cell_lod: Arc::new(vec![0; grid.len()]),
+            grid,
+            atlas_width,
+            atlas_height,
+            blend_band,
+            levels,
+            version: 0,
         }
     }
 
-    /// Bilinear value of LOD `k` at LOD-0 atlas UV `uv`, falling back to coarser LODs where
-    /// no tap is valid.
-    fn value(&self, k: usize, uv: Vec2) -> Rgb {
-        let mut k = k as i64;
+    pub fn lods(&self) -> u32 {
+        self.levels.len() as u32
+    }
+
+    /// Irradiance (W/m²) of the surface point at world `position` whose light-map UV (of the
+    /// side being looked at, LOD-0 texel units) is `uv_lod0`: the cell of the point, its
+    /// shown LOD, bilinear within the chart there, blended toward a coarser face-neighbour
+    /// near their shared border (module docs).
+    pub fn irradiance(&self, position: Vec3, uv_lod0: Vec2) -> Rgb {
+        let cell = self.grid.cell_of(position);
+        let k = self.cell_lod[cell as usize] as u32;
+        let fine = self.bilinear(k, uv_lod0);
+        match self.border_blend(cell, k, position) {
+            Some((w, k_low)) => fine * (1.0 - w) + self.bilinear(k_low, uv_lod0) * w,
+            None => fine,
+        }
+    }
+
+    /// Bilinear at LOD `k` over published pixels only (missing taps weigh 0, the rest are
+    /// renormalised); where LOD `k` has none of the four, the next coarser level.
+    pub fn bilinear(&self, k: u32, uv_lod0: Vec2) -> Rgb {
+        let mut k = k.min(self.lods() - 1) as i64;
         while k >= 0 {
-            let p = uv * (1u32 << k) as f32 - Vec2::splat(0.5);
-            let p0 = p.floor();
-            let f = p - p0;
-            let (x0, y0) = (p0.x as i64, p0.y as i64);
-            let mut sum = Vec3::ZERO;
-            let mut wsum = 0.0f32;
+            let q = uv_lod0 * (1u64 << k) as f32 - Vec2::splat(0.5);
+            let base = q.floor();
+            let f = q - base;
+            let (bx, by) = (base.x as i64, base.y as i64);
+            let level = &self.levels[k as usize];
+            let mut sum = Rgb::ZERO;
+            let mut wsum = 0.0;
             for (dx, dy, w) in [
                 (0, 0, (1.0 - f.x) * (1.0 - f.y)),
                 (1, 0, f.x * (1.0 - f.y)),
                 (0, 1, (1.0 - f.x) * f.y),
                 (1, 1, f.x * f.y),
             ] {
-                let (t, valid) = self.pixel(k as usize, x0 + dx, y0 + dy);
-                if valid {
-                    sum += Vec3::new(t[0], t[1], t[2]) * w;
+                if let Some(e) = level.texel(bx + dx, by + dy) {
+                    sum += e * w;
                     wsum += w;
                 }
             }
@@ -90,36 +174,206 @@ impl ShownLightmap {
         Rgb::ZERO
     }
 
-    /// Irradiance (W/m²) the viewer shows at world position `p` with LOD-0 atlas UV `uv`.
-    pub fn irradiance(&self, p: Vec3, uv: Vec2) -> Rgb {
-        let c = self.grid.cell_coords(p);
-        let k = self.cell_lod[self.grid.index(c)];
-        let base = self.value(k as usize, uv);
-        let lo = self.grid.origin + Vec3::new(c[0] as f32, c[1] as f32, c[2] as f32) * self.grid.cell_size;
-        let mut w = 0.0f32;
-        let mut k_low = k;
+    /// Near a face shared with a coarser neighbour: the blend weight toward it (1 on the
+    /// face, 0 at `blend_band` inside) and the coarsest such neighbour's LOD.
+    fn border_blend(&self, cell: CellId, k: u32, p: Vec3) -> Option<(f32, u32)> {
+        if k == 0 || self.blend_band <= 0.0 {
+            return None;
+        }
+        let (lo, hi) = self.grid.bounds(cell);
+        let mut best: Option<(f32, u32)> = None;
         for axis in 0..3 {
-            for dir in [-1i64, 1] {
-                let n = c[axis] as i64 + dir;
-                if n < 0 || n >= self.grid.dims[axis] as i64 {
+            for (step, d) in [(-1, p[axis] - lo[axis]), (1, hi[axis] - p[axis])] {
+                if d >= self.blend_band {
                     continue;
                 }
-                let mut nc = c;
-                nc[axis] = n as u32;
-                let kn = self.cell_lod[self.grid.index(nc)];
+                let Some(n) = self.grid.neighbour(cell, axis, step) else { continue };
+                let kn = self.cell_lod[n as usize] as u32;
                 if kn >= k {
                     continue;
                 }
-                let d = if dir < 0 { p[axis] - lo[axis] } else { lo[axis] + self.grid.cell_size - p[axis] };
-                if d < self.blend_band {
-                    let wn = 1.0 - d / self.blend_band;
-                    if wn > 0.0 {
-                        w = w.max(wn);
-                        k_low = k_low.min(kn);
-                    }
-                }
+                let w = (1.0 - d.max(0.0) / self.blend_band).clamp(0.0, 1.0);
+                best = Some(match best {
+                    Some((bw, bk)) => (bw.max(w), bk.min(kn)),
+                    None => (w, kn),
+                });
             }
         }
-        if w > 0.0 { (1.0 - w) * base + w * self.value(k_low as usize, uv) } else { base }
+        best
+    }
+
+    /// Bytes of the pages held.
+    pub fn page_bytes(&self) -> usize {
+        self.levels.iter().map(|l| l.live_pages()).sum::<usize>() * Page::BYTES
+    }
+
+    /// Cells shown at each LOD.
+    pub fn cells_per_lod(&self) -> Vec<usize> {
+        let mut counts = vec![0; self.levels.len()];
+        for &k in self.cell_lod.iter() {
+            counts[k as usize] += 1;
+        }
+        counts
+    }
+}
+
+/// Writes LOD pixels into a copy of a snapshot: pages are copied (or made) on first write,
+/// page-table rows on first change.
+pub struct PageWriter<'a> {
+    map: &'a mut ShownLightmap,
+    /// Pages already copied by this writer (their ids), so a page is copied once.
+    fresh: std::collections::HashSet<u64>,
+}
+
+impl<'a> PageWriter<'a> {
+    pub fn new(map: &'a mut ShownLightmap) -> Self {
+        PageWriter { map, fresh: Default::default() }
+    }
+
+    fn page_mut(&mut self, lod: u32, px: u32, py: u32, create: bool) -> Option<&mut Page> {
+        let level = &mut self.map.levels[lod as usize];
+        let row = Arc::make_mut(level.rows.get_mut(py as usize)?);
+        let slot = row.get_mut(px as usize)?;
+        match slot {
+            Some(page) if self.fresh.contains(&page.id) => {}
+            Some(page) => {
+                let copy = Arc::new(page.copy());
+                self.fresh.insert(copy.id);
+                *slot = Some(copy);
+            }
+            None if create => {
+                let page = Arc::new(Page::empty());
+                self.fresh.insert(page.id);
+                *slot = Some(page);
+            }
+            None => return None,
+        }
+        // The page was made or copied by this writer: nobody else holds it.
+        slot.as_mut().and_then(Arc::get_mut)
+    }
+
+    /// Publishes `e` at LOD pixel (x, y).
+    pub fn write(&mut self, lod: u32, x: u32, y: u32, e: Rgb) {
+        let (px, py) = (x / PAGE_SIDE, y / PAGE_SIDE);
+        if let Some(page) = self.page_mut(lod, px, py, true) {
+            let t = &mut page.texels[((y % PAGE_SIDE) * PAGE_SIDE + x % PAGE_SIDE) as usize];
+            if t[3] == 0.0 {
+                page.valid += 1;
+            }
+            *t = [e.x, e.y, e.z, 1.0];
+        }
+    }
+
+    /// Withdraws LOD pixel (x, y); a page left with no valid pixel is freed.
+    pub fn clear(&mut self, lod: u32, x: u32, y: u32) {
+        let (px, py) = (x / PAGE_SIDE, y / PAGE_SIDE);
+        let mut empty = false;
+        if let Some(page) = self.page_mut(lod, px, py, false) {
+            let t = &mut page.texels[((y % PAGE_SIDE) * PAGE_SIDE + x % PAGE_SIDE) as usize];
+            if t[3] != 0.0 {
+                *t = [0.0; 4];
+                page.valid -= 1;
+            }
+            empty = page.valid == 0;
+        }
+        if empty {
+            let level = &mut self.map.levels[lod as usize];
+            Arc::make_mut(&mut level.rows[py as usize])[px as usize] = None;
+        }
+    }
+
+    pub fn set_cell_lod(&mut self, cell: CellId, lod: u32) {
+        Arc::make_mut(&mut self.map.cell_lod)[cell as usize] = lod as u8;
+    }
+
+    /// Ends the edit: the snapshot gets a new version.
+    pub fn finish(self) {
+        self.map.version += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid() -> Grid {
+        Grid::covering(Vec3::ZERO, Vec3::new(2.0, 1.0, 1.0), 1.0).unwrap()
+    }
+
+    /// Bilinear weights between published pixels, renormalised over the published ones, and
+    /// the fall-back to the coarser level where a finer one has nothing.
+    #[test]
+    fn bilinear_uses_published_texels_and_falls_back_to_coarser_levels() {
+        let mut map = ShownLightmap::new(grid(), 8, 8, 2, 0.0);
+        let mut w = PageWriter::new(&mut map);
+        w.write(0, 2, 2, Rgb::splat(1.0));
+        w.write(0, 3, 2, Rgb::splat(3.0));
+        w.finish();
+        // Midway between the two pixel centres of LOD 0: their mean.
+        assert_eq!(map.bilinear(0, Vec2::new(3.0, 2.5)), Rgb::splat(2.0));
+        // A quarter of the way: 0.75·1 + 0.25·3 (rows 1 and 3 unpublished: renormalised).
+        assert_eq!(map.bilinear(0, Vec2::new(2.75, 2.2)), Rgb::splat(1.5));
+        // LOD 1 has nothing there: LOD 0 answers.
+        assert_eq!(map.bilinear(1, Vec2::new(3.0, 2.5)), Rgb::splat(2.0));
+        let mut w = PageWriter::new(&mut map);
+        w.write(1, 5, 4, Rgb::splat(7.0));
+        w.finish();
+        assert_eq!(map.bilinear(1, Vec2::new(2.75, 2.25)), Rgb::splat(7.0));
+        assert_eq!(map.bilinear(0, Vec2::new(100.0, 100.0)), Rgb::ZERO);
+    }
+
+    /// Copy-on-write: a publish leaves the old snapshot as it was, gives written pages new
+    /// ids, shares untouched pages, and frees pages left empty.
+    #[test]
+    fn publishing_copies_only_what_it_writes() {
+        let mut a = ShownLightmap::new(grid(), 256, 128, 1, 0.0);
+        let mut w = PageWriter::new(&mut a);
+        w.write(0, 1, 1, Rgb::ONE);
+        w.write(0, 130, 1, Rgb::ONE);
+        w.finish();
+        let mut b = a.clone();
+        let mut w = PageWriter::new(&mut b);
+        w.write(0, 2, 1, Rgb::splat(2.0));
+        w.write(0, 3, 1, Rgb::splat(2.0));
+        w.set_cell_lod(1, 0);
+        w.finish();
+        let (pa, pb) = (a.levels[0].page(0, 0).unwrap(), b.levels[0].page(0, 0).unwrap());
+        assert_ne!(pa.id, pb.id);
+        assert_eq!((pa.valid, pb.valid), (1, 3));
+        assert_eq!(a.levels[0].texel(2, 1), None);
+        assert!(Arc::ptr_eq(a.levels[0].page(2, 0).unwrap(), b.levels[0].page(2, 0).unwrap()));
+        assert_eq!(b.version, a.version + 1);
+        let mut c = b.clone();
+        let mut w = PageWriter::new(&mut c);
+        w.clear(0, 130, 1);
+        w.finish();
+        assert!(c.levels[0].page(2, 0).is_none());
+        assert_eq!(c.page_bytes(), Page::BYTES);
+    }
+
+    /// Across a border with a coarser neighbour the fine side blends to the coarse value on
+    /// the shared face, so the two sides meet; away from the band it shows its own LOD.
+    #[test]
+    fn borders_with_coarser_cells_blend_continuously() {
+        let mut map = ShownLightmap::new(grid(), 4, 4, 2, 0.25);
+        let mut w = PageWriter::new(&mut map);
+        for y in 0..4 {
+            for x in 0..4 {
+                w.write(0, x, y, Rgb::splat(1.0));
+            }
+        }
+        for y in 0..8 {
+            for x in 0..8 {
+                w.write(1, x, y, Rgb::splat(2.0));
+            }
+        }
+        w.set_cell_lod(0, 1); // cell 0 (x < 1 m) at LOD 1, cell 1 at LOD 0
+        w.finish();
+        let uv = Vec2::new(2.0, 2.0);
+        let at = |x: f32| map.irradiance(Vec3::new(x, 0.5, 0.5), uv).x;
+        assert_eq!(at(0.5), 2.0);
+        assert!((at(0.999_99) - 1.0).abs() < 1e-3, "{}", at(0.999_99));
+        assert_eq!(at(1.0001), 1.0);
+        assert!((at(0.875) - 1.5).abs() < 1e-5, "{}", at(0.875));
     }
 }

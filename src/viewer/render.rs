@@ -14,7 +14,7 @@ use crate::gpu::surface::{EyeView, SurfacePass};
 use crate::gpu::target::{OFFSCREEN_FORMAT, OffscreenTarget};
 use crate::gpu::{GpuContext, GpuError};
 use crate::grid::Grid;
-use crate::runtime::shown::{LodPages, ShownLightmap};
+use crate::runtime::shown::ShownLightmap;
 
 /// How a frame is drawn, beyond the camera.
 #[derive(Clone, Copy, Debug)]
@@ -58,14 +58,8 @@ pub fn eye_views(camera: &Camera, width: u32, height: u32, settings: &DrawSettin
 
 /// A map with no pages (before the first light): E = 0 everywhere, emission still shows.
 fn unlit_map(atlas_width: u32, atlas_height: u32) -> ShownLightmap {
-    ShownLightmap {
-        grid: Grid { origin: glam::Vec3::ZERO, cell_size: 1.0, dims: [1, 1, 1] },
-        cell_lod: vec![0],
-        atlas_width,
-        atlas_height,
-        blend_band: 0.0,
-        levels: vec![LodPages { pages_x: 0, pages_y: 0, pages: Vec::new() }],
-    }
+    let grid = Grid { origin: glam::Vec3::ZERO, cell_size: 1.0, dims: [1, 1, 1] };
+    ShownLightmap::new(grid, atlas_width, atlas_height, 1, 0.0)
 }
 
 pub struct Renderer {

@@ -5,19 +5,16 @@
 //! is a finished bake shown as a light map (baked once in the background); the live
 //! runtime's source refines while the viewer runs.
 
-use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
-
-use glam::Vec3;
 
 use super::camera::Camera;
 use crate::atlas::Atlas;
 use crate::atlas::texels::NO_TEXEL;
 use crate::bake::{BakeConfig, BakeOutput, bake};
-use crate::grid::Grid;
+use crate::grid::{Grid, GridError};
 use crate::progress::NoProgress;
-use crate::runtime::shown::{LodPages, PAGE_SIDE, Page, ShownLightmap};
+use crate::runtime::shown::{PageWriter, ShownLightmap};
 use crate::scene::{Scene, SceneGeometry};
 
 /// The scene a source lights and its atlas; `generation` changes when either is replaced.
@@ -51,74 +48,38 @@ pub trait LightSource {
     fn shutdown(&mut self);
 }
 
-/// A new page id, unique in the process (pages are copy-on-write: a changed page is a new id).
-pub fn next_page_id() -> u64 {
-    static NEXT: AtomicU64 = AtomicU64::new(1);
-    NEXT.fetch_add(1, Ordering::Relaxed)
-}
-
-/// A finished bake as a shown light map: every LOD's texels (and gutter copies) in pages,
-/// every cell of `grid` showing the finest LOD.
+/// A finished bake as a shown light map: every LOD's texels (and the gutter pixels copying
+/// them) published, every cell of `grid` showing the finest LOD.
 pub fn shown_from_bake(baked: &BakeOutput, grid: Grid, blend_band: f32) -> ShownLightmap {
-    let levels = baked
-        .lods
-        .iter()
-        .map(|lod| {
-            let t = &lod.texels;
-            let mut pixels = vec![[0.0f32; 4]; (t.width * t.height) as usize];
-            for (i, &p) in t.pixel.iter().enumerate() {
-                pixels[p as usize] = lod.irradiance[i].extend(1.0).to_array();
+    let (w, h) = (baked.atlas.width, baked.atlas.height);
+    let mut shown = ShownLightmap::new(grid, w, h, baked.lods.len() as u32, blend_band);
+    let mut writer = PageWriter::new(&mut shown);
+    for (k, lod) in baked.lods.iter().enumerate() {
+        let t = &lod.texels;
+        let pixel = |p: u32| (p % t.width, p / t.width);
+        for (i, &p) in t.pixel.iter().enumerate() {
+            let (x, y) = pixel(p);
+            writer.write(k as u32, x, y, lod.irradiance[i]);
+        }
+        for &(p, i) in &t.gutter {
+            if i != NO_TEXEL {
+                let (x, y) = pixel(p);
+                writer.write(k as u32, x, y, lod.irradiance[i as usize]);
             }
-            for &(p, i) in &t.gutter {
-                if i != NO_TEXEL {
-                    pixels[p as usize] = lod.irradiance[i as usize].extend(1.0).to_array();
-                }
-            }
-            paginate(&pixels, t.width, t.height)
-        })
-        .collect();
-    let cell_lod = vec![(baked.lods.len() - 1) as u8; grid.cell_count()];
-    ShownLightmap {
-        grid,
-        cell_lod,
-        atlas_width: baked.atlas.width,
-        atlas_height: baked.atlas.height,
-        blend_band,
-        levels,
-    }
-}
-
-/// Cuts a row-major `width × height` image into pages; pages without a valid pixel are absent.
-pub fn paginate(pixels: &[[f32; 4]], width: u32, height: u32) -> LodPages {
-    let side = PAGE_SIDE;
-    let (pages_x, pages_y) = (width.div_ceil(side), height.div_ceil(side));
-    let mut pages = Vec::with_capacity((pages_x * pages_y) as usize);
-    for py in 0..pages_y {
-        for px in 0..pages_x {
-            let mut texels = vec![[0.0f32; 4]; (side * side) as usize];
-            let mut any = false;
-            for y in 0..side {
-                for x in 0..side {
-                    let (gx, gy) = (px * side + x, py * side + y);
-                    if gx < width && gy < height {
-                        let v = pixels[(gy * width + gx) as usize];
-                        any |= v[3] > 0.0;
-                        texels[(y * side + x) as usize] = v;
-                    }
-                }
-            }
-            pages.push(any.then(|| Arc::new(Page { id: next_page_id(), texels })));
         }
     }
-    LodPages { pages_x, pages_y, pages }
+    let top = baked.lods.len().saturating_sub(1) as u32;
+    for cell in 0..grid.len() as u32 {
+        writer.set_cell_lod(cell, top);
+    }
+    writer.finish();
+    shown
 }
 
-/// A grid of cubic cells of side `cell_size` over the scene's bounds (at least one cell).
-pub fn grid_over(scene: &Scene, cell_size: f32) -> Grid {
-    let (lo, hi) = scene.bounds().unwrap_or((Vec3::ZERO, Vec3::ONE));
-    let extent = (hi - lo).max(Vec3::splat(1e-6));
-    let dims = (extent / cell_size).ceil().max(Vec3::ONE);
-    Grid { origin: lo, cell_size, dims: [dims.x as u32, dims.y as u32, dims.z as u32] }
+/// A grid of cubic cells of side `cell_size` over the scene's bounds.
+pub fn grid_over(scene: &Scene, cell_size: f32) -> Result<Grid, GridError> {
+    let (lo, hi) = scene.bounds().ok_or(GridError::BadBounds)?;
+    Grid::covering(lo, hi, cell_size)
 }
 
 enum BakeState {
@@ -144,10 +105,12 @@ impl BakedLight {
         std::thread::spawn(move || {
             let started = Instant::now();
             let state = match bake(&baked_scene, &config, &NoProgress) {
-                Ok(out) => {
-                    let grid = grid_over(&baked_scene, cell_size);
-                    BakeState::Done(Arc::new(shown_from_bake(&out, grid, 0.0)), started.elapsed().as_secs_f64())
-                }
+                Ok(out) => match grid_over(&baked_scene, cell_size) {
+                    Ok(grid) => {
+                        BakeState::Done(Arc::new(shown_from_bake(&out, grid, 0.0)), started.elapsed().as_secs_f64())
+                    }
+                    Err(e) => BakeState::Failed(e.to_string()),
+                },
                 Err(e) => BakeState::Failed(e.to_string()),
             };
             if let Ok(mut s) = sink.lock() {

@@ -59,7 +59,7 @@ pub fn cornell_lit() -> (Arc<Scene>, BakeOutput, Arc<ShownLightmap>) {
     let mut config = BakeConfig { samples: 64, ..BakeConfig::default() };
     config.atlas.texel_size = Some(0.04);
     let baked = bake(&scene, &config, &NoProgress).unwrap();
-    let shown = Arc::new(shown_from_bake(&baked, grid_over(&scene, 0.5), 0.0));
+    let shown = Arc::new(shown_from_bake(&baked, grid_over(&scene, 0.5).unwrap(), 0.0));
     (scene, baked, shown)
 }
 

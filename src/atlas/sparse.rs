@@ -1,0 +1,342 @@
+//! Texel maps of a region: the texels of one LOD whose surface points lie in a box (a runtime
+//! grid cell), built without the rest of the LOD. LOD k has 4^k × LOD 0's texels; the runtime
+//! makes them per cell, where the viewer needs them, so memory grows with what was refined.
+//!
+//! The result is exactly the part of [`TexelMap::build`]'s texels (and gutter pixels) that the
+//! region owns: same pixels, faces, positions, areas, bit for bit (a test holds them equal).
+//! That follows from computing each pixel from every face that touches it:
+//! * *core faces* are those whose triangle meets the region (only they can hold a texel
+//!   positioned in it); the part of each inside the region, mapped to UV and grown by
+//!   [`REACH`] pixels, bounds the pixels that matter in its chart;
+//! * every face of those charts whose UV box meets that window is rasterised in it, so each
+//!   pixel's owner (the face containing its centre, else the nearest, ties to the lower id),
+//!   area and coverage are what the whole-LOD raster computes;
+//! * a covered pixel is the region's texel when its surface point is inside the region; an
+//!   empty pixel is the region's gutter pixel when the gutter rule copies one of its texels.
+//!
+//! Faces of other charts never touch a chart's pixels (each face rasterises inside its own
+//! chart's interior), so charts are independent.
+
+use std::collections::BTreeMap;
+
+use glam::{DVec2, DVec3, Vec3};
+
+use super::raster::{self, PixelRect};
+use super::texels::{NO_TEXEL, TexelAttributes, gutter_source, world_per_pixel};
+use super::{Atlas, FaceId};
+use crate::scene::{Rgb, Scene, SceneGeometry};
+
+/// Pixels around a texel whose coverage decides it (its own pixel, its gutter neighbours and
+/// theirs), plus one for the distance between a surface point and its pixel centre.
+const REACH: i64 = 4;
+
+/// Window pixel states while building.
+const EMPTY: u8 = 0;
+const OTHERS: u8 = 1;
+const OURS: u8 = 2;
+
+/// Per-pixel lookup of one chart's region texels at one LOD: a dense table over a pixel
+/// rectangle, in 8×8 blocks (see [`block_key`]) like the whole-LOD lookup.
+#[derive(Clone, Debug)]
+pub struct ChartTable {
+    pub chart: u32,
+    /// LOD-k pixels covered by the table.
+    pub rect: PixelRect,
+    blocks_x: i64,
+    /// Texel id (or, for a gutter pixel, the id of the texel it copies), else [`NO_TEXEL`].
+    entries: Vec<u32>,
+}
+
+impl ChartTable {
+    fn new(chart: u32, rect: PixelRect) -> Self {
+        let blocks_x = (rect.width() + 7) >> 3;
+        let blocks_y = (rect.height() + 7) >> 3;
+        ChartTable { chart, rect, blocks_x, entries: vec![NO_TEXEL; (blocks_x * blocks_y * 64) as usize] }
+    }
+
+    #[inline(always)]
+    fn index(&self, x: i64, y: i64) -> usize {
+        let (x, y) = (x - self.rect.x0, y - self.rect.y0);
+        (((y >> 3) * self.blocks_x + (x >> 3)) << 6 | (y & 7) << 3 | (x & 7)) as usize
+    }
+
+    /// The entry of LOD pixel `(x, y)`, [`NO_TEXEL`] outside the table.
+    #[inline(always)]
+    pub fn get(&self, x: i64, y: i64) -> u32 {
+        if self.rect.contains(x, y) { self.entries[self.index(x, y)] } else { NO_TEXEL }
+    }
+
+    fn set(&mut self, x: i64, y: i64, v: u32) {
+        let i = self.index(x, y);
+        self.entries[i] = v;
+    }
+
+    pub fn bytes(&self) -> usize {
+        self.entries.len() * 4
+    }
+}
+
+/// The texels of one LOD inside a region, with their lookup tables.
+#[derive(Clone, Debug, Default)]
+pub struct SparseTexels {
+    pub lod: u32,
+    /// LOD pixel (x, y) of each texel, in block order (8×8 blocks row by row over the whole
+    /// LOD, Z-order inside: the order of [`TexelMap`](super::TexelMap)'s texel ids).
+    pub pixel: Vec<[u32; 2]>,
+    pub face: Vec<FaceId>,
+    pub position: Vec<Vec3>,
+    pub normal: Vec<Vec3>,
+    pub albedo: Vec<Rgb>,
+    pub emission: Vec<Rgb>,
+    pub area: Vec<f32>,
+    /// Gutter pixels the region writes and the texel each copies.
+    pub gutter: Vec<([u32; 2], u32)>,
+    /// One lookup table per chart holding region texels, ascending by chart.
+    pub tables: Vec<ChartTable>,
+}
+
+/// A pixel's candidate from one face: its key orders by pixel, then face.
+#[derive(Clone, Copy)]
+struct Touch {
+    /// Row-major pixel index over the LOD (u64: fine LODs exceed u32).
+    pixel: u64,
+    face: FaceId,
+    /// Squared UV distance from the pixel centre to the face (0 inside) as f32 bits.
+    d2: u32,
+    area: f64,
+}
+
+impl SparseTexels {
+    /// The texels of LOD `lod` whose surface points satisfy `inside`, where `core` lists the
+    /// triangles that meet the region (a superset is fine: faces whose part in `[lo, hi]`
+    /// is empty add nothing) and `[lo, hi]` is a box holding the region.
+    #[allow(clippy::too_many_arguments)]
+    pub fn build(
+        scene: &Scene,
+        geom: &SceneGeometry,
+        atlas: &Atlas,
+        lod: u32,
+        core: &[u32],
+        lo: Vec3,
+        hi: Vec3,
+        inside: impl Fn(Vec3) -> bool,
+    ) -> SparseTexels {
+        let width = (atlas.width as u64) << lod;
+        // Per chart: the window of pixels that matter.
+        let mut windows: BTreeMap<u32, PixelRect> = BTreeMap::new();
+        for &t in core {
+            for f in atlas.face_of[t as usize] {
+                if f == super::NO_FACE {
+                    continue;
+                }
+                let face = &atlas.faces[f as usize];
+                let Some(uv_box) = footprint(geom, face.tri, &face.uv_lod(lod), lo, hi) else { continue };
+                let chart = &atlas.charts[face.chart as usize];
+                let clip = chart.rect(lod);
+                let grown = PixelRect::new(
+                    (uv_box.0.x.floor() as i64 - REACH).max(clip.x0),
+                    (uv_box.0.y.floor() as i64 - REACH).max(clip.y0),
+                    (uv_box.1.x.ceil() as i64 + REACH).min(clip.x1),
+                    (uv_box.1.y.ceil() as i64 + REACH).min(clip.y1),
+                );
+                if grown.is_empty() {
+                    continue;
+                }
+                windows.entry(face.chart).and_modify(|w| *w = union(*w, grown)).or_insert(grown);
+            }
+        }
+
+        let mut out = SparseTexels { lod, ..SparseTexels::default() };
+        let mut touches: Vec<Touch> = Vec::new();
+        let mut texels: Vec<(u64, [u32; 2], FaceId, f32)> = Vec::new(); // (block key, pixel, face, area)
+        let mut gutters: Vec<([u32; 2], [u32; 2], u32)> = Vec::new(); // (gutter pixel, copied pixel, chart)
+        for (&chart_id, &window) in &windows {
+            let chart = &atlas.charts[chart_id as usize];
+            let interior = chart.interior(lod);
+            touches.clear();
+            for &f in &chart.faces {
+                let uv = atlas.faces[f as usize].uv_lod(lod);
+                let (a, b) = (uv[0].min(uv[1]).min(uv[2]), uv[0].max(uv[1]).max(uv[2]));
+                // Faces whose box misses the window only matter through the centroid
+                // fallback, which lands inside their box too.
+                if b.x < window.x0 as f64 - 1.0
+                    || b.y < window.y0 as f64 - 1.0
+                    || a.x > window.x1 as f64 + 1.0
+                    || a.y > window.y1 as f64 + 1.0
+                {
+                    continue;
+                }
+                let ratio = world_per_pixel(geom, atlas, f, &uv);
+                raster::conservative_in(&uv, interior, window, |x, y| {
+                    let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+                    let (_, _, d2) = raster::closest_barycentric(&uv, c);
+                    touches.push(Touch {
+                        pixel: y as u64 * width + x as u64,
+                        face: f,
+                        d2: (d2 as f32).to_bits(),
+                        area: raster::clipped_area(&uv, x, y) * ratio,
+                    });
+                });
+            }
+            // Faces of a chart are in ascending id order, so a stable sort by pixel keeps
+            // each pixel's touches in face order: areas add up as the whole-LOD raster's do.
+            touches.sort_by_key(|t| t.pixel);
+            // Per pixel of the window: empty, covered by another region's texel, or ours.
+            let (ww, wh) = (window.width(), window.height());
+            let mut state = vec![EMPTY; (ww * wh) as usize];
+            let at = |x: i64, y: i64| ((y - window.y0) * ww + (x - window.x0)) as usize;
+            let mut i = 0;
+            while i < touches.len() {
+                let p = touches[i].pixel;
+                let (mut best, mut area) = (u64::MAX, 0f64);
+                while i < touches.len() && touches[i].pixel == p {
+                    let t = &touches[i];
+                    area += t.area;
+                    best = best.min((t.d2 as u64) << 32 | t.face as u64);
+                    i += 1;
+                }
+                let (x, y) = ((p % width) as i64, (p / width) as i64);
+                let face = best as u32;
+                let uv = atlas.faces[face as usize].uv_lod(lod);
+                let attributes = TexelAttributes::at(scene, geom, atlas, face, &uv, x, y);
+                let ours = inside(attributes.position);
+                state[at(x, y)] = if ours { OURS } else { OTHERS };
+                if ours {
+                    texels.push((block_key(x as u32, y as u32), [x as u32, y as u32], face, area as f32));
+                }
+            }
+            // Gutters: empty pixels next to one of our texels whose rule copies one of ours.
+            let get = |x: i64, y: i64| if window.contains(x, y) { state[at(x, y)] } else { EMPTY };
+            for y in window.y0..window.y1 {
+                for x in window.x0..window.x1 {
+                    if get(x, y) != EMPTY {
+                        continue;
+                    }
+                    let Some((dx, dy)) = gutter_source(|dx, dy| get(x + dx, y + dy) != EMPTY) else { continue };
+                    if get(x + dx, y + dy) == OURS {
+                        gutters.push(([x as u32, y as u32], [(x + dx) as u32, (y + dy) as u32], chart_id));
+                    }
+                }
+            }
+        }
+
+        // Texels in block order, then the lookup tables (per chart, over its texels and
+        // gutter pixels), through which gutter pixels find the texel they copy.
+        texels.sort_unstable_by_key(|t| t.0);
+        let mut rects: BTreeMap<u32, PixelRect> = BTreeMap::new();
+        let mut grow = |chart: u32, p: [u32; 2]| {
+            let r = PixelRect::new(p[0] as i64, p[1] as i64, p[0] as i64 + 1, p[1] as i64 + 1);
+            rects.entry(chart).and_modify(|w| *w = union(*w, r)).or_insert(r);
+        };
+        for &(_, pixel, face, _) in &texels {
+            grow(atlas.faces[face as usize].chart, pixel);
+        }
+        for &(g, _, chart) in &gutters {
+            grow(chart, g);
+        }
+        let mut tables: BTreeMap<u32, ChartTable> =
+            rects.into_iter().map(|(c, r)| (c, ChartTable::new(c, r))).collect();
+        for (k, &(_, pixel, face, area)) in texels.iter().enumerate() {
+            let uv = atlas.faces[face as usize].uv_lod(lod);
+            let a = TexelAttributes::at(scene, geom, atlas, face, &uv, pixel[0] as i64, pixel[1] as i64);
+            out.pixel.push(pixel);
+            out.face.push(face);
+            out.position.push(a.position);
+            out.normal.push(a.normal);
+            out.albedo.push(a.albedo);
+            out.emission.push(a.emission);
+            out.area.push(area);
+            if let Some(t) = tables.get_mut(&atlas.faces[face as usize].chart) {
+                t.set(pixel[0] as i64, pixel[1] as i64, k as u32);
+            }
+        }
+        for &(g, src, chart) in &gutters {
+            if let Some(t) = tables.get_mut(&chart) {
+                let id = t.get(src[0] as i64, src[1] as i64);
+                t.set(g[0] as i64, g[1] as i64, id);
+                out.gutter.push((g, id));
+            }
+        }
+        out.tables = tables.into_values().collect();
+        out
+    }
+
+    pub fn len(&self) -> usize {
+        self.pixel.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.pixel.is_empty()
+    }
+
+    /// The lookup table of a chart, if the region has texels in it.
+    pub fn table(&self, chart: u32) -> Option<&ChartTable> {
+        self.tables.binary_search_by_key(&chart, |t| t.chart).ok().map(|i| &self.tables[i])
+    }
+
+    /// Bytes held (texel attributes, gutters and tables).
+    pub fn bytes(&self) -> usize {
+        self.len() * (8 + 4 + 12 * 4 + 4)
+            + self.gutter.len() * 12
+            + self.tables.iter().map(ChartTable::bytes).sum::<usize>()
+    }
+}
+
+/// Sort key of a pixel in texel order: 8×8 blocks row by row, Z-order inside a block.
+pub fn block_key(x: u32, y: u32) -> u64 {
+    let morton = |v: u32| (v & 1) | (v & 2) << 1 | (v & 4) << 2;
+    ((y as u64 >> 3) << 40) | ((x as u64 >> 3) << 8) | (morton(x & 7) | morton(y & 7) << 1) as u64
+}
+
+fn union(a: PixelRect, b: PixelRect) -> PixelRect {
+    PixelRect::new(a.x0.min(b.x0), a.y0.min(b.y0), a.x1.max(b.x1), a.y1.max(b.y1))
+}
+
+/// UV box (LOD pixels) of the part of triangle `tri` inside the box `[lo, hi]`, or `None`
+/// when that part is empty. Falls back to the whole triangle's UV box when the triangle is
+/// too thin to locate points on it reliably.
+fn footprint(geom: &SceneGeometry, tri: u32, uv: &[DVec2; 3], lo: Vec3, hi: Vec3) -> Option<(DVec2, DVec2)> {
+    let c = geom.corners[tri as usize].map(|p| p.as_dvec3());
+    let whole = || Some((uv[0].min(uv[1]).min(uv[2]), uv[0].max(uv[1]).max(uv[2])));
+    // Sutherland–Hodgman against the box's six planes (f64).
+    let mut poly: Vec<DVec3> = c.to_vec();
+    let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
+    for axis in 0..3 {
+        for (bound, keep_above) in [(lo[axis], true), (hi[axis], false)] {
+            let dist = |p: &DVec3| if keep_above { p[axis] - bound } else { bound - p[axis] };
+            let mut next = Vec::with_capacity(poly.len() + 2);
+            for i in 0..poly.len() {
+                let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+                let (da, db) = (dist(&a), dist(&b));
+                if da >= 0.0 {
+                    next.push(a);
+                }
+                if (da >= 0.0) != (db >= 0.0) {
+                    next.push(a + (b - a) * (da / (da - db)));
+                }
+            }
+            poly = next;
+            if poly.is_empty() {
+                return None;
+            }
+        }
+    }
+    // Barycentrics of the clipped points (least squares on the triangle's plane).
+    let (e1, e2) = (c[1] - c[0], c[2] - c[0]);
+    let (a11, a12, a22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
+    let det = a11 * a22 - a12 * a12;
+    if !(det > 1e-12 * a11.max(a22).powi(2)) {
+        return whole();
+    }
+    let (mut bmin, mut bmax) = (DVec2::splat(f64::MAX), DVec2::splat(f64::MIN));
+    for p in poly {
+        let d = p - c[0];
+        let (r1, r2) = (d.dot(e1), d.dot(e2));
+        let u = (a22 * r1 - a12 * r2) / det;
+        let v = (a11 * r2 - a12 * r1) / det;
+        let q = uv[0] + (uv[1] - uv[0]) * u + (uv[2] - uv[0]) * v;
+        bmin = bmin.min(q);
+        bmax = bmax.max(q);
+    }
+    (bmin.is_finite() && bmax.is_finite()).then_some((bmin, bmax)).or_else(whole)
+}
