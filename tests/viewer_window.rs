@@ -67,7 +67,9 @@ fn publish_cell(old: &ShownLightmap, baked: &BakeOutput, cell: u32) -> (ShownLig
 /// All of LOD 0's pages as the GPU holds them, by page position.
 fn gpu_pages(ctx: &FrameContext, shown: &ShownLightmap) -> Vec<Option<Vec<[f32; 4]>>> {
     let level = &shown.levels[0];
-    (0..level.pages_x * level.pages_y).map(|i| ctx.renderer.lightmap.read_page(&ctx.renderer.gpu, 0, i as usize).unwrap()).collect()
+    (0..level.pages_x * level.pages_y)
+        .map(|i| ctx.renderer.lightmap.read_page(&ctx.renderer.gpu, 0, i as usize).unwrap())
+        .collect()
 }
 
 /// Under Xvfb: (1) the window's presented frame of the lit Cornell room, seen from its open
@@ -131,7 +133,8 @@ fn window_shows_the_room_and_a_publish_uploads_only_its_cell() {
                     if let (Some(a), Some(b)) = (a, b) {
                         for (j, (ta, tb)) in a.iter().zip(b).enumerate() {
                             if ta != tb {
-                                let (x, y) = (px * PAGE_SIDE + j as u32 % PAGE_SIDE, py * PAGE_SIDE + j as u32 / PAGE_SIDE);
+                                let (x, y) =
+                                    (px * PAGE_SIDE + j as u32 % PAGE_SIDE, py * PAGE_SIDE + j as u32 / PAGE_SIDE);
                                 differing.insert((x, y));
                             }
                         }

@@ -15,7 +15,7 @@ use super::options::Backend;
 
 /// Default samples: 256 bundle directions (under 5% error on a lit room); 16 paths per texel
 /// for the reference backend (a recognisable preview in tens of seconds, not a converged bake).
-fn default_samples(backend: Backend) -> u32 {
+pub fn default_samples(backend: Backend) -> u32 {
     match backend {
         Backend::Cpu => 256,
         Backend::Reference => 16,

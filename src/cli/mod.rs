@@ -6,6 +6,7 @@ mod bench;
 mod options;
 mod probe;
 mod progress;
+mod view;
 
 use std::path::PathBuf;
 
@@ -54,6 +55,15 @@ enum Command {
         #[command(flatten)]
         options: SceneOptions,
     },
+    /// Look at a scene in a window, lit by its light map as it bakes (keys in the title).
+    View {
+        /// glTF 2.0 scene (.gltf or .glb).
+        scene: PathBuf,
+        #[command(flatten)]
+        view: view::ViewOptions,
+        #[command(flatten)]
+        options: SceneOptions,
+    },
     /// Measure: load and unwrap/pack, reference rays/s, startup bake, bundle throughput,
     /// convergence against Mitsuba and Cycles, tiling modes. Writes JSON (medians and ratios from one run).
     Bench {
@@ -84,6 +94,7 @@ pub fn run() -> Result<()> {
         Some(Command::Probe { scene, points, out, options }) => {
             probe::run(&scene, &points, out.as_deref(), &options, &ui)
         }
+        Some(Command::View { scene, view, options }) => view::run(&scene, &view, &options, &ui).map(|_| ()),
         Some(Command::Bench { out, only, quick }) => bench::run(&out, &only, quick, &ui),
     }
 }

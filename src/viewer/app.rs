@@ -44,12 +44,15 @@ pub struct ViewerOptions {
     pub settings: DrawSettings,
     /// Window inner size in pixels.
     pub size: (u32, u32),
-    /// Exit after this many frames.
+    /// Exit after this many lit frames (frames drawn once the source has shown light:
+    /// a screenshot of the room before its first light would show only its lamps).
     pub frames: Option<u32>,
     /// Write the last frame here (PNG) before exiting.
     pub screenshot: Option<PathBuf>,
     /// When the program started: the first-lit-frame time counts from here.
     pub launched: Instant,
+    /// Set the exposure from the first light map shown (`settings.exposure` until then).
+    pub auto_exposure: bool,
 }
 
 impl Default for ViewerOptions {
@@ -61,6 +64,7 @@ impl Default for ViewerOptions {
             frames: None,
             screenshot: None,
             launched: Instant::now(),
+            auto_exposure: false,
         }
     }
 }
@@ -69,6 +73,8 @@ impl Default for ViewerOptions {
 #[derive(Clone, Debug, Default)]
 pub struct ViewerReport {
     pub frames: u32,
+    /// Frames drawn with the source's light.
+    pub lit_frames: u32,
     /// Interval between successive frames, seconds.
     pub frame_seconds: Vec<f64>,
     /// From `launched` to the first presented frame that showed the source's light.
@@ -94,6 +100,8 @@ pub struct FrameContext<'a> {
 
 /// Inspects or changes things after each frame (tests); `false` closes the viewer.
 pub type FrameHook<'h> = dyn FnMut(&mut FrameContext) -> Result<bool, GpuError> + 'h;
+
+const UNLIT_FRAME_INTERVAL: Duration = Duration::from_millis(100);
 
 const HELP: &str = "WASD/QE move, drag look, wheel speed, Tab orbit, 1-5 views, +/- exposure, P screenshot, Esc quit";
 
@@ -270,6 +278,12 @@ impl App<'_, '_> {
         let (w, h) = (s.config.width, s.config.height);
         self.source.set_camera(&self.camera, w as f32 / h as f32, h);
         s.renderer.update(&*self.source)?;
+        if self.options.auto_exposure
+            && let Some(shown) = &s.renderer.shown
+        {
+            self.options.settings.exposure = super::render::auto_exposure(shown);
+            self.options.auto_exposure = false;
+        }
         let frame = match s.surface.get_current_texture() {
             wgpu::CurrentSurfaceTexture::Success(t) | wgpu::CurrentSurfaceTexture::Suboptimal(t) => t,
             wgpu::CurrentSurfaceTexture::Timeout | wgpu::CurrentSurfaceTexture::Occluded => return Ok(()),
@@ -285,7 +299,8 @@ impl App<'_, '_> {
         let mut encoder = gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
         s.renderer.draw(&mut encoder, s.config.format, &view, &s.depth, &eyes)?;
         gpu.queue.submit([encoder.finish()]);
-        let last = self.options.frames.is_some_and(|n| self.report.frames + 1 >= n);
+        let lit = s.renderer.shown.is_some();
+        let last = lit && self.options.frames.is_some_and(|n| self.report.lit_frames + 1 >= n);
         let capture = self.capture_next || (last && self.options.screenshot.is_some());
         let window_image = if capture && s.config.usage.contains(wgpu::TextureUsages::COPY_SRC) {
             Some(read_texture(&gpu, &frame.texture)?)
@@ -298,8 +313,11 @@ impl App<'_, '_> {
         gpu.queue.present(frame);
         gpu.take_error()?;
         self.report.frames += 1;
-        if self.report.first_lit_frame_seconds.is_none() && s.renderer.shown.is_some() {
-            self.report.first_lit_frame_seconds = Some(self.options.launched.elapsed().as_secs_f64());
+        if lit {
+            self.report.lit_frames += 1;
+            if self.report.first_lit_frame_seconds.is_none() {
+                self.report.first_lit_frame_seconds = Some(self.options.launched.elapsed().as_secs_f64());
+            }
         }
         if let (Some(path), Some(img)) = (self.screenshot_key.take(), &window_image) {
             img.save(&path).map_err(|source| ViewerError::Screenshot { path: path.clone(), source })?;
@@ -417,9 +435,20 @@ impl ApplicationHandler for App<'_, '_> {
         }
     }
 
-    fn about_to_wait(&mut self, _event_loop: &ActiveEventLoop) {
-        if let Some(s) = &self.state {
-            s.window.request_redraw();
+    fn about_to_wait(&mut self, event_loop: &ActiveEventLoop) {
+        let Some(s) = &self.state else { return };
+        // Until the first light there is little to see: at most 10 frames a second, so a
+        // software rasteriser leaves the cores to the bake.
+        if s.renderer.shown.is_none()
+            && let Some(last) = self.last_frame
+        {
+            let next = last + UNLIT_FRAME_INTERVAL;
+            if Instant::now() < next {
+                event_loop.set_control_flow(ControlFlow::WaitUntil(next));
+                return;
+            }
         }
+        event_loop.set_control_flow(ControlFlow::Poll);
+        s.window.request_redraw();
     }
 }

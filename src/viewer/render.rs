@@ -32,6 +32,26 @@ impl Default for DrawSettings {
     }
 }
 
+/// An exposure that shows `shown` well: 1.5 over the 99th-percentile of E/π (the radiance
+/// of a white surface) over LOD 0's published pixels, as the light-map previews do.
+pub fn auto_exposure(shown: &ShownLightmap) -> f32 {
+    let mut lum: Vec<f32> = shown.levels[0]
+        .rows
+        .iter()
+        .flat_map(|row| row.iter().flatten())
+        .flat_map(|page| page.texels.iter())
+        .filter(|t| t[3] > 0.0)
+        .map(|t| (0.2126 * t[0] + 0.7152 * t[1] + 0.0722 * t[2]) * std::f32::consts::FRAC_1_PI)
+        .filter(|l| l.is_finite())
+        .collect();
+    if lum.is_empty() {
+        return 1.0;
+    }
+    let i = (lum.len() * 99 / 100).min(lum.len() - 1);
+    let (_, p99, _) = lum.select_nth_unstable_by(i, f32::total_cmp);
+    if *p99 > 0.0 { 1.5 / *p99 } else { 1.0 }
+}
+
 /// The eyes of one frame of `width × height` pixels: one, or two side by side.
 pub fn eye_views(camera: &Camera, width: u32, height: u32, settings: &DrawSettings, encode_srgb: bool) -> Vec<EyeView> {
     let (w, h) = (width as f32, height as f32);
