@@ -132,3 +132,63 @@ fn offscreen_cornell_room_shows_its_coloured_walls() {
     let (l, u) = (mean_rgb(&lit, 0, 160), mean_rgb(&unlit, 0, 160));
     assert!(l.iter().sum::<f64>() > 2.0 * u.iter().sum::<f64>(), "lit {l:?} vs unlit {u:?}");
 }
+
+fn livebake() -> std::process::Command {
+    std::process::Command::new(env!("CARGO_BIN_EXE_livebake"))
+}
+
+/// `livebake view --screenshot --frames` in a real window under Xvfb: exits 0, writes the
+/// picture of the lit room (red left, green right) and the run's figures.
+#[test]
+fn view_command_writes_a_screenshot_under_xvfb() {
+    let xvfb = xvfb();
+    let dir = tempfile::tempdir().unwrap();
+    let (shot, stats) = (dir.path().join("shot.png"), dir.path().join("stats.json"));
+    let out = livebake()
+        .env("DISPLAY", &xvfb.display)
+        .arg("-q")
+        .arg("view")
+        .arg(cornell_path())
+        .args(["--frames", "2", "--size", "320x240", "--camera", "1,1,4.5,1,1,0"])
+        .args(["--texel-size", "0.05", "--samples", "32"])
+        .arg("--screenshot")
+        .arg(&shot)
+        .arg("--stats")
+        .arg(&stats)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let img = image::open(&shot).unwrap().to_rgba8();
+    assert_eq!(img.dimensions(), (320, 240));
+    assert_cornell_colours(&img);
+    let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
+    assert_eq!(stats["lit_frames"], 2);
+    assert!(stats["first_lit_frame_seconds"].as_f64().is_some_and(|s| s > 0.0), "{stats}");
+    assert!(stats["lightmap_bytes_uploaded"].as_u64().is_some_and(|b| b > 0), "{stats}");
+}
+
+/// Without a display the viewer says so (and what works without one) instead of panicking.
+#[test]
+fn view_without_a_display_is_a_clear_error() {
+    let out = livebake()
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .arg("view")
+        .arg(cornell_path())
+        .args(["--texel-size", "0.1", "--samples", "8"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("display") && !stderr.contains("internal error"), "{stderr}");
+}
+
+/// Bad options are refused before anything opens.
+#[test]
+fn view_refuses_bad_options() {
+    for args in [["--camera", "1,2,3"], ["--size", "10x10"], ["--exposure", "-1"], ["--frames", "0"]] {
+        let out = livebake().arg("view").arg(cornell_path()).args(args).output().unwrap();
+        assert!(!out.status.success(), "{args:?} accepted");
+        assert!(!String::from_utf8_lossy(&out.stderr).contains("internal error"), "{args:?}");
+    }
+}

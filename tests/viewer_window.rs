@@ -81,7 +81,7 @@ fn gpu_pages(ctx: &FrameContext, shown: &ShownLightmap) -> Vec<Option<Vec<[f32; 
 /// changed pages (64 KiB each), nothing else.
 #[test]
 fn window_shows_the_room_and_a_publish_uploads_only_its_cell() {
-    let xvfb = Xvfb::start();
+    let xvfb = xvfb();
     // SAFETY: the only test of this binary; nothing else reads the environment meanwhile.
     unsafe { std::env::set_var("DISPLAY", &xvfb.display) };
     let (scene, baked, shown): (Arc<Scene>, BakeOutput, Arc<ShownLightmap>) = cornell_lit();

@@ -70,7 +70,7 @@ enum Command {
         /// Output JSON.
         #[arg(long, default_value = "bench.json")]
         out: PathBuf,
-        /// Only these sections (atlas, reference, startup, throughput, convergence, tiling).
+        /// Only these sections (atlas, reference, startup, throughput, convergence, tiling, viewer).
         #[arg(long, value_delimiter = ',')]
         only: Vec<String>,
         /// Smaller sample sets and fewer repeats (a smoke run, not a measurement).

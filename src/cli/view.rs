@@ -63,6 +63,9 @@ pub struct ViewOptions {
     /// Window size in pixels.
     #[arg(long, value_name = "WxH", default_value = "1280x720", value_parser = parse_size)]
     pub size: (u32, u32),
+    /// Write the run's figures here as JSON (frames, lit frame ms median/p99, first lit frame).
+    #[arg(long, value_name = "PATH.json")]
+    pub stats: Option<PathBuf>,
     /// What to show first (keys 1-5 switch).
     #[arg(long, value_enum, default_value_t = View::Lit)]
     pub view: View,
@@ -109,6 +112,10 @@ pub fn run(scene_path: &Path, view: &ViewOptions, options: &SceneOptions, ui: &U
         auto_exposure: view.exposure.is_none(),
     };
     let report = livebake::viewer::run(&mut source, viewer, None)?;
+    if let Some(path) = &view.stats {
+        livebake::output::write_json(path, &report.to_json())
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
     if let Some(path) = &view.screenshot {
         ui.say(format!("wrote {}", path.display()));
     }

@@ -77,11 +77,39 @@ pub struct ViewerReport {
     pub lit_frames: u32,
     /// Interval between successive frames, seconds.
     pub frame_seconds: Vec<f64>,
+    /// The intervals between two successive lit frames (frames before the first light are
+    /// paced, see `UNLIT_FRAME_INTERVAL`), seconds.
+    pub lit_frame_seconds: Vec<f64>,
     /// From `launched` to the first presented frame that showed the source's light.
     pub first_lit_frame_seconds: Option<f64>,
     pub adapter: String,
     /// Bytes uploaded to the light map's GPU mirror over the run.
     pub lightmap_bytes_uploaded: u64,
+}
+
+impl ViewerReport {
+    /// The `q`-quantile (0..1, nearest rank) of the lit frame times, milliseconds.
+    pub fn lit_frame_ms(&self, q: f64) -> Option<f64> {
+        let mut v = self.lit_frame_seconds.clone();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_by(f64::total_cmp);
+        let i = ((q * v.len() as f64).ceil() as usize).clamp(1, v.len()) - 1;
+        Some(1e3 * v[i])
+    }
+
+    /// The figures as JSON (what `livebake view --stats` writes and the bench reads).
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "adapter": self.adapter,
+            "frames": self.frames,
+            "lit_frames": self.lit_frames,
+            "lit_frame_ms": { "median": self.lit_frame_ms(0.5), "p99": self.lit_frame_ms(0.99) },
+            "first_lit_frame_seconds": self.first_lit_frame_seconds,
+            "lightmap_bytes_uploaded": self.lightmap_bytes_uploaded,
+        })
+    }
 }
 
 /// Handed to a frame hook after each presented frame.
@@ -124,6 +152,7 @@ struct App<'a, 'h> {
     held: HashSet<KeyCode>,
     looking: bool,
     last_frame: Option<Instant>,
+    last_frame_lit: bool,
     last_title: Instant,
     capture_next: bool,
     screenshot_key: Option<PathBuf>,
@@ -161,6 +190,7 @@ pub fn run(
         held: HashSet::new(),
         looking: false,
         last_frame: None,
+        last_frame_lit: false,
         last_title: Instant::now(),
         capture_next: false,
         screenshot_key: None,
@@ -271,6 +301,9 @@ impl App<'_, '_> {
         if let Some(last) = self.last_frame {
             let dt = now - last;
             self.report.frame_seconds.push(dt.as_secs_f64());
+            if self.last_frame_lit {
+                self.report.lit_frame_seconds.push(dt.as_secs_f64());
+            }
             self.travel(dt.as_secs_f32().min(0.1));
         }
         self.last_frame = Some(now);
@@ -313,6 +346,7 @@ impl App<'_, '_> {
         gpu.queue.present(frame);
         gpu.take_error()?;
         self.report.frames += 1;
+        self.last_frame_lit = lit;
         if lit {
             self.report.lit_frames += 1;
             if self.report.first_lit_frame_seconds.is_none() {

@@ -5,6 +5,7 @@ pub mod app;
 pub mod camera;
 pub mod render;
 pub mod source;
+pub mod xvfb;
 
 pub use app::{FrameContext, ViewerError, ViewerOptions, ViewerReport, run};
 pub use camera::Camera;

@@ -2,9 +2,7 @@
 
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 
 use image::RgbaImage;
@@ -13,34 +11,11 @@ use livebake::progress::NoProgress;
 use livebake::runtime::shown::ShownLightmap;
 use livebake::scene::{LoadOptions, Scene, load_gltf};
 use livebake::viewer::source::{grid_over, shown_from_bake};
+pub use livebake::viewer::xvfb::Xvfb;
 
-/// An Xvfb server on a display number it picks itself (`-displayfd`), killed on drop.
-pub struct Xvfb {
-    child: Child,
-    /// `:N`, for `DISPLAY`.
-    pub display: String,
-}
-
-impl Xvfb {
-    pub fn start() -> Xvfb {
-        let mut child = Command::new("Xvfb")
-            .args(["-displayfd", "1", "-screen", "0", "1280x800x24", "-nolisten", "tcp"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("Xvfb (Debian package xvfb; scripts/test installs it)");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().expect("piped stdout")).read_line(&mut line).expect("Xvfb display number");
-        let number: u32 = line.trim().parse().unwrap_or_else(|_| panic!("Xvfb printed {line:?}, not a display number"));
-        Xvfb { child, display: format!(":{number}") }
-    }
-}
-
-impl Drop for Xvfb {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// A private X server for the test (killed when dropped).
+pub fn xvfb() -> Xvfb {
+    Xvfb::start().unwrap()
 }
 
 pub fn cornell_path() -> PathBuf {
