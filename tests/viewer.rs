@@ -192,3 +192,59 @@ fn view_refuses_bad_options() {
         assert!(!String::from_utf8_lossy(&out.stderr).contains("internal error"), "{args:?}");
     }
 }
+
+/// The mirror grows its page pool on the GPU when a publish brings more pages than it holds
+/// (the first 64-page pool copied, not re-uploaded), and frees the slots of pages a publish
+/// removes: after each sync every page reads back as published and the GPU sampling still
+/// equals the CPU's.
+#[test]
+fn mirror_grows_its_pool_and_frees_removed_pages() {
+    let grid = Grid { origin: Vec3::ZERO, cell_size: 1.0, dims: [1, 1, 1] };
+    let mut map = ShownLightmap::new(grid, 1024, 640, 1, 0.0);
+    let mut w = PageWriter::new(&mut map);
+    w.write(0, 5, 5, Vec3::splat(1.0));
+    w.finish();
+    let gpu = GpuContext::headless().unwrap();
+    let layout = lightmap::bind_group_layout(&gpu.device);
+    let mut mirror = LightmapGpu::new(&gpu, &layout, &map).unwrap();
+    let first_capacity = mirror.capacity();
+    // One pixel in each of the 16 × 10 pages.
+    let mut grown = map.clone();
+    let mut w = PageWriter::new(&mut grown);
+    for py in 0..10 {
+        for px in 0..16 {
+            w.write(0, px * PAGE_SIDE + 7, py * PAGE_SIDE + 9, Vec3::new(px as f32, py as f32, 1.0));
+        }
+    }
+    w.finish();
+    let sync = mirror.sync(&gpu, &layout, &grown).unwrap();
+    assert!(mirror.capacity() >= 160 && first_capacity < 160, "{first_capacity} -> {}", mirror.capacity());
+    // Page (0, 0) changed too (a second pixel): 160 pages, 159 new table entries.
+    assert_eq!((sync.pages_uploaded, sync.table_entries_uploaded), (160, 159));
+    // Remove the pages of the top row but one.
+    let mut shrunk = grown.clone();
+    let mut w = PageWriter::new(&mut shrunk);
+    for px in 1..16 {
+        w.clear(0, px * PAGE_SIDE + 7, 9);
+    }
+    w.finish();
+    let sync = mirror.sync(&gpu, &layout, &shrunk).unwrap();
+    assert_eq!((sync.pages_uploaded, sync.table_entries_uploaded, sync.bytes_uploaded), (0, 15, 15 * 4));
+    let probe = IrradianceProbe::new(&gpu, &layout).unwrap();
+    let level = &shrunk.levels[0];
+    let mut points = Vec::new();
+    for py in 0..10 {
+        for px in 0..16u32 {
+            let want = level.page(px, py).map(|p| p.texels.to_vec());
+            assert_eq!(mirror.read_page(&gpu, 0, (py * 16 + px) as usize).unwrap(), want, "page ({px}, {py})");
+            points.push((
+                Vec3::splat(0.5),
+                Vec2::new((px * PAGE_SIDE + 7) as f32 + 0.5, (py * PAGE_SIDE + 9) as f32 + 0.5),
+            ));
+        }
+    }
+    let on_gpu = probe.run(&gpu, &mirror, &points).unwrap();
+    for (&(p, uv), got) in points.iter().zip(&on_gpu) {
+        assert_eq!(*got, shrunk.irradiance(p, uv), "uv {uv}");
+    }
+}

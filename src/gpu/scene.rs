@@ -5,8 +5,9 @@
 //! chart), not on the shared vertex. Each corner carries both faces' UVs; the fragment shader
 //! picks by `front_facing`. Single-sided materials are drawn with back faces culled (their
 //! back is the inside of closed geometry and has no texels); double-sided ones are not.
+//! Material textures get mip maps (the display minifies them; the bake samples level 0).
 
-use glam::Vec2;
+use glam::{Vec2, Vec4};
 use wgpu::util::DeviceExt;
 
 use super::device::GpuContext;
@@ -131,6 +132,7 @@ impl SceneGpu {
                 address_mode_v: address_mode(wrap.1),
                 mag_filter: wgpu::FilterMode::Linear,
                 min_filter: wgpu::FilterMode::Linear,
+                mipmap_filter: wgpu::MipmapFilterMode::Linear,
                 ..Default::default()
             });
             let bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -189,13 +191,55 @@ fn upload_texture(gpu: &GpuContext, t: &Texture) -> Option<wgpu::TextureView> {
         tracing::warn!(texture = %t.name, width = t.width, height = t.height, "texture not shown (empty or above the GPU's {max} limit)");
         return None;
     }
+    Some(create_texture(gpu, t))
+}
+
+/// The texture's mip chain, tightly packed level after level: each level a 2×2 box filter of
+/// the one above, averaged in linear values and re-encoded as the texture is (sRGB or not).
+fn mip_chain(t: &Texture) -> (u32, Vec<[u8; 4]>) {
+    let encode = |c: Vec4| {
+        let channel = |v: f32| {
+            let v = v.clamp(0.0, 1.0);
+            let e = if !t.srgb || v <= 0.003_130_8 {
+                if t.srgb { 12.92 * v } else { v }
+            } else {
+                1.055 * v.powf(1.0 / 2.4) - 0.055
+            };
+            (e * 255.0 + 0.5) as u8
+        };
+        [channel(c.x), channel(c.y), channel(c.z), (c.w.clamp(0.0, 1.0) * 255.0 + 0.5) as u8]
+    };
+    let mut data = t.rgba8.clone();
+    let mut level: Vec<Vec4> = (0..t.height).flat_map(|y| (0..t.width).map(move |x| t.texel(x, y))).collect();
+    let (mut w, mut h, mut count) = (t.width, t.height, 1);
+    while w > 1 || h > 1 {
+        let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
+        let prev = &level;
+        let next: Vec<Vec4> = (0..nh)
+            .flat_map(|y| {
+                (0..nw).map(move |x| {
+                    let (x0, x1) = ((2 * x).min(w - 1), (2 * x + 1).min(w - 1));
+                    let (y0, y1) = ((2 * y).min(h - 1), (2 * y + 1).min(h - 1));
+                    let at = |x: u32, y: u32| prev[(y * w + x) as usize];
+                    (at(x0, y0) + at(x1, y0) + at(x0, y1) + at(x1, y1)) * 0.25
+                })
+            })
+            .collect();
+        data.extend(next.iter().map(|&c| encode(c)));
+        (level, w, h, count) = (next, nw, nh, count + 1);
+    }
+    (count, data)
+}
+
+fn create_texture(gpu: &GpuContext, t: &Texture) -> wgpu::TextureView {
     let format = if t.srgb { wgpu::TextureFormat::Rgba8UnormSrgb } else { wgpu::TextureFormat::Rgba8Unorm };
+    let (mip_level_count, data) = mip_chain(t);
     let texture = gpu.device.create_texture_with_data(
         &gpu.queue,
         &wgpu::TextureDescriptor {
             label: Some(&t.name),
             size: wgpu::Extent3d { width: t.width, height: t.height, depth_or_array_layers: 1 },
-            mip_level_count: 1,
+            mip_level_count,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
             format,
@@ -203,7 +247,31 @@ fn upload_texture(gpu: &GpuContext, t: &Texture) -> Option<wgpu::TextureView> {
             view_formats: &[],
         },
         wgpu::util::TextureDataOrder::LayerMajor,
-        bytemuck::cast_slice(&t.rgba8),
+        bytemuck::cast_slice(&data),
     );
-    Some(texture.create_view(&wgpu::TextureViewDescriptor::default()))
+    texture.create_view(&wgpu::TextureViewDescriptor::default())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Mips average linear values: a black/white checker becomes mid-grey in linear light,
+    /// which is sRGB 188, not 128; the chain ends at 1×1 and is packed level after level.
+    #[test]
+    fn mip_chain_averages_linear_light() {
+        let checker = Texture {
+            name: "c".into(),
+            width: 4,
+            height: 2,
+            rgba8: (0..8).map(|i| if (i + i / 4) % 2 == 0 { [255, 255, 255, 255] } else { [0, 0, 0, 255] }).collect(),
+            srgb: true,
+            wrap_s: WrapMode::Repeat,
+            wrap_t: WrapMode::Repeat,
+        };
+        let (levels, data) = mip_chain(&checker);
+        assert_eq!((levels, data.len()), (3, 8 + 2 + 1));
+        assert_eq!(data[8], [188, 188, 188, 255]);
+        assert_eq!(data[10], [188, 188, 188, 255]);
+    }
 }

@@ -140,12 +140,13 @@ impl Renderer {
         Ok(())
     }
 
-    fn pass(&mut self, format: wgpu::TextureFormat) -> Result<&SurfacePass, GpuError> {
-        if !self.passes.iter().any(|p| p.color_format == format) {
-            let pass = SurfacePass::new(&self.gpu, format, &self.lightmap_layout, &self.material_layout)?;
-            self.passes.push(pass);
+    /// The surface pass for `format` (pipelines are made once per format).
+    fn pass_index(&mut self, format: wgpu::TextureFormat) -> Result<usize, GpuError> {
+        if let Some(i) = self.passes.iter().position(|p| p.color_format == format) {
+            return Ok(i);
         }
-        Ok(self.passes.iter().find(|p| p.color_format == format).expect("pass was just added"))
+        self.passes.push(SurfacePass::new(&self.gpu, format, &self.lightmap_layout, &self.material_layout)?);
+        Ok(self.passes.len() - 1)
     }
 
     /// Records the frame's draw into `encoder`.
@@ -157,9 +158,8 @@ impl Renderer {
         depth: &wgpu::TextureView,
         eyes: &[EyeView],
     ) -> Result<(), GpuError> {
-        self.pass(format)?;
-        let pass = self.passes.iter().find(|p| p.color_format == format).expect("pass exists");
-        pass.draw(&self.gpu, encoder, color, depth, &self.scene, &self.lightmap, eyes);
+        let i = self.pass_index(format)?;
+        self.passes[i].draw(&self.gpu, encoder, color, depth, &self.scene, &self.lightmap, eyes);
         Ok(())
     }
 
