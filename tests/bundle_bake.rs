@@ -18,7 +18,7 @@ fn config(texel: f32, directions: u32) -> BakeConfig {
 }
 
 fn run(scene: &Scene, config: &BakeConfig) -> BakeOutput {
-    bake(scene, config, &NoProgress).expect("bake")
+    bake(&std::sync::Arc::new(scene.clone()), config, &NoProgress).expect("bake")
 }
 
 /// A quad of half-size `h` at height `y`, facing down.

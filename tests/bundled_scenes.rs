@@ -34,7 +34,8 @@ fn bake_with(scene: &Scene, backend: BackendKind, samples: u32, texel: f32) -> B
         seed: 11,
         ..BakeConfig::default()
     };
-    bake(scene, &config, &NoProgress).unwrap_or_else(|e| panic!("{} bake: {e}", backend.name()))
+    bake(&std::sync::Arc::new(scene.clone()), &config, &NoProgress)
+        .unwrap_or_else(|e| panic!("{} bake: {e}", backend.name()))
 }
 
 /// Faces and texels of a baked atlas, at every baked LOD, checked against an independent

@@ -45,7 +45,7 @@ fn bake_reference(scene: &Scene, texel: f32, spp: u32, seed: u64) -> BakeOutput 
         seed,
         ..BakeConfig::default()
     };
-    let out = bake(scene, &config, &NoProgress).expect("bake");
+    let out = bake(&std::sync::Arc::new(scene.clone()), &config, &NoProgress).expect("bake");
     assert_eq!(out.lods.len(), 1);
     let lod = &out.lods[0];
     assert_eq!(lod.irradiance.len(), lod.texels.len());

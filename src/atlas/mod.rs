@@ -19,6 +19,7 @@
 //! TEXCOORD_1 check tested and what the texel map rasterises), [`texels`] (inverse mapping).
 
 pub mod charts;
+pub mod lookup;
 pub mod pack;
 pub mod raster;
 pub mod sparse;

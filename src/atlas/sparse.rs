@@ -21,8 +21,9 @@ use std::collections::BTreeMap;
 
 use glam::{DVec2, DVec3, Vec3};
 
+use super::lookup::TexelTable;
 use super::raster::{self, PixelRect};
-use super::texels::{NO_TEXEL, TexelAttributes, gutter_source, world_per_pixel};
+use super::texels::{TexelAttributes, gutter_source, world_per_pixel};
 use super::{Atlas, FaceId};
 use crate::scene::{Rgb, Scene, SceneGeometry};
 
@@ -34,47 +35,6 @@ const REACH: i64 = 4;
 const EMPTY: u8 = 0;
 const OTHERS: u8 = 1;
 const OURS: u8 = 2;
-
-/// Per-pixel lookup of one chart's region texels at one LOD: a dense table over a pixel
-/// rectangle, in 8×8 blocks (see [`block_key`]) like the whole-LOD lookup.
-#[derive(Clone, Debug)]
-pub struct ChartTable {
-    pub chart: u32,
-    /// LOD-k pixels covered by the table.
-    pub rect: PixelRect,
-    blocks_x: i64,
-    /// Texel id (or, for a gutter pixel, the id of the texel it copies), else [`NO_TEXEL`].
-    entries: Vec<u32>,
-}
-
-impl ChartTable {
-    fn new(chart: u32, rect: PixelRect) -> Self {
-        let blocks_x = (rect.width() + 7) >> 3;
-        let blocks_y = (rect.height() + 7) >> 3;
-        ChartTable { chart, rect, blocks_x, entries: vec![NO_TEXEL; (blocks_x * blocks_y * 64) as usize] }
-    }
-
-    #[inline(always)]
-    fn index(&self, x: i64, y: i64) -> usize {
-        let (x, y) = (x - self.rect.x0, y - self.rect.y0);
-        (((y >> 3) * self.blocks_x + (x >> 3)) << 6 | (y & 7) << 3 | (x & 7)) as usize
-    }
-
-    /// The entry of LOD pixel `(x, y)`, [`NO_TEXEL`] outside the table.
-    #[inline(always)]
-    pub fn get(&self, x: i64, y: i64) -> u32 {
-        if self.rect.contains(x, y) { self.entries[self.index(x, y)] } else { NO_TEXEL }
-    }
-
-    fn set(&mut self, x: i64, y: i64, v: u32) {
-        let i = self.index(x, y);
-        self.entries[i] = v;
-    }
-
-    pub fn bytes(&self) -> usize {
-        self.entries.len() * 4
-    }
-}
 
 /// The texels of one LOD inside a region, with their lookup tables.
 #[derive(Clone, Debug, Default)]
@@ -92,7 +52,7 @@ pub struct SparseTexels {
     /// Gutter pixels the region writes and the texel each copies.
     pub gutter: Vec<([u32; 2], u32)>,
     /// One lookup table per chart holding region texels, ascending by chart.
-    pub tables: Vec<ChartTable>,
+    pub tables: Vec<TexelTable>,
 }
 
 /// A pixel's candidate from one face: its key orders by pixel, then face.
@@ -234,8 +194,8 @@ impl SparseTexels {
         for &(g, _, chart) in &gutters {
             grow(chart, g);
         }
-        let mut tables: BTreeMap<u32, ChartTable> =
-            rects.into_iter().map(|(c, r)| (c, ChartTable::new(c, r))).collect();
+        let mut tables: BTreeMap<u32, TexelTable> =
+            rects.into_iter().map(|(c, r)| (c, TexelTable::new(Some(c), r))).collect();
         for (k, &(_, pixel, face, area)) in texels.iter().enumerate() {
             let uv = atlas.faces[face as usize].uv_lod(lod);
             let a = TexelAttributes::at(scene, geom, atlas, face, &uv, pixel[0] as i64, pixel[1] as i64);
@@ -270,15 +230,15 @@ impl SparseTexels {
     }
 
     /// The lookup table of a chart, if the region has texels in it.
-    pub fn table(&self, chart: u32) -> Option<&ChartTable> {
-        self.tables.binary_search_by_key(&chart, |t| t.chart).ok().map(|i| &self.tables[i])
+    pub fn table(&self, chart: u32) -> Option<&TexelTable> {
+        self.tables.binary_search_by_key(&Some(chart), |t| t.chart).ok().map(|i| &self.tables[i])
     }
 
     /// Bytes held (texel attributes, gutters and tables).
     pub fn bytes(&self) -> usize {
         self.len() * (8 + 4 + 12 * 4 + 4)
             + self.gutter.len() * 12
-            + self.tables.iter().map(ChartTable::bytes).sum::<usize>()
+            + self.tables.iter().map(TexelTable::bytes).sum::<usize>()
     }
 }
 

@@ -1,24 +1,22 @@
 //! Bundle backends in the bake driver: directions in batches, light jobs per emitter group,
-//! the punctual pass, and the progressive estimate of one LOD.
+//! the punctual pass, and the progressive estimate of one whole LOD.
 
 use std::time::Instant;
 
 use glam::Vec2;
 use serde::Serialize;
 
-use crate::atlas::{Atlas, TexelMap};
-use crate::bundle::directions::BundleDirections;
-use crate::bundle::emitters::{EmitterPlan, plan_emitters};
+use std::sync::atomic::AtomicBool;
+
+use crate::atlas::lookup::TexelTable;
+use crate::atlas::{Atlas, FaceId, TexelMap};
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
-use crate::bundle::{BundleBackend, BundleConfig, DirectionJob, LightJob};
-use crate::cpu::prepared::NO_GROUP;
-use crate::cpu::punctual::punctual_irradiance;
-use crate::cpu::{CpuBundleBackend, PreparedScene};
+use crate::bundle::{BakeTarget, BundleBackend, BundleScene, Cancelled, DirectionJob, JobSequence, SourceRadiance};
 use crate::progress::Progress;
+use crate::reference::punctual::punctual_irradiance;
 use crate::reference::{Bvh, ray_epsilon};
-use crate::sampling::mix64;
-use crate::scene::{Rgb, Scene, SceneGeometry};
+use crate::scene::Rgb;
 
 /// What one LOD's bundle bake did.
 #[derive(Clone, Debug, Default, Serialize)]
@@ -35,88 +33,77 @@ pub struct BundleLodStats {
     pub pass: PassStats,
 }
 
-/// The scene-wide inputs of bundle bakes, shared by all LODs.
-pub struct BundleInputs<'s> {
-    pub scene: &'s Scene,
-    pub geom: &'s SceneGeometry,
-    pub bvh: &'s Bvh,
-    pub atlas: &'s Atlas,
-    pub emitters: EmitterPlan,
-    /// Per triangle: its light-pass group or `NO_GROUP`.
-    pub group_of: Vec<u32>,
-}
-
-impl<'s> BundleInputs<'s> {
-    pub fn new(
-        scene: &'s Scene,
-        geom: &'s SceneGeometry,
-        bvh: &'s Bvh,
-        atlas: &'s Atlas,
-        config: &BundleConfig,
-    ) -> Self {
-        let emitters = plan_emitters(scene, geom, atlas.stats.lit_area, config.small_emitter_fraction);
-        let mut group_of = vec![NO_GROUP; geom.len()];
-        for (g, group) in emitters.small.iter().enumerate() {
-            for &t in &group.triangles {
-                group_of[t as usize] = g as u32;
-            }
-        }
-        BundleInputs { scene, geom, bvh, atlas, emitters, group_of }
-    }
-}
-
 /// A coarser LOD's converged irradiance, read as the source radiance of a finer bake.
 pub struct CoarserLod<'a> {
     pub texels: &'a TexelMap,
     pub irradiance: &'a [Rgb],
 }
 
-/// Bakes one LOD with the CPU bundle backend.
+/// Bakes one whole LOD with a bundle backend: punctual pass, then batches of directions,
+/// the source radiance refreshed after each (multi-bounce, see
+/// [`progressive`](crate::bundle::progressive)), or read once from a converged coarser LOD.
 pub fn bake_lod(
-    inputs: &BundleInputs,
+    bundle: &BundleScene,
+    bvh: &Bvh,
+    backend: &mut dyn BundleBackend,
     texels: &TexelMap,
     coarser: Option<CoarserLod>,
-    config: &BundleConfig,
     threads: usize,
     progress: &dyn Progress,
 ) -> (Vec<Rgb>, BundleLodStats) {
+    let config = &bundle.config;
     let mut stats = BundleLodStats::default();
     let t0 = Instant::now();
-    let punctual = punctual_irradiance(inputs.scene, inputs.bvh, texels, ray_epsilon(inputs.scene), threads);
+    let punctual =
+        punctual_irradiance(&bundle.scene, bvh, &texels.position, &texels.normal, ray_epsilon(&bundle.scene), threads);
     stats.punctual_seconds = t0.elapsed().as_secs_f64();
 
-    let prepared = PreparedScene::new(inputs.geom, inputs.atlas, texels, inputs.group_of.clone());
-    let carried: Vec<bool> = (0..texels.len())
-        .map(|i| inputs.emitters.carried_by_bundles[inputs.atlas.faces[texels.face[i] as usize].tri as usize])
-        .collect();
-    let light_pixel = inputs.atlas.texel_size / (1u32 << texels.lod) as f32 / config.oversampling;
-    let mut backend =
-        CpuBundleBackend::new(&prepared, config, &inputs.emitters.small, inputs.scene.sky, light_pixel, threads);
+    let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
+    let tables = [TexelTable::of_map(texels)];
+    let triangles = target_triangles(&bundle.atlas, &texels.face);
+    let target = BakeTarget {
+        lod: texels.lod,
+        face: &texels.face,
+        emission: &texels.emission,
+        tables: &tables,
+        window: None,
+        triangles: &triangles,
+    };
 
     let kind = if coarser.is_some() { SourceKind::Converged } else { SourceKind::Progressive };
     let mut estimate = ProgressiveEstimate::new(kind, punctual, texels.area.clone());
     let mut source = Vec::new();
     match &coarser {
         Some(c) => source_from_coarser(texels, c, &carried, &mut source),
-        None => estimate.source_radiance(texels, &carried, None, threads, &mut source),
+        None => estimate.source_radiance(&texels.albedo, &texels.emission, &carried, None, threads, &mut source),
     }
-    stats.light_pass_groups = inputs.emitters.small.len();
-    stats.emitter_triangles_in_global_bundles = inputs.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
+    stats.light_pass_groups = bundle.emitters.small.len();
+    stats.emitter_triangles_in_global_bundles = bundle.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
 
     let t1 = Instant::now();
-    let jobs = Jobs::new(config, inputs.emitters.small.len());
+    let jobs = JobSequence::new(config.seed, bundle.emitters.small.len(), config.light_directions);
     let mut sums = BatchSums::new(texels.len());
     progress.begin(&format!("LOD {} bundles", texels.lod), config.directions as u64);
     let per_batch = config.batch_size() as u64;
     let mut first = 0u64;
+    let never = AtomicBool::new(false);
     while first < config.directions as u64 {
         let count = per_batch.min(config.directions as u64 - first);
         let batch: Vec<DirectionJob> = (first..first + count).map(|i| jobs.job(i)).collect();
-        let pass = backend.trace_batch(&batch, &source, &mut sums);
+        let pass = match backend.trace_batch(
+            &target,
+            &batch,
+            &SourceRadiance { own: &source, foreign: None },
+            &mut sums,
+            &never,
+        ) {
+            Ok(pass) => pass,
+            Err(Cancelled) => unreachable!("the flag is never raised"),
+        };
         stats.pass.add(&pass);
         estimate.add_batch(&sums, count * config.light_directions as u64, threads);
         if kind == SourceKind::Progressive {
-            estimate.source_radiance(texels, &carried, Some(&sums), threads, &mut source);
+            estimate.source_radiance(&texels.albedo, &texels.emission, &carried, Some(&sums), threads, &mut source);
         }
         first += count;
         progress.advance(count);
@@ -130,36 +117,12 @@ pub fn bake_lod(
     (estimate.irradiance(), stats)
 }
 
-/// The direction sequences of a bake: one for global bundles, one per light-pass group.
-struct Jobs {
-    global: BundleDirections,
-    lights: Vec<BundleDirections>,
-    per_direction: u64,
-}
-
-impl Jobs {
-    fn new(config: &BundleConfig, groups: usize) -> Self {
-        Jobs {
-            global: BundleDirections::new(config.seed),
-            lights: (0..groups).map(|g| BundleDirections::new(mix64(config.seed ^ mix64(g as u64 + 1)))).collect(),
-            per_direction: config.light_directions as u64,
-        }
-    }
-
-    fn job(&self, i: u64) -> DirectionJob {
-        let lights = self
-            .lights
-            .iter()
-            .enumerate()
-            .flat_map(|(g, dirs)| {
-                (0..self.per_direction).map(move |j| {
-                    let k = i * self.per_direction + j;
-                    LightJob { group: g as u32, dir: dirs.direction(k), jitter: dirs.jitter(k) }
-                })
-            })
-            .collect();
-        DirectionJob { index: i, dir: self.global.direction(i), jitter: self.global.jitter(i), lights }
-    }
+/// The triangles holding texels of faces `faces` (ascending, once each).
+pub fn target_triangles(atlas: &Atlas, faces: &[FaceId]) -> Vec<u32> {
+    let mut t: Vec<u32> = faces.iter().map(|&f| atlas.faces[f as usize].tri).collect();
+    t.sort_unstable();
+    t.dedup();
+    t
 }
 
 /// Source radiance of a finer LOD's texels read from the converged coarser LOD: each texel

@@ -10,8 +10,11 @@ use std::time::Instant;
 
 use serde::Serialize;
 
+use std::sync::Arc;
+
 use crate::atlas::{Atlas, AtlasConfig, AtlasError, TexelMap};
-use crate::bundle::{BundleConfig, BundleConfigError};
+use crate::bundle::{BackendProvider, BundleConfig, BundleConfigError, BundleScene};
+use crate::cpu::CpuProvider;
 use crate::progress::Progress;
 use crate::reference::Bvh;
 use crate::scene::{Rgb, Scene, SceneGeometry};
@@ -105,6 +108,8 @@ pub struct BakeOutput {
 pub enum BakeError {
     #[error(transparent)]
     Atlas(#[from] AtlasError),
+    #[error("the bundle backend is unavailable: {0}")]
+    Backend(String),
     #[error("--lods must be between 1 and {max}, got {got}")]
     BadLodCount { got: u32, max: u32 },
     #[error("--samples must be at least 1")]
@@ -126,7 +131,7 @@ const MAX_LOD_PIXELS: u64 = 1 << 28;
 const MAX_LODS: u32 = 8;
 
 /// Bakes `config.lods` levels of `scene`'s light map (lit by `scene.sky` as well as its emitters).
-pub fn bake(scene: &Scene, config: &BakeConfig, progress: &dyn Progress) -> Result<BakeOutput, BakeError> {
+pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) -> Result<BakeOutput, BakeError> {
     if config.lods == 0 || config.lods > MAX_LODS {
         return Err(BakeError::BadLodCount { got: config.lods, max: MAX_LODS });
     }
@@ -160,15 +165,21 @@ pub fn bake(scene: &Scene, config: &BakeConfig, progress: &dyn Progress) -> Resu
         }
         BackendKind::Cpu => {
             let bvh = Bvh::for_scene(scene, &geom);
-            let bundle_config = config.bundle_config();
-            let inputs = bundle::BundleInputs::new(scene, &geom, &bvh, &atlas, &bundle_config);
+            let bundle = Arc::new(BundleScene::new(
+                scene.clone(),
+                Arc::new(geom.clone()),
+                Arc::new(atlas.clone()),
+                config.bundle_config(),
+            ));
+            let mut backend =
+                CpuProvider::new().backend(&bundle, config.threads()).map_err(|e| BakeError::Backend(e.to_string()))?;
             for lod in 0..config.lods {
                 let t0 = Instant::now();
                 let texels = TexelMap::build(scene, &geom, &atlas, lod);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
                 let (irradiance, bstats) =
-                    bundle::bake_lod(&inputs, &texels, coarser, &bundle_config, config.threads(), progress);
+                    bundle::bake_lod(&bundle, &bvh, &mut backend, &texels, coarser, config.threads(), progress);
                 if bstats.pass.unplanned_directions > 0 {
                     let (count, directions) = (bstats.pass.unplanned_directions, bstats.directions);
                     return Err(BakeError::UnplannedDirections { lod, count, directions });

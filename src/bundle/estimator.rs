@@ -6,9 +6,13 @@
 //! last sides see the sky. A side that is not a lit face (the back of a single-sided surface:
 //! the inside of closed geometry) is black and receives nothing — that is what stops leaks.
 //!
-//! Every hit adds `a_px · L_seen` and `a_px` to the receiving texel; the texel's irradiance is
-//! then the self-normalising `E = π · Σ a·L / Σ a` (hits are cosine-distributed because a
-//! texel's projected area is ∝ |n·ω|).
+//! A side is coded in 31 bits: a texel of the bake's target (below [`FOREIGN`]), a lit face
+//! outside the target (`FOREIGN + k`, k naming the fragment's triangle for whoever resolves
+//! it: its radiance is looked up, it receives nothing), or [`NO_SIDE`].
+//!
+//! Every hit on a target texel adds `a_px · L_seen` and `a_px` to it; its irradiance is then
+//! the self-normalising `E = π · Σ a·L / Σ a` (hits are cosine-distributed because a texel's
+//! projected area is ∝ |n·ω|).
 //!
 //! The light pass uses the same ordering but only emitter fragments give: the neighbour
 //! facing an emitting side receives `a_px · Le`, normalised later by the texel's area.
@@ -19,34 +23,50 @@ use crate::scene::Rgb;
 
 /// "No texel": the side is not a lit face.
 pub const NO_SIDE: u32 = 0x7FFF_FFFF;
+/// Codes from here up to [`NO_SIDE`] are foreign sides: `FOREIGN + k`.
+pub const FOREIGN: u32 = 0x4000_0000;
 /// Set on `plus` of fragments that belong to the emitter group of a light pass.
 pub const EMITTER_FLAG: u32 = 0x8000_0000;
 /// Set on `minus` when the triangle's front face looks along +ω.
 pub const FRONT_LOOKS_PLUS: u32 = 0x8000_0000;
-const TEXEL_MASK: u32 = 0x7FFF_FFFF;
+const CODE_MASK: u32 = 0x7FFF_FFFF;
+
+/// The 31-bit code of a side (flags removed).
+#[inline]
+pub fn side_code(side: u32) -> u32 {
+    side & CODE_MASK
+}
+
+/// Whether a side code names a target texel.
+#[inline]
+pub fn is_own(code: u32) -> bool {
+    code < FOREIGN
+}
 
 /// One surface crossing of a bundle line.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Fragment {
     /// Position along ω (metres, any fixed origin).
     pub depth: f32,
-    /// Texel of the side looking along +ω, or [`NO_SIDE`]; may carry [`EMITTER_FLAG`].
+    /// Code of the side looking along +ω (module docs); may carry [`EMITTER_FLAG`].
     pub plus: u32,
-    /// Texel of the side looking along −ω, or [`NO_SIDE`]; may carry [`FRONT_LOOKS_PLUS`].
+    /// Code of the side looking along −ω; may carry [`FRONT_LOOKS_PLUS`].
     pub minus: u32,
 }
 
 impl Fragment {
+    /// The target texel of the side looking along +ω, if it is one.
     #[inline]
     pub fn plus_texel(&self) -> Option<u32> {
-        let t = self.plus & TEXEL_MASK;
-        (t != NO_SIDE).then_some(t)
+        let t = self.plus & CODE_MASK;
+        is_own(t).then_some(t)
     }
 
+    /// The target texel of the side looking along −ω, if it is one.
     #[inline]
     pub fn minus_texel(&self) -> Option<u32> {
-        let t = self.minus & TEXEL_MASK;
-        (t != NO_SIDE).then_some(t)
+        let t = self.minus & CODE_MASK;
+        is_own(t).then_some(t)
     }
 
     /// Order of coincident surfaces: the one whose front looks back along −ω first.
@@ -92,45 +112,51 @@ pub trait HitSink {
     fn hit(&mut self, texel: u32, weighted_radiance: Rgb, weight: f32);
 }
 
-/// Global-bundle exchange over one pixel's depth-sorted fragments: every lit side receives
-/// the radiance of what it sees. `source(t)` is the outgoing radiance of texel `t` toward
-/// the bundle (reflected light, plus emission where the global bundles carry it).
+/// Global-bundle exchange over one pixel's depth-sorted fragments: every target side
+/// receives the radiance of what it sees. `seen(code)` is the outgoing radiance toward the
+/// bundle of the side with that code (target texel or foreign; never called for
+/// [`NO_SIDE`], which is black).
 #[inline]
-pub fn exchange(frags: &[Fragment], a_px: f32, sky: Rgb, source: impl Fn(u32) -> Rgb, sink: &mut impl HitSink) {
-    let seen = |side: Option<u32>| side.map_or(Rgb::ZERO, &source);
+pub fn exchange(frags: &[Fragment], a_px: f32, sky: Rgb, mut seen: impl FnMut(u32) -> Rgb, sink: &mut impl HitSink) {
+    let mut look = |side: u32| {
+        let code = side & CODE_MASK;
+        if code == NO_SIDE { Rgb::ZERO } else { seen(code) }
+    };
     let m = frags.len();
     for i in 0..m {
         let f = &frags[i];
         if let Some(t) = f.plus_texel() {
-            let l = if i + 1 < m { seen(frags[i + 1].minus_texel()) } else { sky };
+            let l = if i + 1 < m { look(frags[i + 1].minus) } else { sky };
             sink.hit(t, l * a_px, a_px);
         }
         if let Some(t) = f.minus_texel() {
-            let l = if i > 0 { seen(frags[i - 1].plus_texel()) } else { sky };
+            let l = if i > 0 { look(frags[i - 1].plus) } else { sky };
             sink.hit(t, l * a_px, a_px);
         }
     }
 }
 
-/// Light-pass exchange: each emitter fragment's emitting side lights the lit side of the
-/// neighbour facing it. `emission(t)` is texel `t`'s emitted radiance (zero if it does not emit).
+/// Light-pass exchange: each emitter fragment's emitting side lights the target side of the
+/// neighbour facing it. `emission(code)` is the emitted radiance of the side with that code
+/// (zero if it does not emit).
 #[inline]
-pub fn emit(frags: &[Fragment], a_px: f32, emission: impl Fn(u32) -> Rgb, sink: &mut impl HitSink) {
+pub fn emit(frags: &[Fragment], a_px: f32, mut emission: impl FnMut(u32) -> Rgb, sink: &mut impl HitSink) {
     let m = frags.len();
     for i in 0..m {
         let f = &frags[i];
         if !f.is_emitter() {
             continue;
         }
-        if let (Some(src), Some(next)) = (f.plus_texel(), frags.get(i + 1)) {
-            if let Some(dst) = next.minus_texel() {
-                sink.hit(dst, emission(src) * a_px, a_px);
-            }
+        let (plus, minus) = (f.plus & CODE_MASK, f.minus & CODE_MASK);
+        if let (true, Some(next)) = (plus != NO_SIDE, frags.get(i + 1))
+            && let Some(dst) = next.minus_texel()
+        {
+            sink.hit(dst, emission(plus) * a_px, a_px);
         }
-        if let (Some(src), Some(prev)) = (f.minus_texel(), i.checked_sub(1).map(|j| &frags[j])) {
-            if let Some(dst) = prev.plus_texel() {
-                sink.hit(dst, emission(src) * a_px, a_px);
-            }
+        if let (true, Some(prev)) = (minus != NO_SIDE, i.checked_sub(1).map(|j| &frags[j]))
+            && let Some(dst) = prev.plus_texel()
+        {
+            sink.hit(dst, emission(minus) * a_px, a_px);
         }
     }
 }

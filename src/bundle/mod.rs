@@ -20,15 +20,17 @@ pub mod mips;
 pub mod progressive;
 pub mod raster;
 pub mod stats;
+pub mod target;
 pub mod tiles;
 
 use glam::{Vec2, Vec3};
 use serde::Serialize;
 
-use crate::scene::Rgb;
-use progressive::BatchSums;
-use stats::PassStats;
 use tiles::TilingMode;
+
+pub use target::{
+    BackendError, BackendProvider, BakeTarget, BundleBackend, BundleScene, Cancelled, SourceRadiance, SurfaceRadiance,
+};
 
 /// Parameters of a ray-bundle bake. Same config and scene ⇒ same light map, whatever the
 /// thread count.
@@ -164,12 +166,37 @@ pub struct LightJob {
     pub jitter: Vec2,
 }
 
-/// Something that traces bundles: the CPU backend now, the GPU backend later. The bake
-/// driver owns directions, batching and the estimate; a backend only turns a batch of
-/// directions and the radiance each texel sends into per-texel hit sums.
-pub trait BundleBackend {
-    fn name(&self) -> &'static str;
-    /// Traces `batch` against `source` (outgoing radiance per texel toward the bundles),
-    /// overwriting `sums` with the batch's hit sums.
-    fn trace_batch(&mut self, batch: &[DirectionJob], source: &[Rgb], sums: &mut BatchSums) -> PassStats;
+/// The direction sequences of a bake: one for global bundles, one per light-pass group,
+/// each derived from the seed alone (direction i is the same whichever batch asks for it).
+pub struct JobSequence {
+    global: directions::BundleDirections,
+    lights: Vec<directions::BundleDirections>,
+    per_direction: u64,
+}
+
+impl JobSequence {
+    pub fn new(seed: u64, groups: usize, light_directions: u32) -> Self {
+        use crate::sampling::mix64;
+        JobSequence {
+            global: directions::BundleDirections::new(seed),
+            lights: (0..groups).map(|g| directions::BundleDirections::new(mix64(seed ^ mix64(g as u64 + 1)))).collect(),
+            per_direction: light_directions as u64,
+        }
+    }
+
+    /// Global direction `i` and its light bundles.
+    pub fn job(&self, i: u64) -> DirectionJob {
+        let lights = self
+            .lights
+            .iter()
+            .enumerate()
+            .flat_map(|(g, dirs)| {
+                (0..self.per_direction).map(move |j| {
+                    let k = i * self.per_direction + j;
+                    LightJob { group: g as u32, dir: dirs.direction(k), jitter: dirs.jitter(k) }
+                })
+            })
+            .collect();
+        DirectionJob { index: i, dir: self.global.direction(i), jitter: self.global.jitter(i), lights }
+    }
 }

@@ -22,7 +22,6 @@
 
 use glam::DVec3;
 
-use crate::atlas::TexelMap;
 use crate::parallel::{par_chunks_mut, par_for_each};
 use crate::scene::Rgb;
 
@@ -200,7 +199,8 @@ impl ProgressiveEstimate {
     /// running indirect estimate.
     pub fn source_radiance(
         &self,
-        texels: &TexelMap,
+        albedo: &[Rgb],
+        emission: &[Rgb],
         carried: &[bool],
         last: Option<&BatchSums>,
         threads: usize,
@@ -217,8 +217,8 @@ impl ProgressiveEstimate {
                     }
                     _ => self.irradiance_of(i),
                 };
-                let reflected = texels.albedo[i] * e * std::f32::consts::FRAC_1_PI;
-                *o = if carried[i] { reflected + texels.emission[i] } else { reflected };
+                let reflected = albedo[i] * e * std::f32::consts::FRAC_1_PI;
+                *o = if carried[i] { reflected + emission[i] } else { reflected };
             }
         });
     }

@@ -171,6 +171,14 @@ impl Planes {
         self.depth
     }
 
+    /// Barycentric weights (of the original corners 1 and 2) at grid coordinates (x, y),
+    /// clamped onto the triangle (a pixel centre it covers lies on it up to rounding).
+    pub fn barycentrics(&self, x: f32, y: f32) -> (f32, f32) {
+        let u = eval(&self.bary_u, x, y).clamp(0.0, 1.0);
+        let v = eval(&self.bary_v, x, y).clamp(0.0, 1.0 - u);
+        (u, v)
+    }
+
     /// Affine coefficients (per +1 pixel in x, per +1 pixel in y, at grid pixel (0,0)) of a
     /// value interpolated from the three original corners.
     pub fn gradient(&self, values: [f32; 3]) -> [f32; 3] {

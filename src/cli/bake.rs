@@ -1,6 +1,7 @@
 //! `livebake bake`: load, bake, write light maps and the report, print a summary.
 
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -22,11 +23,11 @@ pub fn default_samples(backend: Backend) -> u32 {
     }
 }
 
-pub fn load_scene(path: &Path, options: &SceneOptions) -> Result<(Scene, f64)> {
+pub fn load_scene(path: &Path, options: &SceneOptions) -> Result<(Arc<Scene>, f64)> {
     let t0 = Instant::now();
     let mut scene = load_gltf(path, &LoadOptions::default()).context("cannot load the scene")?;
     scene.sky = options.sky;
-    Ok((scene, t0.elapsed().as_secs_f64()))
+    Ok((Arc::new(scene), t0.elapsed().as_secs_f64()))
 }
 
 pub fn run(scene_path: &Path, out: &Path, options: &SceneOptions, ui: &Ui) -> Result<()> {

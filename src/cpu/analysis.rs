@@ -5,7 +5,7 @@
 
 use glam::Vec2;
 
-use super::prepared::PreparedScene;
+use super::scene::CpuScene;
 use crate::bundle::raster::{BundleFrame, ScreenTriangle, Viewport};
 
 /// Bins per side of the triangle grid over the analysis window.
@@ -27,14 +27,23 @@ pub struct Analysis {
 }
 
 impl Analysis {
-    /// Rasterises every triangle of `scene` into the `viewport` (R×R) along `frame`.
-    /// Importance is scaled by `importance_scale` (oversampling², rays per texel area).
+    /// Rasterises triangles `candidates` of `scene` (all of them when `None`) into the
+    /// `viewport` (R×R) along `frame`. Importance is `importance[t]` (rays per m² of bundle:
+    /// the target's texel density × oversampling², 0 for triangles holding no target texel).
     ///
     /// A triangle too small to cover any analysis pixel centre still marks the pixel under
     /// its centroid (a conservative touch): otherwise small objects would get no tile at all.
-    pub fn run(&mut self, scene: &PreparedScene, frame: &BundleFrame, viewport: &Viewport, importance_scale: f32) {
+    pub fn run(
+        &mut self,
+        scene: &CpuScene,
+        frame: &BundleFrame,
+        viewport: &Viewport,
+        candidates: Option<&[u32]>,
+        importance: &[f32],
+    ) {
         let res = viewport.width;
         let n = (res * res) as usize;
+        let geom = &scene.bundle.geom;
         self.res = res;
         self.importance.clear();
         self.importance.resize(n, 0.0);
@@ -43,34 +52,41 @@ impl Analysis {
         self.bins.resize_with((BINS * BINS) as usize, Vec::new);
         self.bins.iter_mut().for_each(Vec::clear);
         self.collected.clear();
-        self.collected.resize(scene.geom.len().div_ceil(64), 0);
+        self.collected.resize(geom.len().div_ceil(64), 0);
+        match candidates {
+            Some(c) => c.iter().for_each(|&t| self.add(scene, frame, viewport, t, importance[t as usize])),
+            None => (0..geom.len() as u32).for_each(|t| self.add(scene, frame, viewport, t, importance[t as usize])),
+        }
+    }
+
+    /// Rasterises triangle `t` into the maps and files it into its bins.
+    fn add(&mut self, scene: &CpuScene, frame: &BundleFrame, viewport: &Viewport, t: u32, importance: f32) {
+        let geom = &scene.bundle.geom;
+        let res = viewport.width;
         let bin_side = res as f32 / BINS as f32;
-        for (t, corners) in scene.geom.corners.iter().enumerate() {
-            let importance = scene.importance[t] * importance_scale;
-            let c = corners.map(|p| frame.coords(p));
-            // The window's grid starts at its pixel (0, 0): grid and window positions agree.
-            let p = c.map(|c| viewport.grid_position(Vec2::new(c.x, c.y)));
-            let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
-            self.bin(t as u32, lo / bin_side, hi / bin_side);
-            let mut covered = false;
-            let front_faces_dir = scene.geom.normals[t].dot(frame.dir) > 0.0;
-            if let Some(screen) = ScreenTriangle::setup_in_grid(viewport, p, c.map(|c| c.z), front_faces_dir) {
-                screen.for_each_span(|y, x0, x1| {
-                    let row = (y * res) as usize;
-                    for x in x0 as usize..x1 as usize {
-                        let i = row + x;
-                        self.fragments[i] += 1.0;
-                        self.importance[i] = self.importance[i].max(importance);
-                    }
-                    covered = true;
-                });
-            }
-            if !covered {
-                let c = (p[0] + p[1] + p[2]) / 3.0;
-                if c.x >= 0.0 && c.y >= 0.0 && (c.x as u32) < res && (c.y as u32) < res {
-                    let i = (c.y as u32 * res + c.x as u32) as usize;
+        let c = geom.corners[t as usize].map(|p| frame.coords(p));
+        // The window's grid starts at its pixel (0, 0): grid and window positions agree.
+        let p = c.map(|c| viewport.grid_position(Vec2::new(c.x, c.y)));
+        let (lo, hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+        self.bin(t, lo / bin_side, hi / bin_side);
+        let mut covered = false;
+        let front_faces_dir = geom.normals[t as usize].dot(frame.dir) > 0.0;
+        if let Some(screen) = ScreenTriangle::setup_in_grid(viewport, p, c.map(|c| c.z), front_faces_dir) {
+            screen.for_each_span(|y, x0, x1| {
+                let row = (y * res) as usize;
+                for x in x0 as usize..x1 as usize {
+                    let i = row + x;
+                    self.fragments[i] += 1.0;
                     self.importance[i] = self.importance[i].max(importance);
                 }
+                covered = true;
+            });
+        }
+        if !covered {
+            let c = (p[0] + p[1] + p[2]) / 3.0;
+            if c.x >= 0.0 && c.y >= 0.0 && (c.x as u32) < res && (c.y as u32) < res {
+                let i = (c.y as u32 * res + c.x as u32) as usize;
+                self.importance[i] = self.importance[i].max(importance);
             }
         }
     }

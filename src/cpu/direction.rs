@@ -1,31 +1,37 @@
 //! One bundle direction on the CPU: analysis → mips → tile plan → per tile fragment build
 //! and resolve (global bundles), then the light bundles assigned to that direction.
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 
 use super::analysis::Analysis;
-use super::fragments::TileFragments;
-use super::prepared::PreparedScene;
-use crate::bundle::emitters::EmitterGroup;
-use crate::bundle::estimator::{HitSink, emit, exchange};
+use super::fragments::{ForeignSides, TileFragments};
+use super::scene::CpuScene;
+use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own};
 use crate::bundle::mips::MipChain;
 use crate::bundle::progressive::BatchSums;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
+use crate::bundle::target::{BakeTarget, Cancelled, SourceRadiance};
 use crate::bundle::tiles::{Tile, TileParams, TilePlanner, TilingMode, bundle_resolution};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
 use crate::scene::Rgb;
 
-/// Read-only inputs shared by every lane.
+/// Read-only inputs shared by every lane of a batch.
 pub struct PassContext<'a> {
-    pub scene: &'a PreparedScene<'a>,
+    pub scene: &'a CpuScene,
     pub config: &'a BundleConfig,
-    pub groups: &'a [EmitterGroup],
+    pub target: &'a BakeTarget<'a>,
+    pub source: &'a SourceRadiance<'a>,
+    /// Per triangle: rays needed per m² of bundle (the target's texel density ×
+    /// oversampling²; 0 for triangles holding no target texel).
+    pub importance: &'a [f32],
     pub sky: Rgb,
     /// Light-pass bundle pixel side, metres.
     pub light_pixel: f32,
+    pub cancel: &'a AtomicBool,
 }
 
 /// Per-lane scratch buffers, reused across directions.
@@ -36,6 +42,8 @@ pub struct Scratch {
     candidates: Vec<u32>,
     /// Traversal stack of the triangles' sphere tree.
     spheres: Vec<u32>,
+    /// Triangles whose projection may meet the current window.
+    window_triangles: Vec<u32>,
     queue: Vec<Viewport>,
 }
 
@@ -69,28 +77,58 @@ fn seconds(t: Instant) -> f64 {
 pub fn trace_direction(
     ctx: &PassContext,
     job: &DirectionJob,
-    source: &[Rgb],
     sums: &mut BatchSums,
     s: &mut Scratch,
     stats: &mut PassStats,
-) {
-    trace_global(ctx, job, source, sums, s, stats);
+) -> Result<(), Cancelled> {
+    trace_global(ctx, job, sums, s, stats)?;
     let t = Instant::now();
     for light in &job.lights {
-        trace_light(ctx, light, sums, s, stats);
+        trace_light(ctx, light, sums, s, stats)?;
     }
     stats.light_seconds += seconds(t);
     stats.directions += 1;
+    Ok(())
 }
 
-/// The analysis window of a direction: the bounding sphere's square, R pixels, with one
-/// spare pixel so the per-direction jitter never shifts geometry out of it.
+fn check(ctx: &PassContext) -> Result<(), Cancelled> {
+    if ctx.cancel.load(Ordering::Relaxed) { Err(Cancelled) } else { Ok(()) }
+}
+
+/// The window's square along `frame`: the target's box projected (or the scene's bounding
+/// sphere for a whole-scene target), as (lower corner, side).
+fn window_square(ctx: &PassContext, frame: &BundleFrame) -> (Vec2, f32) {
+    match ctx.target.window {
+        None => {
+            let (r, c) = (ctx.scene.radius, frame.coords(ctx.scene.centre));
+            (Vec2::new(c.x - r, c.y - r), 2.0 * r)
+        }
+        Some((lo, hi)) => {
+            let (mut a, mut b) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
+            for i in 0..8 {
+                let p = Vec3::new(
+                    if i & 1 == 0 { lo.x } else { hi.x },
+                    if i & 2 == 0 { lo.y } else { hi.y },
+                    if i & 4 == 0 { lo.z } else { hi.z },
+                );
+                let c = frame.coords(p);
+                a = a.min(Vec2::new(c.x, c.y));
+                b = b.max(Vec2::new(c.x, c.y));
+            }
+            let side = (b - a).max_element().max(1e-6);
+            let centre = (a + b) * 0.5;
+            (centre - Vec2::splat(side * 0.5), side)
+        }
+    }
+}
+
+/// The analysis window of a direction: the target's square, R pixels, with one spare pixel
+/// so the per-direction jitter never shifts geometry out of it.
 fn analysis_viewport(ctx: &PassContext, frame: &BundleFrame, jitter: Vec2) -> Viewport {
     let res = ctx.config.analysis_res;
-    let r = ctx.scene.radius;
-    let c = frame.coords(ctx.scene.centre);
-    let pixel = 2.0 * r / (res - 1) as f32;
-    Viewport::square(Vec2::new(c.x - r, c.y - r) - jitter * pixel, pixel, res)
+    let (corner, side) = window_square(ctx, frame);
+    let pixel = side / (res - 1) as f32;
+    Viewport::square(corner - jitter * pixel, pixel, res)
 }
 
 fn tile_viewport(global: &Viewport, tile: &Tile) -> Viewport {
@@ -106,20 +144,48 @@ fn gather(analysis: &mut Analysis, global: &Viewport, vp: &Viewport, out: &mut V
     analysis.candidates(lo.x as f64, lo.y as f64, hi.x as f64, hi.y as f64, out);
 }
 
+/// The radiance a bundle line sees of the side with code `code` at grid centre (cx, cy):
+/// a target texel's source, or a foreign side's radiance at its surface point (black, and
+/// counted lost, when the source has no foreign radiance).
+#[inline]
+fn seen(source: &SourceRadiance, foreign: &ForeignSides, code: u32, cx: f32, cy: f32, lost: &mut u64) -> Rgb {
+    if is_own(code) {
+        return source.own[code as usize];
+    }
+    debug_assert!(code >= FOREIGN);
+    match source.foreign {
+        Some(f) => {
+            let (tri, side, u, v) = foreign.locate(code, cx, cy);
+            f.radiance(tri, side, u, v)
+        }
+        None => {
+            *lost += 1;
+            Rgb::ZERO
+        }
+    }
+}
+
 fn trace_global(
     ctx: &PassContext,
     job: &DirectionJob,
-    source: &[Rgb],
     sums: &mut BatchSums,
     s: &mut Scratch,
     stats: &mut PassStats,
-) {
+) -> Result<(), Cancelled> {
     let cfg = ctx.config;
     let frame = BundleFrame::new(job.dir);
     let global = analysis_viewport(ctx, &frame, job.jitter);
 
     let t = Instant::now();
-    s.analysis.run(ctx.scene, &frame, &global, cfg.oversampling * cfg.oversampling);
+    let candidates = match ctx.target.window {
+        None => None,
+        Some(_) => {
+            let side = global.pixel * global.width as f32;
+            ctx.scene.spheres.overlapping(&frame, global.origin, side, &mut s.spheres, &mut s.window_triangles);
+            Some(&s.window_triangles[..])
+        }
+    };
+    s.analysis.run(ctx.scene, &frame, &global, candidates, ctx.importance);
     stats.analysis_seconds += seconds(t);
 
     let t = Instant::now();
@@ -128,10 +194,13 @@ fn trace_global(
     let fragments = MipChain::average_mips(res, std::mem::take(&mut s.analysis.fragments));
     stats.mip_seconds += seconds(t);
     // The config is validated when it is built, so none of these fail in practice; if one
-    // does, the direction is counted as unplanned and the bake driver refuses the result.
+    // does, the direction is counted as unplanned and the driver refuses the result.
     let (importance, fragments) = match (importance, fragments) {
         (Ok(i), Ok(f)) => (i, f),
-        (Err(e), _) | (_, Err(e)) => return unplanned(stats, &e),
+        (Err(e), _) | (_, Err(e)) => {
+            unplanned(stats, &e);
+            return Ok(());
+        }
     };
 
     let t = Instant::now();
@@ -145,18 +214,23 @@ fn trace_global(
         TilePlanner::new(&importance, &fragments, params).and_then(|p| p.plan(cfg.tiling).map(|plan| (p, plan)));
     let (planner, plan) = match planned {
         Ok(planned) => planned,
-        Err(e) => return unplanned(stats, &e),
+        Err(e) => {
+            unplanned(stats, &e);
+            return Ok(());
+        }
     };
     stats.subdivision_seconds += seconds(t);
     stats.add_plan(&plan.stats);
 
     if cfg.measure_false_alarms && cfg.tiling == TilingMode::Adaptive {
-        count_false_alarms(ctx, &planner, &plan.tiles, &frame, &global, s, stats);
+        count_false_alarms(ctx, &planner, &plan.tiles, &frame, &global, s, stats)?;
     }
 
     s.queue.clear();
     s.queue.extend(plan.tiles.iter().rev().map(|tile| tile_viewport(&global, tile)));
+    let mut lost = 0u64;
     while let Some(vp) = s.queue.pop() {
+        check(ctx)?;
         gather(&mut s.analysis, &global, &vp, &mut s.candidates);
         let t = Instant::now();
         let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None);
@@ -171,13 +245,15 @@ fn trace_global(
 
         let t = Instant::now();
         let a_px = vp.pixel_area();
-        let sky = ctx.sky;
+        let (sky, source) = (ctx.sky, ctx.source);
         let mut sink = BundleHits(&mut sums.bundle);
-        stats.covered_pixels +=
-            s.fragments.resolve(ctx.scene, |f| exchange(f, a_px, sky, |t| source[t as usize], &mut sink));
+        stats.covered_pixels += s.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
+            exchange(f, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lost), &mut sink)
+        });
         stats.resolve_seconds += seconds(t);
     }
-    stats.lost_lookups += std::mem::take(&mut s.fragments.lost_lookups);
+    stats.lost_lookups += lost;
+    Ok(())
 }
 
 fn unplanned(stats: &mut PassStats, error: &dyn std::fmt::Display) {
@@ -217,7 +293,7 @@ fn count_false_alarms(
     global: &Viewport,
     s: &mut Scratch,
     stats: &mut PassStats,
-) {
+) -> Result<(), Cancelled> {
     let mut seen = std::collections::BTreeSet::new();
     let top_level = ctx.config.analysis_res.trailing_zeros();
     for tile in tiles {
@@ -247,20 +323,37 @@ fn count_false_alarms(
             x >>= 1;
             y >>= 1;
         }
+        check(ctx)?;
     }
+    Ok(())
 }
 
-/// One light bundle: the window around an emitter group's footprint along ω, in tiles of at
-/// most W×W pixels; emitter fragments light the neighbours facing them.
-fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut Scratch, stats: &mut PassStats) {
+/// One light bundle: the window around an emitter group's footprint along ω (cut to the
+/// target's window, where only target texels can be lit), in tiles of at most W×W pixels;
+/// emitter fragments light the neighbours facing them.
+fn trace_light(
+    ctx: &PassContext,
+    job: &LightJob,
+    sums: &mut BatchSums,
+    s: &mut Scratch,
+    stats: &mut PassStats,
+) -> Result<(), Cancelled> {
     let cfg = ctx.config;
-    let group = &ctx.groups[job.group as usize];
+    let group = &ctx.scene.bundle.emitters.small[job.group as usize];
     let frame = BundleFrame::new(job.dir);
     let (mut lo, mut hi) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
     for c in group.corners() {
         let f = frame.coords(c);
         lo = lo.min(Vec2::new(f.x, f.y));
         hi = hi.max(Vec2::new(f.x, f.y));
+    }
+    if ctx.target.window.is_some() {
+        let (corner, side) = window_square(ctx, &frame);
+        lo = lo.max(corner);
+        hi = hi.min(corner + Vec2::splat(side));
+        if lo.x > hi.x || lo.y > hi.y {
+            return Ok(());
+        }
     }
     let pixel = ctx.light_pixel;
     let origin = lo - (job.jitter + Vec2::ONE) * pixel;
@@ -278,7 +371,13 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
             s.queue.push(Viewport::square(corner, pixel, tile_res));
         }
     }
+    let mut lost = 0u64;
+    let mut result = Ok(());
     while let Some(vp) = s.queue.pop() {
+        if let Err(c) = check(ctx) {
+            result = Err(c);
+            break;
+        }
         let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group));
         if count > cfg.node_capacity && overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             continue;
@@ -287,12 +386,33 @@ fn trace_light(ctx: &PassContext, job: &LightJob, sums: &mut BatchSums, s: &mut 
         stats.light_fragments += count;
         stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
         let a_px = vp.pixel_area();
-        let emission = &ctx.scene.texels.emission;
+        let (own, source) = (ctx.target.emission, ctx.source);
         let mut sink = LightHits(&mut sums.light);
-        s.fragments.resolve(ctx.scene, |f| {
+        s.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
             stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
-            emit(f, a_px, |t| emission[t as usize], &mut sink)
+            emit(
+                f,
+                a_px,
+                |code| {
+                    if is_own(code) {
+                        return own[code as usize];
+                    }
+                    match source.foreign {
+                        Some(src) => {
+                            let (tri, side, u, v) = foreign.locate(code, cx, cy);
+                            src.emission(tri, side, u, v)
+                        }
+                        None => {
+                            lost += 1;
+                            Rgb::ZERO
+                        }
+                    }
+                },
+                &mut sink,
+            )
         });
     }
+    stats.lost_lookups += lost;
     s.candidates = candidates;
+    result
 }

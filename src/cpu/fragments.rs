@@ -16,10 +16,13 @@
 //! A pixel's fragments arrive in triangle order and are insertion-sorted, which is stable:
 //! ties keep a deterministic order, and results do not depend on how tiles were split.
 
-use super::prepared::{BlockedTable, NO_GROUP, PreparedScene};
+use super::scene::CpuScene;
+use crate::atlas::lookup::TexelTable;
 use crate::atlas::texels::NO_TEXEL;
-use crate::bundle::estimator::{EMITTER_FLAG, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, sort_by_depth};
+use crate::bundle::estimator::{EMITTER_FLAG, FOREIGN, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, sort_by_depth};
 use crate::bundle::raster::{BundleFrame, Planes, ScreenTriangle, Viewport, eval, grid_centre};
+use crate::bundle::target::{BakeTarget, NO_GROUP};
+use crate::scene::Side;
 use glam::Vec2;
 
 /// Width in pixels of the strips a tile is resolved in.
@@ -35,20 +38,31 @@ struct TileTriangle {
 }
 
 /// What the fragments of one triangle carry, as affine functions of grid pixel coordinates
-/// (see [`Planes`]): depth, and per lit side the UV (LOD pixels) that locates its texel.
-/// Only built tiles need them, so they are set up after the count.
+/// (see [`Planes`]): depth, and per side how it finds its code. Only built tiles need them,
+/// so they are set up after the count.
 struct FragmentPlanes {
     depth: [f32; 3],
-    plus: SideUv,
-    minus: SideUv,
+    /// Barycentrics, for locating a foreign side's surface point.
+    planes: Planes,
+    plus: SideLookup,
+    minus: SideLookup,
     /// Flags the fragments carry: [`EMITTER_FLAG`] on `plus`, [`FRONT_LOOKS_PLUS`] on `minus`.
     plus_flag: u32,
     minus_flag: u32,
 }
 
-/// A side's UV as an affine function of grid pixel coordinates, or `None` when the side is
-/// not a lit face.
-type SideUv = Option<[Vec2; 3]>;
+/// How a side of a tile triangle gets its code (see [`crate::bundle::estimator`]).
+#[derive(Clone, Copy)]
+enum SideLookup {
+    /// Not a lit face.
+    Dark,
+    /// A lit face whose chart holds no target texel: always this foreign code.
+    Foreign(u32),
+    /// A lit face of a chart with a target table (an index into the target's tables): its
+    /// UV, an affine function of grid pixel coordinates in LOD pixels, finds the texel; a
+    /// pixel the table does not hold gives the foreign code.
+    Table { uv: [Vec2; 3], table: u32, foreign: u32 },
+}
 
 /// Pixels `x0..x1` of one row covered by triangle `tri` (an index into the tile's triangles).
 #[derive(Clone, Copy, Debug)]
@@ -79,8 +93,6 @@ pub struct TileFragments {
     /// Row buffer: pixel p of the resolved window owns `frags[ends[p]..ends[p + 1]]`.
     ends: Vec<u32>,
     frags: Vec<Fragment>,
-    /// Fragments whose UV fell outside every texel through rounding (they still occlude).
-    pub lost_lookups: u64,
 }
 
 fn side_uv(planes: &Planes, uv: [Vec2; 3]) -> [Vec2; 3] {
@@ -94,7 +106,7 @@ impl TileFragments {
     /// fragments. `emitter_group` makes this a light pass of that group. Returns the count.
     pub fn prepare(
         &mut self,
-        scene: &PreparedScene,
+        scene: &CpuScene,
         frame: &BundleFrame,
         viewport: &Viewport,
         candidates: &[u32],
@@ -105,11 +117,11 @@ impl TileFragments {
         self.offset = viewport.offset;
         self.emitters_only = emitter_group.is_some();
         self.tris.clear();
+        let geom = &scene.bundle.geom;
         for &t in candidates {
             let i = t as usize;
-            if let Some(screen) = ScreenTriangle::setup(frame, viewport, &scene.geom.corners[i], scene.geom.normals[i])
-            {
-                let emitter = emitter_group.is_some_and(|g| g != NO_GROUP && scene.emitter_group[i] == g);
+            if let Some(screen) = ScreenTriangle::setup(frame, viewport, &geom.corners[i], geom.normals[i]) {
+                let emitter = emitter_group.is_some_and(|g| g != NO_GROUP && scene.bundle.group_of[i] == g);
                 self.tris.push(TileTriangle { index: t, screen, emitter });
             }
         }
@@ -177,15 +189,24 @@ impl TileFragments {
     }
 
     /// Resolves the tile counted by [`prepare`](Self::prepare) (the caller has checked the
-    /// count against the node budget): calls `visit(fragments)` with the depth-sorted
-    /// fragments of every covered pixel — in a light pass, of every pixel an emitter covers
-    /// (at least) — strip by strip, row by row. Returns how many pixels it visited.
-    pub fn resolve(&mut self, scene: &PreparedScene, mut visit: impl FnMut(&[Fragment])) -> u64 {
-        self.set_up_planes(scene);
+    /// count against the node budget) for `target`: calls `visit(fragments, foreign, cx, cy)`
+    /// with the depth-sorted fragments of every covered pixel — in a light pass, of every
+    /// pixel an emitter covers (at least) — and the pixel's grid centre, strip by strip, row
+    /// by row. `foreign` locates the surface point of a foreign side code at that centre.
+    /// Returns how many pixels it visited.
+    pub fn resolve(
+        &mut self,
+        scene: &CpuScene,
+        target: &BakeTarget,
+        mut visit: impl FnMut(&[Fragment], &ForeignSides, f32, f32),
+    ) -> u64 {
+        self.set_up_planes(scene, target);
         let mut covered = 0;
         for bucket in 0..self.bucket_len.len() {
             let Some((lo, hi)) = self.window(bucket) else { continue };
-            self.fill(scene, bucket, lo, hi);
+            self.fill(target, bucket, lo, hi);
+            let cy = grid_centre(self.offset.1, bucket as u32 % self.height);
+            let foreign = ForeignSides { tris: &self.tris, planes: &self.planes };
             for p in 0..(hi - lo) as usize {
                 let (a, b) = (self.ends[p] as usize, self.ends[p + 1] as usize);
                 if b > a {
@@ -193,7 +214,7 @@ impl TileFragments {
                     if frags.len() > 1 {
                         sort_by_depth(frags, scene.coincident_depth);
                     }
-                    visit(frags);
+                    visit(frags, &foreign, grid_centre(self.offset.0, lo + p as u32), cy);
                     covered += 1;
                 }
             }
@@ -201,20 +222,38 @@ impl TileFragments {
         covered
     }
 
-    fn set_up_planes(&mut self, scene: &PreparedScene) {
+    fn set_up_planes(&mut self, scene: &CpuScene, target: &BakeTarget) {
+        let atlas = &scene.bundle.atlas;
+        let scale = (1u64 << target.lod) as f32;
+        let lookup = |k: usize, tri: u32, side: Side, minus: bool| {
+            let foreign = FOREIGN + 2 * k as u32 + u32::from(minus);
+            let Some(f) = atlas.face(tri, side) else { return SideLookup::Dark };
+            let face = &atlas.faces[f as usize];
+            match target.table_index(face.chart) {
+                Some(table) => SideLookup::Table { uv: face.uv.map(|p| p * scale), table: table as u32, foreign },
+                None => SideLookup::Foreign(foreign),
+            }
+        };
         self.planes.clear();
-        self.planes.extend(self.tris.iter().map(|tri| {
-            let [front, back] = scene.face_uv[tri.index as usize];
-            let (plus, minus) = if tri.screen.front_faces_dir { (front, back) } else { (back, front) };
+        for (k, tri) in self.tris.iter().enumerate() {
+            let (plus_side, minus_side) =
+                if tri.screen.front_faces_dir { (Side::Front, Side::Back) } else { (Side::Back, Side::Front) };
             let planes = tri.screen.planes();
-            FragmentPlanes {
+            let in_grid = |l: SideLookup| match l {
+                SideLookup::Table { uv, table, foreign } => {
+                    SideLookup::Table { uv: side_uv(&planes, uv), table, foreign }
+                }
+                other => other,
+            };
+            self.planes.push(FragmentPlanes {
                 depth: planes.depth_coefficients(),
-                plus: plus.map(|uv| side_uv(&planes, uv)),
-                minus: minus.map(|uv| side_uv(&planes, uv)),
+                planes,
+                plus: in_grid(lookup(k, tri.index, plus_side, false)),
+                minus: in_grid(lookup(k, tri.index, minus_side, true)),
                 plus_flag: if tri.emitter { EMITTER_FLAG } else { 0 },
                 minus_flag: if tri.screen.front_faces_dir { FRONT_LOOKS_PLUS } else { 0 },
-            }
-        }));
+            });
+        }
     }
 
     fn bucket_spans_of(&self, bucket: usize) -> &[Span] {
@@ -236,7 +275,7 @@ impl TileFragments {
     }
 
     /// Builds the per-pixel fragment lists of pixels `lo..hi` of a bucket in the row buffer.
-    fn fill(&mut self, scene: &PreparedScene, bucket: usize, lo: u32, hi: u32) {
+    fn fill(&mut self, target: &BakeTarget, bucket: usize, lo: u32, hi: u32) {
         let start = self.bucket_start[bucket] as usize;
         let spans = &self.spans[start..start + self.bucket_len[bucket] as usize];
         let row = bucket as u32 % self.height;
@@ -261,8 +300,6 @@ impl TileFragments {
             total += running;
         }
         grow(&mut self.frags, total as usize, Fragment { depth: 0.0, plus: NO_SIDE, minus: NO_SIDE });
-        let texels = TexelLookup::new(scene);
-        let mut lost = 0u64;
         let cy = grid_centre(self.offset.1, row);
         for s in spans {
             let (x0, x1) = clip(s);
@@ -278,18 +315,70 @@ impl TileFragments {
                 cy,
                 planes: p,
             };
-            // One loop per combination of lit sides, so the pixel loop tests none.
-            let lost = &mut lost;
+            // One loop per kind of side pair, so the pixel loop tests none.
+            let code = |l: &SideLookup| match *l {
+                SideLookup::Dark => NO_SIDE,
+                SideLookup::Foreign(c) => c,
+                SideLookup::Table { foreign, .. } => foreign,
+            };
             match (&p.plus, &p.minus) {
-                (Some(plus), Some(minus)) => {
-                    span.fill(|cx| (texels.at(plus, cx, cy, lost), texels.at(minus, cx, cy, lost)))
+                (
+                    SideLookup::Table { uv: a, table: ta, foreign: fa },
+                    SideLookup::Table { uv: b, table: tb, foreign: fb },
+                ) => {
+                    let (ta, tb) = (&target.tables[*ta as usize], &target.tables[*tb as usize]);
+                    span.fill(|cx| (texel_at(ta, a, cx, cy, *fa), texel_at(tb, b, cx, cy, *fb)))
                 }
-                (Some(plus), None) => span.fill(|cx| (texels.at(plus, cx, cy, lost), NO_SIDE)),
-                (None, Some(minus)) => span.fill(|cx| (NO_SIDE, texels.at(minus, cx, cy, lost))),
-                (None, None) => span.fill(|_| (NO_SIDE, NO_SIDE)),
+                (SideLookup::Table { uv, table, foreign }, other) => {
+                    let (t, m) = (&target.tables[*table as usize], code(other));
+                    span.fill(|cx| (texel_at(t, uv, cx, cy, *foreign), m))
+                }
+                (other, SideLookup::Table { uv, table, foreign }) => {
+                    let (t, pl) = (&target.tables[*table as usize], code(other));
+                    span.fill(|cx| (pl, texel_at(t, uv, cx, cy, *foreign)))
+                }
+                (a, b) => {
+                    let (a, b) = (code(a), code(b));
+                    span.fill(|_| (a, b))
+                }
             }
         }
-        self.lost_lookups += lost;
+    }
+}
+
+/// Where the surface point of a foreign side code lies, for the tile being resolved.
+pub struct ForeignSides<'a> {
+    tris: &'a [TileTriangle],
+    planes: &'a [FragmentPlanes],
+}
+
+impl ForeignSides<'_> {
+    /// The triangle, side and barycentrics under grid centre (cx, cy) of foreign code `code`.
+    #[inline]
+    pub fn locate(&self, code: u32, cx: f32, cy: f32) -> (u32, Side, f32, f32) {
+        let k = ((code - FOREIGN) >> 1) as usize;
+        let minus = code & 1 == 1;
+        let tri = &self.tris[k];
+        let plus_is_front = tri.screen.front_faces_dir;
+        let side = if plus_is_front != minus { Side::Front } else { Side::Back };
+        let (u, v) = self.planes[k].planes.barycentrics(cx, cy);
+        (tri.index, side, u, v)
+    }
+}
+
+/// The code of a side with table `table` and UV function `uv` at pixel centre (cx, cy): its
+/// texel, or `foreign` where the table holds none (a pixel of the chart owned by another
+/// region, or a UV that rounds outside every texel).
+#[inline]
+fn texel_at(table: &TexelTable, uv: &[Vec2; 3], cx: f32, cy: f32, foreign: u32) -> u32 {
+    let p = uv[0] * cx + uv[1] * cy + uv[2];
+    // ⌊p⌋ as integers; NaN and out-of-range values miss the table.
+    if !(p.x >= 0.0 && p.y >= 0.0 && p.x < 1.6e7 && p.y < 1.6e7) {
+        return foreign;
+    }
+    match table.get(p.x as i64, p.y as i64) {
+        NO_TEXEL => foreign,
+        t => t,
     }
 }
 
@@ -326,38 +415,5 @@ impl SpanFill<'_> {
 fn grow<T: Copy>(buffer: &mut Vec<T>, len: usize, value: T) {
     if buffer.len() < len {
         buffer.resize(len, value);
-    }
-}
-
-/// The atlas-pixel → texel table of the LOD being baked.
-struct TexelLookup<'a> {
-    table: &'a BlockedTable,
-    /// The atlas size in pixels, as far as f32 holds it exactly (2^24: far beyond any atlas).
-    size: Vec2,
-}
-
-impl<'a> TexelLookup<'a> {
-    fn new(scene: &'a PreparedScene) -> Self {
-        let (width, height) = (scene.texels.width, scene.texels.height);
-        let exact = |n: u32| n.min(1 << 24) as f32;
-        TexelLookup { table: &scene.texel_lookup, size: Vec2::new(exact(width), exact(height)) }
-    }
-
-    /// The texel under the pixel centre (cx, cy) of a side with UV function `uv`. Pixel
-    /// centres inside the triangle map inside its UV triangle, whose pixels hold its chart's
-    /// texels; rounding may land a hair outside, in the chart's gutter ring, which maps to
-    /// the chart's nearest texel.
-    #[inline]
-    fn at(&self, uv: &[Vec2; 3], cx: f32, cy: f32, lost: &mut u64) -> u32 {
-        let uv = uv[0] * cx + uv[1] * cy + uv[2];
-        // 0 ≤ uv < size, i.e. its pixel ⌊uv⌋ is in the atlas (the size is whole pixels).
-        if uv.x >= 0.0 && uv.y >= 0.0 && uv.x < self.size.x && uv.y < self.size.y {
-            let t = self.table.get(uv.x as u32, uv.y as u32);
-            if t != NO_TEXEL {
-                return t;
-            }
-        }
-        *lost += 1;
-        NO_SIDE
     }
 }

@@ -8,80 +8,150 @@
 mod analysis;
 mod direction;
 mod fragments;
-pub mod prepared;
-pub mod punctual;
+pub mod scene;
 mod spheres;
 
-use crate::bundle::emitters::EmitterGroup;
+use std::sync::atomic::AtomicBool;
+use std::sync::{Arc, Mutex, Weak};
+
 use crate::bundle::progressive::BatchSums;
 use crate::bundle::stats::PassStats;
-use crate::bundle::{BundleBackend, BundleConfig, DirectionJob};
+use crate::bundle::target::{BackendError, BackendProvider, BakeTarget, BundleScene, Cancelled, SourceRadiance};
+use crate::bundle::{BundleBackend, DirectionJob};
 use crate::parallel::par_map;
-use crate::scene::Rgb;
 
 use direction::{PassContext, Scratch, trace_direction};
-pub use prepared::PreparedScene;
+pub use scene::CpuScene;
 
 struct Lane {
     sums: BatchSums,
     scratch: Scratch,
 }
 
-pub struct CpuBundleBackend<'a> {
-    ctx: PassContext<'a>,
+pub struct CpuBundleBackend {
+    scene: Arc<CpuScene>,
     lanes: Vec<Lane>,
     threads: usize,
+    /// Per triangle: the current target's importance (rays per m²); zero outside it.
+    importance: Vec<f32>,
 }
 
-impl<'a> CpuBundleBackend<'a> {
-    /// `light_pixel`: bundle pixel side of the light pass (metres).
-    pub fn new(
-        scene: &'a PreparedScene<'a>,
-        config: &'a BundleConfig,
-        groups: &'a [EmitterGroup],
-        sky: Rgb,
-        light_pixel: f32,
-        threads: usize,
-    ) -> Self {
-        let texels = scene.texels.len();
-        let lanes = (0..config.lanes.max(1))
-            .map(|_| Lane { sums: BatchSums::new(texels), scratch: Scratch::default() })
+impl CpuBundleBackend {
+    pub fn new(scene: Arc<CpuScene>, threads: usize) -> Self {
+        let lanes = (0..scene.bundle.config.lanes.max(1))
+            .map(|_| Lane { sums: BatchSums::default(), scratch: Scratch::default() })
             .collect();
-        CpuBundleBackend {
-            ctx: PassContext { scene, config, groups, sky, light_pixel },
-            lanes,
-            threads: threads.max(1),
+        let importance = vec![0.0; scene.bundle.geom.len()];
+        CpuBundleBackend { scene, lanes, threads: threads.max(1), importance }
+    }
+
+    /// Sets the importance of `target`'s triangles (LOD-k texel density × oversampling²).
+    fn set_importance(&mut self, target: &BakeTarget, on: bool) {
+        let os = self.scene.bundle.config.oversampling;
+        let scale = (1u64 << (2 * target.lod)) as f32 * os * os;
+        for &t in target.triangles {
+            self.importance[t as usize] = if on { self.scene.density[t as usize] * scale } else { 0.0 };
         }
     }
 }
 
-impl BundleBackend for CpuBundleBackend<'_> {
+impl BundleBackend for CpuBundleBackend {
     fn name(&self) -> &'static str {
         "cpu"
     }
 
-    fn trace_batch(&mut self, batch: &[DirectionJob], source: &[Rgb], sums: &mut BatchSums) -> PassStats {
+    fn trace_batch(
+        &mut self,
+        target: &BakeTarget,
+        batch: &[DirectionJob],
+        source: &SourceRadiance,
+        sums: &mut BatchSums,
+        cancel: &AtomicBool,
+    ) -> Result<PassStats, Cancelled> {
+        self.set_importance(target, true);
+        for lane in &mut self.lanes {
+            if lane.sums.bundle.len() != target.len() {
+                lane.sums = BatchSums::new(target.len());
+            }
+        }
+        let bundle = &self.scene.bundle;
+        let ctx = PassContext {
+            scene: &self.scene,
+            config: &bundle.config,
+            target,
+            source,
+            importance: &self.importance,
+            sky: bundle.scene.sky,
+            light_pixel: bundle.light_pixel(target.lod),
+            cancel,
+        };
         let n_lanes = self.lanes.len();
-        let ctx = &self.ctx;
         // Lane l traces directions l, l + n_lanes, ... in order into its own sums; lanes are
         // independent, so which worker runs which lane does not change the result.
         let lanes: Vec<(usize, &mut Lane)> = self.lanes.iter_mut().enumerate().collect();
-        let stats = par_map(lanes, self.threads, |(l, lane)| {
+        let results = par_map(lanes, self.threads, |(l, lane)| {
             let mut stats = PassStats::default();
             for job in batch.iter().skip(l).step_by(n_lanes) {
-                trace_direction(ctx, job, source, &mut lane.sums, &mut lane.scratch, &mut stats);
+                trace_direction(&ctx, job, &mut lane.sums, &mut lane.scratch, &mut stats)?;
             }
-            stats
+            Ok(stats)
         });
+        self.set_importance(target, false);
+        let mut total = PassStats::default();
+        let mut cancelled = false;
+        for r in results {
+            match r {
+                Ok(s) => total.add(&s),
+                Err(Cancelled) => cancelled = true,
+            }
+        }
         let mut lane_sums: Vec<BatchSums> = self.lanes.iter_mut().map(|l| std::mem::take(&mut l.sums)).collect();
+        if sums.bundle.len() != target.len() {
+            *sums = BatchSums::new(target.len());
+        }
+        // Reducing also zeroes the lanes for the next batch (a cancelled batch included).
         sums.reduce_from(&mut lane_sums, self.threads);
         for (lane, s) in self.lanes.iter_mut().zip(lane_sums) {
             lane.sums = s;
         }
-        let mut total = PassStats::default();
-        for s in &stats {
-            total.add(s);
+        if cancelled { Err(Cancelled) } else { Ok(total) }
+    }
+}
+
+/// Makes CPU backends; the per-scene data ([`CpuScene`]) is built once per scene and
+/// shared by every backend made for it.
+#[derive(Default)]
+pub struct CpuProvider {
+    cache: Mutex<Option<(Weak<BundleScene>, Arc<CpuScene>)>>,
+}
+
+impl CpuProvider {
+    pub fn new() -> Self {
+        CpuProvider::default()
+    }
+
+    /// The shared CPU data of `scene`.
+    pub fn scene(&self, scene: &Arc<BundleScene>) -> Arc<CpuScene> {
+        let mut cache = self.cache.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((weak, cpu)) = cache.as_ref()
+            && weak.upgrade().is_some_and(|s| Arc::ptr_eq(&s, scene))
+        {
+            return cpu.clone();
         }
-        total
+        let cpu = Arc::new(CpuScene::new(scene.clone()));
+        *cache = Some((Arc::downgrade(scene), cpu.clone()));
+        cpu
+    }
+}
+
+impl BackendProvider for CpuProvider {
+    type Backend = CpuBundleBackend;
+
+    fn name(&self) -> &'static str {
+        "cpu"
+    }
+
+    fn backend(&self, scene: &Arc<BundleScene>, threads: usize) -> Result<CpuBundleBackend, BackendError> {
+        Ok(CpuBundleBackend::new(self.scene(scene), threads))
     }
 }

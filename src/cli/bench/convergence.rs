@@ -125,7 +125,7 @@ fn whole_command(
 }
 
 /// Bakes the light map with `config` and reads it at the reference points.
-fn bake_and_probe(scene: &Scene, config: &BakeConfig, reference: &Reference) -> Result<(f64, f64)> {
+fn bake_and_probe(scene: &std::sync::Arc<Scene>, config: &BakeConfig, reference: &Reference) -> Result<(f64, f64)> {
     let t = Instant::now();
     let baked = bake(scene, config, &NoProgress)?;
     let secs = seconds(t);
@@ -163,7 +163,7 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
         .collect();
 
     ui.say("  bundle and reference bakes ...");
-    let scene = load_gltf(&scene_path, &LoadOptions::default())?;
+    let scene = std::sync::Arc::new(load_gltf(&scene_path, &LoadOptions::default())?);
     let mut base = BakeConfig::default();
     base.atlas.texel_size = Some(TEXEL);
     let mut bundle = Vec::new();

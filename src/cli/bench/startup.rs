@@ -20,7 +20,7 @@ const ROOM: &str = "van_gogh_room/van_gogh_room_lit.gltf";
 pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     let runs = if quick { 1 } else { 3 };
     let path = assets().join(ROOM);
-    let scene = load_gltf(&path, &LoadOptions::default())?;
+    let scene = std::sync::Arc::new(load_gltf(&path, &LoadOptions::default())?);
     let mut config = BakeConfig { samples: 256, ..BakeConfig::default() };
     config.atlas.texel_size = Some(0.05);
     let mut last = None;

@@ -20,7 +20,7 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     let cores = livebake::parallel::available_threads() as f64;
     let mut out = Vec::new();
     for name in SCENES {
-        let scene = load_gltf(&assets().join(name), &LoadOptions::default())?;
+        let scene = std::sync::Arc::new(load_gltf(&assets().join(name), &LoadOptions::default())?);
         let mut config = BakeConfig { samples, ..BakeConfig::default() };
         config.atlas.texel_size = Some(TEXEL_SIZE);
         let mut last = None;

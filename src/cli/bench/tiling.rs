@@ -19,7 +19,7 @@ use crate::cli::progress::Ui;
 const ROOM: &str = "van_gogh_room/van_gogh_room_lit.gltf";
 
 pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
-    let scene = load_gltf(&assets().join(ROOM), &LoadOptions::default())?;
+    let scene = std::sync::Arc::new(load_gltf(&assets().join(ROOM), &LoadOptions::default())?);
     let (directions, ref_points, ref_spp) = if quick { (32, 100, 1024) } else { (128, 300, 8192) };
     let mut base = BakeConfig { samples: directions, ..BakeConfig::default() };
     base.atlas.texel_size = Some(0.02);

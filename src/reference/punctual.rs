@@ -2,23 +2,31 @@
 //! hit a point, so each texel casts one shadow ray per light through the BVH. Deterministic
 //! and noise-free; shadows are as sharp as the texels.
 
-use crate::atlas::TexelMap;
+use glam::Vec3;
+
+use super::Bvh;
 use crate::parallel::par_map_indices;
-use crate::reference::Bvh;
 use crate::scene::{Rgb, Scene};
 
-/// Irradiance (W/m²) from every punctual light of `scene` at every texel. Shadow rays leave
-/// from `p + ε·n` and stop ε short of the light.
-pub fn punctual_irradiance(scene: &Scene, bvh: &Bvh, texels: &TexelMap, epsilon: f32, threads: usize) -> Vec<Rgb> {
-    let n = texels.len();
+/// Irradiance (W/m²) from every punctual light of `scene` at every texel (surface points
+/// `positions` with unit normals `normals`). Shadow rays leave from `p + ε·n` and stop ε
+/// short of the light.
+pub fn punctual_irradiance(
+    scene: &Scene,
+    bvh: &Bvh,
+    positions: &[Vec3],
+    normals: &[Vec3],
+    epsilon: f32,
+    threads: usize,
+) -> Vec<Rgb> {
+    let n = positions.len();
     if scene.lights.is_empty() || n == 0 {
         return vec![Rgb::ZERO; n];
     }
-    par_map_indices(n, 1024, threads, |i| texel_irradiance(scene, bvh, texels, i, epsilon), &|_| {})
+    par_map_indices(n, 1024, threads, |i| point_irradiance(scene, bvh, positions[i], normals[i], epsilon), &|_| {})
 }
 
-fn texel_irradiance(scene: &Scene, bvh: &Bvh, texels: &TexelMap, i: usize, epsilon: f32) -> Rgb {
-    let (p, n) = (texels.position[i], texels.normal[i]);
+fn point_irradiance(scene: &Scene, bvh: &Bvh, p: Vec3, n: Vec3, epsilon: f32) -> Rgb {
     let origin = p + n * epsilon;
     let mut e = Rgb::ZERO;
     for light in &scene.lights {

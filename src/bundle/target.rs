@@ -1,0 +1,150 @@
+//! What a bundle backend is asked to do, independent of how it does it: the scene-wide
+//! inputs ([`BundleScene`]), the texels a batch credits ([`BakeTarget`]: a whole LOD, or
+//! the texels of one runtime cell) and the radiance the bundles see ([`SourceRadiance`]).
+//!
+//! Every triangle in a direction's window occludes and is seen, wherever it is; only target
+//! texels receive. A fragment side that is a lit face but not a target texel is *foreign*:
+//! its radiance comes from [`SurfaceRadiance`] (the runtime reads its shown light map there).
+
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use glam::Vec3;
+
+use super::emitters::{EmitterPlan, plan_emitters};
+use super::progressive::BatchSums;
+use super::stats::PassStats;
+use super::{BundleConfig, DirectionJob};
+use crate::atlas::lookup::TexelTable;
+use crate::atlas::{Atlas, FaceId};
+use crate::scene::{Rgb, Scene, SceneGeometry, Side};
+
+/// Marks a triangle that belongs to no light-pass emitter group.
+pub const NO_GROUP: u32 = u32::MAX;
+
+/// Scene-wide inputs of every bundle pass, owned so that long-lived workers can hold them.
+pub struct BundleScene {
+    pub scene: Arc<Scene>,
+    pub geom: Arc<SceneGeometry>,
+    pub atlas: Arc<Atlas>,
+    pub config: BundleConfig,
+    pub emitters: EmitterPlan,
+    /// Per triangle: its light-pass group or [`NO_GROUP`].
+    pub group_of: Vec<u32>,
+}
+
+impl BundleScene {
+    pub fn new(scene: Arc<Scene>, geom: Arc<SceneGeometry>, atlas: Arc<Atlas>, config: BundleConfig) -> Self {
+        let emitters = plan_emitters(&scene, &geom, atlas.stats.lit_area, config.small_emitter_fraction);
+        let mut group_of = vec![NO_GROUP; geom.len()];
+        for (g, group) in emitters.small.iter().enumerate() {
+            for &t in &group.triangles {
+                group_of[t as usize] = g as u32;
+            }
+        }
+        BundleScene { scene, geom, atlas, config, emitters, group_of }
+    }
+
+    /// Light-pass bundle pixel side (metres) at LOD `lod`.
+    pub fn light_pixel(&self, lod: u32) -> f32 {
+        self.atlas.texel_size / (1u64 << lod) as f32 / self.config.oversampling
+    }
+
+    /// Whether the global bundles carry the emission of face `face` (a large emitter).
+    pub fn carried(&self, face: FaceId) -> bool {
+        self.emitters.carried_by_bundles[self.atlas.faces[face as usize].tri as usize]
+    }
+}
+
+/// The texels one bake credits.
+pub struct BakeTarget<'a> {
+    pub lod: u32,
+    /// Per texel: its face.
+    pub face: &'a [FaceId],
+    /// Per texel: emitted radiance of its side (the light pass's emitter texels).
+    pub emission: &'a [Rgb],
+    /// Where fragments find their texels: one whole-LOD table (`chart: None`), or one table
+    /// per chart holding target texels (ascending by chart).
+    pub tables: &'a [TexelTable],
+    /// A world box holding every target texel's surface (with its footprint): bundle windows
+    /// are its projection. `None`: the whole scene.
+    pub window: Option<(Vec3, Vec3)>,
+    /// Triangles holding target texels (ascending): the importance of Sect. 3 is their texel
+    /// density; other triangles only occlude and are seen.
+    pub triangles: &'a [u32],
+}
+
+impl BakeTarget<'_> {
+    pub fn len(&self) -> usize {
+        self.face.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.face.is_empty()
+    }
+
+    /// The index in [`tables`](Self::tables) of the table serving chart `chart`, if any.
+    pub fn table_index(&self, chart: u32) -> Option<usize> {
+        match self.tables {
+            [t] if t.chart.is_none() => Some(0),
+            tables => tables.binary_search_by_key(&Some(chart), |t| t.chart).ok(),
+        }
+    }
+}
+
+/// Radiance of surfaces outside the target, at barycentrics `(u, v)` of triangle `tri`
+/// (weights of corners 1 and 2) on side `side`.
+pub trait SurfaceRadiance: Sync {
+    /// Outgoing radiance toward the bundles: reflected light, plus emission where the
+    /// global bundles carry it.
+    fn radiance(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb;
+    /// Emitted radiance (the light pass's emitters).
+    fn emission(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb;
+}
+
+/// What the bundles of a batch see.
+pub struct SourceRadiance<'a> {
+    /// Per target texel: its outgoing radiance toward the bundles.
+    pub own: &'a [Rgb],
+    /// Foreign sides; `None` when the target covers every lit face of the window (a side
+    /// that still misses its texel then sees black and is counted as a lost lookup).
+    pub foreign: Option<&'a dyn SurfaceRadiance>,
+}
+
+/// A batch stopped at a tile boundary because its cancel flag was raised; its sums are
+/// partial and must be dropped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("the bundle batch was cancelled")]
+pub struct Cancelled;
+
+/// Errors making a backend.
+#[derive(Debug, thiserror::Error)]
+pub enum BackendError {
+    #[error("{0}")]
+    Unavailable(String),
+}
+
+/// Something that traces bundles: the CPU backend, and the GPU backend. The driver (bake
+/// or runtime) owns directions, batching and the estimate; a backend turns a batch of
+/// directions into the target's hit sums.
+pub trait BundleBackend: Send {
+    fn name(&self) -> &'static str;
+    /// Traces `batch` for `target`, overwriting `sums` (sized to the target) with the
+    /// batch's hit sums. Checks `cancel` between tiles.
+    fn trace_batch(
+        &mut self,
+        target: &BakeTarget,
+        batch: &[DirectionJob],
+        source: &SourceRadiance,
+        sums: &mut BatchSums,
+        cancel: &AtomicBool,
+    ) -> Result<PassStats, Cancelled>;
+}
+
+/// Makes backends for a scene: the runtime is generic over this, never over a concrete
+/// backend. `threads` is how many threads the backend may use for one batch.
+pub trait BackendProvider: Send + Sync + 'static {
+    type Backend: BundleBackend + 'static;
+    fn name(&self) -> &'static str;
+    fn backend(&self, scene: &Arc<BundleScene>, threads: usize) -> Result<Self::Backend, BackendError>;
+}

@@ -1,0 +1,62 @@
+//! Per-scene data the CPU bundle passes read for every direction, built once per scene and
+//! shared (`Arc`) by every worker: texel densities, the triangles' bounding-sphere tree, the
+//! scene's bounding sphere and the coincident-depth tolerance.
+
+use std::sync::Arc;
+
+use glam::Vec3;
+
+use super::spheres::SphereTree;
+use crate::bundle::BundleScene;
+use crate::scene::Side;
+
+pub struct CpuScene {
+    pub bundle: Arc<BundleScene>,
+    /// Per triangle: LOD-0 light-map texels per m² (the larger of its two faces; 0 without
+    /// faces). At LOD k it is 4^k times this: the importance of Sect. 3, in rays per m².
+    pub density: Vec<f32>,
+    /// Bounding spheres of the triangles, for culling against bundle windows along any
+    /// direction.
+    pub spheres: SphereTree,
+    /// Centre and radius of the scene's bounding sphere.
+    pub centre: Vec3,
+    pub radius: f32,
+    /// Depth difference (m) below which two fragments count as coincident surfaces: far
+    /// below any real wall thickness, above f32 rounding of depths at this scene's scale
+    /// (~10⁻⁷ relative). Kept small because it also catches lines grazing a convex edge,
+    /// where the tie-break (leak-safe: back sides face each other) costs that line's sample.
+    pub coincident_depth: f32,
+}
+
+impl CpuScene {
+    pub fn new(bundle: Arc<BundleScene>) -> Self {
+        let (geom, atlas) = (&bundle.geom, &bundle.atlas);
+        let density = (0..geom.len() as u32)
+            .map(|t| {
+                Side::BOTH
+                    .iter()
+                    .filter_map(|&s| atlas.face(t, s))
+                    .map(|f| atlas.texel_density(geom, f, 0))
+                    .fold(0.0f32, f32::max)
+            })
+            .collect();
+        let (lo, hi) = geom
+            .corners
+            .iter()
+            .flatten()
+            .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+        let centre = (lo + hi) * 0.5;
+        let radius = geom.corners.iter().flatten().map(|p| (*p - centre).length()).fold(0.0f32, f32::max).max(1e-6);
+        let spheres = geom
+            .corners
+            .iter()
+            .map(|c| {
+                let m = (c[0].min(c[1]).min(c[2]) + c[0].max(c[1]).max(c[2])) * 0.5;
+                (m, c.iter().map(|p| (*p - m).length()).fold(0.0f32, f32::max))
+            })
+            .collect();
+        let spheres = SphereTree::new(spheres);
+        let coincident_depth = 1e-6 * (radius + centre.abs().max_element());
+        CpuScene { bundle, density, spheres, centre, radius, coincident_depth }
+    }
+}
