@@ -4,7 +4,6 @@
 //! ([`livebake::viewer::BakedLight`]); the runtime plugs in as another `LightSource`.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -96,8 +95,8 @@ pub fn run(scene_path: &Path, view: &ViewOptions, options: &SceneOptions, ui: &U
     }
     let config = options.bake_config(default_samples)?;
     let (scene, _) = load_scene(scene_path, options)?;
-    let mut source = BakedLight::start(Arc::new(scene), config, 1.0)
-        .with_context(|| format!("cannot light {}", scene_path.display()))?;
+    let mut source =
+        BakedLight::start(scene, config, 1.0).with_context(|| format!("cannot light {}", scene_path.display()))?;
     let viewer = ViewerOptions {
         pose: view.camera,
         settings: DrawSettings {

@@ -98,7 +98,7 @@ struct Shape {
 impl Shape {
     fn of(shown: &ShownLightmap) -> Shape {
         Shape {
-            grid: shown.grid.clone(),
+            grid: shown.grid,
             atlas: (shown.atlas_width, shown.atlas_height),
             levels: shown.levels.iter().map(|l| (l.pages_x, l.pages_y)).collect(),
         }

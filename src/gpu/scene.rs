@@ -81,10 +81,10 @@ impl SceneGpu {
             let face_uv = |f: u32, i: usize| {
                 if f == NO_FACE { NO_UV } else { atlas.faces[f as usize].uv[i].to_array() }
             };
-            for i in 0..3 {
+            for (i, (corner, uv0)) in geom.corners[t].iter().zip(uv0).enumerate() {
                 out.push(SurfaceVertex {
-                    position: geom.corners[t][i].to_array(),
-                    uv0: uv0[i].to_array(),
+                    position: corner.to_array(),
+                    uv0: uv0.to_array(),
                     lightmap_front: face_uv(faces[0], i),
                     lightmap_back: face_uv(faces[1], i),
                 });
