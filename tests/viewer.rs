@@ -144,8 +144,8 @@ fn view_command_writes_a_screenshot_under_xvfb() {
     let xvfb = xvfb();
     let dir = tempfile::tempdir().unwrap();
     let (shot, stats) = (dir.path().join("shot.png"), dir.path().join("stats.json"));
-    let out = livebake()
-        .env("DISPLAY", &xvfb.display)
+    let mut cmd = livebake();
+    cmd.env("DISPLAY", &xvfb.display)
         .arg("-q")
         .arg("view")
         .arg(cornell_path())
@@ -154,10 +154,9 @@ fn view_command_writes_a_screenshot_under_xvfb() {
         .arg("--screenshot")
         .arg(&shot)
         .arg("--stats")
-        .arg(&stats)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        .arg(&stats);
+    let (code, stderr) = run_bounded(&mut cmd, 300);
+    assert_eq!(code, Some(0), "{stderr}");
     let img = image::open(&shot).unwrap().to_rgba8();
     assert_eq!(img.dimensions(), (320, 240));
     assert_cornell_colours(&img);
@@ -170,16 +169,11 @@ fn view_command_writes_a_screenshot_under_xvfb() {
 /// Without a display the viewer says so (and what works without one) instead of panicking.
 #[test]
 fn view_without_a_display_is_a_clear_error() {
-    let out = livebake()
-        .env_remove("DISPLAY")
-        .env_remove("WAYLAND_DISPLAY")
-        .arg("view")
-        .arg(cornell_path())
-        .args(["--texel-size", "0.1", "--samples", "8"])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let mut cmd = livebake();
+    cmd.env_remove("DISPLAY").env_remove("WAYLAND_DISPLAY").arg("view").arg(cornell_path());
+    cmd.args(["--texel-size", "0.1", "--samples", "8"]);
+    let (code, stderr) = run_bounded(&mut cmd, 120);
+    assert_eq!(code, Some(1), "{stderr}");
     assert!(stderr.contains("display") && !stderr.contains("internal error"), "{stderr}");
 }
 
@@ -187,7 +181,7 @@ fn view_without_a_display_is_a_clear_error() {
 #[test]
 fn view_refuses_bad_options() {
     for args in [["--camera", "1,2,3"], ["--size", "10x10"], ["--exposure", "-1"], ["--frames", "0"]] {
-        let out = livebake().arg("view").arg(cornell_path()).args(args).output().unwrap();
+        let out = livebake().env_remove("DISPLAY").arg("view").arg(cornell_path()).args(args).output().unwrap();
         assert!(!out.status.success(), "{args:?} accepted");
         assert!(!String::from_utf8_lossy(&out.stderr).contains("internal error"), "{args:?}");
     }
@@ -247,4 +241,17 @@ fn mirror_grows_its_pool_and_frees_removed_pages() {
     for (&(p, uv), got) in points.iter().zip(&on_gpu) {
         assert_eq!(*got, shrunk.irradiance(p, uv), "uv {uv}");
     }
+}
+
+/// A capture run whose light can never come (the bake refuses its options) ends with that
+/// error instead of waiting forever.
+#[test]
+fn view_capture_ends_with_the_bake_error() {
+    let xvfb = xvfb();
+    let mut cmd = livebake();
+    cmd.env("DISPLAY", &xvfb.display).arg("view").arg(cornell_path());
+    cmd.args(["--frames", "1", "--size", "64x64", "--lods", "9"]);
+    let (code, stderr) = run_bounded(&mut cmd, 120);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("no light to show") && stderr.contains("--lods"), "{stderr}");
 }

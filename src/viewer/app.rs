@@ -33,6 +33,8 @@ pub enum ViewerError {
     Gpu(#[from] GpuError),
     #[error("the window's surface offers no configuration for this adapter")]
     Surface,
+    #[error("no light to show: {0}")]
+    Source(String),
     #[error("cannot write the screenshot {path}: {source}")]
     Screenshot { path: PathBuf, source: image::ImageError },
 }
@@ -311,6 +313,13 @@ impl App<'_, '_> {
         let (w, h) = (s.config.width, s.config.height);
         self.source.set_camera(&self.camera, w as f32 / h as f32, h);
         s.renderer.update(&*self.source)?;
+        // A capture run (`frames`) waits for light; if the source failed none will come.
+        if s.renderer.shown.is_none()
+            && self.options.frames.is_some()
+            && let Some(e) = self.source.status().last_error
+        {
+            return Err(ViewerError::Source(e));
+        }
         if self.options.auto_exposure
             && let Some(shown) = &s.renderer.shown
         {

@@ -78,3 +78,27 @@ pub fn image_difference(a: &RgbaImage, b: &RgbaImage) -> (u8, f64) {
     }
     (max, differing as f64 / (a.width() * a.height()) as f64)
 }
+
+/// Runs `cmd` with its output in files and kills it after `seconds` (a hung window must fail
+/// the test, not stall the suite); returns the exit code (`None`: killed) and stderr.
+pub fn run_bounded(cmd: &mut std::process::Command, seconds: u64) -> (Option<i32>, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, err) = (dir.path().join("stdout"), dir.path().join("stderr"));
+    let mut child =
+        cmd.stdout(std::fs::File::create(&out).unwrap()).stderr(std::fs::File::create(&err).unwrap()).spawn().unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(seconds);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break Some(status);
+        }
+        if std::time::Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    let stderr = std::fs::read_to_string(&err).unwrap_or_default();
+    assert!(status.is_some(), "killed after {seconds} s; stderr: {stderr}");
+    (status.and_then(|s| s.code()), stderr)
+}
