@@ -47,10 +47,9 @@ pub enum GridError {
 /// Most cells a grid may have (its per-cell tables are dense: a few bytes each).
 pub const MAX_CELLS: u64 = 1 << 22;
 
-/// The default grid aims at about this many non-empty cells (DESIGN: "a few thousand"): enough
-/// that refining near the camera spends little on what is far, few enough that per-cell
-/// work (a bundle window per direction) stays large compared with its fixed costs.
-pub const TARGET_CELLS: f64 = 2000.0;
+/// The default grid aims at about this many non-empty cells at most (DESIGN: "a few
+/// thousand"): enough that refining near the camera spends little on what is far.
+pub const TARGET_CELLS: f64 = 1000.0;
 
 impl Grid {
     /// A grid of cubes of side `cell_size` covering `[lo, hi]` (the box is grown by a hair so
@@ -73,20 +72,23 @@ impl Grid {
     }
 
     /// The default grid of a scene: cells of side `sqrt(lit area / TARGET_CELLS)` (a surface
-    /// of that area cut into that many squares), at least `min_cell` (a few LOD-0 texels, so
-    /// that a cell is never smaller than what it refines), grown until the box holds at most
-    /// [`MAX_CELLS`] cells. `cell_size` overrides the size.
+    /// of that area cut into that many squares), but at least `min_cell` (a cell bake's
+    /// fixed costs per direction — the window's triangles, its analysis — must stay small
+    /// beside its texels) and at most `max_cell` (so that a cell at the finest LOD stays a
+    /// unit of work of bounded size; it wins over `min_cell`), grown until the box holds at
+    /// most [`MAX_CELLS`] cells. `cell_size` overrides the size.
     pub fn for_scene(
         geom: &SceneGeometry,
         lit_area: f64,
         min_cell: f32,
+        max_cell: f32,
         cell_size: Option<f32>,
     ) -> Result<Grid, GridError> {
         let (lo, hi) = bounds(geom).ok_or(GridError::BadBounds)?;
         if let Some(size) = cell_size {
             return Grid::covering(lo, hi, size);
         }
-        let mut size = ((lit_area / TARGET_CELLS).sqrt() as f32).max(min_cell).max(1e-4);
+        let mut size = ((lit_area / TARGET_CELLS).sqrt() as f32).max(min_cell).min(max_cell).max(1e-4);
         loop {
             match Grid::covering(lo, hi, size) {
                 Err(GridError::TooManyCells { .. }) => size *= 1.25,

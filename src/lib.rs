@@ -4,13 +4,15 @@
 //! per-LOD texel maps), [`lod`], [`reference`] (CPU reference path tracer), [`bundle`] (the
 //! adaptive ray-bundle algorithm: directions, analysis mips, tile planner, estimator),
 //! [`cpu`] (the CPU bundle backend), [`bake`] (bake driver), [`output`] (EXR/PNG/JSON),
-//! [`probe`] (irradiance at surface points).
+//! [`probe`] (irradiance at surface points), [`export`] (glTF with the light map, for other
+//! engines), [`watch`] (hot reload: file watching and scene diffs).
 
 pub mod analytic;
 pub mod atlas;
 pub mod bake;
 pub mod bundle;
 pub mod cpu;
+pub mod export;
 pub mod gpu;
 pub mod grid;
 pub mod lod;
@@ -23,5 +25,6 @@ pub mod runtime;
 pub mod sampling;
 pub mod scene;
 pub mod viewer;
+pub mod watch;
 
 pub use glam;

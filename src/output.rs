@@ -97,6 +97,12 @@ pub fn write_exr(path: &Path, lod: &BakedLod) -> Result<(), OutputError> {
     write_atomically(path, |w| encode(path, w, img, ImageFormat::OpenExr))
 }
 
+/// Writes a linear RGB image (row-major `width × height` pixels) as EXR.
+pub fn write_rgb_exr(path: &Path, width: u32, height: u32, pixels: &[Rgb]) -> Result<(), OutputError> {
+    let img = Rgb32FImage::from_fn(width, height, |x, y| image::Rgb(pixels[(y * width + x) as usize].to_array()));
+    write_atomically(path, |w| encode(path, w, img, ImageFormat::OpenExr))
+}
+
 pub fn write_png(path: &Path, lod: &BakedLod) -> Result<(), OutputError> {
     let img = radiance_preview(lod);
     write_atomically(path, |w| encode(path, w, img, ImageFormat::Png))

@@ -22,7 +22,7 @@ fn check(scene: &Scene, texel: f32, cell: f32, lod: u32) {
     let geom = SceneGeometry::new(scene);
     let atlas = Atlas::build(scene, &geom, &AtlasConfig { texel_size: Some(texel), ..AtlasConfig::default() }).unwrap();
     let whole = TexelMap::build(scene, &geom, &atlas, lod);
-    let grid = Grid::for_scene(&geom, atlas.stats.lit_area, texel, Some(cell)).unwrap();
+    let grid = Grid::for_scene(&geom, atlas.stats.lit_area, texel, texel, Some(cell)).unwrap();
     // Core triangles: those meeting the cell grown by a hair (float safety for points on a face).
     let eps = 1e-4 * cell;
     let index = CellTriangles::build(&grid, &geom, eps);

@@ -14,13 +14,14 @@ use livebake::gpu::lightmap::SyncReport;
 use livebake::runtime::shown::{PAGE_SIDE, Page, PageWriter, ShownLightmap};
 use livebake::scene::Scene;
 use livebake::viewer::camera::Camera;
-use livebake::viewer::{FrameContext, LightSource, SceneState, SourceStatus, ViewerOptions};
+use livebake::viewer::{FrameContext, LightSource, SceneState, SourceStatus, ViewerError, ViewerOptions};
 use viewer_support::*;
 
-/// A source whose snapshot the test replaces (a publish).
+/// A source whose snapshot the test replaces (a publish), or that fails.
 struct TestSource {
     state: SceneState,
-    shown: Arc<Mutex<Arc<ShownLightmap>>>,
+    shown: Arc<Mutex<Option<Arc<ShownLightmap>>>>,
+    error: Arc<Mutex<Option<String>>>,
 }
 
 impl LightSource for TestSource {
@@ -28,11 +29,11 @@ impl LightSource for TestSource {
         self.state.clone()
     }
     fn shown(&self) -> Option<Arc<ShownLightmap>> {
-        Some(self.shown.lock().unwrap().clone())
+        self.shown.lock().unwrap().clone()
     }
     fn set_camera(&mut self, _camera: &Camera, _aspect: f32, _height_px: u32) {}
     fn status(&self) -> SourceStatus {
-        SourceStatus { state: "test".into(), ..SourceStatus::default() }
+        SourceStatus { state: "test".into(), last_error: self.error.lock().unwrap().clone(), ..SourceStatus::default() }
     }
     fn shutdown(&mut self) {}
 }
@@ -78,17 +79,20 @@ fn gpu_pages(ctx: &FrameContext, shown: &ShownLightmap) -> Vec<Option<Vec<[f32; 
 /// differ only by the surface format's rounding (at most 1 of 255 per channel, in under 1%
 /// of pixels). (2) A cell published while the window is open changes exactly that cell's
 /// texels on the GPU (every page read back and compared), and the upload is exactly the
-/// changed pages (64 KiB each), nothing else.
+/// changed pages (64 KiB each), nothing else. (3) A capture run whose source fails ends with
+/// the source's error instead of waiting for light forever.
 #[test]
 fn window_shows_the_room_and_a_publish_uploads_only_its_cell() {
     let xvfb = xvfb();
     // SAFETY: the only test of this binary; nothing else reads the environment meanwhile.
     unsafe { std::env::set_var("DISPLAY", &xvfb.display) };
     let (scene, baked, shown): (Arc<Scene>, BakeOutput, Arc<ShownLightmap>) = cornell_lit();
-    let snapshot = Arc::new(Mutex::new(shown.clone()));
+    let snapshot = Arc::new(Mutex::new(Some(shown.clone())));
+    let error = Arc::new(Mutex::new(None));
     let mut source = TestSource {
         state: SceneState { generation: 0, scene, atlas: Arc::new(baked.atlas.clone()) },
         shown: snapshot.clone(),
+        error: error.clone(),
     };
     // The cell holding the back wall's middle (z = 0, x, y = 1 m).
     let cell = shown.grid.cell_of(Vec3::new(1.1, 1.1, 0.1));
@@ -111,7 +115,7 @@ fn window_shows_the_room_and_a_publish_uploads_only_its_cell() {
                 eprintln!("window vs offscreen: max difference {max}/255 in {:.3}% of pixels", 100.0 * share);
                 assert!(max <= 1 && share < 0.01, "window and offscreen differ: max {max}, {share} of pixels");
                 before = gpu_pages(ctx, &shown);
-                *snapshot.lock().unwrap() = published.clone();
+                *snapshot.lock().unwrap() = Some(published.clone());
                 checked.0 = true;
             }
             3 => {
@@ -144,8 +148,15 @@ fn window_shows_the_room_and_a_publish_uploads_only_its_cell() {
                 }
                 assert_eq!(differing, written, "the texels that changed on the GPU are the cell's");
                 checked.1 = true;
-                return Ok(false);
             }
+            4 => {
+                // (3) The source fails (as a runtime whose bake broke): a capture run, which
+                // waits for light, ends with the source's error.
+                *error.lock().unwrap() = Some("the bake broke".into());
+                *snapshot.lock().unwrap() = None;
+                ctx.renderer.shown = None;
+            }
+            5.. => panic!("the viewer went on after its source failed"),
             _ => {}
         }
         Ok(true)
@@ -153,9 +164,13 @@ fn window_shows_the_room_and_a_publish_uploads_only_its_cell() {
     let options = ViewerOptions {
         pose: Some((Vec3::from(CORNELL_EYE), Vec3::from(CORNELL_TARGET))),
         size: (320, 240),
+        frames: Some(1000),
         ..ViewerOptions::default()
     };
-    let report = livebake::viewer::run(&mut source, options, Some(&mut hook)).unwrap();
-    assert!(checked.0 && checked.1, "the viewer closed before the checks ran ({} frames)", report.frames);
-    eprintln!("adapter {}, {} frames", report.adapter, report.frames);
+    let result = livebake::viewer::run(&mut source, options, Some(&mut hook));
+    assert!(checked.0 && checked.1, "the viewer closed before the checks ran: {:?}", result.map(|r| r.frames));
+    match result {
+        Err(ViewerError::Source(e)) => assert_eq!(e, "the bake broke"),
+        other => panic!("expected the source's error, got {:?}", other.map(|r| r.frames)),
+    }
 }

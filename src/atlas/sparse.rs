@@ -49,6 +49,8 @@ pub struct SparseTexels {
     pub albedo: Vec<Rgb>,
     pub emission: Vec<Rgb>,
     pub area: Vec<f32>,
+    /// Per texel: the index of its chart's table in [`tables`](Self::tables).
+    pub table: Vec<u32>,
     /// Gutter pixels the region writes and the texel each copies.
     pub gutter: Vec<([u32; 2], u32)>,
     /// One lookup table per chart holding region texels, ascending by chart.
@@ -217,6 +219,8 @@ impl SparseTexels {
                 out.gutter.push((g, id));
             }
         }
+        let index: BTreeMap<u32, u32> = tables.keys().enumerate().map(|(i, &c)| (c, i as u32)).collect();
+        out.table = out.face.iter().map(|&f| index[&atlas.faces[f as usize].chart]).collect();
         out.tables = tables.into_values().collect();
         out
     }
@@ -229,6 +233,11 @@ impl SparseTexels {
         self.pixel.is_empty()
     }
 
+    /// The lookup table of texel `i`'s chart.
+    pub fn table_of(&self, i: usize) -> &TexelTable {
+        &self.tables[self.table[i] as usize]
+    }
+
     /// The lookup table of a chart, if the region has texels in it.
     pub fn table(&self, chart: u32) -> Option<&TexelTable> {
         self.tables.binary_search_by_key(&Some(chart), |t| t.chart).ok().map(|i| &self.tables[i])
@@ -236,7 +245,7 @@ impl SparseTexels {
 
     /// Bytes held (texel attributes, gutters and tables).
     pub fn bytes(&self) -> usize {
-        self.len() * (8 + 4 + 12 * 4 + 4)
+        self.len() * (8 + 4 + 12 * 4 + 4 + 4)
             + self.gutter.len() * 12
             + self.tables.iter().map(TexelTable::bytes).sum::<usize>()
     }

@@ -8,8 +8,8 @@ use serde::Serialize;
 
 use std::sync::atomic::AtomicBool;
 
+use crate::atlas::TexelMap;
 use crate::atlas::lookup::TexelTable;
-use crate::atlas::{Atlas, FaceId, TexelMap};
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
 use crate::bundle::{BakeTarget, BundleBackend, BundleScene, Cancelled, DirectionJob, JobSequence, SourceRadiance};
@@ -50,7 +50,7 @@ pub fn bake_lod(
     coarser: Option<CoarserLod>,
     threads: usize,
     progress: &dyn Progress,
-) -> (Vec<Rgb>, BundleLodStats) {
+) -> LodIrradiance {
     let config = &bundle.config;
     let mut stats = BundleLodStats::default();
     let t0 = Instant::now();
@@ -60,7 +60,7 @@ pub fn bake_lod(
 
     let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
     let tables = [TexelTable::of_map(texels)];
-    let triangles = target_triangles(&bundle.atlas, &texels.face);
+    let triangles = crate::bundle::target::target_triangles(&bundle.atlas, &texels.face);
     let target = BakeTarget {
         lod: texels.lod,
         face: &texels.face,
@@ -114,15 +114,16 @@ pub fn bake_lod(
     stats.batches = estimate.batches();
     stats.light_directions_per_group = estimate.light_directions();
     stats.unsampled_texels = estimate.unsampled();
-    (estimate.irradiance(), stats)
+    LodIrradiance { irradiance: estimate.irradiance(), punctual: estimate.punctual().to_vec(), stats }
 }
 
-/// The triangles holding texels of faces `faces` (ascending, once each).
-pub fn target_triangles(atlas: &Atlas, faces: &[FaceId]) -> Vec<u32> {
-    let mut t: Vec<u32> = faces.iter().map(|&f| atlas.faces[f as usize].tri).collect();
-    t.sort_unstable();
-    t.dedup();
-    t
+/// A whole LOD's bundle bake.
+pub struct LodIrradiance {
+    /// Irradiance per texel (W/m²).
+    pub irradiance: Vec<Rgb>,
+    /// Its exact punctual-light part.
+    pub punctual: Vec<Rgb>,
+    pub stats: BundleLodStats,
 }
 
 /// Source radiance of a finer LOD's texels read from the converged coarser LOD: each texel

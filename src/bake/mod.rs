@@ -178,7 +178,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 let texels = TexelMap::build(scene, &geom, &atlas, lod);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
-                let (irradiance, bstats) =
+                let bundle::LodIrradiance { irradiance, stats: bstats, .. } =
                     bundle::bake_lod(&bundle, &bvh, &mut backend, &texels, coarser, config.threads(), progress);
                 if bstats.pass.unplanned_directions > 0 {
                     let (count, directions) = (bstats.pass.unplanned_directions, bstats.directions);

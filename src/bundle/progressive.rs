@@ -135,6 +135,28 @@ impl ProgressiveEstimate {
         self.light_directions
     }
 
+    /// Texel `i`'s estimate in its parts: the global bundles' irradiance `π·Σw·S/Σw·A`, their
+    /// total weight Σw·A, and the light pass's irradiance.
+    pub fn parts(&self, i: usize) -> (Rgb, f64, Rgb) {
+        let t = &self.totals[i];
+        let bundle = if t.bundle_weight > 0.0 {
+            (t.bundle_sum * (std::f64::consts::PI / t.bundle_weight)).as_vec3()
+        } else {
+            Rgb::ZERO
+        };
+        let light = if self.light_directions > 0 && self.area[i] > 0.0 {
+            (t.light_sum * (std::f64::consts::TAU / self.light_directions as f64 / self.area[i] as f64)).as_vec3()
+        } else {
+            Rgb::ZERO
+        };
+        (bundle, t.bundle_weight, light)
+    }
+
+    /// Irradiance from punctual lights per texel (exact, noise-free).
+    pub fn punctual(&self) -> &[Rgb] {
+        &self.punctual
+    }
+
     fn batch_weight(&self) -> f64 {
         match self.kind {
             SourceKind::Progressive => ((self.batches + 1) as f64).powi(2),

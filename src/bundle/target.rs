@@ -92,6 +92,15 @@ impl BakeTarget<'_> {
     }
 }
 
+/// The triangles holding texels of faces `faces` (ascending, once each): a target's
+/// [`BakeTarget::triangles`].
+pub fn target_triangles(atlas: &Atlas, faces: &[FaceId]) -> Vec<u32> {
+    let mut t: Vec<u32> = faces.iter().map(|&f| atlas.faces[f as usize].tri).collect();
+    t.sort_unstable();
+    t.dedup();
+    t
+}
+
 /// Radiance of surfaces outside the target, at barycentrics `(u, v)` of triangle `tri`
 /// (weights of corners 1 and 2) on side `side`.
 pub trait SurfaceRadiance: Sync {

@@ -6,7 +6,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use livebake::bake::{BakeOutput, bake};
-use livebake::output::{write_json, write_lightmaps};
+use livebake::export::{ExportOptions, export_gltf};
+use livebake::output::{irradiance_image, write_json, write_lightmaps};
 use livebake::scene::{LoadOptions, Scene, load_gltf};
 
 use super::SceneOptions;
@@ -16,7 +17,7 @@ use super::options::Backend;
 
 /// Default samples: 256 bundle directions (under 5% error on a lit room); 16 paths per texel
 /// for the reference backend (a recognisable preview in tens of seconds, not a converged bake).
-pub fn default_samples(backend: Backend) -> u32 {
+fn default_samples(backend: Backend) -> u32 {
     match backend {
         Backend::Cpu => 256,
         Backend::Reference => 16,
@@ -30,7 +31,7 @@ pub fn load_scene(path: &Path, options: &SceneOptions) -> Result<(Arc<Scene>, f6
     Ok((Arc::new(scene), t0.elapsed().as_secs_f64()))
 }
 
-pub fn run(scene_path: &Path, out: &Path, options: &SceneOptions, ui: &Ui) -> Result<()> {
+pub fn run(scene_path: &Path, out: &Path, export: Option<&Path>, options: &SceneOptions, ui: &Ui) -> Result<()> {
     let config = options.bake_config(default_samples)?;
     let (scene, load_seconds) = load_scene(scene_path, options)?;
     tracing::info!(
@@ -43,7 +44,14 @@ pub fn run(scene_path: &Path, out: &Path, options: &SceneOptions, ui: &Ui) -> Re
     );
     let mut baked = bake(&scene, &config, ui).with_context(|| format!("cannot bake {}", scene_path.display()))?;
     let t_write = Instant::now();
-    let files = write_lightmaps(out, &baked)?;
+    let mut files = write_lightmaps(out, &baked)?;
+    if let Some(gltf) = export {
+        // The finest level baked.
+        let lod = baked.lods.last().context("the bake produced no light-map level")?;
+        let report = export_gltf(&scene, &baked.atlas, &irradiance_image(lod), gltf, &ExportOptions::default())
+            .with_context(|| format!("cannot export {}", gltf.display()))?;
+        files.extend([report.gltf, report.bin, report.hdr, report.png]);
+    }
     baked.report.phases.load = load_seconds;
     baked.report.phases.write = t_write.elapsed().as_secs_f64();
     let report_path = out.join("report.json");

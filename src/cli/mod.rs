@@ -4,8 +4,10 @@
 mod bake;
 mod bench;
 mod options;
+mod points;
 mod probe;
 mod progress;
+mod run;
 mod view;
 
 use std::path::PathBuf;
@@ -39,6 +41,11 @@ enum Command {
         /// Output directory (created if missing).
         #[arg(long, default_value = "out")]
         out: PathBuf,
+        /// Also write a copy of the scene with the finest baked light map attached, for other
+        /// engines (TEXCOORD_1 + MOZ_lightmap; OUT.bin, OUT.lightmap.exr and OUT.lightmap.png
+        /// beside it).
+        #[arg(long, value_name = "OUT.gltf")]
+        export_gltf: Option<PathBuf>,
         #[command(flatten)]
         options: SceneOptions,
     },
@@ -63,6 +70,17 @@ enum Command {
         view: view::ViewOptions,
         #[command(flatten)]
         options: SceneOptions,
+    },
+    /// The live runtime, headless: LOD 0 at first light, then cells near the camera refined
+    /// and swapped to finer LODs; events as JSON lines; at the end the light maps as shown
+    /// (DIR/lightmap_lodK.exr), DIR/cells.json and DIR/report.json.
+    Run {
+        /// glTF 2.0 scene (.gltf or .glb).
+        scene: PathBuf,
+        #[command(flatten)]
+        options: SceneOptions,
+        #[command(flatten)]
+        run: run::RunOptions,
     },
     /// Measure: load and unwrap/pack, reference rays/s, startup bake, bundle throughput,
     /// convergence against Mitsuba and Cycles, tiling modes. Writes JSON (medians and ratios from one run).
@@ -89,8 +107,16 @@ pub fn run() -> Result<()> {
     init_logging(cli.quiet, cli.verbose);
     let ui = progress::Ui::new(cli.quiet);
     match cli.command {
-        None => bake::run(&default_scene(), &PathBuf::from("out"), &SceneOptions::default(), &ui),
-        Some(Command::Bake { scene, out, options }) => bake::run(&scene, &out, &options, &ui),
+        None => run::run(
+            &default_scene(),
+            &SceneOptions::default(),
+            &run::RunOptions { seconds: 3.0, ..Default::default() },
+            &ui,
+        ),
+        Some(Command::Run { scene, options, run }) => run::run(&scene, &options, &run, &ui),
+        Some(Command::Bake { scene, out, export_gltf, options }) => {
+            bake::run(&scene, &out, export_gltf.as_deref(), &options, &ui)
+        }
         Some(Command::Probe { scene, points, out, options }) => {
             probe::run(&scene, &points, out.as_deref(), &options, &ui)
         }

@@ -24,12 +24,14 @@ pub struct SceneOptions {
     // message about the texel size rather than as an unknown flag `-1`.
     #[arg(long, value_name = "M", allow_negative_numbers = true)]
     pub texel_size: Option<f32>,
-    /// LOD-0 texel budget used when --texel-size is not given.
-    #[arg(long, value_name = "N", default_value_t = 500_000)]
-    pub texel_budget: u64,
-    /// Number of light-map LODs to bake (LOD k has 2^k times LOD 0's resolution).
-    #[arg(long, value_name = "K", default_value_t = 1)]
-    pub lods: u32,
+    /// LOD-0 texel budget used when --texel-size is not given (bake: 500000; run: 40000, small
+    /// enough for first light within a second).
+    #[arg(long, value_name = "N")]
+    pub texel_budget: Option<u64>,
+    /// Light-map LODs (LOD k has 2^k times LOD 0's resolution). bake: how many to bake
+    /// (default 1); run: the most the runtime refines to (default: enough for ~2 cm texels).
+    #[arg(long, value_name = "K")]
+    pub lods: Option<u32>,
     /// Samples: bundle directions for the cpu backend (default 256); paths per texel (bake,
     /// default 16) or per point (probe, default 1024) for the reference backend.
     #[arg(long, value_name = "N")]
@@ -117,8 +119,8 @@ impl Default for SceneOptions {
     fn default() -> Self {
         SceneOptions {
             texel_size: None,
-            texel_budget: 500_000,
-            lods: 1,
+            texel_budget: None,
+            lods: None,
             samples: None,
             sky: Rgb::ZERO,
             backend: Backend::Cpu,
@@ -151,7 +153,7 @@ impl SceneOptions {
         {
             bail!("--texel-size must be a positive number of metres, got {t}");
         }
-        if self.texel_budget == 0 {
+        if self.texel_budget == Some(0) {
             bail!("--texel-budget must be at least 1");
         }
         if self.threads == Some(0) {
@@ -160,11 +162,11 @@ impl SceneOptions {
         Ok(BakeConfig {
             atlas: AtlasConfig {
                 texel_size: self.texel_size,
-                texel_budget: self.texel_budget,
+                texel_budget: self.texel_budget.unwrap_or(AtlasConfig::default().texel_budget),
                 use_uv1: !self.no_uv1,
                 ..AtlasConfig::default()
             },
-            lods: self.lods,
+            lods: self.lods.unwrap_or(1),
             samples: self.samples.unwrap_or_else(|| default_samples(self.backend)),
             backend: match self.backend {
                 Backend::Reference => BackendKind::Reference,

@@ -2,9 +2,8 @@
 
 use std::path::Path;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use glam::Vec3;
-use serde_json::{Value, json};
 
 use livebake::bake::bake;
 use livebake::probe::{LightmapSampler, ProbeError, SurfaceLocator, SurfacePoint};
@@ -14,6 +13,7 @@ use livebake::scene::{Rgb, SceneGeometry};
 use super::SceneOptions;
 use super::bake::load_scene;
 use super::options::Backend;
+use super::points::{read_points, write_results};
 use super::progress::Ui;
 
 /// Default samples: 1024 paths per point for the reference backend (~1% noise on a lit
@@ -23,38 +23,6 @@ fn default_samples(backend: Backend) -> u32 {
         Backend::Cpu => 256,
         Backend::Reference => 1024,
     }
-}
-
-struct Query {
-    p: Vec3,
-    n: Vec3,
-}
-
-fn vec3_field(point: &Value, key: &str, index: usize) -> Result<Vec3> {
-    let arr = point
-        .get(key)
-        .and_then(Value::as_array)
-        .with_context(|| format!("point {index}: missing \"{key}\": [x, y, z]"))?;
-    let vals: Vec<f64> = arr.iter().filter_map(Value::as_f64).collect();
-    if arr.len() != 3 || vals.len() != 3 {
-        bail!("point {index}: \"{key}\" must be three numbers, got {}", Value::Array(arr.clone()));
-    }
-    Ok(Vec3::new(vals[0] as f32, vals[1] as f32, vals[2] as f32))
-}
-
-fn read_points(path: &Path) -> Result<(Value, Vec<Query>)> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read points file {}", path.display()))?;
-    let doc: Value = serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
-    let list = doc.get("points").and_then(Value::as_array).with_context(|| {
-        format!("{}: expected {{\"points\": [{{\"p\": [x,y,z], \"n\": [x,y,z]}}, ...]}}", path.display())
-    })?;
-    let queries = list
-        .iter()
-        .enumerate()
-        .map(|(i, pt)| Ok(Query { p: vec3_field(pt, "p", i)?, n: vec3_field(pt, "n", i)? }))
-        .collect::<Result<Vec<_>>>()
-        .with_context(|| format!("in {}", path.display()))?;
-    Ok((doc, queries))
 }
 
 pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &SceneOptions, ui: &Ui) -> Result<()> {
@@ -94,20 +62,6 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
             located.into_iter().map(|l| l.map(|_| e.next().unwrap_or(Rgb::ZERO))).collect()
         }
     };
-    if let Some(list) = doc.get_mut("points").and_then(Value::as_array_mut) {
-        for (pt, r) in list.iter_mut().zip(&results) {
-            match r {
-                Ok(e) => pt["E"] = json!([e.x, e.y, e.z]),
-                Err(err) => pt["error"] = json!(err.to_string()),
-            }
-        }
-    }
-    match out {
-        Some(path) => {
-            livebake::output::write_json(path, &doc)?;
-            ui.say(format!("wrote {} ({} points)", path.display(), results.len()));
-        }
-        None => println!("{}", serde_json::to_string_pretty(&doc)?),
-    }
+    write_results(&mut doc, &results, out, ui)?;
     Ok(())
 }

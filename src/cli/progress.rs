@@ -35,6 +35,15 @@ impl Ui {
         Progress::end(self)
     }
 
+    /// Shows `line` beside the current phase's bar or spinner.
+    pub fn status(&self, line: &str) {
+        self.with_bar(|b| {
+            if let Some(bar) = b {
+                bar.set_message(line.to_string());
+            }
+        });
+    }
+
     fn with_bar(&self, f: impl FnOnce(&mut Option<ProgressBar>)) {
         if let Ok(mut guard) = self.bar.lock() {
             f(&mut guard);
@@ -48,9 +57,16 @@ impl Progress for Ui {
             return;
         }
         let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr_with_hz(10));
-        if let Ok(style) = ProgressStyle::with_template("{msg:>18} [{bar:40}] {pos}/{len} ({percent}%) eta {eta}") {
+        // An unknown amount of work (total 0) gets a spinner and a status line.
+        let template = if total == 0 {
+            "{spinner} {prefix} {elapsed} {msg}"
+        } else {
+            "{msg:>18} [{bar:40}] {pos}/{len} ({percent}%) eta {eta}"
+        };
+        if let Ok(style) = ProgressStyle::with_template(template) {
             bar.set_style(style.progress_chars("=> "));
         }
+        bar.set_prefix(phase.to_string());
         bar.set_message(phase.to_string());
         bar.enable_steady_tick(Duration::from_millis(200));
         self.with_bar(|b| *b = Some(bar));

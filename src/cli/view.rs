@@ -1,21 +1,23 @@
-//! `livebake view SCENE`: the scene in a window, lit by its light map as it is baked.
-//!
-//! Until the live runtime lands the light comes from one bake in the background
-//! ([`livebake::viewer::BakedLight`]); the runtime plugs in as another `LightSource`.
+//! `livebake view SCENE`: the scene in a window, lit by the live runtime's light map: LOD 0
+//! at first light, then the cells in view refined in the background.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use glam::Vec3;
+use livebake::cpu::CpuProvider;
 use livebake::gpu::layout::ViewMode;
+use livebake::runtime::Runtime;
 use livebake::viewer::camera::parse_pose;
-use livebake::viewer::{BakedLight, DrawSettings, ViewerOptions, ViewerReport};
+use livebake::viewer::{DrawSettings, RuntimeLight, ViewerOptions, ViewerReport};
 
 use super::SceneOptions;
-use super::bake::{default_samples, load_scene};
+use super::bake::load_scene;
 use super::progress::Ui;
+use super::run::{RuntimeOptions, runtime_config};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum View {
@@ -68,6 +70,8 @@ pub struct ViewOptions {
     /// What to show first (keys 1-5 switch).
     #[arg(long, value_enum, default_value_t = View::Lit)]
     pub view: View,
+    #[command(flatten)]
+    pub runtime: RuntimeOptions,
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -93,10 +97,11 @@ pub fn run(scene_path: &Path, view: &ViewOptions, options: &SceneOptions, ui: &U
     if view.frames == Some(0) {
         anyhow::bail!("--frames must be at least 1");
     }
-    let config = options.bake_config(default_samples)?;
+    let config = runtime_config(options, &view.runtime)?;
     let (scene, _) = load_scene(scene_path, options)?;
-    let mut source =
-        BakedLight::start(scene, config, 1.0).with_context(|| format!("cannot light {}", scene_path.display()))?;
+    let runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new()))
+        .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
+    let mut source = RuntimeLight::new(runtime);
     let viewer = ViewerOptions {
         pose: view.camera,
         settings: DrawSettings {

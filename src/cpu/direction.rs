@@ -123,13 +123,24 @@ fn window_square(ctx: &PassContext, frame: &BundleFrame) -> (Vec2, f32) {
 }
 
 /// The analysis window of a direction: the target's square, R pixels, with one spare pixel
-/// so the per-direction jitter never shifts geometry out of it.
+/// so the per-direction jitter never shifts geometry out of it. A small window (a cell's)
+/// needs fewer analysis pixels: R is cut to the power of two giving about
+/// [`BUNDLE_PIXELS_PER_ANALYSIS_PIXEL`] bundle pixels per analysis pixel at the target's
+/// resolution, at least 8.
 fn analysis_viewport(ctx: &PassContext, frame: &BundleFrame, jitter: Vec2) -> Viewport {
-    let res = ctx.config.analysis_res;
     let (corner, side) = window_square(ctx, frame);
+    let mut res = ctx.config.analysis_res;
+    if ctx.target.window.is_some() {
+        let bundle_pixel = ctx.light_pixel; // texel size at the target's LOD / oversampling
+        let wanted = (side / bundle_pixel / BUNDLE_PIXELS_PER_ANALYSIS_PIXEL).ceil().max(8.0) as u32;
+        res = res.min(wanted.next_power_of_two());
+    }
     let pixel = side / (res - 1) as f32;
     Viewport::square(corner - jitter * pixel, pixel, res)
 }
+
+/// See [`analysis_viewport`].
+const BUNDLE_PIXELS_PER_ANALYSIS_PIXEL: f32 = 8.0;
 
 fn tile_viewport(global: &Viewport, tile: &Tile) -> Viewport {
     let w = tile.window();
@@ -173,6 +184,7 @@ fn trace_global(
     stats: &mut PassStats,
 ) -> Result<(), Cancelled> {
     let cfg = ctx.config;
+    let receiver = |t: u32| ctx.importance[t as usize] > 0.0;
     let frame = BundleFrame::new(job.dir);
     let global = analysis_viewport(ctx, &frame, job.jitter);
 
@@ -233,7 +245,7 @@ fn trace_global(
         check(ctx)?;
         gather(&mut s.analysis, &global, &vp, &mut s.candidates);
         let t = Instant::now();
-        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None);
+        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None, receiver);
         if count > cfg.node_capacity && overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             stats.build_seconds += seconds(t);
             continue;
@@ -294,8 +306,9 @@ fn count_false_alarms(
     s: &mut Scratch,
     stats: &mut PassStats,
 ) -> Result<(), Cancelled> {
+    let receiver = |t: u32| ctx.importance[t as usize] > 0.0;
     let mut seen = std::collections::BTreeSet::new();
-    let top_level = ctx.config.analysis_res.trailing_zeros();
+    let top_level = global.width.trailing_zeros();
     for tile in tiles {
         let mut level = tile.level.max(0) as u32 + 1;
         let (mut x, mut y) = (tile.x >> 1, tile.y >> 1);
@@ -314,7 +327,7 @@ fn count_false_alarms(
                 let res = bundle_resolution(rays, w2);
                 let vp = tile_viewport(global, &Tile { level: level as i32, x, y, res });
                 gather(&mut s.analysis, global, &vp, &mut s.candidates);
-                let count = s.fragments.prepare(ctx.scene, frame, &vp, &s.candidates, None);
+                let count = s.fragments.prepare(ctx.scene, frame, &vp, &s.candidates, None, receiver);
                 if count <= ctx.config.node_capacity {
                     stats.false_alarms += 1;
                 }
@@ -339,6 +352,7 @@ fn trace_light(
     stats: &mut PassStats,
 ) -> Result<(), Cancelled> {
     let cfg = ctx.config;
+    let receiver = |t: u32| ctx.importance[t as usize] > 0.0;
     let group = &ctx.scene.bundle.emitters.small[job.group as usize];
     let frame = BundleFrame::new(job.dir);
     let (mut lo, mut hi) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
@@ -378,7 +392,7 @@ fn trace_light(
             result = Err(c);
             break;
         }
-        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group));
+        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group), receiver);
         if count > cfg.node_capacity && overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             continue;
         }

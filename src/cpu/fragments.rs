@@ -35,6 +35,8 @@ struct TileTriangle {
     screen: ScreenTriangle,
     /// Belongs to the emitter group of the current light pass.
     emitter: bool,
+    /// Holds texels of the bake's target (only pixels with such a fragment can receive).
+    receiver: bool,
 }
 
 /// What the fragments of one triangle carry, as affine functions of grid pixel coordinates
@@ -103,7 +105,8 @@ fn side_uv(planes: &Planes, uv: [Vec2; 3]) -> [Vec2; 3] {
 
 impl TileFragments {
     /// Sets up `candidates` for `viewport`, keeps their covered spans and counts their
-    /// fragments. `emitter_group` makes this a light pass of that group. Returns the count.
+    /// fragments. `emitter_group` makes this a light pass of that group; `receiver(t)` says
+    /// whether triangle t holds target texels. Returns the count.
     pub fn prepare(
         &mut self,
         scene: &CpuScene,
@@ -111,6 +114,7 @@ impl TileFragments {
         viewport: &Viewport,
         candidates: &[u32],
         emitter_group: Option<u32>,
+        receiver: impl Fn(u32) -> bool,
     ) -> u64 {
         self.width = viewport.width;
         self.height = viewport.height;
@@ -122,7 +126,7 @@ impl TileFragments {
             let i = t as usize;
             if let Some(screen) = ScreenTriangle::setup(frame, viewport, &geom.corners[i], geom.normals[i]) {
                 let emitter = emitter_group.is_some_and(|g| g != NO_GROUP && scene.bundle.group_of[i] == g);
-                self.tris.push(TileTriangle { index: t, screen, emitter });
+                self.tris.push(TileTriangle { index: t, screen, emitter, receiver: receiver(t) });
             }
         }
         self.size_buckets();
@@ -261,16 +265,17 @@ impl TileFragments {
         &self.spans[start..start + self.bucket_len[bucket] as usize]
     }
 
-    /// The pixels `lo..hi` of a bucket to resolve: all its spans, or in a light pass the
-    /// hull of its emitter spans. `None` when there are none.
+    /// The pixels `lo..hi` of a bucket to resolve: the hull of its receivers' spans (no
+    /// other pixel can credit a target texel), in a light pass cut to the hull of its
+    /// emitter spans (no other pixel can receive its light). `None` when that is empty.
     fn window(&self, bucket: usize) -> Option<(u32, u32)> {
         let spans = self.bucket_spans_of(bucket);
         let hull = |(lo, hi): (u32, u32), s: &Span| (lo.min(s.x0), hi.max(s.x1));
-        let (lo, hi) = if self.emitters_only {
-            spans.iter().filter(|s| self.tris[s.tri as usize].emitter).fold((u32::MAX, 0), hull)
-        } else {
-            spans.iter().fold((u32::MAX, 0), hull)
-        };
+        let (mut lo, mut hi) = spans.iter().filter(|s| self.tris[s.tri as usize].receiver).fold((u32::MAX, 0), hull);
+        if self.emitters_only {
+            let (a, b) = spans.iter().filter(|s| self.tris[s.tri as usize].emitter).fold((u32::MAX, 0), hull);
+            (lo, hi) = (lo.max(a), hi.min(b));
+        }
         (lo < hi).then_some((lo, hi))
     }
 

@@ -202,6 +202,37 @@ impl ShownLightmap {
         best
     }
 
+    /// The pixel rectangle `(x0, y0, x1, y1)` of LOD `lod` covered by allocated pages, if any.
+    pub fn published_rect(&self, lod: u32) -> Option<(u64, u64, u64, u64)> {
+        let level = self.levels.get(lod as usize)?;
+        let (mut a, mut b) = ((u64::MAX, u64::MAX), (0u64, 0u64));
+        for (py, row) in level.rows.iter().enumerate() {
+            for (px, page) in row.iter().enumerate() {
+                if page.is_some() {
+                    a = (a.0.min(px as u64), a.1.min(py as u64));
+                    b = (b.0.max(px as u64 + 1), b.1.max(py as u64 + 1));
+                }
+            }
+        }
+        let side = PAGE_SIDE as u64;
+        let (w, h) = ((self.atlas_width as u64) << lod, (self.atlas_height as u64) << lod);
+        (a.0 != u64::MAX).then(|| (a.0 * side, a.1 * side, (b.0 * side).min(w), (b.1 * side).min(h)))
+    }
+
+    /// Irradiance of LOD `lod`'s pixels in the rectangle `(x0, y0, x1, y1)`, row-major;
+    /// pixels with nothing published are 0.
+    pub fn level_pixels(&self, lod: u32, rect: (u64, u64, u64, u64)) -> Vec<Rgb> {
+        let level = &self.levels[lod as usize];
+        let (x0, y0, x1, y1) = rect;
+        let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
+        for y in y0..y1 {
+            for x in x0..x1 {
+                out.push(level.texel(x as i64, y as i64).unwrap_or(Rgb::ZERO));
+            }
+        }
+        out
+    }
+
     /// Bytes of the pages held.
     pub fn page_bytes(&self) -> usize {
         self.levels.iter().map(|l| l.live_pages()).sum::<usize>() * Page::BYTES

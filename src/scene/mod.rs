@@ -15,7 +15,10 @@ use glam::{Quat, Vec2, Vec3, Vec4};
 
 pub use builder::SceneBuilder;
 pub use geometry::{SceneGeometry, TriangleId};
-pub use gltf::{LoadError, LoadOptions, load_gltf, load_gltf_bytes};
+pub use gltf::{
+    ExternalFile, ExternalKind, LoadError, LoadOptions, SourceDocument, SourceImage, external_files, load_gltf,
+    load_gltf_bytes, read_source,
+};
 pub use texture::{Texture, TextureRef, WrapMode};
 
 /// Linear RGB triple (radiance, irradiance, albedo...). Units are given where it is used.

@@ -311,6 +311,7 @@ impl App<'_, '_> {
         self.last_frame = Some(now);
         let Some(s) = &mut self.state else { return Ok(()) };
         let (w, h) = (s.config.width, s.config.height);
+        self.source.poll();
         self.source.set_camera(&self.camera, w as f32 / h as f32, h);
         s.renderer.update(&*self.source)?;
         // A capture run (`frames`) waits for light; if the source failed none will come.

@@ -1,5 +1,4 @@
-//! The viewer: a window onto a [`source::LightSource`] (the live runtime, or a finished
-//! bake), drawn by the GPU renderer; also renders offscreen for screenshots and tests.
+//! The viewer: a window onto a [`source::LightSource`] (the live runtime), drawn by the GPU renderer; also renders offscreen for screenshots and tests.
 
 pub mod app;
 pub mod camera;
@@ -10,4 +9,4 @@ pub mod xvfb;
 pub use app::{FrameContext, ViewerError, ViewerOptions, ViewerReport, run};
 pub use camera::Camera;
 pub use render::{DrawSettings, Renderer};
-pub use source::{BakedLight, LightSource, SceneState, SourceStatus};
+pub use source::{LightSource, RuntimeLight, SceneState, SourceStatus};

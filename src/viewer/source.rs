@@ -1,21 +1,21 @@
 //! Where the viewer's light comes from: the one place the live runtime plugs in.
 //!
 //! The viewer draws whatever a [`LightSource`] shows: the scene and atlas (replaced on a
-//! reload, with a new generation), and the latest [`ShownLightmap`] snapshot. [`BakedLight`]
-//! is a finished bake shown as a light map (baked once in the background); the live
-//! runtime's source refines while the viewer runs.
+//! reload, with a new generation), and the latest [`ShownLightmap`] snapshot.
+//! [`RuntimeLight`] is the live runtime; [`shown_from_bake`] shows a finished bake.
 
-use std::sync::{Arc, Mutex};
-use std::time::Instant;
+use std::sync::Arc;
+
+use glam::Vec3;
 
 use super::camera::Camera;
 use crate::atlas::Atlas;
 use crate::atlas::texels::NO_TEXEL;
-use crate::bake::{BakeConfig, BakeOutput, bake};
+use crate::bake::BakeOutput;
 use crate::grid::{Grid, GridError};
-use crate::progress::NoProgress;
 use crate::runtime::shown::{PageWriter, ShownLightmap};
-use crate::scene::{Scene, SceneGeometry};
+use crate::runtime::{CameraView, Runtime, RuntimeEvent, TimedEvent};
+use crate::scene::Scene;
 
 /// The scene a source lights and its atlas; `generation` changes when either is replaced.
 #[derive(Clone)]
@@ -44,6 +44,8 @@ pub trait LightSource {
     /// Where the viewer looks (a runtime refines what is seen first).
     fn set_camera(&mut self, camera: &Camera, aspect: f32, height_px: u32);
     fn status(&self) -> SourceStatus;
+    /// Takes the source's news (events); called once a frame.
+    fn poll(&mut self) {}
     /// Stops background work; called once when the viewer closes.
     fn shutdown(&mut self);
 }
@@ -82,68 +84,68 @@ pub fn grid_over(scene: &Scene, cell_size: f32) -> Result<Grid, GridError> {
     Grid::covering(lo, hi, cell_size)
 }
 
-enum BakeState {
-    Baking,
-    Done(Arc<ShownLightmap>, f64),
-    Failed(String),
-}
-
-/// A scene baked once (in a background thread, so the window opens at once) and shown.
-pub struct BakedLight {
+/// The live runtime as the viewer's light: LOD 0 at first light, then the cells the
+/// camera sees refined in the background and swapped in as they converge.
+pub struct RuntimeLight {
+    runtime: Option<Runtime>,
     state: SceneState,
-    result: Arc<Mutex<BakeState>>,
+    last_error: Option<String>,
 }
 
-impl BakedLight {
-    /// Starts baking `scene` with `config`; its atlas is built first (synchronously: the
-    /// viewer needs it to draw). `cell_size` sets the display grid.
-    pub fn start(scene: Arc<Scene>, config: BakeConfig, cell_size: f32) -> Result<BakedLight, crate::bake::BakeError> {
-        let geom = SceneGeometry::new(&scene);
-        let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas)?);
-        let result = Arc::new(Mutex::new(BakeState::Baking));
-        let (sink, baked_scene) = (result.clone(), scene.clone());
-        std::thread::spawn(move || {
-            let started = Instant::now();
-            let state = match bake(&baked_scene, &config, &NoProgress) {
-                Ok(out) => match grid_over(&baked_scene, cell_size) {
-                    Ok(grid) => {
-                        BakeState::Done(Arc::new(shown_from_bake(&out, grid, 0.0)), started.elapsed().as_secs_f64())
-                    }
-                    Err(e) => BakeState::Failed(e.to_string()),
-                },
-                Err(e) => BakeState::Failed(e.to_string()),
-            };
-            if let Ok(mut s) = sink.lock() {
-                *s = state;
-            }
-        });
-        Ok(BakedLight { state: SceneState { generation: 0, scene, atlas }, result })
+impl RuntimeLight {
+    pub fn new(runtime: Runtime) -> RuntimeLight {
+        let world = runtime.world();
+        let state = SceneState { generation: 0, scene: world.scene.clone(), atlas: world.atlas.clone() };
+        RuntimeLight { runtime: Some(runtime), state, last_error: None }
     }
 }
 
-impl LightSource for BakedLight {
+impl LightSource for RuntimeLight {
     fn scene(&self) -> SceneState {
         self.state.clone()
     }
 
     fn shown(&self) -> Option<Arc<ShownLightmap>> {
-        match &*self.result.lock().ok()? {
-            BakeState::Done(shown, _) => Some(shown.clone()),
-            _ => None,
+        let runtime = self.runtime.as_ref()?;
+        runtime.has_first_light().then(|| runtime.shown())
+    }
+
+    fn set_camera(&mut self, camera: &Camera, aspect: f32, height_px: u32) {
+        if let Some(runtime) = &self.runtime {
+            runtime.set_camera(CameraView {
+                eye: camera.eye,
+                target: camera.look_target(),
+                up: Vec3::Y,
+                yfov: camera.yfov,
+                aspect,
+                height_px,
+            });
         }
     }
 
-    fn set_camera(&mut self, _camera: &Camera, _aspect: f32, _height_px: u32) {}
-
-    fn status(&self) -> SourceStatus {
-        let (state, last_error) = match self.result.lock().as_deref() {
-            Ok(BakeState::Baking) => ("baking".to_string(), None),
-            Ok(BakeState::Done(_, s)) => (format!("baked in {s:.1} s"), None),
-            Ok(BakeState::Failed(e)) => ("bake failed".to_string(), Some(e.clone())),
-            Err(_) => ("bake failed".to_string(), Some("bake thread panicked".to_string())),
-        };
-        SourceStatus { queued: None, last_reload_ms: None, last_error, state }
+    fn poll(&mut self) {
+        let Some(runtime) = &self.runtime else { return };
+        while let Ok(TimedEvent { event, .. }) = runtime.events().try_recv() {
+            if let RuntimeEvent::Failed { error } = event {
+                self.last_error = Some(error);
+            }
+        }
     }
 
-    fn shutdown(&mut self) {}
+    fn status(&self) -> SourceStatus {
+        let Some(runtime) = &self.runtime else { return SourceStatus::default() };
+        let stats = runtime.stats();
+        let state = if runtime.has_first_light() {
+            format!("refining, {:.1} M texel-samples/s", stats.texel_samples_per_second / 1e6)
+        } else {
+            "first light...".to_string()
+        };
+        SourceStatus { queued: Some(stats.queue), last_reload_ms: None, last_error: self.last_error.clone(), state }
+    }
+
+    fn shutdown(&mut self) {
+        if let Some(runtime) = self.runtime.take() {
+            runtime.shutdown();
+        }
+    }
 }

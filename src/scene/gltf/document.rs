@@ -36,6 +36,8 @@ const HARMLESS_USED: &[&str] = &[
 /// The parsed document and, for a GLB, its BIN chunk.
 pub(super) struct Parsed<'a> {
     pub root: json::Root,
+    /// The JSON text as written (the JSON chunk of a GLB), for writers that copy parts of it.
+    pub json_text: &'a [u8],
     pub bin: Option<&'a [u8]>,
     pub is_glb: bool,
     /// Extensions in `extensionsUsed` that livebake ignores and that may change the look.
@@ -50,7 +52,7 @@ pub(super) fn parse<'a>(file: &Path, bytes: &'a [u8]) -> Result<Parsed<'a>, Load
     validate(file, &root)?;
     let ignored_extensions =
         root.extensions_used.iter().filter(|e| !HARMLESS_USED.contains(&e.as_str())).cloned().collect();
-    Ok(Parsed { root, bin, is_glb, ignored_extensions })
+    Ok(Parsed { root, json_text: json_bytes, bin, is_glb, ignored_extensions })
 }
 
 /// JSON text, BIN chunk (GLB only) and whether the file is a GLB.

@@ -104,12 +104,7 @@ fn describe(ctx: &Ctx, index: usize) -> String {
 
 fn decode(ctx: &Ctx, index: usize) -> Result<Pixels, LoadError> {
     let error = |reason: String| LoadError::Image { file: ctx.file.into(), image: describe(ctx, index), reason };
-    let img = ctx.root.images.get(index).ok_or_else(|| error("does not exist".into()))?;
-    let bytes = match img.buffer_view {
-        // A bad bufferView is reported as such (ViewOutOfBounds...).
-        Some(view) => ctx.buffers.view(ctx.file, ctx.root, view.value())?.to_vec(),
-        None => image_bytes(ctx, img).map_err(error)?,
-    };
+    let bytes = encoded_bytes(ctx, index)?;
     let format = image::guess_format(&bytes)
         .map_err(|_| error("unrecognised image format (livebake decodes PNG and JPEG)".into()))?;
     let decoded = image::load_from_memory_with_format(&bytes, format)
@@ -118,6 +113,17 @@ fn decode(ctx: &Ctx, index: usize) -> Result<Pixels, LoadError> {
     let (width, height) = rgba.dimensions();
     let rgba8 = rgba.pixels().map(|p| p.0).collect();
     Ok(Pixels { width, height, rgba8 })
+}
+
+/// The encoded bytes (PNG, JPEG...) of image `index`, from its bufferView or its URI.
+pub(super) fn encoded_bytes(ctx: &Ctx, index: usize) -> Result<Vec<u8>, LoadError> {
+    let error = |reason: String| LoadError::Image { file: ctx.file.into(), image: describe(ctx, index), reason };
+    let img = ctx.root.images.get(index).ok_or_else(|| error("does not exist".into()))?;
+    match img.buffer_view {
+        // A bad bufferView is reported as such (ViewOutOfBounds...).
+        Some(view) => Ok(ctx.buffers.view(ctx.file, ctx.root, view.value())?.to_vec()),
+        None => image_bytes(ctx, img).map_err(error),
+    }
 }
 
 /// The encoded bytes of an image given by URI, or why they cannot be had.

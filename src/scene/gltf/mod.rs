@@ -51,6 +51,8 @@ mod lights;
 mod materials;
 mod nodes;
 mod primitive;
+mod references;
+mod source;
 mod uri;
 
 use std::path::{Path, PathBuf};
@@ -58,6 +60,8 @@ use std::path::{Path, PathBuf};
 use ::gltf::json;
 
 pub use error::LoadError;
+pub use references::{ExternalFile, ExternalKind, external_files};
+pub use source::{SourceDocument, SourceImage, read_source};
 
 use super::{Material, MaterialId, Scene};
 use buffers::Buffers;

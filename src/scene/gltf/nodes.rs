@@ -13,12 +13,17 @@ pub(super) struct NodeInstance {
     pub world: Mat4,
 }
 
+/// The scene to load: `options.scene`, else the file's default scene, else the first scene;
+/// `None` when the file has no scenes.
+pub(super) fn chosen_scene(root: &json::Root, options: &LoadOptions) -> Option<usize> {
+    options.scene.or(root.scene.map(|s| s.value())).or((!root.scenes.is_empty()).then_some(0))
+}
+
 /// Root nodes to load: `options.scene`, else the file's default scene, else the first scene,
 /// else (no scenes at all) every node that is nobody's child.
 pub(super) fn scene_roots(ctx: &Ctx, options: &LoadOptions) -> Result<Vec<usize>, LoadError> {
     let root = ctx.root;
-    let chosen = options.scene.or(root.scene.map(|s| s.value())).or((!root.scenes.is_empty()).then_some(0));
-    match chosen {
+    match chosen_scene(root, options) {
         Some(s) => {
             let scene = root.scenes.get(s).ok_or_else(|| {
                 ctx.invalid(format!("scene {s} does not exist (the file has {} scenes)", root.scenes.len()))

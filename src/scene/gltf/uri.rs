@@ -50,6 +50,18 @@ pub(super) fn resolve(base_dir: &Path, uri: &str) -> Result<UriSource, UriError>
     Ok(UriSource::File(base_dir.join(decoded)))
 }
 
+/// The local file a URI names, resolved as [`resolve`] does, or `None` for a `data:` URI or
+/// a remote one (neither is a file on this machine). Decodes nothing but the path.
+pub(super) fn file_path(base_dir: &Path, uri: &str) -> Option<PathBuf> {
+    if scheme_of(uri).is_some() {
+        return None;
+    }
+    match resolve(base_dir, uri) {
+        Ok(UriSource::File(path)) => Some(path),
+        _ => None,
+    }
+}
+
 /// The scheme of an absolute URI (`data`, `http`...), if `uri` has one. A single letter before
 /// ':' is taken as a Windows drive, not a scheme.
 fn scheme_of(uri: &str) -> Option<&str> {
@@ -196,5 +208,8 @@ mod tests {
         assert_eq!(percent_decode("100%"), b"100%");
         assert_eq!(percent_decode("%4g%41"), b"%4gA");
         assert!(matches!(resolve(base, "https://example.com/a.bin"), Err(UriError::Remote { .. })));
+        assert_eq!(file_path(base, "tex/a%20b.png"), Some(PathBuf::from("/scenes/room/tex/a b.png")));
+        assert_eq!(file_path(base, "data:;base64,AAEC"), None);
+        assert_eq!(file_path(base, "https://example.com/a.bin"), None);
     }
 }

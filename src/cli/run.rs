@@ -1,0 +1,470 @@
+//! `livebake run`: the live runtime, headless. Refines around a camera (fixed, or moving
+//! along a path) for a while, streams events as JSON lines, and at the end writes the light
+//! maps as shown, the cell table, a report, and optionally irradiance at points read from
+//! the shown light map.
+
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use glam::{Vec2, Vec3};
+use serde::Deserialize;
+use serde_json::{Value, json};
+
+use livebake::cpu::CpuProvider;
+use livebake::output::{write_json, write_rgb_exr};
+use livebake::probe::{ProbeError, SurfaceLocator};
+use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
+use livebake::scene::{Rgb, Scene};
+
+use super::SceneOptions;
+use super::bake::load_scene;
+use super::options::Backend;
+use super::points::{read_points, write_results};
+use super::progress::Ui;
+
+/// Options of the runtime (with the scene options of `bake`).
+#[derive(Args, Debug, Clone, Default)]
+pub struct RuntimeOptions {
+    /// Grid cell side, metres (default: from the scene, a few thousand non-empty cells).
+    #[arg(long, value_name = "M")]
+    pub cell_size: Option<f32>,
+    /// Memory the shown pages and bakes in progress may use, bytes or with a K/M/G suffix
+    /// (default: a quarter of the machine's memory, at most 4G).
+    #[arg(long, value_name = "BYTES", value_parser = parse_bytes)]
+    pub memory_budget: Option<u64>,
+    /// Directions a cell needs at least before it may swap to the next LOD.
+    #[arg(long, value_name = "N")]
+    pub min_directions: Option<u32>,
+    /// Directions after which a cell swaps whatever its error.
+    #[arg(long, value_name = "N")]
+    pub max_directions: Option<u32>,
+    /// Estimated relative error at which a cell swaps.
+    #[arg(long, value_name = "E")]
+    pub error_bound: Option<f32>,
+}
+
+/// Options of `run` itself.
+#[derive(Args, Debug, Clone)]
+pub struct RunOptions {
+    /// Camera pose: eye and target.
+    #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ", value_parser = parse_camera, allow_hyphen_values = true, conflicts_with = "camera_path")]
+    pub camera: Option<(Vec3, Vec3)>,
+    /// Camera path: [{"t":s,"eye":[x,y,z],"target":[x,y,z]},...], interpolated, held after
+    /// its last key.
+    #[arg(long, value_name = "PATH.json")]
+    pub camera_path: Option<PathBuf>,
+    /// How long to run, seconds after first light.
+    #[arg(long, value_name = "S", default_value_t = 10.0)]
+    pub seconds: f64,
+    /// Event stream, one JSON object per line.
+    #[arg(long, value_name = "OUT.jsonl")]
+    pub events: Option<PathBuf>,
+    /// Output directory for the light maps as shown, cells.json and report.json.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+    /// Points to read from the shown light map at the end (probe's format).
+    #[arg(long, value_name = "IN.json", requires = "points_out")]
+    pub points: Option<PathBuf>,
+    #[arg(long, value_name = "OUT.json", requires = "points")]
+    pub points_out: Option<PathBuf>,
+    #[command(flatten)]
+    pub runtime: RuntimeOptions,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            camera: None,
+            camera_path: None,
+            seconds: 10.0,
+            events: None,
+            out: PathBuf::from("out"),
+            points: None,
+            points_out: None,
+            runtime: RuntimeOptions::default(),
+        }
+    }
+}
+
+fn parse_camera(s: &str) -> Result<(Vec3, Vec3), String> {
+    let v: Vec<f32> =
+        s.split(',').map(|p| p.trim().parse::<f32>().map_err(|e| format!("{p:?}: {e}"))).collect::<Result<_, _>>()?;
+    if v.len() != 6 || v.iter().any(|x| !x.is_finite()) {
+        return Err(format!("expected six finite numbers EX,EY,EZ,TX,TY,TZ, got {s:?}"));
+    }
+    let (eye, target) = (Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5]));
+    if eye == target {
+        return Err("the eye and the target must differ".into());
+    }
+    Ok((eye, target))
+}
+
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let (digits, unit) = match t.char_indices().find(|(_, c)| c.is_ascii_alphabetic()) {
+        Some((i, _)) => (&t[..i], t[i..].to_ascii_uppercase()),
+        None => (t, String::new()),
+    };
+    let n: f64 = digits.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
+    let scale = match unit.trim_end_matches("IB").trim_end_matches('B') {
+        "" => 1.0,
+        "K" => 1024.0,
+        "M" => 1024.0 * 1024.0,
+        "G" => 1024.0 * 1024.0 * 1024.0,
+        _ => return Err(format!("unknown unit in {s:?} (use K, M or G)")),
+    };
+    let bytes = n * scale;
+    if !(bytes.is_finite() && bytes >= 0.0 && bytes < 1.8e19) {
+        return Err(format!("{s:?} is not a byte count"));
+    }
+    Ok(bytes as u64)
+}
+
+/// One key of a camera path.
+#[derive(Deserialize)]
+struct PathKey {
+    t: f64,
+    eye: [f32; 3],
+    target: [f32; 3],
+}
+
+/// A camera path: keys in time order, linearly interpolated, held after the last.
+pub struct CameraPath {
+    keys: Vec<(f64, Vec3, Vec3)>,
+}
+
+impl CameraPath {
+    pub fn read(path: &Path) -> Result<CameraPath> {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("cannot read camera path {}", path.display()))?;
+        let keys: Vec<PathKey> = serde_json::from_str(&text).with_context(|| {
+            format!("{}: expected [{{\"t\":s,\"eye\":[x,y,z],\"target\":[x,y,z]}},...]", path.display())
+        })?;
+        if keys.is_empty() {
+            bail!("{}: the camera path has no keys", path.display());
+        }
+        let mut out: Vec<(f64, Vec3, Vec3)> = Vec::with_capacity(keys.len());
+        for (i, k) in keys.iter().enumerate() {
+            let (eye, target) = (Vec3::from(k.eye), Vec3::from(k.target));
+            if !(k.t.is_finite() && eye.is_finite() && target.is_finite()) || eye == target {
+                bail!("{}: key {i} is not a finite pose with distinct eye and target", path.display());
+            }
+            if out.last().is_some_and(|l| l.0 > k.t) {
+                bail!("{}: key {i} goes back in time (t = {})", path.display(), k.t);
+            }
+            out.push((k.t, eye, target));
+        }
+        Ok(CameraPath { keys: out })
+    }
+
+    /// The pose at time `t` (seconds).
+    pub fn at(&self, t: f64) -> (Vec3, Vec3) {
+        let k = &self.keys;
+        let Some(next) = k.iter().position(|key| key.0 > t) else {
+            let last = k[k.len() - 1];
+            return (last.1, last.2);
+        };
+        if next == 0 {
+            return (k[0].1, k[0].2);
+        }
+        let (a, b) = (k[next - 1], k[next]);
+        let s = ((t - a.0) / (b.0 - a.0).max(1e-9)) as f32;
+        (a.1.lerp(b.1, s), a.2.lerp(b.2, s))
+    }
+}
+
+/// The runtime settings from the command line: the scene options of `bake` with the
+/// runtime's own defaults where they were not given.
+pub fn runtime_config(options: &SceneOptions, runtime: &RuntimeOptions) -> Result<RuntimeConfig> {
+    if options.backend == Backend::Reference {
+        bail!("--backend reference path-traces texels offline; the runtime needs a bundle backend (cpu)");
+    }
+    let mut config = RuntimeConfig::default();
+    let bake = options.bake_config(|_| config.bundle.directions)?;
+    config.atlas = bake.atlas.clone();
+    config.atlas.texel_budget = options.texel_budget.unwrap_or(RuntimeConfig::default().atlas.texel_budget);
+    config.bundle = bake.bundle_config();
+    config.lods = options.lods;
+    config.threads = options.threads;
+    config.cell_size = runtime.cell_size;
+    if let Some(b) = runtime.memory_budget {
+        config.memory_budget = b;
+    }
+    if let Some(d) = runtime.min_directions {
+        config.min_directions = d;
+    }
+    if let Some(d) = runtime.max_directions {
+        config.max_directions = d;
+    }
+    if let Some(e) = runtime.error_bound {
+        config.error_bound = e;
+    }
+    config.validate()?;
+    Ok(config)
+}
+
+/// Writes events as JSON lines with `"t"` (seconds since the runtime started).
+struct EventLog {
+    out: Option<BufWriter<std::fs::File>>,
+}
+
+impl EventLog {
+    fn open(path: Option<&Path>) -> Result<EventLog> {
+        let out = match path {
+            Some(p) => Some(BufWriter::new(
+                std::fs::File::create(p).with_context(|| format!("cannot create event file {}", p.display()))?,
+            )),
+            None => None,
+        };
+        Ok(EventLog { out })
+    }
+
+    fn write(&mut self, t: f64, event: &impl serde::Serialize) -> Result<()> {
+        if let Some(out) = &mut self.out {
+            let mut v = serde_json::to_value(event)?;
+            if let Value::Object(m) = &mut v {
+                m.insert("t".into(), json!(t));
+            }
+            serde_json::to_writer(&mut *out, &v)?;
+            out.write_all(b"\n")?;
+        }
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<()> {
+        if let Some(out) = &mut self.out {
+            out.flush()?;
+        }
+        Ok(())
+    }
+}
+
+pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui) -> Result<()> {
+    let config = runtime_config(options, &run.runtime)?;
+    let path = run.camera_path.as_deref().map(CameraPath::read).transpose()?;
+    let points = run.points.as_deref().map(read_points).transpose()?;
+    if !(run.seconds.is_finite() && run.seconds >= 0.0) {
+        bail!("--seconds must be a non-negative number, got {}", run.seconds);
+    }
+    std::fs::create_dir_all(&run.out)
+        .with_context(|| format!("cannot create output directory {}", run.out.display()))?;
+    let mut log = EventLog::open(run.events.as_deref())?;
+    let (scene, load_seconds) = load_scene(scene_path, options)?;
+    let interrupted = Arc::new(AtomicBool::new(false));
+    // Ctrl-C ends the run early; the outputs are still written.
+    let _ = signal_hook::flag::register(signal_hook::consts::SIGINT, interrupted.clone());
+
+    let runtime = Runtime::start(scene.clone(), config, Arc::new(CpuProvider::new()))
+        .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
+    let base = CameraView::for_scene(&scene);
+    let camera_at = |t: f64| match (&path, run.camera) {
+        (Some(p), _) => {
+            let (eye, target) = p.at(t);
+            CameraView { eye, target, ..base }
+        }
+        (None, Some((eye, target))) => CameraView { eye, target, ..base },
+        (None, None) => base,
+    };
+    runtime.set_camera(camera_at(0.0));
+    ui.begin_phase("first light", 0);
+
+    let mut first_light: Option<f64> = None;
+    let mut last_stats: Option<RuntimeStats> = None;
+    let started = Instant::now();
+    let mut failure = None;
+    loop {
+        let elapsed = runtime.elapsed();
+        let since_light = first_light.map(|t| elapsed - t);
+        if interrupted.load(Ordering::Relaxed) || since_light.is_some_and(|s| s >= run.seconds) {
+            break;
+        }
+        // The path's clock starts at first light, when refinement starts.
+        runtime.set_camera(camera_at(since_light.unwrap_or(0.0)));
+        match runtime.events().recv_timeout(Duration::from_millis(20)) {
+            Ok(TimedEvent { t, event }) => {
+                log.write(t, &event)?;
+                match &event {
+                    RuntimeEvent::FirstLight { .. } => {
+                        first_light = Some(t);
+                        ui.end_phase();
+                        ui.begin_phase("refining", 0);
+                    }
+                    RuntimeEvent::Stats(s) => {
+                        ui.status(&format!(
+                            "cells per LOD {:?} | queue {} | {:.1} M texel-samples/s | {:.0} MB",
+                            s.cells_per_lod,
+                            s.queue,
+                            s.texel_samples_per_second / 1e6,
+                            s.resident_bytes as f64 / 1e6
+                        ));
+                        last_stats = Some(s.clone());
+                    }
+                    RuntimeEvent::Failed { error } => {
+                        failure = Some(error.clone());
+                        break;
+                    }
+                    _ => {}
+                }
+            }
+            Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
+            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => break,
+        }
+    }
+    ui.end_phase();
+    let shown = runtime.shown();
+    let cells = runtime.cells();
+    let stats = runtime.stats();
+    let world = runtime.world().clone();
+    runtime.shutdown();
+    let t_end = started.elapsed().as_secs_f64();
+    if let Some(error) = failure {
+        bail!("the runtime failed on {}: {error}", scene_path.display());
+    }
+
+    // Outputs.
+    let mut written = Vec::new();
+    for lod in 0..shown.lods() {
+        let Some(rect) = shown.published_rect(lod) else { continue };
+        let (w, h) = (rect.2 - rect.0, rect.3 - rect.1);
+        if w * h > MAX_EXR_PIXELS {
+            tracing::warn!("LOD {lod}'s published region is {w}×{h} pixels; not written (above {MAX_EXR_PIXELS})");
+            continue;
+        }
+        let file = run.out.join(format!("lightmap_lod{lod}.exr"));
+        write_rgb_exr(&file, w as u32, h as u32, &shown.level_pixels(lod, rect))?;
+        written.push((lod, rect, file));
+    }
+    let cells_json = json!({
+        "grid": world.grid,
+        "cells": cells.iter().map(|c| json!({
+            "cell": c.cell,
+            "bounds": {"min": c.min, "max": c.max},
+            "shown_lod": c.shown_lod,
+            "target_lod": c.target_lod,
+            "directions": c.directions,
+            "error": if c.error.is_finite() { json!(c.error) } else { Value::Null },
+            "texels_lod0": c.texels,
+        })).collect::<Vec<_>>(),
+    });
+    write_json(&run.out.join("cells.json"), &cells_json)?;
+    let report = json!({
+        "scene": scene_path.display().to_string(),
+        "triangles": scene.triangle_count(),
+        "load_seconds": load_seconds,
+        "atlas": {
+            "texel_size": world.atlas.texel_size,
+            "width": world.atlas.width,
+            "height": world.atlas.height,
+            "charts": world.atlas.stats.charts,
+            "fill_ratio": world.atlas.stats.fill_ratio,
+            "covered_texels_lod0": world.atlas.stats.covered_texels_lod0,
+        },
+        "grid": world.grid,
+        "lods": world.lods,
+        "texel_size_per_lod": (0..world.lods).map(|k| world.texel_size(k)).collect::<Vec<_>>(),
+        "config": runtime_report_config(options, run),
+        "first_light_seconds": stats.first_light_seconds,
+        "run_seconds": t_end,
+        "interrupted": interrupted.load(Ordering::Relaxed),
+        "stats": stats,
+        "last_stats_event": last_stats,
+        "lightmaps": written.iter().map(|(lod, r, f)| json!({
+            "lod": lod, "file": f.file_name().map(|n| n.to_string_lossy().to_string()),
+            "origin": [r.0, r.1], "size": [r.2 - r.0, r.3 - r.1],
+        })).collect::<Vec<_>>(),
+    });
+    write_json(&run.out.join("report.json"), &report)?;
+    if let (Some((mut doc, queries)), Some(out)) = (points, run.points_out.as_deref()) {
+        let locator = SurfaceLocator::new(&world.geom, &world.bvh);
+        let results: Vec<Result<Rgb, ProbeError>> = queries
+            .iter()
+            .map(|q| {
+                let at = locator.locate(q.p, q.n)?;
+                let face = world.atlas.face(at.tri, at.side).ok_or(ProbeError::BackOfSingleSided)?;
+                let uv: Vec2 = world.atlas.faces[face as usize].uv_at(at.u, at.v);
+                Ok(shown.irradiance(world.geom.point(at.tri, at.u, at.v), uv))
+            })
+            .collect();
+        write_results(&mut doc, &results, Some(out), ui)?;
+    }
+    log.write(t_end, &json!({"event": "finished", "stats": stats}))?;
+    log.flush()?;
+    summarise(ui, scene_path, &scene, &stats, &written, &run.out);
+    Ok(())
+}
+
+/// Largest LOD image `run` writes (16 M pixels: 200 MB of f32 RGB).
+const MAX_EXR_PIXELS: u64 = 1 << 24;
+
+fn runtime_report_config(options: &SceneOptions, run: &RunOptions) -> Value {
+    json!({
+        "texel_size": options.texel_size,
+        "texel_budget": options.texel_budget,
+        "lods": options.lods,
+        "samples": options.samples,
+        "seed": options.seed,
+        "cell_size": run.runtime.cell_size,
+        "memory_budget": run.runtime.memory_budget,
+        "min_directions": run.runtime.min_directions,
+        "max_directions": run.runtime.max_directions,
+        "error_bound": run.runtime.error_bound,
+        "seconds": run.seconds,
+    })
+}
+
+fn summarise(
+    ui: &Ui,
+    path: &Path,
+    scene: &Scene,
+    stats: &RuntimeStats,
+    written: &[(u32, (u64, u64, u64, u64), PathBuf)],
+    out: &Path,
+) {
+    ui.say(format!("livebake run: {} ({} triangles)", path.display(), scene.triangle_count()));
+    if let Some(t) = stats.first_light_seconds {
+        ui.say(format!("  first light after {t:.2} s"));
+    }
+    ui.say(format!(
+        "  cells per LOD {:?}, {} publishes, {} directions traced, {:.0} MB resident",
+        stats.cells_per_lod,
+        stats.publishes,
+        stats.directions_traced,
+        stats.resident_bytes as f64 / 1e6
+    ));
+    for (_, _, f) in written {
+        ui.say(format!("  wrote {}", f.display()));
+    }
+    ui.say(format!("  wrote {} and {}", out.join("cells.json").display(), out.join("report.json").display()));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn byte_counts_parse_with_units() {
+        assert_eq!(parse_bytes("1024").unwrap(), 1024);
+        assert_eq!(parse_bytes("2K").unwrap(), 2048);
+        assert_eq!(parse_bytes("1.5G").unwrap(), 3 << 29);
+        assert_eq!(parse_bytes("512MiB").unwrap(), 512 << 20);
+        assert!(parse_bytes("12Q").is_err());
+        assert!(parse_bytes("-1").is_err());
+    }
+
+    #[test]
+    fn camera_paths_interpolate_and_hold() {
+        let keys = vec![(0.0, Vec3::ZERO, Vec3::Z), (2.0, Vec3::new(2.0, 0.0, 0.0), Vec3::Z)];
+        let p = CameraPath { keys };
+        assert_eq!(p.at(1.0).0, Vec3::new(1.0, 0.0, 0.0));
+        assert_eq!(p.at(-1.0).0, Vec3::ZERO);
+        assert_eq!(p.at(9.0).0, Vec3::new(2.0, 0.0, 0.0));
+        assert!(parse_camera("0,0,0,0,0,1").is_ok());
+        assert!(parse_camera("0,0,0,0,0,0").is_err());
+        assert!(parse_camera("0,0,0").is_err());
+    }
+}

@@ -1,0 +1,306 @@
+//! One cell refined to one LOD: its texels (made for this cell only), the punctual pass, and
+//! a resumable accumulation of bundle batches with a per-texel variance estimate.
+//!
+//! The bundles see the shown light map as it was when the bake started (one bounce from a
+//! converged field: every batch weighs the same), so the result depends only on that
+//! snapshot, the seed and the number of directions — not on what other cells publish
+//! meanwhile or on which worker ran which batch.
+
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use glam::Vec3;
+
+use super::shown::ShownLightmap;
+use super::source::ShownSource;
+use super::world::World;
+use crate::atlas::lookup::TexelTable;
+use crate::atlas::sparse::SparseTexels;
+use crate::atlas::texels::NO_TEXEL;
+use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
+use crate::bundle::stats::PassStats;
+use crate::bundle::target::target_triangles;
+use crate::bundle::{BakeTarget, BundleBackend, Cancelled, JobSequence, SourceRadiance};
+use crate::grid::CellId;
+use crate::reference::punctual::punctual_irradiance;
+use crate::sampling::mix64;
+use crate::scene::Rgb;
+
+/// Per texel: batches folded in and the sum of their squared (filtered) residuals.
+#[derive(Clone, Copy, Default)]
+struct BatchMoments {
+    n: u32,
+    sum2: f64,
+}
+
+pub struct CellBake {
+    pub cell: CellId,
+    pub lod: u32,
+    pub texels: SparseTexels,
+    triangles: Vec<u32>,
+    window: (Vec3, Vec3),
+    carried: Vec<bool>,
+    estimate: ProgressiveEstimate,
+    moments: Vec<BatchMoments>,
+    jobs: JobSequence,
+    directions: u64,
+    sums: BatchSums,
+    /// What the bundles see: the shown map at the bake's start, and its texels' radiance.
+    source: ShownSource,
+    own_source: Vec<Rgb>,
+}
+
+/// What one unit of work did.
+pub struct UnitStats {
+    pub pass: PassStats,
+    pub directions: u64,
+    /// Texels × directions traced.
+    pub texel_samples: u64,
+}
+
+/// Seed of the direction sequence of `cell` at `lod`: independent per cell and level.
+pub fn cell_seed(seed: u64, cell: CellId, lod: u32) -> u64 {
+    mix64(seed ^ mix64(((lod as u64) << 32 | cell as u64) + 0x5EED))
+}
+
+impl CellBake {
+    /// Makes `cell`'s texels at `lod` and lights them by the punctual lights; the bundles
+    /// will see `shown`.
+    pub fn new(
+        world: &World,
+        cell: CellId,
+        lod: u32,
+        shown: Arc<ShownLightmap>,
+        seed: u64,
+        threads: usize,
+    ) -> CellBake {
+        let (lo, hi) = world.cell_box(cell);
+        let grid = world.grid;
+        let texels = SparseTexels::build(
+            &world.scene,
+            &world.geom,
+            &world.atlas,
+            lod,
+            world.cell_triangles.of(cell),
+            lo,
+            hi,
+            |p| grid.cell_of(p) == cell,
+        );
+        let punctual =
+            punctual_irradiance(&world.scene, &world.bvh, &texels.position, &texels.normal, world.epsilon, threads);
+        // The window holds every texel's footprint: a texel's square reaches half a diagonal
+        // beyond its surface point, which is in the cell.
+        let reach = Vec3::splat(world.texel_size(lod) * 1.5);
+        let carried = texels.face.iter().map(|&f| world.bundle.carried(f)).collect();
+        let config = &world.bundle.config;
+        let n = texels.len();
+        let source = ShownSource { shown, bundle: world.bundle.clone() };
+        CellBake {
+            cell,
+            lod,
+            triangles: target_triangles(&world.atlas, &texels.face),
+            window: (lo - reach, hi + reach),
+            carried,
+            estimate: ProgressiveEstimate::new(SourceKind::Converged, punctual, texels.area.clone()),
+            moments: vec![BatchMoments::default(); n],
+            jobs: JobSequence::new(
+                cell_seed(seed, cell, lod),
+                world.bundle.emitters.small.len(),
+                config.light_directions,
+            ),
+            directions: 0,
+            sums: BatchSums::new(n),
+            source,
+            own_source: Vec::new(),
+            texels,
+        }
+    }
+
+    pub fn directions(&self) -> u64 {
+        self.directions
+    }
+
+    /// The snapshot the bundles see.
+    pub fn source_version(&self) -> u64 {
+        self.source.shown.version
+    }
+
+    /// Traces the next `count` directions. A cancelled unit leaves the bake as it was.
+    pub fn step(
+        &mut self,
+        world: &World,
+        backend: &mut dyn BundleBackend,
+        count: u32,
+        cancel: &AtomicBool,
+    ) -> Result<UnitStats, Cancelled> {
+        if self.texels.is_empty() {
+            self.directions += count as u64;
+            return Ok(UnitStats { pass: PassStats::default(), directions: count as u64, texel_samples: 0 });
+        }
+        if self.own_source.is_empty() {
+            self.own_source = self.source.own(&self.texels, &self.carried);
+        }
+        let batch: Vec<_> = (self.directions..self.directions + count as u64).map(|i| self.jobs.job(i)).collect();
+        let target = BakeTarget {
+            lod: self.lod,
+            face: &self.texels.face,
+            emission: &self.texels.emission,
+            tables: &self.texels.tables,
+            window: Some(self.window),
+            triangles: &self.triangles,
+        };
+        let source = SourceRadiance { own: &self.own_source, foreign: Some(&self.source) };
+        let pass = backend.trace_batch(&target, &batch, &source, &mut self.sums, cancel)?;
+        let light_directions = count as u64 * world.bundle.config.light_directions as u64;
+        self.estimate.add_batch(&self.sums, light_directions, 1);
+        self.add_moments(light_directions);
+        self.directions += count as u64;
+        Ok(UnitStats { pass, directions: count as u64, texel_samples: count as u64 * self.texels.len() as u64 })
+    }
+
+    /// Folds the batch just traced into each texel's variance estimate. The published value
+    /// is a ratio (global bundles: `π·ΣS/ΣA` over batches) plus a mean (light pass), so the
+    /// batch's contribution to its error is the linearised residual
+    /// `π·(S_b − R·A_b)/Ā + (l_b − l̄)` (luminance; R, Ā, l̄ the running estimates), filtered
+    /// as the published result is ([`filter_within_charts`]), so neighbours' correlated
+    /// noise (one light direction lights a whole patch) is not mistaken for noise the
+    /// filter removes.
+    fn add_moments(&mut self, light_directions: u64) {
+        let t = &self.texels;
+        let batches = self.estimate.batches() as f64;
+        let residual: Vec<f32> = (0..t.len())
+            .map(|i| {
+                let (bundle, weight, light) = self.estimate.parts(i);
+                let b = self.sums.bundle[i];
+                let mut r = 0.0;
+                if weight > 0.0 {
+                    let mean_weight = weight / batches;
+                    let seen = luminance(Rgb::new(b[0], b[1], b[2])) as f64;
+                    let ratio = luminance(bundle) as f64 / std::f64::consts::PI;
+                    r += std::f64::consts::PI * (seen - ratio * b[3] as f64) / mean_weight;
+                }
+                if light_directions > 0 && t.area[i] > 0.0 {
+                    let l = luminance(self.sums.light[i]) as f64 * std::f64::consts::TAU
+                        / light_directions as f64
+                        / t.area[i] as f64;
+                    r += l - luminance(light) as f64;
+                }
+                r as f32
+            })
+            .collect();
+        let filtered = filter_scalar_within_charts(&t.pixel, |i| t.table_of(i), &residual);
+        for (m, &r) in self.moments.iter_mut().zip(&filtered) {
+            m.n += 1;
+            m.sum2 += (r as f64) * (r as f64);
+        }
+    }
+
+    /// Estimated relative error of the cell's published irradiance: the RMS over texels of
+    /// each texel's standard error (from its filtered batch residuals: variance of the
+    /// mean ≈ Σr²/(n(n−1))), over the cell's mean irradiance. Infinite before two batches.
+    pub fn error(&self) -> f32 {
+        let n = self.estimate.batches() as f64;
+        if self.texels.is_empty() {
+            return 0.0;
+        }
+        if n < 2.0 {
+            return f32::INFINITY;
+        }
+        let var: f64 = self.moments.iter().map(|m| m.sum2 / (n * (n - 1.0))).sum::<f64>() / self.moments.len() as f64;
+        let mean_e: f64 = (0..self.texels.len()).map(|i| luminance(self.estimate.irradiance_of(i)) as f64).sum::<f64>()
+            / self.texels.len() as f64;
+        if mean_e <= 0.0 {
+            return 0.0;
+        }
+        (var.sqrt() / mean_e) as f32
+    }
+
+    /// The irradiance to publish: the bundle and light-pass parts lightly filtered within
+    /// charts ([`filter_within_charts`]), plus the exact punctual part.
+    pub fn result(&self) -> Vec<Rgb> {
+        let total: Vec<Rgb> = (0..self.texels.len()).map(|i| self.estimate.irradiance_of(i)).collect();
+        let punctual = self.estimate.punctual();
+        let noisy: Vec<Rgb> = total.iter().zip(punctual).map(|(t, p)| *t - *p).collect();
+        let t = &self.texels;
+        filter_within_charts(&t.pixel, |i| t.table_of(i), &noisy)
+            .into_iter()
+            .zip(punctual)
+            .map(|(n, p)| n + *p)
+            .collect()
+    }
+
+    /// Bytes held by the bake.
+    pub fn bytes(&self) -> usize {
+        let n = self.texels.len();
+        self.texels.bytes() + n * (std::mem::size_of::<BatchMoments>() + 28 + 56 + 12 + 12 + 4 + 1)
+    }
+}
+
+fn luminance(c: Rgb) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
+/// The 3×3 tent (1-2-1 per axis) weight of neighbour (dx, dy), and which neighbours of a
+/// texel count: texels of the same chart and bake, never a gutter pixel (it copies a texel)
+/// nor another chart's pixel. Calls `each(j, w)` for texel `i`'s neighbours (itself included).
+fn for_each_neighbour<'t>(
+    pixels: &[[u32; 2]],
+    table: &impl Fn(usize) -> &'t TexelTable,
+    i: usize,
+    mut each: impl FnMut(usize, f32),
+) {
+    let [x, y] = pixels[i];
+    let chart = table(i);
+    for dy in -1i64..=1 {
+        for dx in -1i64..=1 {
+            let (nx, ny) = (x as i64 + dx, y as i64 + dy);
+            let j = chart.get(nx, ny);
+            if j == NO_TEXEL || pixels[j as usize] != [nx as u32, ny as u32] {
+                continue;
+            }
+            each(j as usize, ((2 - dx.abs()) * (2 - dy.abs())) as f32);
+        }
+    }
+}
+
+/// A 3×3 tent filter over each texel and its neighbours of the same chart and bake, never
+/// across a chart border: bundles of parallel lines leave streaks along the last
+/// directions' lines, which this smooths at the scale of one texel. `pixels[i]` is texel i's
+/// LOD pixel and `table(i)` the lookup table of its chart.
+pub fn filter_within_charts<'t>(
+    pixels: &[[u32; 2]],
+    table: impl Fn(usize) -> &'t TexelTable,
+    values: &[Rgb],
+) -> Vec<Rgb> {
+    (0..pixels.len())
+        .map(|i| {
+            let (mut sum, mut wsum) = (Rgb::ZERO, 0.0);
+            for_each_neighbour(pixels, &table, i, |j, w| {
+                sum += values[j] * w;
+                wsum += w;
+            });
+            sum / wsum
+        })
+        .collect()
+}
+
+/// [`filter_within_charts`] of one value per texel, NaN marking texels without one (they
+/// are left out, and stay NaN when no neighbour has a value).
+fn filter_scalar_within_charts<'t>(
+    pixels: &[[u32; 2]],
+    table: impl Fn(usize) -> &'t TexelTable,
+    values: &[f32],
+) -> Vec<f32> {
+    (0..pixels.len())
+        .map(|i| {
+            let (mut sum, mut wsum) = (0.0, 0.0);
+            for_each_neighbour(pixels, &table, i, |j, w| {
+                if !values[j].is_nan() {
+                    sum += values[j] * w;
+                    wsum += w;
+                }
+            });
+            if wsum > 0.0 { sum / wsum } else { f32::NAN }
+        })
+        .collect()
+}
