@@ -65,14 +65,14 @@ fn fs_main(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0)
     var radiance = albedo * irradiance / PI + emission;
     let k = lm_shown_lod(in.world);
     switch frame.view_mode {
-        case VIEW_CELL_LOD: {
-            radiance = lod_colour(k) * (0.25 + dot(radiance, vec3<f32>(0.2126, 0.7152, 0.0722)));
-        }
         case VIEW_CELL_GRID: {
-            // Dark lines where the fragment is within ~1.5 pixels of a cell face.
+            // Dark lines where the fragment is within a pixel of a cell face. An axis along
+            // which the surface does not move across the pixel (a wall lying in a cell face)
+            // draws no line: the whole surface would be one.
             let q = (in.world - lm.grid_origin) / lm.cell_size;
-            let edge = min(fract(q), vec3<f32>(1.0) - fract(q)) / max(fwidth(q), vec3<f32>(1e-6));
-            if min(edge.x, min(edge.y, edge.z)) < 1.5 {
+            let w = fwidth(q);
+            let edge = select(vec3<f32>(1e9), min(fract(q), vec3<f32>(1.0) - fract(q)) / max(w, vec3<f32>(1e-9)), w > vec3<f32>(1e-4));
+            if min(edge.x, min(edge.y, edge.z)) < 1.0 {
                 radiance = vec3<f32>(0.0, 0.0, 0.0);
             }
         }
@@ -88,6 +88,10 @@ fn fs_main(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0)
         default: {}
     }
     var colour = tone_map(radiance, frame.exposure);
+    if frame.view_mode == VIEW_CELL_LOD {
+        // The LOD's colour, shaded by the lit picture's brightness.
+        colour = lod_colour(k) * (0.3 + 0.7 * dot(colour, vec3<f32>(0.2126, 0.7152, 0.0722)));
+    }
     if frame.encode_srgb == 1u {
         colour = srgb_encode(colour);
     }

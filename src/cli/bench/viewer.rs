@@ -3,8 +3,8 @@
 //! run is a fresh `livebake view` process in a window on a private Xvfb, so launch includes
 //! process start, scene load, atlas, device, window and the LOD-0 light.
 //!
-//! The light source is the viewer's one background bake at 5 cm texels and 256 directions
-//! (the startup bench's settings) until the live runtime drives the viewer.
+//! The light is the live runtime with its defaults (what `livebake view SCENE` does): frame
+//! times are taken while it refines the cells in view.
 
 use std::process::Command;
 
@@ -44,7 +44,7 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
                 .env("DISPLAY", &xvfb.display)
                 .args(["-q", "view"])
                 .arg(assets().join(room))
-                .args(["--frames", &frames.to_string(), "--size", SIZE, "--texel-size", "0.05", "--samples", "256"])
+                .args(["--frames", &frames.to_string(), "--size", SIZE])
                 .arg("--stats")
                 .arg(&stats)
                 .output()?;
@@ -69,7 +69,7 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
         "window": SIZE,
         "lit_frames_per_run": frames,
         "runs": runs,
-        "light_source": "one background bake at 0.05 m, 256 directions (the live runtime is not driving the viewer yet)",
+        "light_source": "the live runtime, default options",
         "target_first_lit_frame_seconds": 1.5,
         "scenes": scenes,
     }))
