@@ -35,7 +35,9 @@ impl LightSource for TestSource {
     fn status(&self) -> SourceStatus {
         SourceStatus { state: "test".into(), last_error: self.error.lock().unwrap().clone(), ..SourceStatus::default() }
     }
-    fn shutdown(&mut self) {}
+    fn shutdown(&mut self) -> Result<(), String> {
+        Ok(())
+    }
 }
 
 /// Publishes new values for every LOD-0 texel (and its gutter copies) whose surface point

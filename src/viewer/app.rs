@@ -199,10 +199,11 @@ pub fn run(
         shots: 0,
     };
     let result = event_loop.run_app(&mut app);
-    app.source.shutdown();
+    let stopped = app.source.shutdown();
     if let Some(e) = app.error.take() {
         return Err(e);
     }
+    stopped.map_err(ViewerError::Source)?;
     result?;
     if let Some(s) = &app.state {
         app.report.lightmap_bytes_uploaded = s.renderer.lightmap.total.bytes_uploaded;

@@ -46,8 +46,9 @@ pub trait LightSource {
     fn status(&self) -> SourceStatus;
     /// Takes the source's news (events); called once a frame.
     fn poll(&mut self) {}
-    /// Stops background work; called once when the viewer closes.
-    fn shutdown(&mut self);
+    /// Stops background work; called once when the viewer closes. An error is what went
+    /// wrong in the background (a worker that panicked).
+    fn shutdown(&mut self) -> Result<(), String>;
 }
 
 /// A finished bake as a shown light map: every LOD's texels (and the gutter pixels copying
@@ -143,9 +144,10 @@ impl LightSource for RuntimeLight {
         SourceStatus { queued: Some(stats.queue), last_reload_ms: None, last_error: self.last_error.clone(), state }
     }
 
-    fn shutdown(&mut self) {
-        if let Some(runtime) = self.runtime.take() {
-            runtime.shutdown();
+    fn shutdown(&mut self) -> Result<(), String> {
+        match self.runtime.take() {
+            Some(runtime) => runtime.shutdown().map_err(|e| e.to_string()),
+            None => Ok(()),
         }
     }
 }
