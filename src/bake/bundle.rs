@@ -1,6 +1,7 @@
 //! Bundle backends in the bake driver: directions in batches, light jobs per emitter group,
 //! the punctual pass, and the progressive estimate of one whole LOD.
 
+use std::ops::ControlFlow;
 use std::time::Instant;
 
 use glam::Vec2;
@@ -51,6 +52,34 @@ pub fn bake_lod(
     threads: usize,
     progress: &dyn Progress,
 ) -> LodIrradiance {
+    progress.begin(&format!("LOD {} bundles", texels.lod), bundle.config.directions as u64);
+    let baked = bake_lod_observed(bundle, bvh, backend, texels, coarser, threads, &mut |done| {
+        progress.reached(done.directions);
+        ControlFlow::Continue(())
+    });
+    progress.end();
+    baked
+}
+
+/// The running estimate of a [`bake_lod_observed`] bake after a batch.
+pub struct BatchDone<'a> {
+    /// Global directions folded in so far.
+    pub directions: u64,
+    pub estimate: &'a ProgressiveEstimate,
+}
+
+/// [`bake_lod`] showing `observe` the running estimate after every batch; `Break` ends the
+/// bake there, with the directions done so far (a prefix of the full bake's: direction `i`
+/// and the batches before it do not depend on how many follow).
+pub fn bake_lod_observed(
+    bundle: &BundleScene,
+    bvh: &Bvh,
+    backend: &mut dyn BundleBackend,
+    texels: &TexelMap,
+    coarser: Option<CoarserLod>,
+    threads: usize,
+    observe: &mut dyn FnMut(&BatchDone) -> ControlFlow<()>,
+) -> LodIrradiance {
     let config = &bundle.config;
     let mut stats = BundleLodStats::default();
     let t0 = Instant::now();
@@ -83,7 +112,6 @@ pub fn bake_lod(
     let t1 = Instant::now();
     let jobs = JobSequence::new(config.seed, bundle.emitters.small.len(), config.light_directions);
     let mut sums = BatchSums::new(texels.len());
-    progress.begin(&format!("LOD {} bundles", texels.lod), config.directions as u64);
     let per_batch = config.batch_size() as u64;
     let mut first = 0u64;
     let never = AtomicBool::new(false);
@@ -106,11 +134,12 @@ pub fn bake_lod(
             estimate.source_radiance(&texels.albedo, &texels.emission, &carried, Some(&sums), threads, &mut source);
         }
         first += count;
-        progress.advance(count);
+        if observe(&BatchDone { directions: first, estimate: &estimate }).is_break() {
+            break;
+        }
     }
-    progress.end();
     stats.bundle_seconds = t1.elapsed().as_secs_f64();
-    stats.directions = config.directions as u64;
+    stats.directions = first;
     stats.batches = estimate.batches();
     stats.light_directions_per_group = estimate.light_directions();
     stats.unsampled_texels = estimate.unsampled();
