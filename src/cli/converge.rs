@@ -18,13 +18,14 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use serde::Serialize;
 use serde_json::{Value, json};
 
 use livebake::atlas::{Atlas, TexelMap};
 use livebake::bake::bundle::{BatchDone, bake_lod_observed};
 use livebake::bake::{BakeConfig, BakeError, check_lod_sizes};
+use livebake::bundle::progressive::ProgressiveEstimate;
 use livebake::bundle::{BackendProvider, BundleScene};
 use livebake::cpu::CpuProvider;
 use livebake::output::{write_json, write_rgb8_png, write_text};
@@ -71,10 +72,11 @@ pub struct ConvergeOptions {
     pub points: Option<PathBuf>,
     /// Relative RMS error to reach: exit 0 when reached within the budget, 3 when the budget
     /// (or --samples, the most directions) ran out first.
-    #[arg(long, value_name = "REL_RMS")]
+    // Negative numbers are values, refused with a message about them (not as unknown flags).
+    #[arg(long, value_name = "REL_RMS", allow_negative_numbers = true)]
     pub until: Option<f64>,
     /// Seconds on the command's clock (load included) after which no new batch starts.
-    #[arg(long, value_name = "SECONDS")]
+    #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
     pub budget: Option<f64>,
     /// Output directory: convergence.json, convergence.csv, convergence.png (and
     /// reference.json when the reference was traced here).
@@ -133,11 +135,12 @@ impl Clock {
 pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions, ui: &Ui) -> Result<()> {
     let mut clock = Clock { started: Instant::now(), excluded: Duration::ZERO };
     let config = bake_config(options, converge)?;
+    let limits = Limits { until: converge.until, budget: converge.budget, max_directions: config.samples as u64 };
     // Files first: a bad one fails before any work.
     let file_reference = converge.reference.as_deref().map(read_reference).transpose()?;
     let points = converge.points.as_deref().map(|p| read_points(p).map(|(_, q)| q)).transpose()?;
     if let (Some(reference), Some(points)) = (&file_reference, &points) {
-        same_points(reference, converge.reference.as_deref().unwrap_or(Path::new("")), points, converge)?;
+        same_points(reference, converge.reference.as_deref(), points, converge.points.as_deref())?;
     }
 
     let (scene, _) = load_scene(scene_path, options)?;
@@ -163,9 +166,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
                     })
                 })
                 .collect::<Result<Vec<BilinearTaps>>>()
-                .context(
-                    "mismatched points: the reference's points are not all on the scene's light-mapped surfaces",
-                )?;
+                .context("mismatched points: not every point is on a light-mapped surface of the scene")?;
             (queries, taps)
         }
         (None, None) => {
@@ -174,7 +175,11 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
             (&sampled, taps)
         }
     };
+    if queries.is_empty() {
+        bail!("there are no points to measure the error at");
+    }
 
+    let traced = file_reference.is_none();
     let (reference, reference_info) = match file_reference {
         Some(reference) => {
             let path = converge.reference.as_deref().unwrap_or(Path::new(""));
@@ -201,10 +206,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
             (reference, info)
         }
     };
-    if reference.e.is_empty() {
-        bail!("the reference has no points to measure at");
-    }
-    if reference.e.iter().all(|e| *e == glam::DVec3::ZERO) {
+    if reference.e.iter().all(|e| *e == DVec3::ZERO) {
         bail!("the reference's E is zero at every point: there is no relative error to measure");
     }
 
@@ -213,73 +215,37 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     let threads = config.threads();
     let mut backend =
         CpuProvider::new().backend(&bundle, threads).map_err(|e| anyhow!("the bundle backend is unavailable: {e}"))?;
-
-    let max_directions = config.samples as u64;
-    let capped = options.samples.is_some();
-    let mut steps: Vec<Step> = Vec::new();
-    let mut stop = Stop::MaxDirections;
-    let mut next_step = 1u64;
-    ui.begin_phase("converge", if capped { max_directions } else { 0 });
-    let mut observe = |done: &BatchDone| {
-        let seconds = clock.seconds();
-        let estimate = done.estimate;
-        let rel_rms = reference.relative_rms(|k| taps[k].read(|t| estimate.irradiance_of(t)).as_dvec3());
-        let step = Step { seconds, directions: done.directions, rel_rms };
-        let within_budget = converge.budget.is_none_or(|b| seconds < b);
-        let ended = if converge.until.is_some_and(|u| rel_rms <= u) && within_budget {
-            Some(Stop::Target)
-        } else if !within_budget {
-            Some(Stop::Budget)
-        } else {
-            (done.directions >= max_directions).then_some(Stop::MaxDirections)
-        };
-        if ended.is_some() || done.directions >= next_step {
-            steps.push(step);
-            next_step = 2 * done.directions;
-        }
-        ui.reached_at(done.directions);
-        ui.status(&format!("{} directions, {:.1} s, rel. RMS {:.2}%", done.directions, seconds, 100.0 * rel_rms));
-        match ended {
-            Some(why) => {
-                stop = why;
-                ControlFlow::Break(())
-            }
-            None => ControlFlow::Continue(()),
-        }
+    let error_of = |estimate: &ProgressiveEstimate| {
+        reference.relative_rms(|k| taps[k].read(|t| estimate.irradiance_of(t)).as_dvec3())
     };
-    let baked = bake_lod_observed(&bundle, &bvh, &mut backend, &texels, None, threads, &mut observe);
+    ui.begin_phase("converge", if options.samples.is_some() { limits.max_directions } else { 0 });
+    let mut run = ProgressiveRun::new(&limits, &clock, &error_of, ui);
+    let baked =
+        bake_lod_observed(&bundle, &bvh, &mut backend, &texels, None, threads, &mut |done| run.batch_done(done));
     ui.end_phase();
     if baked.stats.pass.unplanned_directions > 0 {
         let (count, directions) = (baked.stats.pass.unplanned_directions, baked.stats.directions);
         return Err(BakeError::UnplannedDirections { lod: 0, count, directions }.into());
     }
+    let (steps, stop) = (run.steps, run.stop);
     let last = *steps.last().context("the bake ran no batch")?;
 
     std::fs::create_dir_all(&converge.out)
         .with_context(|| format!("cannot create output directory {}", converge.out.display()))?;
     let mut files = Vec::new();
-    if reference_info["kind"] == "path_tracer" {
+    if traced {
         let path = converge.out.join("reference.json");
         write_json(&path, &reference_json(&reference, scene_path, &reference_info, config.seed))?;
         files.push(path);
-    }
-    let mut bake_options = serde_json::to_value(&config)?;
-    // What grows is the direction count (max_directions below); the bundle's seed is `seed`.
-    if let Some(o) = bake_options.as_object_mut() {
-        o.remove("samples");
-    }
-    if let Some(b) = bake_options.get_mut("bundle").and_then(Value::as_object_mut) {
-        b.remove("directions");
-        b.remove("seed");
     }
     let doc = json!({
         "scene": scene_path.display().to_string(),
         "clock": CLOCK,
         "options": {
-            "bake": bake_options,
+            "bake": bake_options_json(&config)?,
             "max_directions": options.samples,
-            "budget_seconds": converge.budget,
-            "until": converge.until,
+            "budget_seconds": limits.budget,
+            "until": limits.until,
             "seed": config.seed,
         },
         "lod0": {
@@ -289,52 +255,124 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
             "texels": texels.len(),
         },
         "reference": reference_info,
-        "target": converge.until,
-        "reached": converge.until.map(|_| stop == Stop::Target),
+        "target": limits.until,
+        "reached": limits.until.map(|_| stop == Stop::Target),
         "stopped_by": stop,
         "seconds": last.seconds,
         "directions": last.directions,
         "rel_rms": last.rel_rms,
         "steps": steps,
     });
-    let json_path = converge.out.join("convergence.json");
-    write_json(&json_path, &doc)?;
-    let mut csv = String::from("seconds,directions,rel_rms\n");
-    for s in &steps {
-        csv.push_str(&format!("{},{},{}\n", s.seconds, s.directions, s.rel_rms));
-    }
-    let csv_path = converge.out.join("convergence.csv");
-    write_text(&csv_path, &csv)?;
-    let curve: Vec<(f64, f64)> = steps.iter().map(|s| (s.seconds, s.rel_rms)).collect();
     let name = scene_path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let title = format!("livebake converge: {name}, {} LOD-0 texels", texels.len());
-    let png_path = converge.out.join("convergence.png");
-    write_rgb8_png(&png_path, plot::error_curve(&title, &curve, converge.until)?)?;
-    files.extend([json_path, csv_path, png_path]);
+    files.extend(write_curve(&converge.out, &doc, &steps, &title, limits.until)?);
 
     summarise(ui, scene_path, &texels, atlas.texel_size, &reference_info, &steps, &files);
-    if stop == Stop::Target {
-        ui.say(format!(
-            "  reached {} after {} directions, {:.2} s",
-            converge.until.unwrap_or_default(),
-            last.directions,
-            last.seconds
-        ));
-    }
-    match converge.until {
+    match limits.until {
         Some(target) if stop != Stop::Target => Err(NotConverged {
             last: last.rel_rms,
             target,
             directions: last.directions,
             seconds: last.seconds,
             why: match stop {
-                Stop::Budget => format!("the {} s budget ran out", converge.budget.unwrap_or_default()),
-                _ => format!("--samples {max_directions} directions done"),
+                Stop::Budget => format!("the {} s budget ran out", limits.budget.unwrap_or_default()),
+                _ => format!("--samples {} directions done", limits.max_directions),
             },
         }
         .into()),
-        _ => Ok(()),
+        Some(target) => {
+            ui.say(format!("  reached {target} after {} directions, {:.2} s", last.directions, last.seconds));
+            Ok(())
+        }
+        None => Ok(()),
     }
+}
+
+/// When a progressive run ends.
+struct Limits {
+    until: Option<f64>,
+    budget: Option<f64>,
+    max_directions: u64,
+}
+
+/// The observer of the progressive bake: measures after every batch, records the steps and
+/// says when to stop.
+struct ProgressiveRun<'a> {
+    limits: &'a Limits,
+    clock: &'a Clock,
+    error_of: &'a dyn Fn(&ProgressiveEstimate) -> f64,
+    ui: &'a Ui,
+    steps: Vec<Step>,
+    next_step: u64,
+    stop: Stop,
+}
+
+impl<'a> ProgressiveRun<'a> {
+    fn new(
+        limits: &'a Limits,
+        clock: &'a Clock,
+        error_of: &'a dyn Fn(&ProgressiveEstimate) -> f64,
+        ui: &'a Ui,
+    ) -> Self {
+        ProgressiveRun { limits, clock, error_of, ui, steps: Vec::new(), next_step: 1, stop: Stop::MaxDirections }
+    }
+
+    fn batch_done(&mut self, done: &BatchDone) -> ControlFlow<()> {
+        let seconds = self.clock.seconds();
+        let rel_rms = (self.error_of)(done.estimate);
+        let limits = self.limits;
+        let within_budget = limits.budget.is_none_or(|b| seconds < b);
+        let ended = if limits.until.is_some_and(|u| rel_rms <= u) && within_budget {
+            Some(Stop::Target)
+        } else if !within_budget {
+            Some(Stop::Budget)
+        } else {
+            (done.directions >= limits.max_directions).then_some(Stop::MaxDirections)
+        };
+        if ended.is_some() || done.directions >= self.next_step {
+            self.steps.push(Step { seconds, directions: done.directions, rel_rms });
+            self.next_step = 2 * done.directions;
+        }
+        self.ui.reached_at(done.directions);
+        self.ui.status(&format!("{} directions, {seconds:.1} s, rel. RMS {:.2}%", done.directions, 100.0 * rel_rms));
+        match ended {
+            Some(why) => {
+                self.stop = why;
+                ControlFlow::Break(())
+            }
+            None => ControlFlow::Continue(()),
+        }
+    }
+}
+
+/// The bake options as JSON, less what converge grows or sets apart: the direction count
+/// (`max_directions`) and the bundle's copy of the seed (`seed`).
+fn bake_options_json(config: &BakeConfig) -> Result<Value> {
+    let mut value = serde_json::to_value(config)?;
+    if let Some(o) = value.as_object_mut() {
+        o.remove("samples");
+    }
+    if let Some(b) = value.get_mut("bundle").and_then(Value::as_object_mut) {
+        b.remove("directions");
+        b.remove("seed");
+    }
+    Ok(value)
+}
+
+/// DIR/convergence.json, .csv and .png.
+fn write_curve(dir: &Path, doc: &Value, steps: &[Step], title: &str, until: Option<f64>) -> Result<[PathBuf; 3]> {
+    let json_path = dir.join("convergence.json");
+    write_json(&json_path, doc)?;
+    let mut csv = String::from("seconds,directions,rel_rms\n");
+    for s in steps {
+        csv.push_str(&format!("{},{},{}\n", s.seconds, s.directions, s.rel_rms));
+    }
+    let csv_path = dir.join("convergence.csv");
+    write_text(&csv_path, &csv)?;
+    let curve: Vec<(f64, f64)> = steps.iter().map(|s| (s.seconds, s.rel_rms)).collect();
+    let png_path = dir.join("convergence.png");
+    write_rgb8_png(&png_path, plot::error_curve(title, &curve, until)?)?;
+    Ok([json_path, csv_path, png_path])
 }
 
 /// The bake configuration of LOD 0 with `--samples` as the most directions (none: no
@@ -375,11 +413,11 @@ fn bake_config(options: &SceneOptions, converge: &ConvergeOptions) -> Result<Bak
 /// `--points` given with `--reference` must be the reference's points, in its order.
 fn same_points(
     reference: &ReferencePoints,
-    ref_path: &Path,
+    ref_path: Option<&Path>,
     points: &[Query],
-    converge: &ConvergeOptions,
+    points_path: Option<&Path>,
 ) -> Result<()> {
-    let points_path = converge.points.as_deref().unwrap_or(Path::new(""));
+    let (ref_path, points_path) = (ref_path.unwrap_or(Path::new("")), points_path.unwrap_or(Path::new("")));
     if points.len() != reference.queries.len() {
         bail!(
             "mismatched points: {} has {} points, the reference {} has {}",
