@@ -23,6 +23,9 @@ fn livebake(cwd: &Path, args: &[&str]) -> Output {
         .args(args)
         .current_dir(cwd)
         .env_remove("RUST_LOG")
+        // No display: `livebake` without arguments runs headless.
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
         .output()
         .expect("cannot run livebake")
 }
@@ -42,13 +45,16 @@ fn ok(cwd: &Path, args: &[&str]) -> String {
 }
 
 /// Runs and requires failure with an `error:` line containing every one of `needles`
-/// (case-insensitive) and no panic.
+/// (case-insensitive), an exit code (not an abort) and no panic. Returns the exit code: 1, or
+/// 2 for what the argument parser refuses.
 #[track_caller]
-fn fails(cwd: &Path, args: &[&str], needles: &[&str]) {
+fn fails(cwd: &Path, args: &[&str], needles: &[&str]) -> i32 {
     let out = livebake(cwd, args);
     let stderr = text(&out.stderr);
     assert!(!out.status.success(), "livebake {args:?} succeeded but should not have:\n{stderr}");
     assert!(!stderr.contains("panicked"), "livebake {args:?} panicked:\n{stderr}");
+    let code = out.status.code().unwrap_or_else(|| panic!("livebake {args:?} was killed ({}):\n{stderr}", out.status));
+    assert!(code == 1 || code == 2, "livebake {args:?} exited with {code}:\n{stderr}");
     let line = stderr
         .lines()
         .find(|l| l.starts_with("error:"))
@@ -56,6 +62,7 @@ fn fails(cwd: &Path, args: &[&str], needles: &[&str]) {
     for n in needles {
         assert!(line.to_lowercase().contains(&n.to_lowercase()), "livebake {args:?}: {line:?} does not mention {n:?}");
     }
+    code
 }
 
 fn read_json(path: &Path) -> Value {
@@ -151,23 +158,18 @@ fn bake_with_two_lods_writes_both_levels() {
 }
 
 #[test]
-fn no_arguments_bakes_the_cornell_box_into_out() {
-    // The default bake: the Cornell box, every default (cpu backend, 256 directions,
-    // 500k-texel budget), into ./out. About 3 s in the test profile on 2 cores.
+fn no_arguments_runs_the_runtime_on_the_cornell_box_into_out() {
+    // Without a display: the headless runtime on the Cornell box for a few seconds after
+    // first light, every default, into ./out.
     let tmp = tempfile::tempdir().unwrap();
-    let started = std::time::Instant::now();
     let stdout = ok(tmp.path(), &[]);
-    let seconds = started.elapsed().as_secs_f64();
-    eprintln!("no-argument bake: {seconds:.1} s");
-    let report = check_bake_dir(&tmp.path().join("out"), 1);
-    assert_eq!(report["backend"], "cpu");
-    assert_eq!(report["config"]["samples"], 256);
-    assert_eq!(report["config"]["atlas"]["texel_budget"], 500_000);
-    assert!(report["scene"]["source"].as_str().unwrap().ends_with("cornellBox-2.79-Cycles-gltf.gltf"));
-    // A summary on stdout: the scene, the atlas, the LOD, the files.
-    assert!(stdout.contains("cornellBox-2.79-Cycles-gltf.gltf"), "{stdout}");
-    assert!(stdout.contains("atlas") && stdout.contains("LOD 0"), "{stdout}");
-    assert!(stdout.contains("lightmap_lod0.exr") && stdout.contains("report.json"), "{stdout}");
+    let report = read_json(&tmp.path().join("out/report.json"));
+    assert!(report["scene"].as_str().unwrap().ends_with("cornellBox-2.79-Cycles-gltf.gltf"));
+    assert!(report["first_light_seconds"].as_f64().unwrap() > 0.0);
+    assert_eq!(report["config"]["seconds"], 3.0);
+    assert!(tmp.path().join("out/cells.json").exists());
+    read_exr(&tmp.path().join("out/lightmap_lod0.exr"));
+    assert!(stdout.contains("first light") && stdout.contains("report.json"), "{stdout}");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -292,6 +294,17 @@ fn bad_input_exits_with_an_error_line_and_no_panic() {
     fails(dir, &["bake", &scene, "--out", &out, "--threads", "0"], &["--threads"]);
     fails(dir, &["bake", &scene, "--out", &out, "--texel-size", "0.0001"], &["--texel-size"]);
     fails(dir, &["bake", &scene, "--out", &out, "--backend", "gpu"], &["--backend", "gpu"]);
+    // Absurd options (issue 8): each refused with exit code 1 before any work, the limit named.
+    let absurd = |dir: &Path, args: &[&str], needles: &[&str]| assert_eq!(fails(dir, args, needles), 1, "{args:?}");
+    absurd(dir, &["bake", &scene, "--out", &out, "--lanes", "100000"], &["--lanes", "64", "100000"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--oversampling", "100000"], &["--oversampling", "16"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--threads", "50000"], &["--threads", "1024", "50000"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--light-directions", "0"], &["--light-directions", "small emitters"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--head-side", "1"], &["--head-side", "16"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--nodes", "1"], &["--nodes", "surfaces"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--samples", "4000000000"], &["--samples", "1048576"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--texel-budget", "0"], &["--texel-budget"]);
+    absurd(dir, &["bake", &scene, "--out", &out, "--texel-budget", "1000000000000"], &["--texel-budget", "268435456"]);
     // Nothing was written by any of them.
     assert!(!dir.join("o").exists());
 }
@@ -338,4 +351,93 @@ fn same_options_give_identical_light_maps_whatever_the_thread_count() {
         let seeded = bake("seed", &["--seed", "1"]);
         assert!(seeded.0 != a.0, "{backend}: the seed changes nothing");
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// run
+
+/// `run` on the 2 m room for a second after first light: the event stream (one JSON object per
+/// line, times increasing, first light before any publish, a stats event, a final
+/// `finished`), the shown light maps, the cell table, the report, and irradiance at points
+/// read from the shown map.
+#[test]
+fn run_streams_events_and_writes_what_it_showed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let room = asset("cornell_2m/cornell_2m.gltf").display().to_string();
+    let points = asset("cornell_2m/points.json").display().to_string();
+    let out = tmp.path().join("o");
+    let args = [
+        "run",
+        &room,
+        "--seconds",
+        "1.5",
+        "--events",
+        "e.jsonl",
+        "--out",
+        "o",
+        "--camera",
+        "0.3,1,1.7,1.7,0.6,0.3",
+        "--points",
+        &points,
+        "--points-out",
+        "p.json",
+        "--threads",
+        "2",
+    ];
+    ok(tmp.path(), &args);
+    let lines = std::fs::read_to_string(tmp.path().join("e.jsonl")).unwrap();
+    let events: Vec<Value> =
+        lines.lines().map(|l| serde_json::from_str(l).expect("one JSON object per line")).collect();
+    let kinds: Vec<&str> = events.iter().map(|e| e["event"].as_str().unwrap()).collect();
+    let t: Vec<f64> = events.iter().map(|e| e["t"].as_f64().unwrap()).collect();
+    assert!(t.windows(2).all(|w| w[0] <= w[1]), "times go back: {t:?}");
+    let first_light = kinds.iter().position(|&k| k == "first_light").expect("first_light");
+    assert!(kinds.iter().position(|&k| k == "cell_published").is_none_or(|p| p > first_light));
+    assert!(kinds.contains(&"stats") && kinds.last() == Some(&"finished"), "{kinds:?}");
+    for e in events.iter().filter(|e| e["event"] == "cell_published") {
+        assert!(e["lod"].as_u64().unwrap() >= 1 && e["directions"].as_u64().unwrap() > 0, "{e}");
+    }
+    let cells = read_json(&out.join("cells.json"));
+    let list = cells["cells"].as_array().unwrap();
+    assert!(list.len() > 10);
+    for c in list {
+        assert!(c["bounds"]["min"].as_array().unwrap().len() == 3 && c["shown_lod"].as_u64().is_some(), "{c}");
+    }
+    let published = events.iter().filter(|e| e["event"] == "cell_published").count();
+    let refined = list.iter().filter(|c| c["shown_lod"].as_u64().unwrap() > 0).count();
+    assert_eq!(refined, published, "every publish shows in the cell table (no eviction at this size)");
+    let report = read_json(&out.join("report.json"));
+    assert!(
+        report["first_light_seconds"].as_f64().unwrap() > 0.0
+            && report["stats"]["resident_bytes"].as_u64().unwrap() > 0
+    );
+    read_exr(&out.join("lightmap_lod0.exr"));
+    let probed = read_json(&tmp.path().join("p.json"));
+    let pts = probed["points"].as_array().unwrap();
+    assert_eq!(pts.len(), 332);
+    assert!(pts.iter().all(|p| p["E"].as_array().is_some_and(|e| e.iter().all(|v| v.as_f64().unwrap() >= 0.0))));
+}
+
+#[test]
+fn run_refuses_bad_options_with_one_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let c = cornell();
+    fails(tmp.path(), &["run", &c, "--backend", "reference"], &["runtime", "cpu"]);
+    fails(tmp.path(), &["run", &c, "--camera", "1,2,3"], &["six"]);
+    fails(tmp.path(), &["run", &c, "--camera", "1,1,1,1,1,1"], &["differ"]);
+    fails(tmp.path(), &["run", &c, "--seconds", "-1"], &["seconds"]);
+    fails(tmp.path(), &["run", &c, "--camera-path", "missing.json"], &["camera path", "missing.json"]);
+    std::fs::write(
+        tmp.path().join("back.json"),
+        r#"[{"t":1,"eye":[0,1,0],"target":[1,1,1]},{"t":0,"eye":[0,1,0],"target":[1,1,1]}]"#,
+    )
+    .unwrap();
+    fails(tmp.path(), &["run", &c, "--camera-path", "back.json"], &["back in time"]);
+    fails(tmp.path(), &["run", &c, "--memory-budget", "12Q"], &["unit"]);
+    fails(tmp.path(), &["run", &c, "--memory-budget", "12"], &["memory-budget"]);
+    fails(tmp.path(), &["run", &c, "--cell-size", "0"], &["cell-size"]);
+    fails(tmp.path(), &["run", &c, "--lods", "20"], &["lods"]);
+    fails(tmp.path(), &["run", &c, "--max-directions", "4", "--min-directions", "8"], &["max-directions"]);
+    fails(tmp.path(), &["run", "missing.gltf"], &["missing.gltf"]);
+    assert!(!tmp.path().join("out").exists(), "a refused run wrote outputs");
 }

@@ -5,18 +5,22 @@
 //! texels (architectural models are full of single-face walls lit from both sides).
 //!
 //! Faces are grouped into *charts* (from TEXCOORD_1 when the file has valid light-map UVs,
-//! otherwise by our planar unwrapper), charts are packed into one atlas with gutters wide
-//! enough for bilinear sampling at LOD 0 (the coarsest level), and [`texels::TexelMap`] gives,
-//! per LOD, every texel's surface point (inverse mapping).
+//! otherwise by our unwrapper), charts are packed into one atlas with gutters wide enough for
+//! bilinear sampling at LOD 0 (the coarsest level), and [`texels::TexelMap`] gives, per LOD,
+//! every texel's surface point (inverse mapping). Without a texel size, the size is searched
+//! so that the faces cover `texel_budget` texels ([`Atlas::build`]). [`Atlas::update`]
+//! changes an atlas for an edited scene, keeping unchanged meshes' charts in place.
 //!
 //! UV units: atlas UVs are stored in **LOD-0 texel units** (x right, y down, origin at the
 //! atlas's top-left corner). LOD k coordinates are `uv · 2^k`; normalised UVs in \[0, 1\] are
 //! `uv / (width, height)`.
 //!
-//! Pieces: [`charts`] (planar unwrapper), [`uv1`] (TEXCOORD_1 validation), [`pack`] (chart
-//! rectangles and skyline packing), [`raster`] (the conservative coverage rule every part
-//! shares: what a face touches at LOD k is what the packer reserved room for, what the
-//! TEXCOORD_1 check tested and what the texel map rasterises), [`texels`] (inverse mapping).
+//! Pieces: [`charts`] (unwrapper: welding, planar charts, hinge merges), [`uv1`]
+//! (TEXCOORD_1 validation), [`pack`] (chart rectangles, skyline packing with quarter turns,
+//! free space), [`update`] (incremental layout), [`raster`] (the conservative coverage rule
+//! every part shares: what a face touches at LOD k is what the packer reserved room for,
+//! what the TEXCOORD_1 check tested and what the texel map rasterises), [`texels`] (inverse
+//! mapping).
 
 pub mod charts;
 pub mod lookup;
@@ -24,11 +28,13 @@ pub mod pack;
 pub mod raster;
 pub mod sparse;
 pub mod texels;
+pub mod update;
 pub mod uv1;
 
 #[cfg(test)]
 mod tests;
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use glam::{DVec2, Vec2};
@@ -38,6 +44,7 @@ use crate::lod::LodHierarchy;
 use crate::scene::{Scene, SceneGeometry, Side, TriangleId};
 
 pub use texels::TexelMap;
+pub use update::{AtlasUpdate, MeshOrigin};
 
 /// Index into [`Atlas::faces`].
 pub type FaceId = u32;
@@ -48,7 +55,8 @@ pub const NO_FACE: FaceId = u32::MAX;
 pub struct AtlasConfig {
     /// Metres per texel at LOD 0. `None`: derived from `texel_budget`.
     pub texel_size: Option<f32>,
-    /// LOD-0 surface texels to aim for when `texel_size` is `None` (lit area / texel²).
+    /// LOD-0 texels to cover when `texel_size` is `None`: the texel size is chosen so that
+    /// the faces cover this many texels (conservatively, as the texel map counts them).
     pub texel_budget: u64,
     /// Use TEXCOORD_1 as light-map UVs where it is present and valid.
     pub use_uv1: bool,
@@ -68,6 +76,31 @@ impl Default for AtlasConfig {
             chart_max_angle: 40f32.to_radians(),
             max_size: 16384,
         }
+    }
+}
+
+/// Largest [`AtlasConfig::max_size`]: texel maps number pixels with `u32`, so a LOD-0 atlas
+/// must have fewer than 2³² pixels.
+pub const MAX_ATLAS_SIDE: u32 = 65535;
+
+impl AtlasConfig {
+    /// Refuses settings no atlas can satisfy, before any work.
+    pub fn validate(&self) -> Result<(), AtlasError> {
+        if let Some(ts) = self.texel_size
+            && !(ts.is_finite() && ts > 0.0)
+        {
+            return Err(AtlasError::BadTexelSize(ts));
+        }
+        if !(1..=MAX_ATLAS_SIDE).contains(&self.max_size) {
+            return Err(AtlasError::BadMaxSize(self.max_size));
+        }
+        // Every covered texel is a pixel of the atlas: a budget beyond max_size² cannot be
+        // met by any texel size.
+        let most = self.max_size as u64 * self.max_size as u64;
+        if self.texel_size.is_none() && !(1..=most).contains(&self.texel_budget) {
+            return Err(AtlasError::BadBudget { budget: self.texel_budget, most });
+        }
+        Ok(())
     }
 }
 
@@ -176,6 +209,9 @@ pub struct Atlas {
     /// Per triangle: its front and back face, [`NO_FACE`] when absent.
     pub face_of: Vec<[FaceId; 2]>,
     pub charts: Vec<Chart>,
+    /// First triangle of each mesh in the geometry the atlas was built for (`len = meshes +
+    /// 1`, as [`SceneGeometry::mesh_offsets`]): what [`Atlas::update`] maps old faces by.
+    pub mesh_offsets: Vec<u32>,
     pub stats: AtlasStats,
 }
 
@@ -186,25 +222,28 @@ pub enum AtlasError {
     Empty,
     #[error("texel size {0} m is not a positive finite number")]
     BadTexelSize(f32),
+    #[error("texel budget (--texel-budget) {budget} is not between 1 and {most} (the texels of the largest atlas)")]
+    BadBudget { budget: u64, most: u64 },
+    #[error("largest atlas side {0} is not between 1 and {MAX_ATLAS_SIDE} texels")]
+    BadMaxSize(u32),
     #[error("the atlas would be {width}×{height} texels at LOD 0, above the limit of {max}; use a larger --texel-size")]
     TooLarge { width: u32, height: u32, max: u32 },
+    #[error("atlas update: {0}")]
+    BadUpdate(String),
 }
 
-impl Atlas {
-    /// Unwraps (or takes TEXCOORD_1) and packs every lit face of `scene`.
-    pub fn build(scene: &Scene, geom: &SceneGeometry, config: &AtlasConfig) -> Result<Atlas, AtlasError> {
-        let started = Instant::now();
-        if let Some(ts) = config.texel_size {
-            if !(ts.is_finite() && ts > 0.0) {
-                return Err(AtlasError::BadTexelSize(ts));
-            }
-        }
-        let double_sided = |t: usize| scene.materials.get(geom.material[t] as usize).is_some_and(|m| m.double_sided);
+/// The faces of a scene: a front face for every lit triangle, a back face when its material
+/// is double-sided.
+struct SceneFaces {
+    faces: Vec<AtlasFace>,
+    face_of: Vec<[FaceId; 2]>,
+    lit_area: f64,
+}
 
-        // Faces: a front face for every non-degenerate triangle, a back face when its
-        // material is double-sided.
+impl SceneFaces {
+    fn new(scene: &Scene, geom: &SceneGeometry) -> Self {
         let lit: Vec<bool> = (0..geom.len()).map(|t| is_lit(geom, t)).collect();
-        let count = (0..geom.len()).filter(|&t| lit[t]).map(|t| 1 + usize::from(double_sided(t))).sum();
+        let count = (0..geom.len()).filter(|&t| lit[t]).map(|t| 1 + usize::from(double_sided(scene, geom, t))).sum();
         let mut faces = Vec::with_capacity(count);
         let mut face_of = vec![[NO_FACE; 2]; geom.len()];
         let mut lit_area = 0.0f64;
@@ -212,94 +251,329 @@ impl Atlas {
             if !lit[t] {
                 continue;
             }
-            let sides: &[Side] = if double_sided(t) { &Side::BOTH } else { &[Side::Front] };
+            let sides: &[Side] = if double_sided(scene, geom, t) { &Side::BOTH } else { &[Side::Front] };
             for &side in sides {
                 face_of[t][side.index()] = faces.len() as FaceId;
                 faces.push(AtlasFace { tri: t as TriangleId, side, chart: u32::MAX, uv: [Vec2::ZERO; 3] });
                 lit_area += geom.areas[t] as f64;
             }
         }
+        SceneFaces { faces, face_of, lit_area }
+    }
+}
+
+/// The lit triangles (global ids, increasing) of mesh `mi`.
+fn lit_triangles(face_of: &[[FaceId; 2]], geom: &SceneGeometry, mi: usize) -> Vec<TriangleId> {
+    (geom.mesh_offsets[mi]..geom.mesh_offsets[mi + 1]).filter(|&t| face_of[t as usize][0] != NO_FACE).collect()
+}
+
+/// Cheap lower bound before any work: a chart's faces are within `chart_max_angle` of its
+/// seed's normal, so its UV area is at least cos(angle) × its area (and a TEXCOORD_1 block
+/// has at least its area in texels).
+fn check_lower_bound(lit_area: f64, texel: f64, config: &AtlasConfig) -> Result<(), AtlasError> {
+    let cos = (charts::effective_max_angle(config.chart_max_angle) as f64).cos();
+    let min_texels = lit_area * cos / (texel * texel);
+    let max = config.max_size;
+    if min_texels > max as f64 * max as f64 {
+        let side = min_texels.sqrt().ceil().min(u32::MAX as f64) as u32;
+        return Err(AtlasError::TooLarge { width: side, height: side, max });
+    }
+    Ok(())
+}
+
+fn double_sided(scene: &Scene, geom: &SceneGeometry, t: usize) -> bool {
+    scene.materials.get(geom.material[t] as usize).is_some_and(|m| m.double_sided)
+}
+
+/// One chart in LOD-0 texels, ready to be packed: local UVs spanning `[0, extent]`, and how
+/// it sits in its rectangle when not turned.
+#[derive(Clone, Debug)]
+struct TexelChart {
+    mesh: u32,
+    side: Side,
+    source: ChartSource,
+    tris: Vec<TriangleId>,
+    uv: Vec<[DVec2; 3]>,
+    extent: DVec2,
+    placement: pack::Placement,
+}
+
+impl TexelChart {
+    fn fixed(&self) -> bool {
+        self.source == ChartSource::Uv1
+    }
+
+    /// Placement and local UVs in an orientation.
+    fn oriented(&self, o: pack::Orient) -> (pack::Placement, impl Iterator<Item = [DVec2; 3]> + '_) {
+        let p = if o == pack::Orient::Turned { self.placement.turned(self.fixed()) } else { self.placement };
+        (p, self.uv.iter().map(move |t| t.map(|q| o.apply(q, self.extent))))
+    }
+}
+
+/// A mesh's charts before scaling: unwrapped (UVs in metres, any texel size) and, when its
+/// TEXCOORD_1 is used, that layout (validated per texel size).
+struct MeshCharts {
+    mesh: u32,
+    /// Whether the mesh's triangles have back faces (a double-sided material).
+    back: bool,
+    tris: Vec<TriangleId>,
+    /// The unwrapped charts, made on first use.
+    unwrapped: std::sync::OnceLock<Vec<charts::LocalChart>>,
+    /// Texel size the unwrapper was told to expect.
+    hint: f64,
+    try_uv1: bool,
+}
+
+/// A local chart's extent at `scale` (LOD-0 texels per unit of its UVs) and its placement.
+fn placement(c: &charts::LocalChart, scale: f64, config: &AtlasConfig) -> Result<(DVec2, pack::Placement), AtlasError> {
+    let extent = c.extent * scale;
+    let p = match c.fixed_interior {
+        Some(interior) => pack::place_fixed(interior),
+        None => pack::place_free(extent).ok_or(AtlasError::TooLarge {
+            width: u32::MAX,
+            height: u32::MAX,
+            max: config.max_size,
+        })?,
+    };
+    Ok((extent, p))
+}
+
+/// A mesh's charts at one texel size.
+struct MeshAtTexel {
+    source: ChartSource,
+    charts: Vec<TexelChart>,
+    /// Why TEXCOORD_1 was refused at this texel size.
+    uv1_rejected: Option<String>,
+}
+
+impl MeshCharts {
+    /// Mesh `mi`'s charts, unwrapped for texels of about `hint`; `None` without lit triangles.
+    fn new(
+        scene: &Scene,
+        geom: &SceneGeometry,
+        face_of: &[[FaceId; 2]],
+        mi: usize,
+        hint: f64,
+        config: &AtlasConfig,
+    ) -> Option<MeshCharts> {
+        let tris = lit_triangles(face_of, geom, mi);
+        let first = *tris.first()?;
+        Some(MeshCharts {
+            mesh: mi as u32,
+            back: double_sided(scene, geom, first as usize),
+            tris,
+            unwrapped: std::sync::OnceLock::new(),
+            hint,
+            try_uv1: config.use_uv1 && scene.meshes[mi].uv1.is_some(),
+        })
+    }
+
+    /// The mesh's local charts at `texel`: its TEXCOORD_1 blocks when they validate there
+    /// (LOD-0 texels, scale 1), else its unwrapped charts (metres, scale 1/texel); and why
+    /// TEXCOORD_1 was refused.
+    fn local_at(
+        &self,
+        scene: &Scene,
+        geom: &SceneGeometry,
+        texel: f64,
+        config: &AtlasConfig,
+    ) -> (ChartSource, Cow<'_, [charts::LocalChart]>, f64, Option<String>) {
+        let mesh = &scene.meshes[self.mesh as usize];
+        let mut rejected = None;
+        if self.try_uv1 {
+            match uv1::validate(mesh, geom, &self.tris, texel, config.max_size) {
+                Ok(block) => return (ChartSource::Uv1, Cow::Owned(block.charts(mesh, geom, &self.tris)), 1.0, None),
+                Err(reason) => rejected = Some(reason),
+            }
+        }
+        let unwrapped = self
+            .unwrapped
+            .get_or_init(|| charts::unwrap_mesh(mesh, geom, &self.tris, self.hint, config.chart_max_angle));
+        (ChartSource::Unwrapped, Cow::Borrowed(unwrapped.as_slice()), 1.0 / texel, rejected)
+    }
+
+    fn sides(&self) -> &'static [Side] {
+        if self.back { &Side::BOTH } else { &[Side::Front] }
+    }
+
+    /// The mesh's charts at `texel`, in LOD-0 texels, ready to pack.
+    fn at(
+        &self,
+        scene: &Scene,
+        geom: &SceneGeometry,
+        texel: f64,
+        config: &AtlasConfig,
+    ) -> Result<MeshAtTexel, AtlasError> {
+        let (source, local, scale, rejected) = self.local_at(scene, geom, texel, config);
+        let mut out = Vec::with_capacity(local.len() * self.sides().len());
+        for &side in self.sides() {
+            for c in local.iter() {
+                let (extent, placement) = placement(c, scale, config)?;
+                out.push(TexelChart {
+                    mesh: self.mesh,
+                    side,
+                    source,
+                    tris: c.tris.clone(),
+                    uv: c.uv.iter().map(|t| t.map(|q| q * scale)).collect(),
+                    extent,
+                    placement,
+                });
+            }
+        }
+        Ok(MeshAtTexel { source, charts: out, uv1_rejected: rejected })
+    }
+
+    /// LOD-0 texels the mesh's faces cover at `texel` (both sides): what [`Self::at`]'s
+    /// charts cover, without making them.
+    fn coverage_at(
+        &self,
+        scene: &Scene,
+        geom: &SceneGeometry,
+        texel: f64,
+        config: &AtlasConfig,
+    ) -> Result<u64, AtlasError> {
+        let (_, local, scale, _) = self.local_at(scene, geom, texel, config);
+        let mut mask = Vec::new();
+        let mut total = 0;
+        for c in local.iter() {
+            let (_, p) = placement(c, scale, config)?;
+            total += pack::coverage(c.uv.iter().map(|t| t.map(|q| q * scale + p.offset)), &p, &mut mask);
+        }
+        Ok(total * self.sides().len() as u64)
+    }
+}
+
+/// Most texel sizes tried to land the covered texels on the budget.
+const BUDGET_STEPS: usize = 4;
+
+/// Covered texels within this ratio of the budget end the search.
+const BUDGET_TOLERANCE: f64 = 1.02;
+
+/// The texel size whose covered texel count `count(t)` is closest to `budget` among at most
+/// [`BUDGET_STEPS`] tries from `t0`: Newton steps on `ln count` against `ln t`, the slope
+/// measured between the last two tries (−2 at first: count ∝ area / t²; kept within
+/// [−3, −½], as conservative coverage of small faces makes it shallower).
+fn solve_texel_size(
+    budget: u64,
+    t0: f64,
+    mut count: impl FnMut(f64) -> Result<u64, AtlasError>,
+) -> Result<f64, AtlasError> {
+    let target = (budget as f64).ln();
+    let mut tried: Vec<(f64, f64)> = Vec::new();
+    let mut t = t0;
+    let mut best = (f64::INFINITY, t0);
+    for _ in 0..BUDGET_STEPS {
+        let c = (count(t)?.max(1) as f64).ln();
+        let miss = (c - target).abs();
+        if miss < best.0 {
+            best = (miss, t);
+        }
+        if miss < BUDGET_TOLERANCE.ln() {
+            break;
+        }
+        let lt = t.ln();
+        let slope = match tried.last() {
+            Some(&(lt0, c0)) if (lt - lt0).abs() > 1e-9 => ((c - c0) / (lt - lt0)).clamp(-3.0, -0.5),
+            _ => -2.0,
+        };
+        tried.push((lt, c));
+        t = (lt + (target - c) / slope).exp();
+        if !(t.is_finite() && t > 0.0 && (t as f32) > 0.0) {
+            break;
+        }
+    }
+    Ok(best.1)
+}
+
+/// Lays chart `c` out as chart `id` with its rectangle's corner at `rect_min`, turned by `o`:
+/// its faces' UVs and chart id, and the chart.
+fn lay_out(
+    faces: &mut [AtlasFace],
+    face_of: &[[FaceId; 2]],
+    id: u32,
+    c: TexelChart,
+    rect_min: (u32, u32),
+    o: pack::Orient,
+) -> Chart {
+    let (p, uv) = c.oriented(o);
+    let origin = DVec2::new(rect_min.0 as f64, rect_min.1 as f64) + p.offset;
+    let mut ids = Vec::with_capacity(c.tris.len());
+    for (t, uv) in c.tris.iter().zip(uv) {
+        let f = face_of[*t as usize][c.side.index()];
+        faces[f as usize].chart = id;
+        faces[f as usize].uv = uv.map(|q| (q + origin).as_vec2());
+        ids.push(f);
+    }
+    Chart { mesh: c.mesh, side: c.side, source: c.source, rect_min, rect_size: p.rect_size(), faces: ids }
+}
+
+impl Atlas {
+    /// Unwraps (or takes TEXCOORD_1) and packs every lit face of `scene`.
+    ///
+    /// Without a texel size, the size is searched so that the faces cover
+    /// `config.texel_budget` texels at LOD 0 as the texel map counts them (conservative
+    /// coverage, each chart's partly covered border pixels and small faces' whole pixels
+    /// included): charts are made once, at `√(lit area / budget)`, and scaled.
+    pub fn build(scene: &Scene, geom: &SceneGeometry, config: &AtlasConfig) -> Result<Atlas, AtlasError> {
+        let started = Instant::now();
+        config.validate()?;
+        let SceneFaces { mut faces, face_of, lit_area } = SceneFaces::new(scene, geom);
         if faces.is_empty() {
             return Err(AtlasError::Empty);
         }
-        let texel = match config.texel_size {
+        let t0 = match config.texel_size {
             Some(ts) => ts as f64,
             None => (lit_area / config.texel_budget as f64).sqrt() as f32 as f64,
         };
-        if !(texel.is_finite() && texel > 0.0 && (texel as f32) > 0.0) {
-            return Err(AtlasError::BadTexelSize(texel as f32));
+        if !(t0.is_finite() && t0 > 0.0 && (t0 as f32) > 0.0) {
+            return Err(AtlasError::BadTexelSize(t0 as f32));
         }
-        // Cheap lower bound before any work: a chart's faces are within `chart_max_angle` of
-        // its seed's normal, so its UV area is at least cos(angle) × its area (and a
-        // TEXCOORD_1 block has at least its area in texels).
-        let cos = (charts::effective_max_angle(config.chart_max_angle) as f64).cos();
-        let min_texels = lit_area * cos / (texel * texel);
-        let max = config.max_size;
-        if min_texels > max as f64 * max as f64 {
-            let side = min_texels.sqrt().ceil().min(u32::MAX as f64) as u32;
-            return Err(AtlasError::TooLarge { width: side, height: side, max });
-        }
+        check_lower_bound(lit_area, t0, config)?;
 
-        // Charts, mesh by mesh; a double-sided mesh's back faces get a copy of its layout.
+        let meshes: Vec<MeshCharts> =
+            (0..scene.meshes.len()).filter_map(|mi| MeshCharts::new(scene, geom, &face_of, mi, t0, config)).collect();
+        let threads = crate::parallel::available_threads();
+        let layout = |texel: f64| -> Result<Vec<MeshAtTexel>, AtlasError> {
+            crate::parallel::par_map(meshes.iter().collect(), threads, |m| m.at(scene, geom, texel, config))
+                .into_iter()
+                .collect()
+        };
+        let texel = match config.texel_size {
+            Some(_) => t0,
+            None => solve_texel_size(config.texel_budget, t0, |t| {
+                crate::parallel::par_map(meshes.iter().collect(), threads, |m| m.coverage_at(scene, geom, t, config))
+                    .into_iter()
+                    .sum()
+            })?,
+        };
+        let laid = layout(texel)?;
         let mut stats = AtlasStats { faces: faces.len(), lit_area, ..AtlasStats::default() };
-        let mut layouts: Vec<(u32, Side, ChartSource, charts::LocalChart)> = Vec::new();
-        for (mi, mesh) in scene.meshes.iter().enumerate() {
-            let range = geom.mesh_offsets[mi]..geom.mesh_offsets[mi + 1];
-            let tris: Vec<TriangleId> = range.filter(|&t| face_of[t as usize][0] != NO_FACE).collect();
-            if tris.is_empty() {
-                continue;
+        let mut charts = Vec::new();
+        for m in laid {
+            match m.source {
+                ChartSource::Uv1 => stats.meshes_from_uv1 += 1,
+                ChartSource::Unwrapped => stats.meshes_unwrapped += 1,
             }
-            let mut local = None;
-            if config.use_uv1 && mesh.uv1.is_some() {
-                match uv1::validate(mesh, geom, &tris, texel, max) {
-                    Ok(block) => {
-                        stats.meshes_from_uv1 += 1;
-                        local = Some((ChartSource::Uv1, block.charts(mesh, geom, &tris)));
-                    }
-                    Err(reason) => {
-                        tracing::warn!(mesh = %mesh.name, "TEXCOORD_1 not used as light-map UVs: {reason}; unwrapping instead");
-                        stats.uv1_rejected.push((mesh.name.clone(), reason));
-                    }
-                }
+            if let Some(reason) = m.uv1_rejected {
+                let name = &scene.meshes[m.charts[0].mesh as usize].name;
+                tracing::warn!(mesh = %name, "TEXCOORD_1 not used as light-map UVs: {reason}; unwrapping instead");
+                stats.uv1_rejected.push((name.clone(), reason));
             }
-            let (source, local) = local.unwrap_or_else(|| {
-                stats.meshes_unwrapped += 1;
-                (ChartSource::Unwrapped, charts::unwrap_mesh(mesh, geom, &tris, texel, config.chart_max_angle))
-            });
-            let backs = if double_sided(tris[0] as usize) { local.clone() } else { Vec::new() };
-            layouts.extend(local.into_iter().map(|c| (mi as u32, Side::Front, source, c)));
-            layouts.extend(backs.into_iter().map(|c| (mi as u32, Side::Back, source, c)));
+            charts.extend(m.charts);
         }
         stats.unwrap_seconds = started.elapsed().as_secs_f64();
 
-        // Pack.
         let packing_started = Instant::now();
-        let mut placements = Vec::with_capacity(layouts.len());
-        for (_, _, _, c) in &layouts {
-            let p = match c.fixed_interior {
-                Some(interior) => pack::place_fixed(interior),
-                None => {
-                    pack::place_free(c.extent).ok_or(AtlasError::TooLarge { width: u32::MAX, height: u32::MAX, max })?
-                }
-            };
-            placements.push(p);
-        }
-        let sizes: Vec<(u32, u32)> = placements.iter().map(|p| p.rect_size()).collect();
+        let sizes: Vec<(u32, u32)> = charts.iter().map(|c| c.placement.rect_size()).collect();
+        let max = config.max_size;
         let packing = pack::pack(&sizes, max).map_err(|(width, height)| AtlasError::TooLarge { width, height, max })?;
-        let mut chart_list = Vec::with_capacity(layouts.len());
-        for (ci, ((mesh, side, source, c), p)) in layouts.into_iter().zip(&placements).enumerate() {
-            let rect_min = packing.positions[ci];
-            let origin = DVec2::new(rect_min.0 as f64, rect_min.1 as f64) + p.offset;
-            let mut ids = Vec::with_capacity(c.tris.len());
-            for (t, uv) in c.tris.iter().zip(&c.uv) {
-                let f = face_of[*t as usize][side.index()];
-                faces[f as usize].chart = ci as u32;
-                faces[f as usize].uv = uv.map(|q| (q + origin).as_vec2());
-                ids.push(f);
-            }
-            chart_list.push(Chart { mesh, side, source, rect_min, rect_size: p.rect_size(), faces: ids });
-        }
-        stats.charts = chart_list.len();
+        let charts: Vec<Chart> = charts
+            .into_iter()
+            .zip(packing.positions.iter().zip(&packing.orient))
+            .enumerate()
+            .map(|(id, (c, (&p, &o)))| lay_out(&mut faces, &face_of, id as u32, c, p, o))
+            .collect();
+        stats.charts = charts.len();
         stats.pack_seconds = packing_started.elapsed().as_secs_f64();
 
         let mut atlas = Atlas {
@@ -308,41 +582,53 @@ impl Atlas {
             height: packing.height,
             faces,
             face_of,
-            charts: chart_list,
+            charts,
+            mesh_offsets: geom.mesh_offsets.clone(),
             stats,
         };
-        atlas.stats.covered_texels_lod0 = atlas.covered_texels(0);
-        let area = atlas.width as f64 * atlas.height as f64;
-        atlas.stats.fill_ratio = if area > 0.0 { atlas.stats.covered_texels_lod0 as f64 / area } else { 0.0 };
+        atlas.finish_stats();
+        Ok(atlas)
+    }
+
+    /// Covered texels and fill ratio from the laid-out faces.
+    fn finish_stats(&mut self) {
+        self.stats.covered_texels_lod0 = self.covered_texels(0);
+        let area = self.width as f64 * self.height as f64;
+        self.stats.fill_ratio = if area > 0.0 { self.stats.covered_texels_lod0 as f64 / area } else { 0.0 };
         tracing::debug!(
-            charts = atlas.stats.charts,
-            faces = atlas.stats.faces,
-            width = atlas.width,
-            height = atlas.height,
-            fill = atlas.stats.fill_ratio,
+            charts = self.stats.charts,
+            faces = self.stats.faces,
+            width = self.width,
+            height = self.height,
+            texel_size = self.texel_size,
+            covered = self.stats.covered_texels_lod0,
+            fill = self.stats.fill_ratio,
             "light-map atlas built"
         );
-        Ok(atlas)
     }
 
     /// Pixels covered (conservatively) by some face at LOD `lod`: the number of texels of
     /// [`TexelMap::build`] at that LOD.
     pub fn covered_texels(&self, lod: u32) -> u64 {
-        let mut total = 0u64;
-        let mut mask = Vec::new();
-        for chart in &self.charts {
-            let b = chart.interior(lod);
-            mask.clear();
-            mask.resize((b.width() * b.height()) as usize, false);
-            for &f in &chart.faces {
-                let t = self.faces[f as usize].uv_lod(lod);
-                raster::conservative(&t, b, (i64::MIN, i64::MAX), |x, y| {
-                    mask[((y - b.y0) * b.width() + (x - b.x0)) as usize] = true;
-                });
+        let chunks: Vec<&[Chart]> = self.charts.chunks(256).collect();
+        let counts = crate::parallel::par_map(chunks, crate::parallel::available_threads(), |charts| {
+            let mut total = 0u64;
+            let mut mask = Vec::new();
+            for chart in charts {
+                let b = chart.interior(lod);
+                mask.clear();
+                mask.resize((b.width() * b.height()) as usize, false);
+                for &f in &chart.faces {
+                    let t = self.faces[f as usize].uv_lod(lod);
+                    raster::conservative(&t, b, (i64::MIN, i64::MAX), |x, y| {
+                        mask[((y - b.y0) * b.width() + (x - b.x0)) as usize] = true;
+                    });
+                }
+                total += mask.iter().filter(|&&m| m).count() as u64;
             }
-            total += mask.iter().filter(|&&m| m).count() as u64;
-        }
-        total
+            total
+        });
+        counts.into_iter().sum()
     }
 
     /// Texel density of a face at LOD `lod`: LOD-`lod` texels per m² of its surface (UV area

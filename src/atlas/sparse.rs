@@ -229,6 +229,18 @@ impl SparseTexels {
         self.pixel.len()
     }
 
+    pub fn view(&self) -> super::texels::TexelView<'_> {
+        super::texels::TexelView {
+            lod: self.lod,
+            face: &self.face,
+            position: &self.position,
+            normal: &self.normal,
+            albedo: &self.albedo,
+            emission: &self.emission,
+            area: &self.area,
+        }
+    }
+
     pub fn is_empty(&self) -> bool {
         self.pixel.is_empty()
     }

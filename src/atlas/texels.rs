@@ -320,6 +320,42 @@ pub(crate) fn gutter_source(covered: impl Fn(i64, i64) -> bool) -> Option<(i64, 
     ORDER.into_iter().find(|&(dx, dy)| covered(dx, dy))
 }
 
+/// The per-texel attributes of a texel map (whole-LOD or per-region), borrowed.
+#[derive(Clone, Copy)]
+pub struct TexelView<'a> {
+    pub lod: u32,
+    pub face: &'a [FaceId],
+    pub position: &'a [Vec3],
+    pub normal: &'a [Vec3],
+    pub albedo: &'a [Rgb],
+    pub emission: &'a [Rgb],
+    pub area: &'a [f32],
+}
+
+impl TexelView<'_> {
+    pub fn len(&self) -> usize {
+        self.face.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.face.is_empty()
+    }
+}
+
+impl TexelMap {
+    pub fn view(&self) -> TexelView<'_> {
+        TexelView {
+            lod: self.lod,
+            face: &self.face,
+            position: &self.position,
+            normal: &self.normal,
+            albedo: &self.albedo,
+            emission: &self.emission,
+            area: &self.area,
+        }
+    }
+}
+
 /// Side of the square pixel blocks texel ids follow.
 const BLOCK: usize = 8;
 

@@ -16,7 +16,7 @@
 
 use glam::DVec2;
 
-use super::charts::{LocalChart, weld};
+use super::charts::{LocalChart, weld, weld_tolerance};
 use super::raster::{PixelRect, area2, centres_inside, conservative};
 use crate::scene::{Mesh, SceneGeometry, TriangleId};
 
@@ -164,7 +164,7 @@ pub fn validate(
     }
 
     // Islands: union of triangles sharing a UV edge that is also a 3-D edge.
-    let (wid, _) = weld(&mesh.positions);
+    let (wid, _) = weld(&mesh.positions, weld_tolerance(&mesh.positions, texel_size));
     let mut keys: Vec<(u32, u32, u32, u32)> = Vec::with_capacity(tris.len() * 3);
     for (k, &t) in tris.iter().enumerate() {
         for v in corners(t) {
@@ -266,6 +266,9 @@ mod tests {
         Atlas::build(s, &SceneGeometry::new(s), cfg).unwrap()
     }
 
+    /// Every chart is its island's TEXCOORD_1 under one map `p ↦ origin + s·R·p`, with `s`
+    /// the block's texels per unit and `R` a quarter turn or none (the packer may turn a
+    /// block): the layout's shape and pixel grid are kept.
     fn assert_affine_image_of_uv1(s: &Scene, a: &Atlas) {
         let g = SceneGeometry::new(s);
         let uv1 = s.meshes[0].uv1.as_ref().unwrap();
@@ -273,18 +276,26 @@ mod tests {
             assert_eq!(c.source, ChartSource::Uv1);
             let f0 = &a.faces[c.faces[0] as usize];
             let tri0 = s.meshes[0].triangles[g.local[f0.tri as usize] as usize];
-            // scale from the first edge, origin from the first corner
+            // Scale and turn from the first edge, origin from the first corner.
             let (p0, p1) = (uv1[tri0[0] as usize], uv1[tri0[1] as usize]);
-            let scale = (f0.uv[1] - f0.uv[0]).length() / (p1 - p0).length();
-            let origin = f0.uv[0] - p0 * scale;
+            let (d_uv1, d_atlas) = (p1 - p0, f0.uv[1] - f0.uv[0]);
+            let scale = d_atlas.length() / d_uv1.length();
+            let turn = [Vec2::X, Vec2::Y, -Vec2::X, -Vec2::Y]
+                .into_iter()
+                .find(|r| (r.rotate(d_uv1) * scale - d_atlas).length() < 1e-3)
+                .unwrap_or_else(|| panic!("chart is not a quarter turn of its TEXCOORD_1: {d_uv1} ↦ {d_atlas}"));
+            let origin = f0.uv[0] - turn.rotate(p0) * scale;
             for &f in &c.faces {
                 let face = &a.faces[f as usize];
                 let tri = s.meshes[0].triangles[g.local[face.tri as usize] as usize];
                 for k in 0..3 {
-                    let want = origin + uv1[tri[k] as usize] * scale;
+                    let want = origin + turn.rotate(uv1[tri[k] as usize]) * scale;
                     assert!((face.uv[k] - want).length() < 1e-3, "{:?} vs {want:?}", face.uv[k]);
                 }
             }
+            // The pixel grid is kept: the image of a whole texel of the block is a whole
+            // texel of the atlas.
+            assert!((origin.x - origin.x.round()).abs() < 1e-3 && (origin.y - origin.y.round()).abs() < 1e-3);
         }
     }
 
@@ -304,7 +315,11 @@ mod tests {
             // s = ⌈√(3 m² / 0.27) / 0.05⌉ = 67 texels for the unit square: island a spans
             // 0.05..0.65 × 0.05..0.35 (pixels 3..44 × 3..24), island b 0.7..1.0 × 0.05..0.35
             // (pixels 46..67 × 3..24); each is cropped and gets a 1-texel border.
-            let mut sizes: Vec<(u32, u32)> = a.charts.iter().map(|c| (c.rect_size.0 - 2, c.rect_size.1 - 2)).collect();
+            let mut sizes: Vec<(u32, u32)> = a
+                .charts
+                .iter()
+                .map(|c| (c.rect_size.0.max(c.rect_size.1) - 2, c.rect_size.0.min(c.rect_size.1) - 2))
+                .collect();
             sizes.sort_unstable();
             sizes.dedup();
             assert_eq!(sizes, vec![(21, 21), (41, 21)]);

@@ -1,19 +1,21 @@
 //! Bundle backends in the bake driver: directions in batches, light jobs per emitter group,
-//! the punctual pass, and the progressive estimate of one whole LOD.
+//! the punctual pass, and the progressive estimate of a whole LOD or a region of one.
 
 use std::ops::ControlFlow;
+use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 use serde::Serialize;
-
-use std::sync::atomic::AtomicBool;
 
 use crate::atlas::TexelMap;
 use crate::atlas::lookup::TexelTable;
+use crate::atlas::texels::TexelView;
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
-use crate::bundle::{BakeTarget, BundleBackend, BundleScene, Cancelled, DirectionJob, JobSequence, SourceRadiance};
+use crate::bundle::{
+    BakeTarget, BundleBackend, BundleScene, Cancelled, DirectionJob, JobSequence, SourceRadiance, SurfaceRadiance,
+};
 use crate::progress::Progress;
 use crate::reference::punctual::punctual_irradiance;
 use crate::reference::{Bvh, ray_epsilon};
@@ -43,6 +45,7 @@ pub struct CoarserLod<'a> {
 /// Bakes one whole LOD with a bundle backend: punctual pass, then batches of directions,
 /// the source radiance refreshed after each (multi-bounce, see
 /// [`progressive`](crate::bundle::progressive)), or read once from a converged coarser LOD.
+#[allow(clippy::too_many_arguments)]
 pub fn bake_lod(
     bundle: &BundleScene,
     bvh: &Bvh,
@@ -51,26 +54,28 @@ pub fn bake_lod(
     coarser: Option<CoarserLod>,
     threads: usize,
     progress: &dyn Progress,
-) -> LodIrradiance {
-    progress.begin(&format!("LOD {} bundles", texels.lod), bundle.config.directions as u64);
-    let baked = bake_lod_observed(bundle, bvh, backend, texels, coarser, threads, &mut |done| {
-        progress.reached(done.directions);
+    cancel: &AtomicBool,
+) -> Result<LodIrradiance, Cancelled> {
+    bake_lod_observed(bundle, bvh, backend, texels, coarser, threads, progress, cancel, &mut |_| {
         ControlFlow::Continue(())
-    });
-    progress.end();
-    baked
+    })
 }
 
-/// The running estimate of a [`bake_lod_observed`] bake after a batch.
+/// The running estimate of a bake after a batch, shown to the observer of
+/// [`bake_lod_observed`].
 pub struct BatchDone<'a> {
     /// Global directions folded in so far.
     pub directions: u64,
     pub estimate: &'a ProgressiveEstimate,
 }
 
+/// An observer of a progressive bake: called after every batch; `Break` ends the bake there.
+pub type Observer<'a> = dyn FnMut(&BatchDone) -> ControlFlow<()> + 'a;
+
 /// [`bake_lod`] showing `observe` the running estimate after every batch; `Break` ends the
 /// bake there, with the directions done so far (a prefix of the full bake's: direction `i`
 /// and the batches before it do not depend on how many follow).
+#[allow(clippy::too_many_arguments)]
 pub fn bake_lod_observed(
     bundle: &BundleScene,
     bvh: &Bvh,
@@ -78,33 +83,89 @@ pub fn bake_lod_observed(
     texels: &TexelMap,
     coarser: Option<CoarserLod>,
     threads: usize,
-    observe: &mut dyn FnMut(&BatchDone) -> ControlFlow<()>,
-) -> LodIrradiance {
+    progress: &dyn Progress,
+    cancel: &AtomicBool,
+    observe: &mut Observer,
+) -> Result<LodIrradiance, Cancelled> {
+    let tables = [TexelTable::of_map(texels)];
+    let converged = coarser.map(|c| {
+        let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
+        let mut source = Vec::new();
+        source_from_coarser(texels, &c, &carried, &mut source);
+        source
+    });
+    let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None };
+    bake_region_observed(bundle, bvh, backend, &region, converged, threads, progress, cancel, observe)
+}
+
+/// Texels to bake with a bundle backend, and what lies around them.
+pub struct Region<'a> {
+    pub texels: TexelView<'a>,
+    /// Their lookup (see [`BakeTarget::tables`]).
+    pub tables: &'a [TexelTable],
+    /// A box holding them (`None`: the whole scene).
+    pub window: Option<(Vec3, Vec3)>,
+    /// The radiance of lit faces outside the region (`None`: the region is every lit face).
+    pub foreign: Option<&'a dyn SurfaceRadiance>,
+}
+
+/// Bakes a region's texels: punctual pass, then batches of directions. Without `converged`
+/// (each texel's outgoing radiance from an already converged estimate) the source radiance
+/// is the bake's own estimate, refreshed after each batch (multi-bounce inside the region;
+/// what lies outside is seen through `region.foreign`).
+#[allow(clippy::too_many_arguments)]
+pub fn bake_region(
+    bundle: &BundleScene,
+    bvh: &Bvh,
+    backend: &mut dyn BundleBackend,
+    region: &Region,
+    converged: Option<Vec<Rgb>>,
+    threads: usize,
+    progress: &dyn Progress,
+    cancel: &AtomicBool,
+) -> Result<LodIrradiance, Cancelled> {
+    let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
+    bake_region_observed(bundle, bvh, backend, region, converged, threads, progress, cancel, never_stop)
+}
+
+/// [`bake_region`] with an observer (see [`bake_lod_observed`]).
+#[allow(clippy::too_many_arguments)]
+fn bake_region_observed(
+    bundle: &BundleScene,
+    bvh: &Bvh,
+    backend: &mut dyn BundleBackend,
+    region: &Region,
+    converged: Option<Vec<Rgb>>,
+    threads: usize,
+    progress: &dyn Progress,
+    cancel: &AtomicBool,
+    observe: &mut Observer,
+) -> Result<LodIrradiance, Cancelled> {
+    let texels = &region.texels;
     let config = &bundle.config;
     let mut stats = BundleLodStats::default();
     let t0 = Instant::now();
     let punctual =
-        punctual_irradiance(&bundle.scene, bvh, &texels.position, &texels.normal, ray_epsilon(&bundle.scene), threads);
+        punctual_irradiance(&bundle.scene, bvh, texels.position, texels.normal, ray_epsilon(&bundle.scene), threads);
     stats.punctual_seconds = t0.elapsed().as_secs_f64();
 
     let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
-    let tables = [TexelTable::of_map(texels)];
-    let triangles = crate::bundle::target::target_triangles(&bundle.atlas, &texels.face);
+    let triangles = crate::bundle::target::target_triangles(&bundle.atlas, texels.face);
     let target = BakeTarget {
         lod: texels.lod,
-        face: &texels.face,
-        emission: &texels.emission,
-        tables: &tables,
-        window: None,
+        face: texels.face,
+        emission: texels.emission,
+        tables: region.tables,
+        window: region.window,
         triangles: &triangles,
     };
 
-    let kind = if coarser.is_some() { SourceKind::Converged } else { SourceKind::Progressive };
-    let mut estimate = ProgressiveEstimate::new(kind, punctual, texels.area.clone());
+    let kind = if converged.is_some() { SourceKind::Converged } else { SourceKind::Progressive };
+    let mut estimate = ProgressiveEstimate::new(kind, punctual, texels.area.to_vec());
     let mut source = Vec::new();
-    match &coarser {
-        Some(c) => source_from_coarser(texels, c, &carried, &mut source),
-        None => estimate.source_radiance(&texels.albedo, &texels.emission, &carried, None, threads, &mut source),
+    match converged {
+        Some(c) => source = c,
+        None => estimate.source_radiance(texels.albedo, texels.emission, &carried, None, threads, &mut source),
     }
     stats.light_pass_groups = bundle.emitters.small.len();
     stats.emitter_triangles_in_global_bundles = bundle.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
@@ -112,38 +173,38 @@ pub fn bake_lod_observed(
     let t1 = Instant::now();
     let jobs = JobSequence::new(config.seed, bundle.emitters.small.len(), config.light_directions);
     let mut sums = BatchSums::new(texels.len());
+    progress.begin(&format!("LOD {} bundles", texels.lod), config.directions as u64);
     let per_batch = config.batch_size() as u64;
     let mut first = 0u64;
-    let never = AtomicBool::new(false);
     while first < config.directions as u64 {
         let count = per_batch.min(config.directions as u64 - first);
         let batch: Vec<DirectionJob> = (first..first + count).map(|i| jobs.job(i)).collect();
-        let pass = match backend.trace_batch(
-            &target,
-            &batch,
-            &SourceRadiance { own: &source, foreign: None },
-            &mut sums,
-            &never,
-        ) {
+        let own = SourceRadiance { own: &source, foreign: region.foreign };
+        let pass = match backend.trace_batch(&target, &batch, &own, &mut sums, cancel) {
             Ok(pass) => pass,
-            Err(Cancelled) => unreachable!("the flag is never raised"),
+            Err(Cancelled) => {
+                progress.end();
+                return Err(Cancelled);
+            }
         };
         stats.pass.add(&pass);
         estimate.add_batch(&sums, count * config.light_directions as u64, threads);
         if kind == SourceKind::Progressive {
-            estimate.source_radiance(&texels.albedo, &texels.emission, &carried, Some(&sums), threads, &mut source);
+            estimate.source_radiance(texels.albedo, texels.emission, &carried, Some(&sums), threads, &mut source);
         }
         first += count;
+        progress.advance(count);
         if observe(&BatchDone { directions: first, estimate: &estimate }).is_break() {
             break;
         }
     }
+    progress.end();
     stats.bundle_seconds = t1.elapsed().as_secs_f64();
     stats.directions = first;
     stats.batches = estimate.batches();
     stats.light_directions_per_group = estimate.light_directions();
     stats.unsampled_texels = estimate.unsampled();
-    LodIrradiance { irradiance: estimate.irradiance(), punctual: estimate.punctual().to_vec(), stats }
+    Ok(LodIrradiance { irradiance: estimate.irradiance(), punctual: estimate.punctual().to_vec(), stats })
 }
 
 /// A whole LOD's bundle bake.

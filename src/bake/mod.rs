@@ -114,6 +114,12 @@ pub enum BakeError {
     BadLodCount { got: u32, max: u32 },
     #[error("--samples must be at least 1")]
     NoSamples,
+    #[error("--samples must be at most {max}, got {got}")]
+    TooManySamples { got: u32, max: u32 },
+    #[error(
+        "--nodes {nodes} cannot hold one bundle pixel of this scene: a line through it crosses {depth} surfaces, a node each, and tiles plan for {alpha} of the nodes; use --nodes {need} or more"
+    )]
+    NodesBelowDepthComplexity { nodes: u64, depth: u64, alpha: f32, need: u64 },
     #[error(transparent)]
     Bundle(#[from] BundleConfigError),
     #[error(
@@ -124,6 +130,60 @@ pub enum BakeError {
         "LOD {lod} would have {texels} texels, above the limit of {max}; use fewer --lods or a larger --texel-size"
     )]
     LodTooLarge { lod: u32, texels: u64, max: u64 },
+}
+
+/// Most samples a bake may take, a time bound: at the few milliseconds a bundle direction
+/// (or a path per texel) costs on a room, 2²⁰ of them already take hours, at an error 64×
+/// below that of the default 256.
+pub const MAX_SAMPLES: u32 = 1 << 20;
+
+/// Lines through the scene sampled to find its depth complexity (surfaces crossed by one
+/// line, hence nodes taken by one bundle pixel).
+const DEPTH_LINES: u32 = 1024;
+
+/// Surfaces counted along a line before the count stops (beyond the node budget too).
+const DEPTH_COUNT_CAP: u64 = 1024;
+
+/// The most surfaces any of [`DEPTH_LINES`] lines through the scene's bounds (random
+/// directions and offsets, fixed seed) crosses, counted up to `cap`: a lower bound of the
+/// fragments one bundle pixel can hold.
+fn depth_complexity(bvh: &Bvh, cap: u64) -> u64 {
+    let Some((lo, hi)) = bvh.bounds() else { return 0 };
+    let diag = (hi - lo).length().max(1e-6);
+    let step = diag * 1e-5;
+    let mut rng = crate::sampling::Rng::new(0xdeb7, 0);
+    let mut most = 0u64;
+    for _ in 0..DEPTH_LINES {
+        let dir = crate::sampling::uniform_sphere(rng.next_vec2());
+        let through = lo + (hi - lo) * glam::Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        let origin = through - dir * diag;
+        let (mut t, mut crossed) = (0.0f32, 0u64);
+        while crossed < cap {
+            match bvh.intersect(origin, dir, t, 2.0 * diag) {
+                Some(hit) => {
+                    crossed += 1;
+                    t = hit.t + step;
+                }
+                None => break,
+            }
+        }
+        most = most.max(crossed);
+    }
+    most
+}
+
+/// Refuses a node buffer that cannot hold one bundle pixel of the scene: such a pixel never
+/// fits a tile, and every one would be built alone, over budget (minutes per bake at
+/// `--nodes 1`).
+pub fn check_node_capacity(bvh: &Bvh, config: &BundleConfig) -> Result<(), BakeError> {
+    let budget = (config.alpha as f64 * config.node_capacity as f64).floor() as u64;
+    let depth = depth_complexity(bvh, (budget + 1).max(DEPTH_COUNT_CAP));
+    if depth > budget {
+        let (nodes, alpha) = (config.node_capacity, config.alpha);
+        let need = (depth as f64 / alpha as f64).ceil() as u64;
+        return Err(BakeError::NodesBelowDepthComplexity { nodes, depth, alpha, need });
+    }
+    Ok(())
 }
 
 /// Largest atlas (pixels) a single LOD may have: 2^28 pixels is ~8 GB of texel data.
@@ -153,6 +213,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
         }
         BackendKind::Cpu => {
             let bvh = Bvh::for_scene(scene, &geom);
+            check_node_capacity(&bvh, &config.bundle_config())?;
             let bundle = Arc::new(BundleScene::new(
                 scene.clone(),
                 Arc::new(geom.clone()),
@@ -166,8 +227,12 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 let texels = TexelMap::build(scene, &geom, &atlas, lod);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
-                let bundle::LodIrradiance { irradiance, stats: bstats, .. } =
-                    bundle::bake_lod(&bundle, &bvh, &mut backend, &texels, coarser, config.threads(), progress);
+                let never = std::sync::atomic::AtomicBool::new(false);
+                let Ok(bundle::LodIrradiance { irradiance, stats: bstats, .. }) =
+                    bundle::bake_lod(&bundle, &bvh, &mut backend, &texels, coarser, config.threads(), progress, &never)
+                else {
+                    unreachable!("an offline bake is never cancelled")
+                };
                 if bstats.pass.unplanned_directions > 0 {
                     let (count, directions) = (bstats.pass.unplanned_directions, bstats.directions);
                     return Err(BakeError::UnplannedDirections { lod, count, directions });
@@ -194,6 +259,9 @@ impl BakeConfig {
         }
         if self.samples == 0 {
             return Err(BakeError::NoSamples);
+        }
+        if self.samples > MAX_SAMPLES {
+            return Err(BakeError::TooManySamples { got: self.samples, max: MAX_SAMPLES });
         }
         self.bundle_config().validate()?;
         Ok(())

@@ -97,20 +97,42 @@ impl Default for BundleConfig {
     }
 }
 
+/// Smallest head-pointer side W: every tile pays a set-up (gathering and setting up each
+/// triangle that meets it); below 16×16 pixels that costs more than the tile's rays, and a
+/// direction is cut into tens of thousands of tiles.
+pub const MIN_HEAD_SIDE: u32 = 16;
+/// Largest head-pointer side W: the buffer holds W² entries per lane (1 GiB at 16384).
+pub const MAX_HEAD_SIDE: u32 = 16384;
+/// Most bundle pixels per texel side: a direction costs its square (256 bundle pixels per
+/// texel at 16); beyond, more directions lower the error more than more pixels per direction.
+pub const MAX_OVERSAMPLING: f32 = 16.0;
+/// Most light-pass directions per global direction and small emitter group: each is a full
+/// light bundle, so the light pass alone would take over a thousand times the global pass.
+pub const MAX_LIGHT_DIRECTIONS: u32 = 1024;
+/// Most accumulation lanes: each lane keeps its own per-texel sums (28 B a texel) and its own
+/// head-pointer and node buffers; more lanes than cores only cost memory.
+pub const MAX_LANES: u32 = 64;
+
 /// Errors in a bundle configuration.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum BundleConfigError {
-    #[error("analysis resolution R must be a power of two between 2 and 4096, got {0}")]
+    #[error("analysis resolution R (--analysis-res) must be a power of two between 2 and 4096, got {0}")]
     AnalysisRes(u32),
-    #[error("head-pointer side W must be between 1 and 16384, got {0}")]
+    #[error("head-pointer side W (--head-side) must be between {MIN_HEAD_SIDE} and {MAX_HEAD_SIDE}, got {0}")]
     HeadSide(u32),
-    #[error("node capacity N must be at least 1")]
+    #[error("node capacity N (--nodes) must be at least 1")]
     NodeCapacity,
-    #[error("alpha must be in (0, 1], got {0}")]
+    #[error("alpha (--alpha) must be in (0, 1], got {0}")]
     Alpha(f32),
-    #[error("oversampling must be a positive number, got {0}")]
+    #[error("oversampling (--oversampling) must be a positive number at most {MAX_OVERSAMPLING}, got {0}")]
     Oversampling(f32),
-    #[error("lanes and directions per batch must be at least 1")]
+    #[error(
+        "light-pass directions (--light-directions) must be between 1 and {MAX_LIGHT_DIRECTIONS}, got {0} (0 would drop the direct light of small emitters)"
+    )]
+    LightDirections(u32),
+    #[error("accumulation lanes (--lanes) must be between 1 and {MAX_LANES}, got {0}")]
+    Lanes(u32),
+    #[error("directions per batch must be at least 1")]
     Batching,
 }
 
@@ -129,7 +151,7 @@ impl BundleConfig {
         if !self.analysis_res.is_power_of_two() || !(2..=4096).contains(&self.analysis_res) {
             return Err(BundleConfigError::AnalysisRes(self.analysis_res));
         }
-        if !(1..=16384).contains(&self.head_side) {
+        if !(MIN_HEAD_SIDE..=MAX_HEAD_SIDE).contains(&self.head_side) {
             return Err(BundleConfigError::HeadSide(self.head_side));
         }
         if self.node_capacity == 0 {
@@ -138,10 +160,16 @@ impl BundleConfig {
         if !(self.alpha > 0.0 && self.alpha <= 1.0) {
             return Err(BundleConfigError::Alpha(self.alpha));
         }
-        if !(self.oversampling.is_finite() && self.oversampling > 0.0) {
+        if !(self.oversampling.is_finite() && self.oversampling > 0.0 && self.oversampling <= MAX_OVERSAMPLING) {
             return Err(BundleConfigError::Oversampling(self.oversampling));
         }
-        if self.lanes == 0 || self.directions_per_batch == 0 {
+        if !(1..=MAX_LIGHT_DIRECTIONS).contains(&self.light_directions) {
+            return Err(BundleConfigError::LightDirections(self.light_directions));
+        }
+        if !(1..=MAX_LANES).contains(&self.lanes) {
+            return Err(BundleConfigError::Lanes(self.lanes));
+        }
+        if self.directions_per_batch == 0 {
             return Err(BundleConfigError::Batching);
         }
         Ok(())

@@ -14,6 +14,7 @@
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail};
@@ -24,12 +25,13 @@ use serde_json::{Value, json};
 
 use livebake::atlas::{Atlas, TexelMap};
 use livebake::bake::bundle::{BatchDone, bake_lod_observed};
-use livebake::bake::{BakeConfig, BakeError, check_lod_sizes};
+use livebake::bake::{BakeConfig, BakeError, MAX_SAMPLES, check_lod_sizes, check_node_capacity};
 use livebake::bundle::progressive::ProgressiveEstimate;
 use livebake::bundle::{BackendProvider, BundleScene};
 use livebake::cpu::CpuProvider;
 use livebake::output::{write_json, write_rgb8_png, write_text};
 use livebake::probe::{BilinearTaps, LightmapLookup, SurfaceLocator};
+use livebake::progress::NoProgress;
 use livebake::reference::{Bvh, ReferenceTracer};
 use livebake::sampling::Rng;
 use livebake::scene::SceneGeometry;
@@ -211,6 +213,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     }
 
     let bvh = Bvh::for_scene(&scene, &geom);
+    check_node_capacity(&bvh, &config.bundle_config())?;
     let bundle = Arc::new(BundleScene::new(scene.clone(), geom.clone(), atlas.clone(), config.bundle_config()));
     let threads = config.threads();
     let mut backend =
@@ -220,9 +223,13 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     };
     ui.begin_phase("converge", if options.samples.is_some() { limits.max_directions } else { 0 });
     let mut run = ProgressiveRun::new(&limits, &clock, &error_of, ui);
+    let never = AtomicBool::new(false);
     let baked =
-        bake_lod_observed(&bundle, &bvh, &mut backend, &texels, None, threads, &mut |done| run.batch_done(done));
+        bake_lod_observed(&bundle, &bvh, &mut backend, &texels, None, threads, &NoProgress, &never, &mut |done| {
+            run.batch_done(done)
+        });
     ui.end_phase();
+    let Ok(baked) = baked else { unreachable!("converge never raises the cancel flag") };
     if baked.stats.pass.unplanned_directions > 0 {
         let (count, directions) = (baked.stats.pass.unplanned_directions, baked.stats.directions);
         return Err(BakeError::UnplannedDirections { lod: 0, count, directions }.into());
@@ -375,8 +382,9 @@ fn write_curve(dir: &Path, doc: &Value, steps: &[Step], title: &str, until: Opti
     Ok([json_path, csv_path, png_path])
 }
 
-/// The bake configuration of LOD 0 with `--samples` as the most directions (none: no
-/// limit but the budget), and the checks of converge's own options.
+/// The bake configuration of LOD 0 with `--samples` as the most directions (none: the most
+/// any bake may take, hours of directions, so the budget ends the run), and the checks of
+/// converge's own options.
 fn bake_config(options: &SceneOptions, converge: &ConvergeOptions) -> Result<BakeConfig> {
     if options.backend != Backend::Cpu {
         bail!("converge measures the bundle bake (--backend cpu); the reference tracer is what --reference-spp uses");
@@ -405,7 +413,7 @@ fn bake_config(options: &SceneOptions, converge: &ConvergeOptions) -> Result<Bak
             "converge needs --budget SECONDS or --samples N (the most directions) to end: an unreachable --until would run forever"
         );
     }
-    let config = options.bake_config(|_| u32::MAX)?;
+    let config = options.bake_config(|_| MAX_SAMPLES)?;
     config.validate()?;
     Ok(config)
 }

@@ -67,7 +67,7 @@ enum Command {
     /// Bake LOD 0 progressively and measure its error against a reference as it goes: relative
     /// RMS error at doubling direction counts in DIR/convergence.json, .csv and .png. Exit
     /// status 0 when --until is reached within --budget, 3 when not, 1 on errors. --samples N
-    /// is the most directions (default: no limit but --budget).
+    /// is the most directions (default 2^20: hours, the budget ends the run).
     Converge {
         /// glTF 2.0 scene (.gltf or .glb).
         scene: PathBuf,

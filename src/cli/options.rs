@@ -17,6 +17,10 @@ pub enum Backend {
     Reference,
 }
 
+/// Most worker threads: each has its own stack and scratch buffers, threads beyond the cores
+/// only wait, and tens of thousands make the OS refuse to start them (the process aborts).
+pub const MAX_THREADS: usize = 1024;
+
 #[derive(Args, Debug, Clone)]
 pub struct SceneOptions {
     /// Light-map texel size at LOD 0, metres. Default: from a budget of --texel-budget texels.
@@ -33,7 +37,7 @@ pub struct SceneOptions {
     #[arg(long, value_name = "K")]
     pub lods: Option<u32>,
     /// Samples: bundle directions for the cpu backend (default 256; converge: the most, default
-    /// no limit); paths per texel (bake, default 16) or per point (probe, default 1024) for the
+    /// 2^20, hours); paths per texel (bake, default 16) or per point (probe, default 1024) for the
     /// reference backend.
     #[arg(long, value_name = "N")]
     pub samples: Option<u32>,
@@ -157,8 +161,10 @@ impl SceneOptions {
         if self.texel_budget == Some(0) {
             bail!("--texel-budget must be at least 1");
         }
-        if self.threads == Some(0) {
-            bail!("--threads must be at least 1");
+        if let Some(n) = self.threads
+            && !(1..=MAX_THREADS).contains(&n)
+        {
+            bail!("--threads must be between 1 and {MAX_THREADS}, got {n}");
         }
         Ok(BakeConfig {
             atlas: AtlasConfig {

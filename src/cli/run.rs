@@ -59,7 +59,7 @@ pub struct RunOptions {
     #[arg(long, value_name = "PATH.json")]
     pub camera_path: Option<PathBuf>,
     /// How long to run, seconds after first light.
-    #[arg(long, value_name = "S", default_value_t = 10.0)]
+    #[arg(long, value_name = "S", default_value_t = 10.0, allow_negative_numbers = true)]
     pub seconds: f64,
     /// Event stream, one JSON object per line.
     #[arg(long, value_name = "OUT.jsonl")]
@@ -251,9 +251,6 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     if !(run.seconds.is_finite() && run.seconds >= 0.0) {
         bail!("--seconds must be a non-negative number, got {}", run.seconds);
     }
-    std::fs::create_dir_all(&run.out)
-        .with_context(|| format!("cannot create output directory {}", run.out.display()))?;
-    let mut log = EventLog::open(run.events.as_deref())?;
     let (scene, load_seconds) = load_scene(scene_path, options)?;
     let interrupted = Arc::new(AtomicBool::new(false));
     // Ctrl-C ends the run early; the outputs are still written.
@@ -261,6 +258,11 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
 
     let runtime = Runtime::start(scene.clone(), config, Arc::new(CpuProvider::new()))
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
+    // Outputs are made once the scene and the options have proved good (events wait in the
+    // runtime's channel meanwhile).
+    std::fs::create_dir_all(&run.out)
+        .with_context(|| format!("cannot create output directory {}", run.out.display()))?;
+    let mut log = EventLog::open(run.events.as_deref())?;
     let base = CameraView::for_scene(&scene);
     let camera_at = |t: f64| match (&path, run.camera) {
         (Some(p), _) => {
@@ -320,7 +322,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     let cells = runtime.cells();
     let stats = runtime.stats();
     let world = runtime.world().clone();
-    runtime.shutdown();
+    runtime.shutdown()?;
     let t_end = started.elapsed().as_secs_f64();
     if let Some(error) = failure {
         bail!("the runtime failed on {}: {error}", scene_path.display());

@@ -3,7 +3,7 @@
 
 use std::collections::HashMap;
 
-use glam::Vec3;
+use glam::{Affine3A, Vec3};
 
 use crate::scene::builder::{diffuse, white};
 use crate::scene::{LightKind, MaterialId, PunctualLight, Scene, SceneBuilder};
@@ -253,6 +253,128 @@ pub fn temple() -> Scene {
         b.grid_quad("tiles", [o, o + Vec3::X * 12.0, o + Vec3::new(12.0, 0.0, -12.0), o - Vec3::Z * 12.0], 40, d);
     }
     b.build()
+}
+
+/// `scene` as exporters without shared vertices write it (game assets, BIM exports): every
+/// triangle has its own three vertices with its face normal as shading normal, each vertex
+/// moved by up to `jitter` metres per axis (the float noise of transformed exports), and every
+/// `duplicate_every`-th mesh (0: none) carries a second, overlapping copy of all its triangles
+/// (coincident faces, as decals and doubled walls give), jittered independently.
+/// Deterministic in `seed`.
+pub fn triangle_soup(scene: &Scene, jitter: f32, duplicate_every: usize, seed: u64) -> Scene {
+    let mut out = scene.clone();
+    let mut rng = crate::sampling::Rng::new(seed, 0x50u64);
+    let mut shake = |p: Vec3| {
+        p + Vec3::new(rng.next_f32() * 2.0 - 1.0, rng.next_f32() * 2.0 - 1.0, rng.next_f32() * 2.0 - 1.0) * jitter
+    };
+    for (mi, mesh) in out.meshes.iter_mut().enumerate() {
+        let copies = if duplicate_every > 0 && mi % duplicate_every == duplicate_every - 1 { 2 } else { 1 };
+        let n = mesh.triangles.len() * 3 * copies;
+        let (mut pos, mut nor) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        let mut uv0 = mesh.uv0.as_ref().map(|_| Vec::with_capacity(n));
+        let mut uv1 = mesh.uv1.as_ref().map(|_| Vec::with_capacity(n));
+        for _ in 0..copies {
+            for t in &mesh.triangles {
+                let c = t.map(|v| mesh.positions[v as usize]);
+                let normal = (c[1] - c[0]).cross(c[2] - c[0]).normalize_or(Vec3::Z);
+                for &v in t {
+                    pos.push(shake(mesh.positions[v as usize]));
+                    nor.push(normal);
+                    if let (Some(out), Some(src)) = (uv0.as_mut(), mesh.uv0.as_ref()) {
+                        out.push(src[v as usize]);
+                    }
+                    if let (Some(out), Some(src)) = (uv1.as_mut(), mesh.uv1.as_ref()) {
+                        out.push(src[v as usize]);
+                    }
+                }
+            }
+        }
+        mesh.triangles = (0..(n / 3) as u32).map(|k| [3 * k, 3 * k + 1, 3 * k + 2]).collect();
+        (mesh.positions, mesh.normals, mesh.uv0, mesh.uv1) = (pos, nor, uv0, uv1);
+    }
+    out.stats.triangles = out.triangle_count();
+    out
+}
+
+/// [`temple`] as a triangle soup ([`triangle_soup`]: 10 µm jitter, every tenth mesh
+/// doubled): 343k triangles, none sharing a vertex.
+pub fn temple_soup() -> Scene {
+    triangle_soup(&temple(), 1e-5, 10, 1)
+}
+
+/// The meshes of several scenes, each under an affine transform, in one scene (as a glTF
+/// with instanced nodes loads: one mesh per instance, in world space). Materials are copied
+/// per part; lights and cameras are dropped.
+pub fn instanced(parts: &[(&Scene, Affine3A)]) -> Scene {
+    let mut out = Scene::default();
+    for (scene, xf) in parts {
+        let first_material = out.materials.len() as MaterialId;
+        out.materials.extend(scene.materials.iter().cloned());
+        let normal_xf = glam::Mat3::from(xf.matrix3).inverse().transpose();
+        for mesh in &scene.meshes {
+            let mut m = mesh.clone();
+            m.material += first_material;
+            for p in &mut m.positions {
+                *p = xf.transform_point3(*p);
+            }
+            for n in &mut m.normals {
+                *n = (normal_xf * *n).normalize_or(Vec3::Z);
+            }
+            if xf.matrix3.determinant() < 0.0 {
+                // A mirror flips the winding: keep the front faces in front.
+                for t in &mut m.triangles {
+                    t.swap(1, 2);
+                }
+            }
+            out.meshes.push(m);
+        }
+    }
+    if out.materials.is_empty() {
+        out.materials.push(white());
+    }
+    out.stats.triangles = out.triangle_count();
+    out.stats.primitives = out.meshes.len();
+    out
+}
+
+/// A ≥ 1 M-triangle instanced scene: three copies of [`temple_soup`] (as exported, turned
+/// 30° and scaled to 60 %, and mirrored and raised 2 m) side by side, and eight
+/// [`furnished_room`]s under rotations and scales between them. 1.11 M triangles.
+pub fn temple_instanced() -> Scene {
+    let soup = temple_soup();
+    let room = furnished_room();
+    let mut parts: Vec<(&Scene, Affine3A)> = vec![
+        (&soup, Affine3A::IDENTITY),
+        (
+            &soup,
+            Affine3A::from_scale_rotation_translation(
+                Vec3::splat(0.6),
+                glam::Quat::from_rotation_y(0.52),
+                Vec3::new(140.0, 0.0, 0.0),
+            ),
+        ),
+        (
+            &soup,
+            Affine3A::from_scale_rotation_translation(
+                Vec3::new(-1.0, 1.0, 1.0),
+                glam::Quat::IDENTITY,
+                Vec3::new(0.0, 2.0, 140.0),
+            ),
+        ),
+    ];
+    for k in 0..8 {
+        let a = k as f32 * 0.7;
+        let s = 0.8 + 0.1 * k as f32;
+        parts.push((
+            &room,
+            Affine3A::from_scale_rotation_translation(
+                Vec3::splat(s),
+                glam::Quat::from_rotation_y(a),
+                Vec3::new(-90.0 - 12.0 * k as f32, 0.0, 30.0),
+            ),
+        ));
+    }
+    instanced(&parts)
 }
 
 #[cfg(test)]

@@ -174,6 +174,8 @@ pub enum RuntimeError {
     Timeout(Duration),
     #[error("cannot start a runtime thread: {0}")]
     Thread(std::io::Error),
+    #[error("{0} runtime thread(s) panicked (a bug in livebake)")]
+    WorkerPanicked(usize),
 }
 
 /// What the runtime tells its front ends.
@@ -246,8 +248,11 @@ pub struct CellInfo {
     pub min: [f32; 3],
     pub max: [f32; 3],
     pub shown_lod: u32,
-    /// LOD being baked, if any.
+    /// LOD being baked, if any, and the directions it has so far.
     pub baking_lod: Option<u32>,
+    pub baking_directions: u64,
+    /// A worker is tracing a unit of it now.
+    pub working: bool,
     /// Directions and estimated error of the shown LOD.
     pub directions: u64,
     pub error: f32,
@@ -264,6 +269,8 @@ struct CellState {
     view: Option<CellView>,
     bake: Option<Box<CellBake>>,
     busy: bool,
+    /// Directions traced by the bake in progress (also while a worker holds it).
+    baking_directions: u64,
     /// Directions and error of each shown level (index = LOD).
     history: Vec<(u64, f32)>,
     /// Pixels written at each LOD ≥ 1 (index = LOD), to withdraw them on eviction.
@@ -471,6 +478,8 @@ impl Runtime {
                     max: hi.to_array(),
                     shown_lod: s.shown,
                     baking_lod: s.bake.as_ref().map(|b| b.lod).or(if s.busy { Some(s.shown + 1) } else { None }),
+                    baking_directions: s.baking_directions,
+                    working: s.busy,
                     directions,
                     error,
                     texels: world.lod0_texels[c as usize],
@@ -485,25 +494,29 @@ impl Runtime {
         current_stats(&self.shared, &mut st)
     }
 
-    /// Stops every thread; work in flight is cancelled at the next tile boundary.
-    pub fn shutdown(mut self) {
-        self.stop();
+    /// Stops every thread; work in flight is cancelled at the next tile boundary (its partial
+    /// sums are dropped). Reports a worker that panicked (a bug).
+    pub fn shutdown(mut self) -> Result<(), RuntimeError> {
+        match self.stop() {
+            0 => Ok(()),
+            n => Err(RuntimeError::WorkerPanicked(n)),
+        }
     }
 
-    fn stop(&mut self) {
+    /// Stops and joins every thread; returns how many had panicked.
+    fn stop(&mut self) -> usize {
         self.shared.shutdown.store(true, Ordering::SeqCst);
         self.shared.wake.notify_all();
-        for h in self.threads.drain(..) {
-            // A worker's panic is a bug; it was reported by the panic hook. Shutting down
-            // goes on for the others.
-            let _ = h.join();
-        }
+        // A panic is a bug; the panic hook reported it. Shutting down goes on for the others.
+        self.threads.drain(..).map(|h| h.join()).filter(Result::is_err).count()
     }
 }
 
 impl Drop for Runtime {
     fn drop(&mut self) {
-        self.stop();
+        if self.stop() > 0 {
+            tracing::error!("a runtime worker panicked");
+        }
     }
 }
 
@@ -560,8 +573,10 @@ pub fn bake_first_light(
     backend: &mut dyn crate::bundle::BundleBackend,
     threads: usize,
     mut map: ShownLightmap,
+    cancel: &AtomicBool,
 ) -> Result<(ShownLightmap, BundleLodStats), String> {
-    let baked = bake_lod(&world.bundle, &world.bvh, backend, &world.lod0, None, threads, &NoProgress);
+    let baked = bake_lod(&world.bundle, &world.bvh, backend, &world.lod0, None, threads, &NoProgress, cancel)
+        .map_err(|e| e.to_string())?;
     if baked.stats.pass.unplanned_directions > 0 {
         return Err(format!("{} bundle directions could not be planned", baked.stats.pass.unplanned_directions));
     }
@@ -594,12 +609,12 @@ pub fn empty_shown(world: &World) -> ShownLightmap {
 fn first_light<P: BackendProvider>(shared: &Shared, provider: &P) {
     let world = &shared.world;
     let threads = shared.config.threads();
-    let result = provider
-        .backend(&world.bundle, threads)
-        .map_err(|e| e.to_string())
-        .and_then(|mut backend| bake_first_light(world, &mut backend, threads, (*shared.shown()).clone()));
+    let result = provider.backend(&world.bundle, threads).map_err(|e| e.to_string()).and_then(|mut backend| {
+        bake_first_light(world, &mut backend, threads, (*shared.shown()).clone(), &shared.shutdown)
+    });
     let (map, stats) = match result {
         Ok(r) => r,
+        Err(_) if shared.shutdown.load(Ordering::SeqCst) => return,
         Err(error) => {
             tracing::error!("first light failed: {error}");
             shared.lock().failed = Some(error.clone());
@@ -622,19 +637,104 @@ fn first_light<P: BackendProvider>(shared: &Shared, provider: &P) {
     shared.emit(RuntimeEvent::FirstLight { texels: world.lod0.len(), directions: shared.config.bundle.directions });
 }
 
-/// The next cell to refine: below its target, not being worked on, most urgent first.
-fn pick(shared: &Shared, st: &State) -> Option<CellId> {
-    shared
+/// The next cell to refine: below its target, not being worked on, most urgent first, and
+/// with room for its bake within the memory budget (made by evicting what matters less,
+/// [`make_room`]); `None` when nothing is to be done or nothing fits.
+fn pick(shared: &Shared, st: &mut State) -> Option<CellId> {
+    let key = |st: &State, c: CellId| {
+        let s = &st.cells[c as usize];
+        (priority(s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false }), s.shown, false), c)
+    };
+    let c = shared
         .world
         .non_empty_cells()
         .filter(|&c| {
             let s = &st.cells[c as usize];
             !s.busy && s.target > s.shown && s.view.is_some()
         })
-        .min_by_key(|&c| {
-            let s = &st.cells[c as usize];
-            (priority(s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false }), s.shown, false), c)
-        })
+        .min_by_key(|&c| key(st, c))?;
+    if st.cells[c as usize].bake.is_some() {
+        return Some(c); // its memory is already counted
+    }
+    let need = bake_estimate(&shared.world, c, st.cells[c as usize].shown + 1);
+    make_room(shared, st, c, need).then_some(c)
+}
+
+/// Bytes a bake of `cell` at `lod` will hold while it runs and its pages once published, from
+/// the cell's LOD-0 texel count (4^lod times as many texels at LOD `lod`).
+fn bake_estimate(world: &World, cell: CellId, lod: u32) -> u64 {
+    let texels = world.lod0_texels[cell as usize] as u64 * (1u64 << (2 * lod));
+    texels * (BAKE_BYTES_PER_TEXEL + PAGE_BYTES_PER_TEXEL)
+}
+
+/// A cell bake holds its texels (~68 B), sums per lane (28 B × lanes, 2 by default, plus the
+/// reduced copy), the running totals (56 B), sources and variance (~40 B): ~250 B a texel.
+const BAKE_BYTES_PER_TEXEL: u64 = 256;
+/// A published texel is 16 B in a page; pages are partly filled (charts, other cells).
+const PAGE_BYTES_PER_TEXEL: u64 = 32;
+
+/// Bytes counted against the budget: shown pages and bakes in progress.
+fn budgeted_bytes(shared: &Shared, st: &State) -> u64 {
+    shared.shown().page_bytes() as u64 + st.bake_bytes
+}
+
+/// Frees memory until `need` more bytes fit the budget, taking from what matters less than
+/// `for_cell`: first parked bakes and finest levels of cells shown finer than they need, then
+/// those of cells farther from the camera than `for_cell`, farthest first. Returns whether
+/// it fits.
+fn make_room(shared: &Shared, st: &mut State, for_cell: CellId, need: u64) -> bool {
+    let budget = shared.config.memory_budget;
+    let distance = |st: &State, c: CellId| st.cells[c as usize].view.map_or(f32::MAX, |v| v.distance);
+    let mine = distance(st, for_cell);
+    while budgeted_bytes(shared, st) + need > budget {
+        // The cell whose memory matters least: beyond its target first, then farthest.
+        let victim = shared
+            .world
+            .non_empty_cells()
+            .filter(|&c| {
+                let s = &st.cells[c as usize];
+                c != for_cell
+                    && !s.busy
+                    && (s.shown > 0 || s.bake.is_some())
+                    && (s.shown > s.target || distance(st, c) > mine)
+            })
+            .max_by(|&a, &b| {
+                let over = |c: CellId| st.cells[c as usize].shown > st.cells[c as usize].target;
+                (over(a), distance(st, a)).partial_cmp(&(over(b), distance(st, b))).unwrap_or(std::cmp::Ordering::Equal)
+            });
+        let Some(victim) = victim else { return false };
+        let s = &mut st.cells[victim as usize];
+        if let Some(bake) = s.bake.take() {
+            // A parked bake's work is lost; it would be the first thing rebuilt if needed.
+            s.baking_directions = 0;
+            st.bake_bytes -= bake.bytes() as u64;
+            continue;
+        }
+        evict(shared, st, victim);
+    }
+    true
+}
+
+/// Withdraws a cell's finest shown level (its pixels at that LOD) and shows the next coarser.
+fn evict(shared: &Shared, st: &mut State, cell: CellId) {
+    let s = &mut st.cells[cell as usize];
+    let lod = s.shown;
+    if lod == 0 {
+        return;
+    }
+    let pixels = std::mem::take(&mut s.published[lod as usize]);
+    s.shown = lod - 1;
+    s.history.truncate(lod as usize);
+    let mut map = (*shared.shown()).clone();
+    let mut writer = PageWriter::new(&mut map);
+    for p in &pixels {
+        writer.clear(lod, p[0], p[1]);
+    }
+    writer.set_cell_lod(cell, lod - 1);
+    writer.finish();
+    shared.set_shown(map);
+    st.stats.evictions += 1;
+    shared.emit(RuntimeEvent::CellEvicted { cell, lod });
 }
 
 fn worker<P: BackendProvider>(shared: &Shared, provider: &P) {
@@ -656,7 +756,7 @@ fn worker<P: BackendProvider>(shared: &Shared, provider: &P) {
                     return;
                 }
                 if st.first_light && !st.paused && st.failed.is_none() {
-                    if let Some(c) = pick(shared, &st) {
+                    if let Some(c) = pick(shared, &mut st) {
                         let s = &mut st.cells[c as usize];
                         s.busy = true;
                         break (c, s.bake.take());
@@ -702,11 +802,13 @@ fn worker<P: BackendProvider>(shared: &Shared, provider: &P) {
             st.bake_bytes -= bake.bytes() as u64;
             publish(shared, &mut st, &bake, error);
             st.cells[cell as usize].busy = false;
+            st.cells[cell as usize].baking_directions = 0;
             drop(st);
             shared.emit(RuntimeEvent::CellPublished { cell, lod: bake.lod, directions: d, error });
         } else {
             let s = &mut st.cells[cell as usize];
             s.busy = false;
+            s.baking_directions = bake.directions();
             s.bake = Some(bake);
         }
         shared.wake.notify_all();

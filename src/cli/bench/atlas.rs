@@ -1,5 +1,8 @@
-//! Load, unwrap + pack and texel-map times on the bundled scenes and on a large synthetic
-//! one (the 312k-triangle "temple", for scaling).
+//! Load, unwrap + pack and texel-map times on the bundled scenes and on large synthetic ones:
+//! the 312k-triangle "temple" as built (shared vertices), the same as a triangle soup (the
+//! game-asset case: no shared vertices, float noise, coincident copies) and a 1.1 M-triangle
+//! instanced scene (three soup temples and eight rooms under several transforms). Charts per
+//! triangle, fill and covered texels against the budget come with the times.
 
 use std::time::Instant;
 
@@ -7,7 +10,7 @@ use anyhow::Result;
 use serde_json::{Value, json};
 
 use livebake::atlas::{Atlas, AtlasConfig, TexelMap};
-use livebake::reference::scenes::temple;
+use livebake::reference::scenes::{temple, temple_instanced, temple_soup};
 use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 
 use super::{assets, median, seconds};
@@ -19,7 +22,10 @@ pub const SCENES: [&str; 3] = [
     "cornell_2m/cornell_2m.gltf",
 ];
 
-pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
+/// Builds a synthetic scene.
+type SceneMaker = fn() -> Scene;
+
+pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     let runs = if quick { 3 } else { 7 };
     let mut out = Vec::new();
     for name in SCENES {
@@ -30,25 +36,50 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
             load_gltf(&path, &LoadOptions::default())?;
             Ok(seconds(t))
         })?;
-        out.push(scene_times(name, &scene, Some(load), runs)?);
+        out.push(scene_times(name, &scene, Some(load), runs, true, None)?);
     }
     if !quick {
-        out.push(scene_times("synthetic temple", &temple(), None, 3)?);
+        let big: [(&str, SceneMaker); 3] = [
+            ("synthetic temple", temple),
+            ("synthetic temple, triangle soup", temple_soup),
+            ("instanced temples and rooms", temple_instanced),
+        ];
+        // The goals for the temple class of asset (a game asset: a triangle soup).
+        let goals = json!({ "triangles_per_chart_at_least": 8.0, "fill_ratio_at_least": 0.6, "atlas_build_seconds_at_most": 2.0 });
+        for (k, (name, make)) in big.into_iter().enumerate() {
+            ui.say(format!("  {name} ..."));
+            let scene = make();
+            out.push(scene_times(name, &scene, None, 3, k < 2, (k == 1).then(|| goals.clone()))?);
+        }
     }
     Ok(Value::Array(out))
 }
 
-fn scene_times(name: &str, scene: &Scene, load: Option<f64>, runs: usize) -> Result<Value> {
+/// Atlas figures of one scene at the default budget; medians of `runs` builds (the unwrap and
+/// pack times from the same builds). `texel_lod1`: also time the LOD-1 texel map; `goals`:
+/// the goals for this scene, reported beside the figures.
+fn scene_times(
+    name: &str,
+    scene: &Scene,
+    load: Option<f64>,
+    runs: usize,
+    texel_lod1: bool,
+    goals: Option<Value>,
+) -> Result<Value> {
     let geom = SceneGeometry::new(scene);
     let config = AtlasConfig::default();
-    let atlas = Atlas::build(scene, &geom, &config)?;
-    let build = median(runs, || {
+    let mut builds = Vec::with_capacity(runs);
+    for _ in 0..runs.max(1) {
         let t = Instant::now();
-        Atlas::build(scene, &geom, &config)?;
-        Ok(seconds(t))
-    })?;
-    let unwrap = median(runs, || Ok(Atlas::build(scene, &geom, &config)?.stats.unwrap_seconds))?;
-    let pack = median(runs, || Ok(Atlas::build(scene, &geom, &config)?.stats.pack_seconds))?;
+        let atlas = Atlas::build(scene, &geom, &config)?;
+        builds.push((seconds(t), atlas.stats.unwrap_seconds, atlas.stats.pack_seconds));
+    }
+    let mid = |f: fn(&(f64, f64, f64)) -> f64| {
+        let mut v: Vec<f64> = builds.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let atlas = Atlas::build(scene, &geom, &config)?;
     let texels = |lod| {
         median(runs, || {
             let t = Instant::now();
@@ -56,14 +87,28 @@ fn scene_times(name: &str, scene: &Scene, load: Option<f64>, runs: usize) -> Res
             Ok(seconds(t))
         })
     };
+    let texels_lod1 = if texel_lod1 { Some(texels(1)?) } else { None };
+    let covered = atlas.stats.covered_texels_lod0;
     Ok(json!({
         "scene": name,
         "triangles": geom.len(),
+        "faces": atlas.faces.len(),
         "texel_size_m": atlas.texel_size,
         "atlas": [atlas.width, atlas.height],
         "charts": atlas.stats.charts,
+        "triangles_per_chart": geom.len() as f64 / atlas.stats.charts.max(1) as f64,
         "fill_ratio": atlas.stats.fill_ratio,
-        "texels_lod0": atlas.stats.covered_texels_lod0,
-        "median_seconds": { "load": load, "atlas_build": build, "unwrap": unwrap, "pack": pack, "texels_lod0": texels(0)?, "texels_lod1": texels(1)? },
+        "texels_lod0": covered,
+        "texel_budget": config.texel_budget,
+        "covered_over_budget": covered as f64 / config.texel_budget as f64,
+        "median_seconds": {
+            "load": load,
+            "atlas_build": mid(|b| b.0),
+            "unwrap": mid(|b| b.1),
+            "pack": mid(|b| b.2),
+            "texels_lod0": texels(0)?,
+            "texels_lod1": texels_lod1,
+        },
+        "goals": goals,
     }))
 }
