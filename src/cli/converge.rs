@@ -150,6 +150,8 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas).map_err(BakeError::from)?);
     check_lod_sizes(&atlas, 1)?;
     let texels = TexelMap::build(&scene, &geom, &atlas, 0);
+    let bvh = Bvh::for_scene(&scene, &geom);
+    check_node_capacity(&bvh, &config.bundle_config())?;
 
     // Located as probe locates (on the geometry without alpha cut-outs).
     let locate_bvh = Bvh::new(&geom);
@@ -212,8 +214,6 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
         bail!("the reference's E is zero at every point: there is no relative error to measure");
     }
 
-    let bvh = Bvh::for_scene(&scene, &geom);
-    check_node_capacity(&bvh, &config.bundle_config())?;
     let bundle = Arc::new(BundleScene::new(scene.clone(), geom.clone(), atlas.clone(), config.bundle_config()));
     let threads = config.threads();
     let mut backend =
