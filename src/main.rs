@@ -12,10 +12,17 @@ fn main() -> ExitCode {
     }));
     match std::panic::catch_unwind(cli::run) {
         Ok(Ok(())) => ExitCode::SUCCESS,
-        Ok(Err(e)) => {
-            eprintln!("error: {e:#}");
-            ExitCode::FAILURE
-        }
+        Ok(Err(e)) => match e.downcast_ref::<cli::NotConverged>() {
+            // Not a failure: `converge` ran and tells its pipeline the target was not reached.
+            Some(not_converged) => {
+                eprintln!("{not_converged}");
+                ExitCode::from(cli::NotConverged::EXIT_STATUS)
+            }
+            None => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
+            }
+        },
         Err(_) => ExitCode::FAILURE,
     }
 }

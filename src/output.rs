@@ -108,6 +108,18 @@ pub fn write_png(path: &Path, lod: &BakedLod) -> Result<(), OutputError> {
     write_atomically(path, |w| encode(path, w, img, ImageFormat::Png))
 }
 
+/// Writes an 8-bit RGB image as PNG.
+pub fn write_rgb8_png(path: &Path, img: RgbImage) -> Result<(), OutputError> {
+    write_atomically(path, |w| encode(path, w, img, ImageFormat::Png))
+}
+
+/// Writes a text file (CSV and the like).
+pub fn write_text(path: &Path, text: &str) -> Result<(), OutputError> {
+    write_atomically(path, |w| {
+        w.write_all(text.as_bytes()).map_err(|source| OutputError::Io { path: path.to_path_buf(), source })
+    })
+}
+
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), OutputError> {
     write_atomically(path, |w| {
         serde_json::to_writer_pretty(&mut *w, value)

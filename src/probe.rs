@@ -4,7 +4,8 @@
 
 use glam::{Vec2, Vec3};
 
-use crate::atlas::Atlas;
+use crate::atlas::texels::NO_TEXEL;
+use crate::atlas::{Atlas, TexelMap};
 use crate::bake::BakedLod;
 use crate::reference::Bvh;
 use crate::scene::{Rgb, SceneGeometry, Side, TriangleId};
@@ -75,44 +76,65 @@ impl<'a> SurfaceLocator<'a> {
     }
 }
 
-/// Bilinear reads from one baked light-map level.
-pub struct LightmapSampler<'a> {
+/// Where located points read one light-map level: the texel under every pixel (gutters
+/// filled), so a point's bilinear taps can be found once and read from any irradiance per
+/// texel of that level, finished or still accumulating.
+pub struct LightmapLookup<'a> {
     atlas: &'a Atlas,
     lod: u32,
     width: u32,
     height: u32,
-    /// Irradiance per pixel (gutters filled); `None` for pixels outside every chart.
-    pixels: Vec<Option<Rgb>>,
+    /// Texel index per pixel; [`NO_TEXEL`] outside every chart.
+    texel: Vec<u32>,
 }
 
-impl<'a> LightmapSampler<'a> {
-    pub fn new(atlas: &'a Atlas, baked: &BakedLod) -> Self {
-        let values: Vec<Option<Rgb>> = baked.irradiance.iter().map(|e| Some(*e)).collect();
-        LightmapSampler {
+/// Up to four texels and their bilinear weights: what a located point reads.
+#[derive(Clone, Copy, Debug)]
+pub struct BilinearTaps {
+    taps: [(u32, f32); 4],
+    count: usize,
+}
+
+impl BilinearTaps {
+    /// The filtered value of per-texel `value`s; weights renormalised over the taps present.
+    pub fn read(&self, value: impl Fn(usize) -> Rgb) -> Rgb {
+        let mut sum = Rgb::ZERO;
+        let mut wsum = 0.0;
+        for &(t, w) in &self.taps[..self.count] {
+            sum += value(t as usize) * w;
+            wsum += w;
+        }
+        if wsum > 0.0 { sum / wsum } else { Rgb::ZERO }
+    }
+}
+
+impl<'a> LightmapLookup<'a> {
+    pub fn new(atlas: &'a Atlas, texels: &TexelMap) -> Self {
+        let index: Vec<u32> = (0..texels.len() as u32).collect();
+        LightmapLookup {
             atlas,
-            lod: baked.texels.lod,
-            width: baked.texels.width,
-            height: baked.texels.height,
-            pixels: baked.texels.to_image(&values, None),
+            lod: texels.lod,
+            width: texels.width,
+            height: texels.height,
+            texel: texels.to_image(&index, NO_TEXEL),
         }
     }
 
-    /// Irradiance (W/m²) at a located surface point, bilinearly filtered in its side's chart.
-    pub fn irradiance(&self, at: &SurfacePoint) -> Result<Rgb, ProbeError> {
+    /// The taps of a located surface point, in its side's chart.
+    pub fn taps(&self, at: &SurfacePoint) -> Result<BilinearTaps, ProbeError> {
         let face = self.atlas.face(at.tri, at.side).ok_or(ProbeError::BackOfSingleSided)?;
         let [a, b, c] = self.atlas.faces[face as usize].uv;
         let uv = a + (b - a) * at.u + (c - a) * at.v;
         Ok(self.bilinear(uv * (1u32 << self.lod) as f32))
     }
 
-    /// Bilinear filter at a pixel-space position; weights of empty pixels (which gutters make
-    /// impossible next to a chart, but be safe) are dropped and the rest renormalised.
-    fn bilinear(&self, p: Vec2) -> Rgb {
+    /// Bilinear taps at a pixel-space position; empty pixels (which gutters make impossible
+    /// next to a chart, but be safe) are left out and the rest renormalised when read.
+    fn bilinear(&self, p: Vec2) -> BilinearTaps {
         let q = p - Vec2::splat(0.5);
         let base = q.floor();
         let f = q - base;
-        let mut sum = Rgb::ZERO;
-        let mut wsum = 0.0;
+        let mut taps = BilinearTaps { taps: [(0, 0.0); 4], count: 0 };
         for (dx, dy, w) in
             [(0, 0, (1.0 - f.x) * (1.0 - f.y)), (1, 0, f.x * (1.0 - f.y)), (0, 1, (1.0 - f.x) * f.y), (1, 1, f.x * f.y)]
         {
@@ -120,11 +142,29 @@ impl<'a> LightmapSampler<'a> {
             if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 {
                 continue;
             }
-            if let Some(e) = self.pixels[(y as u32 * self.width + x as u32) as usize] {
-                sum += e * w;
-                wsum += w;
+            let t = self.texel[(y as u32 * self.width + x as u32) as usize];
+            if t != NO_TEXEL {
+                taps.taps[taps.count] = (t, w);
+                taps.count += 1;
             }
         }
-        if wsum > 0.0 { sum / wsum } else { Rgb::ZERO }
+        taps
+    }
+}
+
+/// Bilinear reads from one baked light-map level.
+pub struct LightmapSampler<'a> {
+    lookup: LightmapLookup<'a>,
+    irradiance: Vec<Rgb>,
+}
+
+impl<'a> LightmapSampler<'a> {
+    pub fn new(atlas: &'a Atlas, baked: &BakedLod) -> Self {
+        LightmapSampler { lookup: LightmapLookup::new(atlas, &baked.texels), irradiance: baked.irradiance.clone() }
+    }
+
+    /// Irradiance (W/m²) at a located surface point, bilinearly filtered in its side's chart.
+    pub fn irradiance(&self, at: &SurfacePoint) -> Result<Rgb, ProbeError> {
+        Ok(self.lookup.taps(at)?.read(|t| self.irradiance[t]))
     }
 }

@@ -1,6 +1,7 @@
 //! Bundle backends in the bake driver: directions in batches, light jobs per emitter group,
 //! the punctual pass, and the progressive estimate of a whole LOD or a region of one.
 
+use std::ops::ControlFlow;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
@@ -55,6 +56,37 @@ pub fn bake_lod(
     progress: &dyn Progress,
     cancel: &AtomicBool,
 ) -> Result<LodIrradiance, Cancelled> {
+    bake_lod_observed(bundle, bvh, backend, texels, coarser, threads, progress, cancel, &mut |_| {
+        ControlFlow::Continue(())
+    })
+}
+
+/// The running estimate of a bake after a batch, shown to the observer of
+/// [`bake_lod_observed`].
+pub struct BatchDone<'a> {
+    /// Global directions folded in so far.
+    pub directions: u64,
+    pub estimate: &'a ProgressiveEstimate,
+}
+
+/// An observer of a progressive bake: called after every batch; `Break` ends the bake there.
+pub type Observer<'a> = dyn FnMut(&BatchDone) -> ControlFlow<()> + 'a;
+
+/// [`bake_lod`] showing `observe` the running estimate after every batch; `Break` ends the
+/// bake there, with the directions done so far (a prefix of the full bake's: direction `i`
+/// and the batches before it do not depend on how many follow).
+#[allow(clippy::too_many_arguments)]
+pub fn bake_lod_observed(
+    bundle: &BundleScene,
+    bvh: &Bvh,
+    backend: &mut dyn BundleBackend,
+    texels: &TexelMap,
+    coarser: Option<CoarserLod>,
+    threads: usize,
+    progress: &dyn Progress,
+    cancel: &AtomicBool,
+    observe: &mut Observer,
+) -> Result<LodIrradiance, Cancelled> {
     let tables = [TexelTable::of_map(texels)];
     let converged = coarser.map(|c| {
         let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
@@ -63,7 +95,7 @@ pub fn bake_lod(
         source
     });
     let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None };
-    bake_region(bundle, bvh, backend, &region, converged, threads, progress, cancel)
+    bake_region_observed(bundle, bvh, backend, &region, converged, threads, progress, cancel, observe)
 }
 
 /// Texels to bake with a bundle backend, and what lies around them.
@@ -91,6 +123,23 @@ pub fn bake_region(
     threads: usize,
     progress: &dyn Progress,
     cancel: &AtomicBool,
+) -> Result<LodIrradiance, Cancelled> {
+    let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
+    bake_region_observed(bundle, bvh, backend, region, converged, threads, progress, cancel, never_stop)
+}
+
+/// [`bake_region`] with an observer (see [`bake_lod_observed`]).
+#[allow(clippy::too_many_arguments)]
+fn bake_region_observed(
+    bundle: &BundleScene,
+    bvh: &Bvh,
+    backend: &mut dyn BundleBackend,
+    region: &Region,
+    converged: Option<Vec<Rgb>>,
+    threads: usize,
+    progress: &dyn Progress,
+    cancel: &AtomicBool,
+    observe: &mut Observer,
 ) -> Result<LodIrradiance, Cancelled> {
     let texels = &region.texels;
     let config = &bundle.config;
@@ -145,10 +194,13 @@ pub fn bake_region(
         }
         first += count;
         progress.advance(count);
+        if observe(&BatchDone { directions: first, estimate: &estimate }).is_break() {
+            break;
+        }
     }
     progress.end();
     stats.bundle_seconds = t1.elapsed().as_secs_f64();
-    stats.directions = config.directions as u64;
+    stats.directions = first;
     stats.batches = estimate.batches();
     stats.light_directions_per_group = estimate.light_directions();
     stats.unsampled_texels = estimate.unsampled();

@@ -192,26 +192,11 @@ const MAX_LODS: u32 = 8;
 
 /// Bakes `config.lods` levels of `scene`'s light map (lit by `scene.sky` as well as its emitters).
 pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) -> Result<BakeOutput, BakeError> {
-    if config.lods == 0 || config.lods > MAX_LODS {
-        return Err(BakeError::BadLodCount { got: config.lods, max: MAX_LODS });
-    }
-    if config.samples == 0 {
-        return Err(BakeError::NoSamples);
-    }
-    if config.samples > MAX_SAMPLES {
-        return Err(BakeError::TooManySamples { got: config.samples, max: MAX_SAMPLES });
-    }
-    config.bundle_config().validate()?;
+    config.validate()?;
     let started = Instant::now();
     let geom = SceneGeometry::new(scene);
     let atlas = Atlas::build(scene, &geom, &config.atlas)?;
-    let hierarchy = atlas.lods(config.lods);
-    for lod in 0..config.lods {
-        let texels = hierarchy.texel_count(lod);
-        if texels > MAX_LOD_PIXELS {
-            return Err(BakeError::LodTooLarge { lod, texels, max: MAX_LOD_PIXELS });
-        }
-    }
+    check_lod_sizes(&atlas, config.lods)?;
     let mut report = BakeReport::new(scene, &atlas, config);
     let mut lods: Vec<BakedLod> = Vec::new();
     match config.backend {
@@ -264,6 +249,35 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
     }
     report.total_seconds = started.elapsed().as_secs_f64();
     Ok(BakeOutput { atlas, lods, report })
+}
+
+impl BakeConfig {
+    /// Refuses what [`bake`] cannot run: the LOD count, no samples, bundle parameters.
+    pub fn validate(&self) -> Result<(), BakeError> {
+        if self.lods == 0 || self.lods > MAX_LODS {
+            return Err(BakeError::BadLodCount { got: self.lods, max: MAX_LODS });
+        }
+        if self.samples == 0 {
+            return Err(BakeError::NoSamples);
+        }
+        if self.samples > MAX_SAMPLES {
+            return Err(BakeError::TooManySamples { got: self.samples, max: MAX_SAMPLES });
+        }
+        self.bundle_config().validate()?;
+        Ok(())
+    }
+}
+
+/// Refuses an atlas whose LODs 0 … `lods`−1 would not fit in memory.
+pub fn check_lod_sizes(atlas: &Atlas, lods: u32) -> Result<(), BakeError> {
+    let hierarchy = atlas.lods(lods);
+    for lod in 0..lods {
+        let texels = hierarchy.texel_count(lod);
+        if texels > MAX_LOD_PIXELS {
+            return Err(BakeError::LodTooLarge { lod, texels, max: MAX_LOD_PIXELS });
+        }
+    }
+    Ok(())
 }
 
 /// What a backend measured while baking one LOD.

@@ -3,7 +3,9 @@
 
 mod bake;
 mod bench;
+mod converge;
 mod options;
+mod plot;
 mod points;
 mod probe;
 mod progress;
@@ -15,6 +17,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 
+pub use converge::NotConverged;
 pub use options::SceneOptions;
 
 /// Global-illumination light maps for glTF scenes.
@@ -71,6 +74,18 @@ enum Command {
         #[command(flatten)]
         options: SceneOptions,
     },
+    /// Bake LOD 0 progressively and measure its error against a reference as it goes: relative
+    /// RMS error at doubling direction counts in DIR/convergence.json, .csv and .png. Exit
+    /// status 0 when --until is reached within --budget, 3 when not, 1 on errors. --samples N
+    /// is the most directions (default 2^20: hours, the budget ends the run).
+    Converge {
+        /// glTF 2.0 scene (.gltf or .glb).
+        scene: PathBuf,
+        #[command(flatten)]
+        options: SceneOptions,
+        #[command(flatten)]
+        converge: converge::ConvergeOptions,
+    },
     /// The live runtime, headless: LOD 0 at first light, then cells near the camera refined
     /// and swapped to finer LODs; events as JSON lines; at the end the light maps as shown
     /// (DIR/lightmap_lodK.exr), DIR/cells.json and DIR/report.json.
@@ -121,6 +136,7 @@ pub fn run() -> Result<()> {
             probe::run(&scene, &points, out.as_deref(), &options, &ui)
         }
         Some(Command::View { scene, view, options }) => view::run(&scene, &view, &options, &ui).map(|_| ()),
+        Some(Command::Converge { scene, options, converge }) => converge::run(&scene, &options, &converge, &ui),
         Some(Command::Bench { out, only, quick }) => bench::run(&out, &only, quick, &ui),
     }
 }

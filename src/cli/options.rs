@@ -36,8 +36,9 @@ pub struct SceneOptions {
     /// (default 1); run: the most the runtime refines to (default: enough for ~2 cm texels).
     #[arg(long, value_name = "K")]
     pub lods: Option<u32>,
-    /// Samples: bundle directions for the cpu backend (default 256); paths per texel (bake,
-    /// default 16) or per point (probe, default 1024) for the reference backend.
+    /// Samples: bundle directions for the cpu backend (default 256; converge: the most, default
+    /// 2^20, hours); paths per texel (bake, default 16) or per point (probe, default 1024) for the
+    /// reference backend.
     #[arg(long, value_name = "N")]
     pub samples: Option<u32>,
     /// Uniform sky radiance W/(sr·m²) seen by rays leaving the scene.

@@ -15,16 +15,17 @@ use std::process::Command;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use livebake::glam::{DVec3, Vec3};
+use livebake::glam::DVec3;
 use serde_json::{Value, json};
 
 use livebake::bake::{BackendKind, BakeConfig, bake};
 use livebake::probe::{LightmapSampler, SurfaceLocator};
 use livebake::progress::NoProgress;
-use livebake::reference::{Bvh, RelativeRmsError};
+use livebake::reference::Bvh;
 use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 
 use super::{assets, seconds};
+use crate::cli::points::{ReferencePoints, read_reference};
 use crate::cli::progress::Ui;
 
 const TEXEL: f32 = 0.012;
@@ -32,43 +33,22 @@ const TEXEL: f32 = 0.012;
 /// texels: seconds to 10%, 5%, 2% relative RMS error (the figures).
 const CYCLES_SECONDS: [(f64, f64); 3] = [(0.10, 10.0), (0.05, 36.0), (0.02, 180.0)];
 
-struct Reference {
-    points: Vec<(Vec3, Vec3)>,
-    e: Vec<[f64; 3]>,
-    stderr: Vec<[f64; 3]>,
+/// The reference's relative RMS error of per-point estimates (`None`: the point had none).
+fn error_of(reference: &ReferencePoints, e: &[Option<[f64; 3]>]) -> Result<f64> {
+    let got = e
+        .iter()
+        .enumerate()
+        .map(|(k, got)| got.map(DVec3::from).with_context(|| format!("no estimate at point {k}")))
+        .collect::<Result<Vec<DVec3>>>()?;
+    if got.len() != reference.e.len() {
+        bail!("{} estimates for {} reference points", got.len(), reference.e.len());
+    }
+    Ok(reference.relative_rms(|k| got[k]))
 }
 
 fn triple(v: &Value) -> Option<[f64; 3]> {
     let a = v.as_array()?;
     Some([a.first()?.as_f64()?, a.get(1)?.as_f64()?, a.get(2)?.as_f64()?])
-}
-
-fn load_reference(path: &Path) -> Result<Reference> {
-    let doc: Value = serde_json::from_str(&std::fs::read_to_string(path)?)?;
-    let mut r = Reference { points: Vec::new(), e: Vec::new(), stderr: Vec::new() };
-    for p in doc["points"].as_array().context("points")? {
-        let (pos, n) = (triple(&p["p"]).context("p")?, triple(&p["n"]).context("n")?);
-        r.points.push((
-            Vec3::new(pos[0] as f32, pos[1] as f32, pos[2] as f32),
-            Vec3::new(n[0] as f32, n[1] as f32, n[2] as f32),
-        ));
-        r.e.push(triple(&p["E"]).context("E")?);
-        r.stderr.push(triple(&p["E_stderr"]).context("E_stderr")?);
-    }
-    Ok(r)
-}
-
-impl Reference {
-    /// Normalised RMS error of `e` (per point, `None` = missing) with the reference's
-    /// variance removed in quadrature.
-    fn error(&self, e: &[Option<[f64; 3]>]) -> Result<f64> {
-        let mut error = RelativeRmsError::default();
-        for (k, got) in e.iter().enumerate() {
-            let got = got.with_context(|| format!("no estimate at point {k}"))?;
-            error.add(DVec3::from(got), DVec3::from(self.e[k]), DVec3::from(self.stderr[k]));
-        }
-        Ok(error.value())
-    }
 }
 
 /// Time at which a falling error curve crosses `target` (log-log interpolation).
@@ -95,7 +75,7 @@ fn error_at(curve: &[(f64, f64)], t: f64) -> Option<f64> {
 fn whole_command(
     scene: &Path,
     points: &Path,
-    reference: &Reference,
+    reference: &ReferencePoints,
     directions: &[u32],
 ) -> Result<Vec<(u32, f64, f64)>> {
     let exe = std::env::current_exe()?;
@@ -118,14 +98,18 @@ fn whole_command(
         let doc: Value = serde_json::from_str(&std::fs::read_to_string(&out)?)?;
         let e: Vec<Option<[f64; 3]>> =
             doc["points"].as_array().context("points")?.iter().map(|p| triple(&p["E"])).collect();
-        curve.push((d, secs, reference.error(&e)?));
+        curve.push((d, secs, error_of(reference, &e)?));
     }
     let _ = std::fs::remove_file(&out);
     Ok(curve)
 }
 
 /// Bakes the light map with `config` and reads it at the reference points.
-fn bake_and_probe(scene: &std::sync::Arc<Scene>, config: &BakeConfig, reference: &Reference) -> Result<(f64, f64)> {
+fn bake_and_probe(
+    scene: &std::sync::Arc<Scene>,
+    config: &BakeConfig,
+    reference: &ReferencePoints,
+) -> Result<(f64, f64)> {
     let t = Instant::now();
     let baked = bake(scene, config, &NoProgress)?;
     let secs = seconds(t);
@@ -135,19 +119,17 @@ fn bake_and_probe(scene: &std::sync::Arc<Scene>, config: &BakeConfig, reference:
     let lod = baked.lods.last().context("no LOD")?;
     let sampler = LightmapSampler::new(&baked.atlas, lod);
     let e: Vec<Option<[f64; 3]>> = reference
-        .points
+        .queries
         .iter()
-        .map(|&(p, n)| {
-            locator.locate(p, n).and_then(|at| sampler.irradiance(&at)).ok().map(|e| e.as_dvec3().to_array())
-        })
+        .map(|q| locator.locate(q.p, q.n).and_then(|at| sampler.irradiance(&at)).ok().map(|e| e.as_dvec3().to_array()))
         .collect();
-    Ok((secs, reference.error(&e)?))
+    Ok((secs, error_of(reference, &e)?))
 }
 
 pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     let dir = assets().join("cornell_2m");
     let (scene_path, points_path) = (dir.join("cornell_2m.gltf"), dir.join("points.json"));
-    let reference = load_reference(&dir.join("mitsuba_reference.json"))?;
+    let reference = read_reference(&dir.join("mitsuba_reference.json"))?;
     let directions: &[u32] = if quick { &[32, 128, 512] } else { &[16, 32, 64, 128, 256, 512, 1024, 2048] };
     let spps: &[u32] = if quick { &[1, 4] } else { &[1, 2, 4, 8, 16, 32] };
 
@@ -189,7 +171,7 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     Ok(json!({
         "scene": "cornell_2m/cornell_2m.gltf",
         "texel_size_m": TEXEL,
-        "points": reference.points.len(),
+        "points": reference.queries.len(),
         "whole_command": cmd.iter().map(|&(d, t, e)| json!({ "directions": d, "seconds": t, "error": e })).collect::<Vec<_>>(),
         "time_to_error": targets,
         "efficiency": {

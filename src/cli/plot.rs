@@ -1,0 +1,121 @@
+//! The plot `converge` writes: a falling error curve on log-log axes, with the target line.
+
+use std::ops::Range;
+
+use anyhow::{Context, Result, anyhow};
+use image::RgbImage;
+use plotters::prelude::*;
+use plotters::style::{FontStyle, register_font};
+
+const WIDTH: u32 = 900;
+const HEIGHT: u32 = 600;
+/// Plotters' default family: registering the compiled-in font under it covers every text
+/// style plotters picks by itself (there are no system fonts behind it).
+const FONT: &str = "sans-serif";
+
+/// `curve` as (seconds, relative error) points, and the target error when there is one.
+/// Points that cannot sit on log axes (error 0 after the reference's noise is removed, say)
+/// are left out of the drawing; the JSON and CSV keep them.
+pub fn error_curve(title: &str, curve: &[(f64, f64)], target: Option<f64>) -> Result<RgbImage> {
+    register_font(FONT, FontStyle::Normal, epaint_default_fonts::HACK_REGULAR)
+        .map_err(|_| anyhow!("the plot's compiled-in font cannot be read"))?;
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    let shown: Vec<(f64, f64)> = curve.iter().copied().filter(|&(t, e)| positive(t) && positive(e)).collect();
+    let target = target.filter(|&t| positive(t));
+    let xs = decades(shown.iter().map(|p| p.0));
+    let ys = decades(shown.iter().map(|p| p.1).chain(target));
+
+    let mut pixels = vec![0u8; (WIDTH * HEIGHT * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut pixels, (WIDTH, HEIGHT)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, (FONT, 20))
+            .margin(20)
+            .x_label_area_size(50)
+            .y_label_area_size(80)
+            .build_cartesian_2d(xs.clone().log_scale(), ys.log_scale())?;
+        chart
+            .configure_mesh()
+            .x_desc("seconds since the command started (load included)")
+            .y_desc("relative RMS error")
+            .label_style((FONT, 14))
+            .axis_desc_style((FONT, 15))
+            .x_label_formatter(&|v| number(*v))
+            .y_label_formatter(&|v| percent(*v))
+            .draw()?;
+        let blue = RGBColor(31, 90, 180);
+        chart
+            .draw_series(LineSeries::new(shown.iter().copied(), blue.stroke_width(2)))?
+            .label("bundle bake")
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 24, y)], blue.stroke_width(2)));
+        chart.draw_series(shown.iter().map(|&p| Circle::new(p, 4, blue.filled())))?;
+        if let Some(t) = target {
+            let red = RGBColor(200, 40, 40);
+            chart
+                .draw_series(DashedLineSeries::new([(xs.start, t), (xs.end, t)], 10, 6, red.stroke_width(2)))?
+                .label(format!("target {}", percent(t)))
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 24, y)], red.stroke_width(2)));
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .label_font((FONT, 14))
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
+    }
+    RgbImage::from_raw(WIDTH, HEIGHT, pixels).context("the plot's pixel buffer has the wrong size")
+}
+
+/// The whole decades holding `values` (at least one), so a log axis always has labelled
+/// powers of ten at both ends; 0.1–1 when there is nothing to show.
+fn decades(values: impl Iterator<Item = f64>) -> Range<f64> {
+    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| (lo.min(v), hi.max(v)));
+    if !(lo.is_finite() && hi.is_finite()) {
+        return 0.1..1.0;
+    }
+    let (a, b) = (lo.log10().floor(), hi.log10().ceil());
+    // A hair wider, so the powers of ten at the ends are inside the axis and get labels.
+    10f64.powf(a) / EDGE..10f64.powf(if b > a { b } else { a + 1.0 }) * EDGE
+}
+
+/// How far past the end decades an axis reaches.
+const EDGE: f64 = 1.02;
+
+/// A tick label: three decimals at most, no trailing zeros; an exponent below 0.001.
+fn number(v: f64) -> String {
+    if v != 0.0 && v.abs() < 1e-3 {
+        return format!("{v:.0e}");
+    }
+    format!("{v:.3}").trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+fn percent(v: f64) -> String {
+    format!("{}%", number(v * 100.0))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decades_cover_the_values_with_whole_powers_of_ten() {
+        let r = decades([0.013, 0.4].into_iter());
+        assert!((r.start * EDGE - 0.01).abs() < 1e-15 && (r.end / EDGE - 1.0).abs() < 1e-12, "{r:?}");
+        // A single power of ten still gets a decade.
+        let r = decades([10.0].into_iter());
+        assert!((r.start * EDGE - 10.0).abs() < 1e-12 && (r.end / EDGE - 100.0).abs() < 1e-9, "{r:?}");
+        assert_eq!(decades(std::iter::empty()), 0.1..1.0);
+    }
+
+    #[test]
+    fn labels_are_short() {
+        assert_eq!(number(2.0), "2");
+        assert_eq!(number(0.25), "0.25");
+        assert_eq!(number(0.0004), "4e-4");
+        assert_eq!(number(150.0), "150");
+        assert_eq!(percent(0.05), "5%");
+    }
+}
