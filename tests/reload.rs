@@ -263,7 +263,10 @@ fn moving_a_box_resets_only_the_cells_around_it() {
                 assert!(a.stale, "round {round}: far cell {} should be marked stale", a.cell);
             }
         }
-        assert!(reset > 0 && reset == invalidated, "round {round}: {reset} near cells reset, {invalidated} invalidated");
+        assert!(
+            reset > 0 && reset == invalidated,
+            "round {round}: {reset} near cells reset, {invalidated} invalidated"
+        );
         let kept = after.iter().filter(|c| !near(c.cell) && c.shown_lod > 0).count();
         assert!(kept > 10, "round {round}: only {kept} far cells were refined to keep");
         // Light: against clean first lights of the same file.

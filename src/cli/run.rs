@@ -286,7 +286,6 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
 
     let mut first_light: Option<f64> = None;
     let mut last_stats: Option<RuntimeStats> = None;
-    let started = Instant::now();
     let mut failure = None;
     loop {
         let elapsed = runtime.elapsed();
@@ -336,9 +335,10 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     let shown = runtime.shown();
     let cells = runtime.cells();
     let stats = runtime.stats();
-    let world = runtime.world().clone();
+    let world = runtime.world();
+    // On the runtime's clock, as every event's "t" is.
+    let t_end = runtime.elapsed();
     runtime.shutdown()?;
-    let t_end = started.elapsed().as_secs_f64();
     if let Some(error) = failure {
         bail!("the runtime failed on {}: {error}", scene_path.display());
     }

@@ -323,6 +323,7 @@ impl Runtime {
             wake: Condvar::new(),
             shown: RwLock::new(Arc::new(shown)),
             events: tx,
+            emitting: Mutex::new(()),
             dropped: AtomicU64::new(0),
             shutdown: AtomicBool::new(false),
             started,

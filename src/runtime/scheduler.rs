@@ -88,6 +88,8 @@ pub(super) struct Shared {
     pub wake: Condvar,
     pub shown: RwLock<Arc<ShownLightmap>>,
     pub events: Sender<TimedEvent>,
+    /// Held while an event is stamped and sent.
+    pub emitting: Mutex<()>,
     pub dropped: AtomicU64,
     pub shutdown: AtomicBool,
     pub started: Instant,
@@ -99,7 +101,10 @@ impl Shared {
         self.state.lock().unwrap_or_else(|e| e.into_inner())
     }
 
+    /// Sends an event stamped with the time since start. Stamping and sending happen under
+    /// one lock, so events arrive in the order of their times whichever thread sends them.
     pub fn emit(&self, event: RuntimeEvent) {
+        let _order = self.emitting.lock().unwrap_or_else(|e| e.into_inner());
         let e = TimedEvent { t: self.started.elapsed().as_secs_f64(), event };
         if self.events.try_send(e).is_err() {
             self.dropped.fetch_add(1, Ordering::Relaxed);
