@@ -322,6 +322,8 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     let cells = runtime.cells();
     let stats = runtime.stats();
     let world = runtime.world().clone();
+    // On the runtime's clock, as every other event's time.
+    let t_finished = runtime.elapsed();
     runtime.shutdown()?;
     let t_end = started.elapsed().as_secs_f64();
     if let Some(error) = failure {
@@ -394,7 +396,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
             .collect();
         write_results(&mut doc, &results, Some(out), ui)?;
     }
-    log.write(t_end, &json!({"event": "finished", "stats": stats}))?;
+    log.write(t_finished, &json!({"event": "finished", "stats": stats}))?;
     log.flush()?;
     summarise(ui, scene_path, &scene, &stats, &written, &run.out);
     Ok(())
