@@ -13,6 +13,7 @@ pub mod bake;
 pub mod bundle;
 pub mod cpu;
 pub mod export;
+pub mod gpu;
 pub mod grid;
 pub mod lod;
 pub mod output;
@@ -23,6 +24,7 @@ pub mod reference;
 pub mod runtime;
 pub mod sampling;
 pub mod scene;
+pub mod viewer;
 pub mod watch;
 
 pub use glam;

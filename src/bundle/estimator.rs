@@ -1,4 +1,4 @@
-//! The radiance exchange along one bundle ray (DESIGN.md "Units and the estimator").
+//! The radiance exchange along one bundle ray (docs/ARCHITECTURE.md "Units and the estimator").
 //!
 //! A pixel's fragments, ordered by depth along ω, are the surfaces one bundle line crosses.
 //! Between two consecutive fragments, each sees the other: the side of fragment i that looks

@@ -17,8 +17,9 @@
 //! source only adds variance, never bias, since the transport is linear in it.
 //!
 //! The result averages all batches with weights w_b ∝ b², so the first batches, whose
-//! source still lacked bounces, count little (DESIGN.md "Pitfalls"). When the source is
-//! already converged (a finer LOD reading the coarser one), every batch weighs the same.
+//! source still lacked bounces, count little (a plain running mean stays biased low:
+//! −7.6% at 16k directions in a closed room). When the source is already converged (a finer
+//! LOD reading the coarser one), every batch weighs the same.
 
 use glam::DVec3;
 

@@ -8,6 +8,7 @@ mod points;
 mod probe;
 mod progress;
 mod run;
+mod view;
 
 use std::path::PathBuf;
 
@@ -61,6 +62,15 @@ enum Command {
         #[command(flatten)]
         options: SceneOptions,
     },
+    /// Look at a scene in a window, lit by its light map as it bakes (keys in the title).
+    View {
+        /// glTF 2.0 scene (.gltf or .glb).
+        scene: PathBuf,
+        #[command(flatten)]
+        view: view::ViewOptions,
+        #[command(flatten)]
+        options: SceneOptions,
+    },
     /// The live runtime, headless: LOD 0 at first light, then cells near the camera refined
     /// and swapped to finer LODs; events as JSON lines; at the end the light maps as shown
     /// (DIR/lightmap_lodK.exr), DIR/cells.json and DIR/report.json.
@@ -78,7 +88,7 @@ enum Command {
         /// Output JSON.
         #[arg(long, default_value = "bench.json")]
         out: PathBuf,
-        /// Only these sections (atlas, reference, startup, throughput, convergence, tiling).
+        /// Only these sections (atlas, reference, startup, throughput, convergence, tiling, viewer).
         #[arg(long, value_delimiter = ',')]
         only: Vec<String>,
         /// Smaller sample sets and fewer repeats (a smoke run, not a measurement).
@@ -110,6 +120,7 @@ pub fn run() -> Result<()> {
         Some(Command::Probe { scene, points, out, options }) => {
             probe::run(&scene, &points, out.as_deref(), &options, &ui)
         }
+        Some(Command::View { scene, view, options }) => view::run(&scene, &view, &options, &ui).map(|_| ()),
         Some(Command::Bench { out, only, quick }) => bench::run(&out, &only, quick, &ui),
     }
 }

@@ -20,6 +20,7 @@ use livebake::output::{write_json, write_rgb_exr};
 use livebake::probe::{ProbeError, SurfaceLocator};
 use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
 use livebake::scene::{Rgb, Scene};
+use livebake::watch::WatchConfig;
 
 use super::SceneOptions;
 use super::bake::load_scene;
@@ -72,6 +73,9 @@ pub struct RunOptions {
     pub points: Option<PathBuf>,
     #[arg(long, value_name = "OUT.json", requires = "points")]
     pub points_out: Option<PathBuf>,
+    /// Hot reload: watch the scene's files and follow every good save (reload_* events).
+    #[arg(long)]
+    pub watch: bool,
     #[command(flatten)]
     pub runtime: RuntimeOptions,
 }
@@ -86,6 +90,7 @@ impl Default for RunOptions {
             out: PathBuf::from("out"),
             points: None,
             points_out: None,
+            watch: false,
             runtime: RuntimeOptions::default(),
         }
     }
@@ -256,8 +261,12 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     // Ctrl-C ends the run early; the outputs are still written.
     let _ = signal_hook::flag::register(signal_hook::consts::SIGINT, interrupted.clone());
 
-    let runtime = Runtime::start(scene.clone(), config, Arc::new(CpuProvider::new()))
+    let mut runtime = Runtime::start(scene.clone(), config, Arc::new(CpuProvider::new()))
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
+    if run.watch {
+        let watch = WatchConfig { sky: options.sky, ..WatchConfig::default() };
+        runtime.watch(scene_path, watch).with_context(|| format!("cannot watch {}", scene_path.display()))?;
+    }
     // Outputs are made once the scene and the options have proved good (events wait in the
     // runtime's channel meanwhile).
     std::fs::create_dir_all(&run.out)
@@ -310,6 +319,12 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
                         failure = Some(error.clone());
                         break;
                     }
+                    RuntimeEvent::ReloadFailed { path, error } => {
+                        tracing::warn!("reload of {path} failed (the last good scene stays): {error}")
+                    }
+                    RuntimeEvent::ReloadApplied { changed_meshes, invalidated_cells, ms, .. } => tracing::info!(
+                        "reloaded: {changed_meshes} meshes changed, {invalidated_cells} cells re-baked, {ms:.0} ms"
+                    ),
                     _ => {}
                 }
             }

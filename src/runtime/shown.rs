@@ -129,6 +129,22 @@ impl ShownLightmap {
         self.levels.len() as u32
     }
 
+    /// Follows an atlas that grew taller (hot reload: nothing moved, rows were added below):
+    /// every level gets page rows for the new height. A change of width (every pixel index
+    /// moves) needs a new map instead, and is ignored here.
+    pub fn resize(&mut self, atlas_width: u32, atlas_height: u32) {
+        if atlas_width != self.atlas_width || atlas_height <= self.atlas_height {
+            return;
+        }
+        for (k, level) in self.levels.iter_mut().enumerate() {
+            let rows = ((atlas_height as u64) << k).div_ceil(PAGE_SIDE as u64) as u32;
+            let row = Arc::new(vec![None; level.pages_x as usize]);
+            level.rows.resize(rows as usize, row);
+            level.pages_y = rows;
+        }
+        self.atlas_height = atlas_height;
+    }
+
     /// Irradiance (W/m²) of the surface point at world `position` whose light-map UV (of the
     /// side being looked at, LOD-0 texel units) is `uv_lod0`: the cell of the point, its
     /// shown LOD, bilinear within the chart there, blended toward a coarser face-neighbour

@@ -44,12 +44,25 @@ impl World {
         atlas: Arc<Atlas>,
         config: &RuntimeConfig,
     ) -> Result<World, super::RuntimeError> {
-        let bvh = Arc::new(Bvh::for_scene(&scene, &geom));
         let lods = config.levels_for(atlas.texel_size);
         // Cells of at least 16 LOD-0 texels, and at most 512 finest texels, a side.
         let finest = atlas.texel_size / (1u64 << (lods - 1)) as f32;
         let grid =
             Grid::for_scene(&geom, atlas.stats.lit_area, 16.0 * atlas.texel_size, 512.0 * finest, config.cell_size)?;
+        World::with_grid(scene, geom, atlas, config, grid)
+    }
+
+    /// The world of a scene over a given grid (hot reload keeps the grid: cells and their
+    /// shown LODs stay where they are).
+    pub fn with_grid(
+        scene: Arc<Scene>,
+        geom: Arc<SceneGeometry>,
+        atlas: Arc<Atlas>,
+        config: &RuntimeConfig,
+        grid: Grid,
+    ) -> Result<World, super::RuntimeError> {
+        let lods = config.levels_for(atlas.texel_size);
+        let bvh = Arc::new(Bvh::for_scene(&scene, &geom));
         let cell_triangles = CellTriangles::build(&grid, &geom, World::cell_margin(&grid));
         let lod0 = TexelMap::build(&scene, &geom, &atlas, 0);
         let mut lod0_texels = vec![0u32; grid.len()];

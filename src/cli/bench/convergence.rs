@@ -1,6 +1,6 @@
 //! Convergence against an independent reference on the 2 m Cornell-style room
 //! (`assets/cornell_2m`), at 1.2 cm texels, error measured at 332 surface points against
-//! Mitsuba 3 (`mitsuba_reference.json`, 65 536 spp, made with ../shared/tools/mitsuba_ref):
+//! Mitsuba 3 (`mitsuba_reference.json`, 65 536 spp, made with an independent Mitsuba 3 script, see assets/README.md):
 //! normalised RMS error √(Σ(E−E_ref)²/ΣE_ref²) with Mitsuba's own variance removed.
 //!
 //! * `whole_command`: wall time of `livebake probe` (load, unwrap, bake, sample) as the

@@ -7,6 +7,7 @@ mod reference;
 mod startup;
 mod throughput;
 mod tiling;
+mod viewer;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -28,13 +29,14 @@ pub fn assets() -> PathBuf {
 type Bench = fn(bool, &Ui) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 6] = [
+pub const SECTIONS: [(&str, Bench); 7] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
     ("throughput", throughput::run),
     ("convergence", convergence::run),
     ("tiling", tiling::run),
+    ("viewer", viewer::run),
 ];
 
 /// Runs `f` `runs` times and returns the median of its results (seconds or rates).

@@ -1,0 +1,99 @@
+// The viewer's surface pass: albedo × E/π + emission per fragment, depth-tested.
+
+#include "common.inc.wgsl"
+#include "lightmap.inc.wgsl"
+
+struct MaterialUniforms {
+    // Linear base-colour factor (rgb; a unused: light transport is opaque).
+    base_color: vec4<f32>,
+    // Emitted radiance W/(sr·m²) (rgb).
+    emission: vec4<f32>,
+}
+
+@group(0) @binding(0) var<uniform> frame: FrameUniforms;
+
+@group(2) @binding(0) var<uniform> material: MaterialUniforms;
+@group(2) @binding(1) var base_color_texture: texture_2d<f32>;
+@group(2) @binding(2) var emissive_texture: texture_2d<f32>;
+@group(2) @binding(3) var material_sampler: sampler;
+
+struct VertexInput {
+    @location(0) position: vec3<f32>,
+    @location(1) uv0: vec2<f32>,
+    // Atlas UV (LOD-0 texels) of the triangle's front and back face; negative: no face.
+    @location(2) lightmap_front: vec2<f32>,
+    @location(3) lightmap_back: vec2<f32>,
+}
+
+struct VertexOutput {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) world: vec3<f32>,
+    @location(1) uv0: vec2<f32>,
+    @location(2) lightmap_front: vec2<f32>,
+    @location(3) lightmap_back: vec2<f32>,
+}
+
+@vertex
+fn vs_main(v: VertexInput) -> VertexOutput {
+    var out: VertexOutput;
+    out.clip = frame.view_proj * vec4<f32>(v.position, 1.0);
+    out.world = v.position;
+    out.uv0 = v.uv0;
+    out.lightmap_front = v.lightmap_front;
+    out.lightmap_back = v.lightmap_back;
+    return out;
+}
+
+fn lod_colour(k: u32) -> vec3<f32> {
+    let palette = array<vec3<f32>, 8>(
+        vec3<f32>(0.2, 0.3, 1.0), vec3<f32>(0.1, 0.8, 0.9), vec3<f32>(0.2, 0.9, 0.2), vec3<f32>(0.9, 0.9, 0.1),
+        vec3<f32>(1.0, 0.5, 0.1), vec3<f32>(1.0, 0.1, 0.1), vec3<f32>(0.9, 0.2, 0.9), vec3<f32>(1.0, 1.0, 1.0),
+    );
+    return palette[min(k, 7u)];
+}
+
+@fragment
+fn fs_main(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    let base = material.base_color.rgb * textureSample(base_color_texture, material_sampler, in.uv0).rgb;
+    let albedo = clamp(base, vec3<f32>(0.0), vec3<f32>(1.0));
+    let emission = material.emission.rgb * textureSample(emissive_texture, material_sampler, in.uv0).rgb;
+    let uv = select(in.lightmap_back, in.lightmap_front, front);
+    var irradiance = vec3<f32>(0.0);
+    if uv.x >= 0.0 {
+        irradiance = shown_irradiance(in.world, uv);
+    }
+    var radiance = albedo * irradiance / PI + emission;
+    let k = lm_shown_lod(in.world);
+    switch frame.view_mode {
+        case VIEW_CELL_GRID: {
+            // Dark lines where the fragment is within a pixel of a cell face. An axis along
+            // which the surface does not move across the pixel (a wall lying in a cell face)
+            // draws no line: the whole surface would be one.
+            let q = (in.world - lm.grid_origin) / lm.cell_size;
+            let w = fwidth(q);
+            let edge = select(vec3<f32>(1e9), min(fract(q), vec3<f32>(1.0) - fract(q)) / max(w, vec3<f32>(1e-9)), w > vec3<f32>(1e-4));
+            if min(edge.x, min(edge.y, edge.z)) < 1.0 {
+                radiance = vec3<f32>(0.0, 0.0, 0.0);
+            }
+        }
+        case VIEW_IRRADIANCE: {
+            radiance = irradiance / PI;
+        }
+        case VIEW_TEXEL_CHECKER: {
+            // Squares of one texel of the shown LOD: their size on screen is the texel density.
+            let t = vec2<i32>(floor(uv * f32(1u << k)));
+            let odd = ((t.x + t.y) & 1) == 1;
+            radiance = radiance * select(1.0, 0.35, odd) + select(vec3<f32>(0.0), vec3<f32>(0.02), odd);
+        }
+        default: {}
+    }
+    var colour = tone_map(radiance, frame.exposure);
+    if frame.view_mode == VIEW_CELL_LOD {
+        // The LOD's colour, shaded by the lit picture's brightness.
+        colour = lod_colour(k) * (0.3 + 0.7 * dot(colour, vec3<f32>(0.2126, 0.7152, 0.0722)));
+    }
+    if frame.encode_srgb == 1u {
+        colour = srgb_encode(colour);
+    }
+    return vec4<f32>(colour, 1.0);
+}

@@ -1,0 +1,143 @@
+//! `livebake view SCENE`: the scene in a window, lit by the live runtime's light map: LOD 0
+//! at first light, then the cells in view refined in the background.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::{Args, ValueEnum};
+use glam::Vec3;
+use livebake::cpu::CpuProvider;
+use livebake::gpu::layout::ViewMode;
+use livebake::runtime::Runtime;
+use livebake::viewer::camera::parse_pose;
+use livebake::viewer::{DrawSettings, RuntimeLight, ViewerOptions, ViewerReport};
+
+use super::SceneOptions;
+use super::bake::load_scene;
+use super::progress::Ui;
+use super::run::{RuntimeOptions, runtime_config};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum View {
+    Lit,
+    CellLod,
+    CellGrid,
+    Irradiance,
+    TexelChecker,
+}
+
+impl From<View> for ViewMode {
+    fn from(v: View) -> ViewMode {
+        match v {
+            View::Lit => ViewMode::Lit,
+            View::CellLod => ViewMode::CellLod,
+            View::CellGrid => ViewMode::CellGrid,
+            View::Irradiance => ViewMode::Irradiance,
+            View::TexelChecker => ViewMode::TexelChecker,
+        }
+    }
+}
+
+#[derive(Args, Debug, Clone)]
+pub struct ViewOptions {
+    /// Write the last frame to this PNG and exit (after --frames lit frames, default 1).
+    #[arg(long, value_name = "PATH.png")]
+    pub screenshot: Option<PathBuf>,
+    /// Exit after this many frames drawn with light (counted from the first lit frame).
+    #[arg(long, value_name = "N")]
+    pub frames: Option<u32>,
+    /// Start pose: eye and target, metres.
+    #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ", value_parser = parse_pose, allow_hyphen_values = true)]
+    pub camera: Option<(Vec3, Vec3)>,
+    /// Side-by-side stereo (left eye on the left).
+    #[arg(long)]
+    pub stereo: bool,
+    /// Interpupillary distance for --stereo, metres.
+    #[arg(long, value_name = "M", default_value_t = 0.063)]
+    pub ipd: f32,
+    /// Radiance scale before the tone curve (also +/- in the window). Default: from the
+    /// first light map shown (1.5 over its 99th-percentile E/π).
+    #[arg(long)]
+    pub exposure: Option<f32>,
+    /// Window size in pixels.
+    #[arg(long, value_name = "WxH", default_value = "1280x720", value_parser = parse_size)]
+    pub size: (u32, u32),
+    /// Write the run's figures here as JSON (frames, lit frame ms median/p99, first lit frame).
+    #[arg(long, value_name = "PATH.json")]
+    pub stats: Option<PathBuf>,
+    /// What to show first (keys 1-5 switch).
+    #[arg(long, value_enum, default_value_t = View::Lit)]
+    pub view: View,
+    #[command(flatten)]
+    pub runtime: RuntimeOptions,
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once('x').ok_or_else(|| format!("expected WIDTHxHEIGHT, got {s:?}"))?;
+    let parse = |v: &str| v.trim().parse::<u32>().ok().filter(|&n| (16..=8192).contains(&n));
+    match (parse(w), parse(h)) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err(format!("expected WIDTHxHEIGHT with sides of 16 to 8192 pixels, got {s:?}")),
+    }
+}
+
+/// Opens the viewer on `scene_path`; returns when the window closes (or the screenshot is written).
+pub fn run(scene_path: &Path, view: &ViewOptions, options: &SceneOptions, ui: &Ui) -> Result<ViewerReport> {
+    let launched = Instant::now();
+    if let Some(e) = view.exposure
+        && !(e.is_finite() && e > 0.0)
+    {
+        anyhow::bail!("--exposure must be a positive number, got {e}");
+    }
+    if !(view.ipd.is_finite() && view.ipd >= 0.0) {
+        anyhow::bail!("--ipd must be a non-negative number of metres, got {}", view.ipd);
+    }
+    if view.frames == Some(0) {
+        anyhow::bail!("--frames must be at least 1");
+    }
+    let config = runtime_config(options, &view.runtime)?;
+    let (scene, _) = load_scene(scene_path, options)?;
+    let runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new()))
+        .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
+    let mut source = RuntimeLight::new(runtime);
+    let viewer = ViewerOptions {
+        pose: view.camera,
+        settings: DrawSettings {
+            view_mode: view.view.into(),
+            exposure: view.exposure.unwrap_or(1.0),
+            stereo_ipd: view.stereo.then_some(view.ipd),
+        },
+        size: view.size,
+        frames: view.frames.or(view.screenshot.is_some().then_some(1)),
+        screenshot: view.screenshot.clone(),
+        launched,
+        auto_exposure: view.exposure.is_none(),
+    };
+    let report = livebake::viewer::run(&mut source, viewer, None)?;
+    if let Some(path) = &view.stats {
+        livebake::output::write_json(path, &report.to_json())
+            .with_context(|| format!("cannot write {}", path.display()))?;
+    }
+    if let Some(path) = &view.screenshot {
+        ui.say(format!("wrote {}", path.display()));
+    }
+    if let Some(s) = report.first_lit_frame_seconds {
+        ui.say(format!("{} frames on {}; first lit frame {:.2} s after launch", report.frames, report.adapter, s));
+    }
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn size_parses_and_refuses_nonsense() {
+        assert_eq!(parse_size("640x480").unwrap(), (640, 480));
+        assert!(parse_size("640").is_err());
+        assert!(parse_size("0x480").is_err());
+        assert!(parse_size("axb").is_err());
+    }
+}

@@ -1,0 +1,185 @@
+//! `#[repr(C)]` mirrors of the WGSL structs the CPU uploads. Each is checked field by field
+//! against naga's layout of the shader's struct (tests below): a change on one side that the
+//! other misses fails there, not as garbage on screen.
+
+use bytemuck::{Pod, Zeroable};
+
+/// Most light-map LODs the GPU mirror holds (`MAX_LODS` in lightmap.inc.wgsl).
+pub const MAX_LODS: usize = 8;
+
+/// What the surface pass shows (`VIEW_*` in common.inc.wgsl).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+#[repr(u32)]
+pub enum ViewMode {
+    /// albedo × E/π + emission.
+    #[default]
+    Lit = 0,
+    /// Each cell tinted by its shown LOD.
+    CellLod = 1,
+    /// Cell faces drawn as dark lines.
+    CellGrid = 2,
+    /// E/π alone (a white, non-emitting surface).
+    Irradiance = 3,
+    /// A checker of the shown LOD's texels.
+    TexelChecker = 4,
+}
+
+impl ViewMode {
+    pub const ALL: [ViewMode; 5] =
+        [ViewMode::Lit, ViewMode::CellLod, ViewMode::CellGrid, ViewMode::Irradiance, ViewMode::TexelChecker];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ViewMode::Lit => "lit",
+            ViewMode::CellLod => "cell LOD",
+            ViewMode::CellGrid => "cell grid",
+            ViewMode::Irradiance => "irradiance",
+            ViewMode::TexelChecker => "texel checker",
+        }
+    }
+}
+
+/// `FrameUniforms` (common.inc.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct FrameUniforms {
+    pub view_proj: [[f32; 4]; 4],
+    pub eye: [f32; 3],
+    pub exposure: f32,
+    pub view_mode: u32,
+    pub encode_srgb: u32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+}
+
+/// `LodLevel` (lightmap.inc.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, Pod, Zeroable, PartialEq)]
+pub struct LodLevel {
+    pub pages_x: u32,
+    pub pages_y: u32,
+    pub table_offset: u32,
+    pub _pad: u32,
+}
+
+/// `LightmapParams` (lightmap.inc.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct LightmapParams {
+    pub grid_origin: [f32; 3],
+    pub cell_size: f32,
+    pub grid_dims: [u32; 3],
+    pub lod_count: u32,
+    pub atlas_size: [u32; 2],
+    pub blend_band: f32,
+    pub pool_columns: u32,
+    pub levels: [LodLevel; MAX_LODS],
+}
+
+/// `MaterialUniforms` (surface.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct MaterialUniforms {
+    pub base_color: [f32; 4],
+    pub emission: [f32; 4],
+}
+
+/// `ProbePoint` (irradiance_probe.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct ProbePoint {
+    pub position: [f32; 3],
+    pub _pad0: f32,
+    pub uv: [f32; 2],
+    pub _pad1: [f32; 2],
+}
+
+/// One corner of a drawn triangle (vertex buffer; `VertexInput` in surface.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct SurfaceVertex {
+    pub position: [f32; 3],
+    pub uv0: [f32; 2],
+    /// Atlas UV (LOD-0 texels) of the front face; negative when the triangle has none.
+    pub lightmap_front: [f32; 2],
+    /// Atlas UV of the back face; negative when the triangle has none.
+    pub lightmap_back: [f32; 2],
+}
+
+impl SurfaceVertex {
+    pub const ATTRIBUTES: [wgpu::VertexAttribute; 4] =
+        wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x2, 2 => Float32x2, 3 => Float32x2];
+
+    pub fn buffer_layout() -> wgpu::VertexBufferLayout<'static> {
+        wgpu::VertexBufferLayout {
+            array_stride: std::mem::size_of::<SurfaceVertex>() as u64,
+            step_mode: wgpu::VertexStepMode::Vertex,
+            attributes: &Self::ATTRIBUTES,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::mem::{offset_of, size_of};
+
+    use super::*;
+    use crate::gpu::shader;
+
+    /// naga's layout of struct `name` in pass `pass`: its size and each member's offset.
+    fn wgsl_layout(pass: &str, name: &str) -> (u32, Vec<(String, u32)>) {
+        let text = shader::source(pass).unwrap();
+        let module = naga::front::wgsl::parse_str(&text).unwrap();
+        let mut layouter = naga::proc::Layouter::default();
+        layouter.update(module.to_ctx()).unwrap();
+        let (handle, ty) = module
+            .types
+            .iter()
+            .find(|(_, t)| t.name.as_deref() == Some(name))
+            .unwrap_or_else(|| panic!("no struct {name} in {pass}"));
+        let naga::TypeInner::Struct { members, span } = &ty.inner else { panic!("{name} is not a struct") };
+        assert_eq!(layouter[handle].size, *span);
+        (*span, members.iter().map(|m| (m.name.clone().unwrap_or_default(), m.offset)).collect())
+    }
+
+    macro_rules! assert_layout {
+        ($pass:expr, $ty:ty, $wgsl:expr, [$($field:ident),* $(,)?]) => {{
+            let (size, members) = wgsl_layout($pass, $wgsl);
+            let rust: Vec<(String, u32)> = vec![$((stringify!($field).to_string(), offset_of!($ty, $field) as u32)),*];
+            assert_eq!(rust, members, "{} member offsets", $wgsl);
+            assert_eq!(size_of::<$ty>() as u32, size, "{} size", $wgsl);
+        }};
+    }
+
+    #[test]
+    fn uniform_structs_match_the_shaders() {
+        assert_layout!(
+            "surface.wgsl",
+            FrameUniforms,
+            "FrameUniforms",
+            [view_proj, eye, exposure, view_mode, encode_srgb, _pad0, _pad1]
+        );
+        assert_layout!("surface.wgsl", MaterialUniforms, "MaterialUniforms", [base_color, emission]);
+        assert_layout!("surface.wgsl", LodLevel, "LodLevel", [pages_x, pages_y, table_offset, _pad]);
+        assert_layout!(
+            "surface.wgsl",
+            LightmapParams,
+            "LightmapParams",
+            [grid_origin, cell_size, grid_dims, lod_count, atlas_size, blend_band, pool_columns, levels]
+        );
+        assert_layout!("irradiance_probe.wgsl", ProbePoint, "ProbePoint", [position, _pad0, uv, _pad1]);
+    }
+
+    /// The vertex buffer's attributes sit where the Rust struct's fields are.
+    #[test]
+    fn vertex_attributes_match_the_struct() {
+        let offsets: Vec<u64> = SurfaceVertex::ATTRIBUTES.iter().map(|a| a.offset).collect();
+        let fields = [
+            offset_of!(SurfaceVertex, position),
+            offset_of!(SurfaceVertex, uv0),
+            offset_of!(SurfaceVertex, lightmap_front),
+            offset_of!(SurfaceVertex, lightmap_back),
+        ];
+        assert_eq!(offsets, fields.map(|f| f as u64));
+    }
+}

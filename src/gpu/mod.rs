@@ -1,0 +1,22 @@
+//! GPU code (wgpu): the shared device, WGSL shaders and their `#[repr(C)]` mirrors, and the
+//! viewer's passes, one file per pass.
+//!
+//! - [`device`]: adapter and device selection, shared by everything on the GPU.
+//! - [`shader`]: the WGSL files under `shaders/` and the include preprocessor.
+//! - [`layout`]: the structs uploaded to the GPU, checked against the shaders in tests.
+//! - [`lightmap`]: the shown light map's GPU mirror (partial page uploads).
+//! - [`scene`]: the scene's triangles, materials and textures on the GPU.
+//! - [`surface`]: the surface pass (albedo × E/π + emission, debug views).
+//! - [`probe`]: a compute pass evaluating the light map's sampling function at points.
+//! - [`target`]: render targets and read-back to images.
+
+pub mod device;
+pub mod layout;
+pub mod lightmap;
+pub mod probe;
+pub mod scene;
+pub mod shader;
+pub mod surface;
+pub mod target;
+
+pub use device::{GpuContext, GpuError};

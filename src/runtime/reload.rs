@@ -1,0 +1,244 @@
+//! Hot reload: a good save of the scene's files replaces the world the runtime serves.
+//!
+//! What a change invalidates (docs/ARCHITECTURE.md "Hot reload"):
+//! * meshes moved, edited, added or removed: the atlas is updated in place (unchanged
+//!   meshes keep their charts, so their published pages stay valid); the cells meeting the
+//!   changed meshes' old or new bounds, grown by [`INVALIDATION_MARGIN_CELLS`] cells for
+//!   shadows and bounce, drop to LOD 0 and are re-baked first — one progressive bake of all
+//!   their LOD-0 texels together (multi-bounce among them as at first light; the rest of the
+//!   scene seen through the shown map). Every other cell keeps its LOD but is marked stale:
+//!   its indirect light predates the change; a stale cell is refreshed (re-baked at its
+//!   shown LOD) when no refinement is waiting, or refined (which refreshes it too);
+//! * a light, the sky or a material changed, or nothing fitted in the atlas (a full repack):
+//!   everything is affected; LOD 0 is re-baked everywhere at once, keeping the grid.
+//!
+//! The new world is served (`reload_applied`) once its LOD 0 is published where it was
+//! invalidated (`reload_relit`); until then the old one is, so nothing is ever half applied.
+//! Workers wait while the re-bake runs (it uses every core).
+
+use std::collections::BTreeSet;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+use glam::Vec3;
+
+use super::cell_bake::filter_within_charts;
+use super::scheduler::{CellState, Shared, bake_first_light, empty_shown, update_views};
+use super::shown::{PageWriter, ShownLightmap};
+use super::source::ShownSource;
+use super::world::World;
+use super::{RuntimeError, RuntimeEvent};
+use crate::atlas::Atlas;
+use crate::atlas::sparse::SparseTexels;
+use crate::atlas::update::MeshOrigin;
+use crate::bake::bundle::{Region, bake_region};
+use crate::grid::CellId;
+use crate::progress::NoProgress;
+use crate::scene::{Rgb, Scene, SceneGeometry};
+use crate::watch::{SceneDiff, SceneWatcher, WatchEvent};
+
+/// Cells around a changed mesh's bounds that are re-baked with it: its shadows and the light
+/// it bounces reach its neighbourhood first. Farther cells are refreshed later (stale).
+pub const INVALIDATION_MARGIN_CELLS: f32 = 2.0;
+
+pub(super) fn watch_thread(shared: &Shared, watcher: SceneWatcher) {
+    loop {
+        if shared.shutdown.load(Ordering::SeqCst) {
+            return;
+        }
+        let event = match watcher.events().recv_timeout(std::time::Duration::from_millis(100)) {
+            Ok(e) => e,
+            Err(crossbeam_channel::RecvTimeoutError::Timeout) => continue,
+            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => return,
+        };
+        match event {
+            WatchEvent::Started { paths, .. } => shared
+                .emit(RuntimeEvent::ReloadStarted { paths: paths.iter().map(|p| p.display().to_string()).collect() }),
+            WatchEvent::Failed { path, error, .. } => {
+                shared.emit(RuntimeEvent::ReloadFailed { path: path.display().to_string(), error })
+            }
+            WatchEvent::Loaded { scene, seen_at, .. } => {
+                if let Err(e) = apply(shared, scene, seen_at) {
+                    let path = shared.lock().world.scene.source.as_ref().map(|p| p.display().to_string());
+                    shared.emit(RuntimeEvent::ReloadFailed { path: path.unwrap_or_default(), error: e.to_string() });
+                }
+            }
+        }
+    }
+}
+
+/// Replaces the world with `scene`'s (see the module docs).
+pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Result<(), RuntimeError> {
+    let old = shared.lock().world.clone();
+    let diff = SceneDiff::between(&old.scene, &scene);
+    let ms = || seen_at.elapsed().as_secs_f64() * 1e3;
+    if diff.is_empty() {
+        shared.emit(RuntimeEvent::ReloadApplied { changed_meshes: 0, invalidated_cells: 0, repacked: false, ms: ms() });
+        shared.emit(RuntimeEvent::ReloadRelit { ms: ms() });
+        return Ok(());
+    }
+    let geom = Arc::new(SceneGeometry::new(&scene));
+    let mut origins = vec![MeshOrigin::Added; scene.meshes.len()];
+    for &(o, n) in &diff.unchanged {
+        origins[n] = MeshOrigin::Unchanged(o as u32);
+    }
+    for c in &diff.changed {
+        origins[c.new] = MeshOrigin::Changed(c.old as u32);
+    }
+    let (atlas, update) = Atlas::update(&old.atlas, &scene, &geom, &shared.config.atlas, &origins)?;
+    let changed_meshes = diff.changed.len() + diff.added.len() + diff.removed.len();
+    let everything = diff.lights_changed || diff.sky_changed || diff.materials_changed;
+    let relaid = update.repacked || atlas.width != old.atlas.width;
+    let world = Arc::new(World::with_grid(scene, geom, Arc::new(atlas), &shared.config, old.grid)?);
+    let grid = world.grid;
+
+    // The cells to re-bake at LOD 0.
+    let invalid: BTreeSet<CellId> = if everything || relaid {
+        world.non_empty_cells().collect()
+    } else {
+        let margin = INVALIDATION_MARGIN_CELLS * grid.cell_size;
+        let mut set: BTreeSet<CellId> =
+            diff.touched_bounds().flat_map(|b| grid.cells_meeting(b.min, b.max, margin).collect::<Vec<_>>()).collect();
+        // Cells that gained or lost all their texels.
+        set.extend(
+            (0..grid.len() as u32)
+                .filter(|&c| (old.lod0_texels[c as usize] > 0) != (world.lod0_texels[c as usize] > 0)),
+        );
+        set.retain(|&c| world.lod0_texels[c as usize] > 0);
+        set
+    };
+
+    let threads = shared.config.threads();
+    let mut backend =
+        (shared.make_backend)(&world.bundle, threads).map_err(|e| RuntimeError::Backend(e.to_string()))?;
+    // Pause the workers: the re-bake takes every core, and nothing may be published into
+    // the map being rebuilt.
+    shared.lock().relighting = true;
+    let result = if everything || relaid {
+        bake_first_light(&world, backend.as_mut(), threads, empty_shown(&world), &shared.shutdown)
+            .map(|(map, owned, _)| (map, owned))
+    } else {
+        relight(shared, &world, backend.as_mut(), &invalid, threads)
+    };
+    let mut st = shared.lock();
+    st.relighting = false;
+    let (map, owned) = match result {
+        Ok(r) => r,
+        Err(e) => {
+            drop(st);
+            shared.wake.notify_all();
+            return Err(RuntimeError::FirstLight(e));
+        }
+    };
+    // Swap: the new world, its map, the cell table.
+    st.generation += 1;
+    st.world = world.clone();
+    // Every bake in progress is of the old scene: parked ones are dropped here, those a worker
+    // holds when it brings them back (their generation is old).
+    for s in st.cells.iter_mut() {
+        s.bake = None;
+        s.baking_directions = 0;
+    }
+    st.bake_bytes = 0;
+    let full = everything || relaid;
+    for c in 0..grid.len() as u32 {
+        let s = &mut st.cells[c as usize];
+        if full || invalid.contains(&c) {
+            let busy = s.busy;
+            *s = CellState { busy, ..CellState::default() };
+            s.history = vec![(shared.config.bundle.directions as u64, f32::NAN)];
+            s.published = vec![owned[c as usize].clone()];
+        } else if world.lod0_texels[c as usize] > 0 {
+            s.stale = true;
+        }
+    }
+    update_views(shared, &mut st);
+    shared.set_shown(map);
+    drop(st);
+    shared.wake.notify_all();
+    let t = ms();
+    shared.emit(RuntimeEvent::ReloadApplied {
+        changed_meshes,
+        invalidated_cells: invalid.len(),
+        repacked: relaid,
+        ms: t,
+    });
+    shared.emit(RuntimeEvent::ReloadRelit { ms: t });
+    Ok(())
+}
+
+/// Re-bakes LOD 0 of the `invalid` cells of the new `world` together and returns the shown
+/// map with it published and every other cell's levels kept, and the LOD-0 pixels each cell
+/// owns (for the invalid cells).
+fn relight(
+    shared: &Shared,
+    world: &World,
+    backend: &mut dyn crate::bundle::BundleBackend,
+    invalid: &BTreeSet<CellId>,
+    threads: usize,
+) -> Result<(ShownLightmap, Vec<Vec<[u32; 2]>>), String> {
+    let grid = world.grid;
+    let mut map = (*shared.shown()).clone();
+    map.resize(world.atlas.width, world.atlas.height);
+    // Withdraw everything the invalid cells showed (their texels may have moved in the atlas),
+    // and whatever lies in the charts laid out anew.
+    {
+        let st = shared.lock();
+        let mut writer = PageWriter::new(&mut map);
+        for &c in invalid {
+            for (lod, pixels) in st.cells[c as usize].published.iter().enumerate() {
+                for p in pixels {
+                    writer.clear(lod as u32, p[0], p[1]);
+                }
+            }
+            writer.set_cell_lod(c, 0);
+        }
+        writer.finish();
+    }
+    // The region: every invalid cell's LOD-0 texels.
+    let mut is_invalid = vec![false; grid.len()];
+    for &c in invalid {
+        is_invalid[c as usize] = true;
+    }
+    let mut core: Vec<u32> = invalid.iter().flat_map(|&c| world.cell_triangles.of(c).iter().copied()).collect();
+    core.sort_unstable();
+    core.dedup();
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for &c in invalid {
+        let (a, b) = world.cell_box(c);
+        lo = lo.min(a);
+        hi = hi.max(b);
+    }
+    let texels = SparseTexels::build(&world.scene, &world.geom, &world.atlas, 0, &core, lo, hi, |p| {
+        is_invalid[grid.cell_of(p) as usize]
+    });
+    let reach = Vec3::splat(world.texel_size(0) * 1.5);
+    let source = ShownSource { shown: Arc::new(map.clone()), bundle: world.bundle.clone() };
+    let region = Region {
+        texels: texels.view(),
+        tables: &texels.tables,
+        window: Some((lo - reach, hi + reach)),
+        foreign: Some(&source),
+    };
+    let baked = bake_region(&world.bundle, &world.bvh, backend, &region, None, threads, &NoProgress, &shared.shutdown)
+        .map_err(|e| e.to_string())?;
+    let noisy: Vec<Rgb> = baked.irradiance.iter().zip(&baked.punctual).map(|(e, d)| *e - *d).collect();
+    let values: Vec<Rgb> = filter_within_charts(&texels.pixel, |i| texels.table_of(i), &noisy)
+        .into_iter()
+        .zip(&baked.punctual)
+        .map(|(n, d)| n + *d)
+        .collect();
+    let mut owned = vec![Vec::new(); grid.len()];
+    let mut writer = PageWriter::new(&mut map);
+    for (i, p) in texels.pixel.iter().enumerate() {
+        writer.write(0, p[0], p[1], values[i]);
+        owned[grid.cell_of(texels.position[i]) as usize].push(*p);
+    }
+    for &(g, t) in &texels.gutter {
+        writer.write(0, g[0], g[1], values[t as usize]);
+        owned[grid.cell_of(texels.position[t as usize]) as usize].push(g);
+    }
+    writer.finish();
+    Ok((map, owned))
+}

@@ -1,0 +1,153 @@
+//! Where the viewer's light comes from: the one place the live runtime plugs in.
+//!
+//! The viewer draws whatever a [`LightSource`] shows: the scene and atlas (replaced on a
+//! reload, with a new generation), and the latest [`ShownLightmap`] snapshot.
+//! [`RuntimeLight`] is the live runtime; [`shown_from_bake`] shows a finished bake.
+
+use std::sync::Arc;
+
+use glam::Vec3;
+
+use super::camera::Camera;
+use crate::atlas::Atlas;
+use crate::atlas::texels::NO_TEXEL;
+use crate::bake::BakeOutput;
+use crate::grid::{Grid, GridError};
+use crate::runtime::shown::{PageWriter, ShownLightmap};
+use crate::runtime::{CameraView, Runtime, RuntimeEvent, TimedEvent};
+use crate::scene::Scene;
+
+/// The scene a source lights and its atlas; `generation` changes when either is replaced.
+#[derive(Clone)]
+pub struct SceneState {
+    pub generation: u64,
+    pub scene: Arc<Scene>,
+    pub atlas: Arc<Atlas>,
+}
+
+/// What the viewer's title shows about the source.
+#[derive(Clone, Debug, Default)]
+pub struct SourceStatus {
+    /// Work waiting (cells queued for baking), when the source has a queue.
+    pub queued: Option<usize>,
+    /// Milliseconds the last reload took.
+    pub last_reload_ms: Option<f64>,
+    pub last_error: Option<String>,
+    /// A short state word ("baking", "refining", "done").
+    pub state: String,
+}
+
+pub trait LightSource {
+    fn scene(&self) -> SceneState;
+    /// The light map to show; `None` before the first light.
+    fn shown(&self) -> Option<Arc<ShownLightmap>>;
+    /// Where the viewer looks (a runtime refines what is seen first).
+    fn set_camera(&mut self, camera: &Camera, aspect: f32, height_px: u32);
+    fn status(&self) -> SourceStatus;
+    /// Takes the source's news (events); called once a frame.
+    fn poll(&mut self) {}
+    /// Stops background work; called once when the viewer closes. An error is what went
+    /// wrong in the background (a worker that panicked).
+    fn shutdown(&mut self) -> Result<(), String>;
+}
+
+/// A finished bake as a shown light map: every LOD's texels (and the gutter pixels copying
+/// them) published, every cell of `grid` showing the finest LOD.
+pub fn shown_from_bake(baked: &BakeOutput, grid: Grid, blend_band: f32) -> ShownLightmap {
+    let (w, h) = (baked.atlas.width, baked.atlas.height);
+    let mut shown = ShownLightmap::new(grid, w, h, baked.lods.len() as u32, blend_band);
+    let mut writer = PageWriter::new(&mut shown);
+    for (k, lod) in baked.lods.iter().enumerate() {
+        let t = &lod.texels;
+        let pixel = |p: u32| (p % t.width, p / t.width);
+        for (i, &p) in t.pixel.iter().enumerate() {
+            let (x, y) = pixel(p);
+            writer.write(k as u32, x, y, lod.irradiance[i]);
+        }
+        for &(p, i) in &t.gutter {
+            if i != NO_TEXEL {
+                let (x, y) = pixel(p);
+                writer.write(k as u32, x, y, lod.irradiance[i as usize]);
+            }
+        }
+    }
+    let top = baked.lods.len().saturating_sub(1) as u32;
+    for cell in 0..grid.len() as u32 {
+        writer.set_cell_lod(cell, top);
+    }
+    writer.finish();
+    shown
+}
+
+/// A grid of cubic cells of side `cell_size` over the scene's bounds.
+pub fn grid_over(scene: &Scene, cell_size: f32) -> Result<Grid, GridError> {
+    let (lo, hi) = scene.bounds().ok_or(GridError::BadBounds)?;
+    Grid::covering(lo, hi, cell_size)
+}
+
+/// The live runtime as the viewer's light: LOD 0 at first light, then the cells the
+/// camera sees refined in the background and swapped in as they converge.
+pub struct RuntimeLight {
+    runtime: Option<Runtime>,
+    state: SceneState,
+    last_error: Option<String>,
+}
+
+impl RuntimeLight {
+    pub fn new(runtime: Runtime) -> RuntimeLight {
+        let world = runtime.world();
+        let state = SceneState { generation: 0, scene: world.scene.clone(), atlas: world.atlas.clone() };
+        RuntimeLight { runtime: Some(runtime), state, last_error: None }
+    }
+}
+
+impl LightSource for RuntimeLight {
+    fn scene(&self) -> SceneState {
+        self.state.clone()
+    }
+
+    fn shown(&self) -> Option<Arc<ShownLightmap>> {
+        let runtime = self.runtime.as_ref()?;
+        runtime.has_first_light().then(|| runtime.shown())
+    }
+
+    fn set_camera(&mut self, camera: &Camera, aspect: f32, height_px: u32) {
+        if let Some(runtime) = &self.runtime {
+            runtime.set_camera(CameraView {
+                eye: camera.eye,
+                target: camera.look_target(),
+                up: Vec3::Y,
+                yfov: camera.yfov,
+                aspect,
+                height_px,
+            });
+        }
+    }
+
+    fn poll(&mut self) {
+        let Some(runtime) = &self.runtime else { return };
+        while let Ok(TimedEvent { event, .. }) = runtime.events().try_recv() {
+            if let RuntimeEvent::Failed { error } = event {
+                self.last_error = Some(error);
+            }
+        }
+    }
+
+    fn status(&self) -> SourceStatus {
+        let Some(runtime) = &self.runtime else { return SourceStatus::default() };
+        let stats = runtime.stats();
+        let state = if runtime.has_first_light() {
+            format!("refining, {:.1} M texel-samples/s", stats.texel_samples_per_second / 1e6)
+        } else {
+            "first light...".to_string()
+        };
+        SourceStatus { queued: Some(stats.queue), last_reload_ms: None, last_error: self.last_error.clone(), state }
+    }
+
+    fn shutdown(&mut self) -> Result<(), String> {
+        match self.runtime.take() {
+            Some(runtime) => runtime.shutdown().map_err(|e| e.to_string()),
+            None => Ok(()),
+        }
+    }
+}

@@ -1,0 +1,397 @@
+//! Hot reload through the runtime, with the real watcher on real files in a temp dir: a box
+//! moved in the file (saved in place and by temp file + rename), bad saves, and a soak of
+//! rapid saves. Every wait has a generous timeout ([`PATIENCE`]): the machine may be loaded,
+//! and nothing here asserts speed (the bench measures reload latency).
+
+mod support;
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use glam::{Vec2, Vec3};
+use livebake::cpu::CpuProvider;
+use livebake::probe::SurfaceLocator;
+use livebake::runtime::world::World;
+use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent};
+use livebake::scene::{LoadOptions, Scene, load_gltf};
+use livebake::watch::{SceneDiff, WatchConfig};
+use serde_json::json;
+use support::Doc;
+
+const PATIENCE: Duration = Duration::from_secs(120);
+
+/// A closed 8 × 3 × 4 m room (single-sided walls facing in, albedo 0.6), a 1 m lamp under the
+/// ceiling, and box `i` (a 0.8 m cube, the same mesh on every node) on the floor at `boxes[i]`.
+fn room(boxes: &[[f32; 3]]) -> (Vec<u8>, Vec<u8>) {
+    let mut d = Doc::new();
+    let white = d.push(
+        "materials",
+        json!({"pbrMetallicRoughness": {"baseColorFactor": [0.6, 0.6, 0.6, 1.0], "metallicFactor": 0.0}}),
+    );
+    let lamp = d.push("materials", json!({"emissiveFactor": [1.0, 1.0, 1.0], "extensions": {"KHR_materials_emissive_strength": {"emissiveStrength": 12.0}}, "pbrMetallicRoughness": {"baseColorFactor": [0.0, 0.0, 0.0, 1.0]}}));
+    d.json["extensionsUsed"] = json!(["KHR_materials_emissive_strength"]);
+    let quad = |d: &mut Doc, c: [[f32; 3]; 4], material: usize, name: &str| {
+        let prim = d.prim(&c, None, Some(&[0u16, 1, 2, 0, 2, 3]));
+        let mut prim = prim;
+        prim["material"] = json!(material);
+        let mesh = d.push("meshes", json!({"name": name, "primitives": [prim]}));
+        let node = d.push("nodes", json!({"name": name, "mesh": mesh}));
+        d.add_root(node);
+    };
+    let (x, y, z) = (8.0, 3.0, 4.0);
+    quad(&mut d, [[0.0, 0.0, 0.0], [0.0, 0.0, z], [x, 0.0, z], [x, 0.0, 0.0]], white, "floor");
+    quad(&mut d, [[0.0, y, 0.0], [x, y, 0.0], [x, y, z], [0.0, y, z]], white, "ceiling");
+    quad(&mut d, [[0.0, 0.0, 0.0], [x, 0.0, 0.0], [x, y, 0.0], [0.0, y, 0.0]], white, "back");
+    quad(&mut d, [[0.0, 0.0, z], [0.0, y, z], [x, y, z], [x, 0.0, z]], white, "front");
+    quad(&mut d, [[0.0, 0.0, 0.0], [0.0, y, 0.0], [0.0, y, z], [0.0, 0.0, z]], white, "left");
+    quad(&mut d, [[x, 0.0, 0.0], [x, 0.0, z], [x, y, z], [x, y, 0.0]], white, "right");
+    quad(&mut d, [[3.5, 2.98, 1.5], [4.5, 2.98, 1.5], [4.5, 2.98, 2.5], [3.5, 2.98, 2.5]], lamp, "lamp");
+    let (p, n, idx) = cube(0.8);
+    let mut prim = d.prim(&p, Some(&n), Some(&idx));
+    prim["material"] = json!(white);
+    let mesh = d.push("meshes", json!({"name": "box", "primitives": [prim]}));
+    for (i, t) in boxes.iter().enumerate() {
+        let node = d.push("nodes", json!({"name": format!("box{i}"), "mesh": mesh, "translation": t}));
+        d.add_root(node);
+    }
+    let gltf = serde_json::to_vec_pretty(&d.json_with_buffer(Some("room.bin".into()))).unwrap();
+    (gltf, d.bin)
+}
+
+/// A cube `[0, s]³`, faces CCW seen from outside.
+fn cube(s: f32) -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u16>) {
+    let faces: [([f32; 3], [[f32; 3]; 4]); 6] = [
+        ([-1.0, 0.0, 0.0], [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, 1.0, 0.0]]),
+        ([1.0, 0.0, 0.0], [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 1.0, 1.0], [1.0, 0.0, 1.0]]),
+        ([0.0, -1.0, 0.0], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]]),
+        ([0.0, 1.0, 0.0], [[0.0, 1.0, 0.0], [0.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 0.0]]),
+        ([0.0, 0.0, -1.0], [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),
+        ([0.0, 0.0, 1.0], [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]]),
+    ];
+    let (mut p, mut n, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+    for (normal, corners) in faces {
+        let base = p.len() as u16;
+        p.extend(corners.map(|c| c.map(|v| v * s)));
+        n.extend([normal; 4]);
+        idx.extend([base, base + 1, base + 2, base, base + 2, base + 3]);
+    }
+    (p, n, idx)
+}
+
+const BOXES: [[f32; 3]; 2] = [[1.0, 0.0, 1.6], [6.2, 0.0, 1.6]];
+
+fn moved() -> [[f32; 3]; 2] {
+    [[1.6, 0.0, 1.0], BOXES[1]]
+}
+
+fn save(path: &Path, bytes: &[u8], by_rename: bool) {
+    if by_rename {
+        let tmp = path.with_file_name(format!(".{}.tmp", path.file_name().unwrap().to_string_lossy()));
+        std::fs::write(&tmp, bytes).unwrap();
+        std::fs::rename(&tmp, path).unwrap();
+    } else {
+        std::fs::write(path, bytes).unwrap();
+    }
+}
+
+fn write_room(dir: &Path, boxes: &[[f32; 3]], by_rename: bool) -> PathBuf {
+    let (gltf, bin) = room(boxes);
+    save(&dir.join("room.bin"), &bin, by_rename);
+    let path = dir.join("room.gltf");
+    save(&path, &gltf, by_rename);
+    path
+}
+
+fn load(path: &Path) -> Arc<Scene> {
+    Arc::new(load_gltf(path, &LoadOptions::default()).expect("load"))
+}
+
+fn config() -> RuntimeConfig {
+    // Half-metre cells: a box's neighbourhood (two cells around it) is a small part of the room.
+    let mut c = RuntimeConfig {
+        lods: Some(2),
+        cell_size: Some(0.5),
+        min_directions: 16,
+        max_directions: 48,
+        threads: Some(2),
+        ..RuntimeConfig::default()
+    };
+    c.atlas.texel_budget = 12_000;
+    c.bundle.directions = 64;
+    c
+}
+
+fn camera() -> CameraView {
+    CameraView::looking_at(Vec3::new(4.0, 1.5, 3.8), Vec3::new(4.0, 1.0, 0.0))
+}
+
+fn start(path: &Path) -> Runtime {
+    let mut runtime = Runtime::start(load(path), config(), Arc::new(CpuProvider::new())).expect("start");
+    runtime.watch(path, WatchConfig::default()).expect("watch");
+    runtime.set_camera(camera());
+    runtime.wait_first_light(PATIENCE).expect("first light");
+    runtime
+}
+
+/// Events until `until` says stop; panics on `Failed` or after [`PATIENCE`].
+fn wait_for(runtime: &Runtime, what: &str, mut until: impl FnMut(&RuntimeEvent) -> bool) {
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match runtime.events().recv_timeout(left) {
+            Ok(e) => {
+                if let RuntimeEvent::Failed { error } = &e.event {
+                    panic!("runtime failed: {error}");
+                }
+                if until(&e.event) {
+                    return;
+                }
+            }
+            Err(_) => panic!("timed out waiting for {what}"),
+        }
+    }
+}
+
+/// The floor's irradiance at a grid of points over the room, read from the shown map's LOD 0
+/// (the level a reload re-bakes; finer levels differ from a first light by their resolution).
+fn floor_samples(world: &World, shown: &livebake::runtime::shown::ShownLightmap) -> Vec<f64> {
+    let locator = SurfaceLocator::new(&world.geom, &world.bvh);
+    let mut out = Vec::new();
+    for i in 0..32 {
+        for j in 0..16 {
+            let p = Vec3::new(0.125 + i as f32 * 0.25, 0.0, 0.125 + j as f32 * 0.25);
+            let Ok(at) = locator.locate(p, Vec3::Y) else { continue };
+            if world.geom.normals[at.tri as usize].y < 0.9 || at.distance > 1e-3 {
+                out.push(f64::NAN); // under a box
+                continue;
+            }
+            let face = world.atlas.face(at.tri, at.side).expect("lit floor");
+            let uv: Vec2 = world.atlas.faces[face as usize].uv_at(at.u, at.v);
+            let e = shown.bilinear(0, uv);
+            out.push(((e.x + e.y + e.z) / 3.0) as f64);
+        }
+    }
+    out
+}
+
+/// RMS of the differences where both have a value, over the RMS of `b`.
+fn relative_rms(a: &[f64], b: &[f64]) -> f64 {
+    let pairs: Vec<(f64, f64)> =
+        a.iter().zip(b).filter(|(x, y)| !x.is_nan() && !y.is_nan()).map(|(x, y)| (*x, *y)).collect();
+    let num: f64 = pairs.iter().map(|(x, y)| (x - y).powi(2)).sum();
+    let den: f64 = pairs.iter().map(|(_, y)| y * y).sum();
+    (num / den).sqrt()
+}
+
+/// First light of `path` in a fresh runtime (no reload), with `seed`.
+fn clean_first_light(path: &Path, seed: u64) -> Vec<f64> {
+    let mut c = config();
+    c.bundle.seed = seed;
+    c.start_paused = true;
+    let runtime = Runtime::start(load(path), c, Arc::new(CpuProvider::new())).expect("start");
+    runtime.wait_first_light(PATIENCE).expect("first light");
+    let samples = floor_samples(&runtime.world(), &runtime.shown());
+    runtime.shutdown().expect("shutdown");
+    samples
+}
+
+/// Moving one box in the file (saved in place, then back by temp file + rename): the reload
+/// events arrive in order; only cells near the box's old and new places drop to LOD 0 (those
+/// meeting its bounds grown by the margin); the far end of the room keeps its LOD; and the
+/// re-baked floor matches a clean first light of the new file. Tolerance: two clean first
+/// lights with different seeds differ by their noise, `n`; the reloaded map's LOD 0 outside
+/// the re-baked cells is older (its refinement read the old scene), so it may differ by more
+/// than noise only where the box's shadow moved: the whole floor must be within 2·n.
+#[test]
+fn moving_a_box_resets_only_the_cells_around_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_room(dir.path(), &BOXES, false);
+    let runtime = start(&path);
+    // Refine every cell to its target.
+    let deadline = Instant::now() + PATIENCE;
+    while runtime.stats().queue > 0 {
+        assert!(Instant::now() < deadline, "not refined: {:?}", runtime.stats().cells_per_lod);
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    for (round, (layout, by_rename)) in [(moved(), false), (BOXES, true)].into_iter().enumerate() {
+        runtime.set_paused(true);
+        // Let units in flight land before looking at the cell table.
+        while runtime.cells().iter().any(|c| c.working) {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let before = runtime.cells();
+        write_room(dir.path(), &layout, by_rename);
+        let (mut started, mut applied, mut relit) = (false, None, false);
+        wait_for(&runtime, "reload_relit", |e| {
+            match e {
+                RuntimeEvent::ReloadStarted { .. } => started = true,
+                RuntimeEvent::ReloadApplied { changed_meshes, invalidated_cells, repacked, .. } => {
+                    assert!(started, "applied before started");
+                    applied = Some((*changed_meshes, *invalidated_cells, *repacked))
+                }
+                RuntimeEvent::ReloadRelit { .. } => relit = applied.is_some(),
+                RuntimeEvent::ReloadFailed { error, .. } => panic!("round {round}: {error}"),
+                _ => {}
+            }
+            relit
+        });
+        let (changed, invalidated, repacked) = applied.expect("applied");
+        assert_eq!(changed, 1, "round {round}: one box moved");
+        assert!(!repacked, "round {round}: a moved box keeps the atlas");
+        let world = runtime.world();
+        assert!(SceneDiff::between(&world.scene, &load(&path)).is_empty(), "the runtime serves the new file");
+        let after = runtime.cells();
+        let grid = world.grid;
+        let margin = 2.0 * grid.cell_size;
+        let near = |c: u32| {
+            let (lo, hi) = grid.bounds(c);
+            [BOXES[0], moved()[0]].iter().any(|b| {
+                let (blo, bhi) = (Vec3::from(*b) - margin, Vec3::from(*b) + Vec3::splat(0.8) + margin);
+                lo.cmple(bhi).all() && hi.cmpge(blo).all()
+            })
+        };
+        // Cells may gain or lose texels near the box; far ones are the same cells as before.
+        let before: std::collections::HashMap<u32, _> = before.into_iter().map(|c| (c.cell, c)).collect();
+        let mut reset = 0;
+        for a in &after {
+            if near(a.cell) {
+                reset += usize::from(a.shown_lod == 0);
+            } else {
+                let b = before.get(&a.cell).expect("a far cell appeared");
+                assert_eq!(a.shown_lod, b.shown_lod, "round {round}: far cell {} lost its LOD", a.cell);
+                assert!(a.stale, "round {round}: far cell {} should be marked stale", a.cell);
+            }
+        }
+        assert!(reset > 0 && reset == invalidated, "round {round}: {reset} near cells reset, {invalidated} invalidated");
+        let kept = after.iter().filter(|c| !near(c.cell) && c.shown_lod > 0).count();
+        assert!(kept > 10, "round {round}: only {kept} far cells were refined to keep");
+        // Light: against clean first lights of the same file.
+        let reloaded = floor_samples(&world, &runtime.shown());
+        let (clean, other) = (clean_first_light(&path, 0), clean_first_light(&path, 1));
+        let noise = relative_rms(&other, &clean);
+        let diff = relative_rms(&reloaded, &clean);
+        eprintln!("round {round}: {invalidated} cells re-baked; noise {noise:.4}, reloaded vs clean {diff:.4}");
+        assert!(diff <= 2.0 * noise, "round {round}: the reloaded floor differs by {diff} (noise {noise})");
+        runtime.set_paused(false);
+    }
+    runtime.shutdown().expect("shutdown");
+}
+
+/// Bad saves keep the last good scene: truncated JSON → reload_failed; a `.bin` shorter than
+/// its buffer → reload_failed (after the watcher's settle time); the `.bin` written first and
+/// the `.gltf` later (Blender's order) → one reload of the matching pair; then a good save
+/// recovers.
+#[test]
+fn bad_saves_keep_the_last_good_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_room(dir.path(), &BOXES, false);
+    let runtime = start(&path);
+    let served = |r: &Runtime| SceneDiff::between(&r.world().scene, &load_good(&BOXES)).is_empty();
+    assert!(served(&runtime));
+    let expect_failure = |what: &str| {
+        let mut failed = false;
+        wait_for(&runtime, what, |e| {
+            match e {
+                RuntimeEvent::ReloadFailed { .. } => failed = true,
+                RuntimeEvent::ReloadApplied { .. } => panic!("{what}: a bad save was applied"),
+                _ => {}
+            }
+            failed
+        });
+    };
+    let (gltf, bin) = room(&moved());
+    std::fs::write(&path, &gltf[..gltf.len() / 2]).unwrap();
+    expect_failure("truncated JSON");
+    assert!(served(&runtime), "the old scene is still served");
+    std::fs::write(dir.path().join("room.bin"), &bin[..bin.len() - 8]).unwrap();
+    std::fs::write(&path, &gltf).unwrap();
+    expect_failure("a short .bin");
+    assert!(served(&runtime), "the old scene is still served");
+    // Blender: the .bin in place first, the .gltf a moment later.
+    std::fs::write(dir.path().join("room.bin"), &bin).unwrap();
+    std::thread::sleep(Duration::from_millis(400));
+    std::fs::write(&path, &gltf).unwrap();
+    let mut applied = 0;
+    wait_for(&runtime, "the matching pair", |e| {
+        match e {
+            RuntimeEvent::ReloadApplied { .. } => applied += 1,
+            RuntimeEvent::ReloadFailed { error, .. } => panic!("the good pair failed: {error}"),
+            _ => {}
+        }
+        matches!(e, RuntimeEvent::ReloadRelit { .. })
+    });
+    assert_eq!(applied, 1);
+    assert!(SceneDiff::between(&runtime.world().scene, &load_good(&moved())).is_empty());
+    runtime.shutdown().expect("shutdown");
+}
+
+/// The scene a good save of `boxes` loads to (written in its own directory).
+fn load_good(boxes: &[[f32; 3]]) -> Arc<Scene> {
+    let dir = tempfile::tempdir().unwrap();
+    load(&write_room(dir.path(), boxes, false))
+}
+
+/// 200 rapid saves, some corrupt, most moving a box: no panic, memory stays flat, and once
+/// the files rest the runtime serves exactly the final file, lit as a clean first light of it
+/// is (within twice the noise between two clean first lights, as above).
+#[test]
+fn soak_of_rapid_saves() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_room(dir.path(), &BOXES, false);
+    let runtime = start(&path);
+    let resident_at_start = runtime.stats().resident_bytes;
+    let mut rng = livebake::sampling::Rng::new(3, 4);
+    let mut last = BOXES;
+    for i in 0..200 {
+        let layout = [[0.5 + rng.next_f32() * 2.0, 0.0, 0.5 + rng.next_f32() * 2.5], BOXES[1]];
+        match i % 5 {
+            0 => {
+                let (gltf, _) = room(&layout);
+                std::fs::write(&path, &gltf[..gltf.len() * 2 / 3]).unwrap(); // truncated
+            }
+            1 => {
+                let (gltf, bin) = room(&layout);
+                std::fs::write(dir.path().join("room.bin"), &bin[..bin.len() / 2]).unwrap(); // half a .bin
+                std::fs::write(&path, &gltf).unwrap();
+            }
+            _ => {
+                write_room(dir.path(), &layout, i % 2 == 0);
+                last = layout;
+            }
+        }
+        std::thread::sleep(Duration::from_millis(10 + (i % 7) * 5));
+        while runtime.events().try_recv().is_ok() {}
+    }
+    // The last save was good (i = 199 → 199 % 5 = 4). Wait until it is served and relit.
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        let served = SceneDiff::between(&runtime.world().scene, &load_good(&last)).is_empty();
+        if served {
+            // Drain what is left; the runtime is quiet once no reload event comes for a while.
+            let quiet = runtime.events().recv_timeout(Duration::from_secs(3));
+            if quiet.is_err() || !matches!(quiet.map(|e| e.event), Ok(RuntimeEvent::ReloadStarted { .. })) {
+                break;
+            }
+        }
+        assert!(Instant::now() < deadline, "the final save was never served");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let stats = runtime.stats();
+    runtime.set_paused(true);
+    while runtime.cells().iter().any(|c| c.working) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let reloaded = floor_samples(&runtime.world(), &runtime.shown());
+    runtime.shutdown().expect("no panic");
+    assert!(
+        (stats.resident_bytes as f64) < resident_at_start as f64 * 3.0,
+        "memory grew from {resident_at_start} to {} bytes",
+        stats.resident_bytes
+    );
+    let (clean, other) = (clean_first_light(&path, 0), clean_first_light(&path, 1));
+    let noise = relative_rms(&other, &clean);
+    let diff = relative_rms(&reloaded, &clean);
+    eprintln!("soak: noise {noise:.4}, final vs clean {diff:.4}");
+    assert!(diff <= 2.0 * noise, "after the soak the floor differs by {diff} (noise {noise})");
+}

@@ -1,0 +1,244 @@
+//! Viewer tests that need no window: the GPU twin of the shown light map's sampling
+//! function, and offscreen renders of the Cornell room. They run on whatever Vulkan adapter
+//! the machine has (Mesa's lavapipe here); nothing is skipped for want of a GPU.
+
+mod viewer_support;
+
+use std::sync::Arc;
+
+use glam::{Vec2, Vec3};
+use livebake::gpu::GpuContext;
+use livebake::gpu::lightmap::{self, LightmapGpu};
+use livebake::gpu::probe::IrradianceProbe;
+use livebake::grid::Grid;
+use livebake::runtime::shown::{PAGE_SIDE, PageWriter, ShownLightmap};
+use livebake::viewer::render::DrawSettings;
+use livebake::viewer::{Camera, Renderer, SceneState};
+use viewer_support::*;
+
+/// xorshift64*: deterministic test data.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> f32 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        ((self.0.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 40) as f32) / (1u64 << 24) as f32
+    }
+}
+
+/// A 4×3×2-cell map with three LODs, cells at mixed LODs, pages missing at random and
+/// unpublished pixels inside pages: every branch of the sampling rule (missing page,
+/// unpublished tap, fallback to a coarser LOD, border blending, UVs outside the atlas) is
+/// exercised.
+fn synthetic_map(rng: &mut Rng) -> ShownLightmap {
+    let (atlas_width, atlas_height) = (100u32, 70u32);
+    let grid = Grid { origin: Vec3::new(-1.0, 0.5, 2.0), cell_size: 1.0, dims: [4, 3, 2] };
+    let mut map = ShownLightmap::new(grid, atlas_width, atlas_height, 3, 0.3);
+    let mut w = PageWriter::new(&mut map);
+    for k in 0..3u32 {
+        let (width, height) = (atlas_width << k, atlas_height << k);
+        for py in 0..height.div_ceil(PAGE_SIDE) {
+            for px in 0..width.div_ceil(PAGE_SIDE) {
+                if rng.next() < 0.2 {
+                    continue;
+                }
+                for y in py * PAGE_SIDE..((py + 1) * PAGE_SIDE).min(height) {
+                    for x in px * PAGE_SIDE..((px + 1) * PAGE_SIDE).min(width) {
+                        if rng.next() < 0.85 {
+                            let e = Vec3::new(rng.next(), rng.next(), rng.next()) * 10.0;
+                            w.write(k, x, y, e);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    for cell in 0..grid.len() as u32 {
+        w.set_cell_lod(cell, (rng.next() * 3.0) as u32);
+    }
+    w.finish();
+    map
+}
+
+/// The WGSL `shown_irradiance` equals the CPU's `ShownLightmap::irradiance` at 20 000 random
+/// points. Points within 1e-3 m of a cell face are left out: there the cell index is a
+/// discontinuous function of a rounded division and CPU and GPU may round to different cells
+/// (both right). Tolerance: each result is a handful of f32 products and sums plus one
+/// division (WGSL allows 2.5 ulp); 2e-5 relative to (1 + |E|) is ~100 ulp of E ≤ 10 W/m²,
+/// while a wrong tap, LOD or blend weight moves the result by O(1).
+#[test]
+fn gpu_sampling_twins_the_cpu_function() {
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let shown = synthetic_map(&mut rng);
+    let gpu = GpuContext::headless().unwrap();
+    let layout = lightmap::bind_group_layout(&gpu.device);
+    let mirror = LightmapGpu::new(&gpu, &layout, &shown).unwrap();
+    let probe = IrradianceProbe::new(&gpu, &layout).unwrap();
+    let g = &shown.grid;
+    let mut points = Vec::new();
+    while points.len() < 20_000 {
+        let q = Vec3::new(rng.next() * 4.0, rng.next() * 3.0, rng.next() * 2.0);
+        if (q - q.round()).abs().min_element() < 1e-3 {
+            continue;
+        }
+        let p = g.origin + q * g.cell_size;
+        let uv = Vec2::new(rng.next() * 104.0 - 2.0, rng.next() * 74.0 - 2.0);
+        points.push((p, uv));
+    }
+    let on_gpu = probe.run(&gpu, &mirror, &points).unwrap();
+    let mut blended = 0;
+    let mut worst = 0.0f32;
+    for (&(p, uv), got) in points.iter().zip(&on_gpu) {
+        let want = shown.irradiance(p, uv);
+        let err = (*got - want).abs().max_element() / (1.0 + want.abs().max_element());
+        worst = worst.max(err);
+        assert!(err < 2e-5, "at p {p} uv {uv}: GPU {got} CPU {want}");
+        // A blend happens where a face shared with a coarser neighbour is within the band.
+        let cell = g.cell_of(p);
+        let k = shown.cell_lod[cell as usize];
+        let (lo, hi) = g.bounds(cell);
+        let near_coarser = (0..3).any(|axis| {
+            [(-1, p[axis] - lo[axis]), (1, hi[axis] - p[axis])].iter().any(|&(step, d)| {
+                d < shown.blend_band && g.neighbour(cell, axis, step).is_some_and(|n| shown.cell_lod[n as usize] < k)
+            })
+        });
+        blended += near_coarser as usize;
+    }
+    let zeros = on_gpu.iter().filter(|e| **e == Vec3::ZERO).count();
+    eprintln!("worst relative difference {worst:e}; {blended} points in blend bands, {zeros} with nothing published");
+    // The sample covers blends, points with nothing published and plenty with light.
+    assert!(blended > 1_000, "{blended} points blend");
+    assert!(zeros > 0 && zeros < 10_000, "{zeros} points with nothing published");
+}
+
+fn cornell_camera() -> Camera {
+    Camera::look_at(Vec3::from(CORNELL_EYE), Vec3::from(CORNELL_TARGET), 50f32.to_radians(), 3.5)
+}
+
+/// The lit Cornell room rendered offscreen from its open side: red wall left, green right.
+#[test]
+fn offscreen_cornell_room_shows_its_coloured_walls() {
+    let (scene, baked, shown) = cornell_lit();
+    let gpu = GpuContext::headless().unwrap();
+    let state = SceneState { generation: 0, scene, atlas: Arc::new(baked.atlas.clone()) };
+    let mut renderer = Renderer::new(gpu, &state).unwrap();
+    let unlit = renderer.render_offscreen(&cornell_camera(), 160, 120, &DrawSettings::default()).unwrap();
+    renderer.show(shown).unwrap();
+    let lit = renderer.render_offscreen(&cornell_camera(), 160, 120, &DrawSettings::default()).unwrap();
+    assert_cornell_colours(&lit);
+    // Before the light map arrives only the lamp shows: the walls' light is the map's.
+    let (l, u) = (mean_rgb(&lit, 0, 160), mean_rgb(&unlit, 0, 160));
+    assert!(l.iter().sum::<f64>() > 2.0 * u.iter().sum::<f64>(), "lit {l:?} vs unlit {u:?}");
+}
+
+fn livebake() -> std::process::Command {
+    std::process::Command::new(env!("CARGO_BIN_EXE_livebake"))
+}
+
+/// `livebake view --screenshot --frames` in a real window under Xvfb: exits 0, writes the
+/// picture of the lit room (red left, green right) and the run's figures.
+#[test]
+fn view_command_writes_a_screenshot_under_xvfb() {
+    let xvfb = xvfb();
+    let dir = tempfile::tempdir().unwrap();
+    let (shot, stats) = (dir.path().join("shot.png"), dir.path().join("stats.json"));
+    let mut cmd = livebake();
+    cmd.env("DISPLAY", &xvfb.display)
+        .arg("-q")
+        .arg("view")
+        .arg(cornell_path())
+        .args(["--frames", "2", "--size", "320x240", "--camera", "1,1,4.5,1,1,0"])
+        .args(["--texel-size", "0.05", "--samples", "32"])
+        .arg("--screenshot")
+        .arg(&shot)
+        .arg("--stats")
+        .arg(&stats);
+    let (code, stderr) = run_bounded(&mut cmd, 300);
+    assert_eq!(code, Some(0), "{stderr}");
+    let img = image::open(&shot).unwrap().to_rgba8();
+    assert_eq!(img.dimensions(), (320, 240));
+    assert_cornell_colours(&img);
+    let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
+    assert_eq!(stats["lit_frames"], 2);
+    assert!(stats["first_lit_frame_seconds"].as_f64().is_some_and(|s| s > 0.0), "{stats}");
+    assert!(stats["lightmap_bytes_uploaded"].as_u64().is_some_and(|b| b > 0), "{stats}");
+}
+
+/// Without a display the viewer says so (and what works without one) instead of panicking.
+#[test]
+fn view_without_a_display_is_a_clear_error() {
+    let mut cmd = livebake();
+    cmd.env_remove("DISPLAY").env_remove("WAYLAND_DISPLAY").arg("view").arg(cornell_path());
+    cmd.args(["--texel-size", "0.1", "--samples", "8"]);
+    let (code, stderr) = run_bounded(&mut cmd, 120);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("display") && !stderr.contains("internal error"), "{stderr}");
+}
+
+/// Bad options are refused before anything opens.
+#[test]
+fn view_refuses_bad_options() {
+    for args in [["--camera", "1,2,3"], ["--size", "10x10"], ["--exposure", "-1"], ["--frames", "0"], ["--lods", "9"]] {
+        let out = livebake().env_remove("DISPLAY").arg("view").arg(cornell_path()).args(args).output().unwrap();
+        assert!(!out.status.success(), "{args:?} accepted");
+        assert!(!String::from_utf8_lossy(&out.stderr).contains("internal error"), "{args:?}");
+    }
+}
+
+/// The mirror grows its page pool on the GPU when a publish brings more pages than it holds
+/// (the first 64-page pool copied, not re-uploaded), and frees the slots of pages a publish
+/// removes: after each sync every page reads back as published and the GPU sampling still
+/// equals the CPU's.
+#[test]
+fn mirror_grows_its_pool_and_frees_removed_pages() {
+    let grid = Grid { origin: Vec3::ZERO, cell_size: 1.0, dims: [1, 1, 1] };
+    let mut map = ShownLightmap::new(grid, 1024, 640, 1, 0.0);
+    let mut w = PageWriter::new(&mut map);
+    w.write(0, 5, 5, Vec3::splat(1.0));
+    w.finish();
+    let gpu = GpuContext::headless().unwrap();
+    let layout = lightmap::bind_group_layout(&gpu.device);
+    let mut mirror = LightmapGpu::new(&gpu, &layout, &map).unwrap();
+    let first_capacity = mirror.capacity();
+    // One pixel in each of the 16 × 10 pages.
+    let mut grown = map.clone();
+    let mut w = PageWriter::new(&mut grown);
+    for py in 0..10 {
+        for px in 0..16 {
+            w.write(0, px * PAGE_SIDE + 7, py * PAGE_SIDE + 9, Vec3::new(px as f32, py as f32, 1.0));
+        }
+    }
+    w.finish();
+    let sync = mirror.sync(&gpu, &layout, &grown).unwrap();
+    assert!(mirror.capacity() >= 160 && first_capacity < 160, "{first_capacity} -> {}", mirror.capacity());
+    // Page (0, 0) changed too (a second pixel): 160 pages, 159 new table entries.
+    assert_eq!((sync.pages_uploaded, sync.table_entries_uploaded), (160, 159));
+    // Remove the pages of the top row but one.
+    let mut shrunk = grown.clone();
+    let mut w = PageWriter::new(&mut shrunk);
+    for px in 1..16 {
+        w.clear(0, px * PAGE_SIDE + 7, 9);
+    }
+    w.finish();
+    let sync = mirror.sync(&gpu, &layout, &shrunk).unwrap();
+    assert_eq!((sync.pages_uploaded, sync.table_entries_uploaded, sync.bytes_uploaded), (0, 15, 15 * 4));
+    let probe = IrradianceProbe::new(&gpu, &layout).unwrap();
+    let level = &shrunk.levels[0];
+    let mut points = Vec::new();
+    for py in 0..10 {
+        for px in 0..16u32 {
+            let want = level.page(px, py).map(|p| p.texels.to_vec());
+            assert_eq!(mirror.read_page(&gpu, 0, (py * 16 + px) as usize).unwrap(), want, "page ({px}, {py})");
+            points.push((
+                Vec3::splat(0.5),
+                Vec2::new((px * PAGE_SIDE + 7) as f32 + 0.5, (py * PAGE_SIDE + 9) as f32 + 0.5),
+            ));
+        }
+    }
+    let on_gpu = probe.run(&gpu, &mirror, &points).unwrap();
+    for (&(p, uv), got) in points.iter().zip(&on_gpu) {
+        assert_eq!(*got, shrunk.irradiance(p, uv), "uv {uv}");
+    }
+}
