@@ -1021,3 +1021,212 @@ pub(crate) fn min_area_rect_axis(h: &[DVec2]) -> DVec2 {
     }
     best.1
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::SceneBuilder;
+    use crate::scene::builder::white;
+
+    fn unwrap_all(s: &crate::scene::Scene, texel: f64) -> Vec<Vec<LocalChart>> {
+        let g = SceneGeometry::new(s);
+        s.meshes
+            .iter()
+            .enumerate()
+            .map(|(mi, m)| {
+                let tris: Vec<u32> = (g.mesh_offsets[mi]..g.mesh_offsets[mi + 1]).collect();
+                unwrap_mesh(m, &g, &tris, texel, 40f32.to_radians())
+            })
+            .collect()
+    }
+
+    /// No two faces of a chart (UVs in metres, checked in texels) overlap.
+    fn assert_no_overlap(c: &LocalChart, texel: f64) {
+        let uv: Vec<[DVec2; 3]> = c.uv.iter().map(|t| t.map(|p| p / texel)).collect();
+        for i in 0..uv.len() {
+            for j in i + 1..uv.len() {
+                assert!(!triangles_overlap(&uv[i], &uv[j], OVERLAP_TOL), "faces {i} and {j} overlap");
+            }
+        }
+    }
+
+    #[test]
+    fn hull_and_min_area_rectangle_of_a_rotated_rectangle() {
+        let a = 0.3f64;
+        let (u, v) = (DVec2::new(a.cos(), a.sin()), DVec2::new(-a.sin(), a.cos()));
+        let mut pts = Vec::new();
+        for i in 0..=10 {
+            for j in 0..=4 {
+                pts.push(u * (i as f64) * 0.5 + v * j as f64);
+            }
+        }
+        // (Float noise may keep a few nearly collinear points on the hull: harmless.)
+        let h = convex_hull(&pts);
+        assert!(h.len() >= 4);
+        let axis = min_area_rect_axis(&h);
+        assert!(axis.dot(u).abs() > 1.0 - 1e-9 || axis.dot(v).abs() > 1.0 - 1e-9, "{axis:?}");
+        // A regular polygon with many sides: the calipers agree with brute force.
+        let poly: Vec<DVec2> = (0..37)
+            .map(|i| DVec2::from_angle(i as f64 * 0.17 + (i * i) as f64 * 0.001) * (3.0 + (i % 3) as f64))
+            .collect();
+        let h = convex_hull(&poly);
+        let area_of = |d: DVec2| {
+            let e = d.perp();
+            let (mut lo, mut hi) = (DVec2::INFINITY, DVec2::NEG_INFINITY);
+            for p in &h {
+                let q = DVec2::new(p.dot(d), p.dot(e));
+                lo = lo.min(q);
+                hi = hi.max(q);
+            }
+            (hi - lo).x * (hi - lo).y
+        };
+        let brute =
+            (0..h.len()).map(|i| area_of((h[(i + 1) % h.len()] - h[i]).normalize())).fold(f64::INFINITY, f64::min);
+        assert!((area_of(min_area_rect_axis(&h)) - brute).abs() < 1e-9 * brute);
+    }
+
+    #[test]
+    fn walls_become_axis_aligned_rectangles() {
+        let mut b = SceneBuilder::new();
+        let m = b.material(white());
+        b.cuboid("room", Vec3::ZERO, Vec3::new(4.0, 2.5, 3.0), true, m);
+        // A tessellated, rotated wall: still one chart, a 2 m × 1 m rectangle.
+        let (c, s) = (0.6f32.cos(), 0.6f32.sin());
+        let (x, z) = (Vec3::new(c, 0.0, s) * 2.0, Vec3::new(-s, 0.0, c));
+        b.grid_quad("floor", [Vec3::ZERO, x, x + z, z], 8, m);
+        let s = b.build();
+        let charts = unwrap_all(&s, 0.1);
+        assert_eq!(charts[0].len(), 6);
+        // Extents in metres, compared in thousandths of a texel.
+        let mut ext: Vec<(i64, i64)> = charts[0]
+            .iter()
+            .map(|c| ((c.extent.x / 0.1 * 1e3).round() as i64, (c.extent.y / 0.1 * 1e3).round() as i64))
+            .collect();
+        ext.sort();
+        assert_eq!(
+            ext,
+            vec![(30000, 25000), (30000, 25000), (40000, 25000), (40000, 25000), (40000, 30000), (40000, 30000)]
+        );
+        assert_eq!(charts[1].len(), 1);
+        let e = charts[1][0].extent;
+        assert!((e.x - 2.0).abs() < 1e-5 && (e.y - 1.0).abs() < 1e-5, "{e:?} m");
+        assert_eq!(charts[1][0].tris.len(), 128);
+        assert_no_overlap(&charts[1][0], 0.1);
+    }
+
+    #[test]
+    fn coplanar_duplicates_and_curled_surfaces_split() {
+        let mut b = SceneBuilder::new();
+        let m = b.material(white());
+        // The same quad twice in one mesh, sharing vertices.
+        b.mesh(
+            "dup",
+            vec![Vec3::ZERO, Vec3::X, Vec3::new(1.0, 0.0, -1.0), Vec3::new(0.0, 0.0, -1.0)],
+            vec![[0, 1, 2], [0, 2, 3], [0, 1, 2], [0, 2, 3]],
+            m,
+        );
+        // A shallow helicoid ramp winding 1.5 turns: normals stay within 40° of each other
+        // but the projection overlaps itself.
+        let (turns, seg, r0, r1, rise) = (1.5f32, 60, 1.0f32, 2.0f32, 0.8f32);
+        let mut pos = Vec::new();
+        let mut tris = Vec::new();
+        for i in 0..=seg {
+            let a = i as f32 / seg as f32 * turns * std::f32::consts::TAU;
+            let y = i as f32 / seg as f32 * turns * rise;
+            pos.push(Vec3::new(r0 * a.cos(), y, r0 * a.sin()));
+            pos.push(Vec3::new(r1 * a.cos(), y, r1 * a.sin()));
+        }
+        for i in 0..seg as u32 {
+            let (a, b2, c, d) = (2 * i, 2 * i + 1, 2 * i + 2, 2 * i + 3);
+            tris.push([a, c, b2]);
+            tris.push([b2, c, d]);
+        }
+        b.mesh("ramp", pos, tris, m);
+        let s = b.build();
+        let charts = unwrap_all(&s, 0.05);
+        assert_eq!(charts[0].len(), 2, "a duplicate quad is its own chart");
+        assert!(charts[1].len() >= 2, "the ramp overlaps itself: {} chart(s)", charts[1].len());
+        for c in charts.iter().flatten() {
+            assert_no_overlap(c, 0.05);
+        }
+        let total: usize = charts[1].iter().map(|c| c.tris.len()).sum();
+        assert_eq!(total, 120);
+    }
+
+    /// A face collapsed to a segment (10⁻⁹ m off its base) joins the chart of the face it
+    /// shares an edge with; one with no neighbour keeps a chart of its own.
+    #[test]
+    fn degenerate_faces_join_a_neighbour_or_stand_alone() {
+        let mut b = SceneBuilder::new();
+        let m = b.material(white());
+        b.mesh(
+            "m",
+            vec![Vec3::ZERO, Vec3::X, Vec3::new(1.0, 0.0, -1.0), Vec3::new(0.5, 0.0, 1e-9)],
+            vec![[0, 1, 2], [0, 3, 1]],
+            m,
+        );
+        b.mesh("lone", vec![Vec3::ZERO, Vec3::X * 2.0, Vec3::new(1.0, 1e-9, 0.0)], vec![[0, 1, 2]], m);
+        let s = b.build();
+        let charts = unwrap_all(&s, 0.1);
+        assert_eq!(charts[0].len(), 1);
+        assert_eq!(charts[0][0].tris, vec![0, 1]);
+        assert_eq!(charts[1].len(), 1);
+        assert!(charts.iter().flatten().all(|c| c.extent.is_finite()));
+    }
+
+    /// Vertices within the tolerance weld whichever side of a grid line they fall on, also
+    /// through a chain; farther ones do not.
+    #[test]
+    fn welding_is_by_distance_not_by_grid_cell() {
+        let tol = 1e-3;
+        // The weld grid has cells of 4·tol: 0.004 is on a cell boundary.
+        let p = [
+            Vec3::new(0.0039995, 0.0, 0.0),
+            Vec3::new(0.0040005, 0.0, 0.0),
+            Vec3::new(0.0049, 0.0, 0.0),
+            Vec3::new(0.0070, 0.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+            Vec3::new(0.0, 1.0, 0.0),
+        ];
+        let (id, reps) = weld(&p, tol);
+        assert_eq!(id, vec![0, 0, 0, 1, 2, 2]);
+        assert_eq!(reps.len(), 3);
+        assert_eq!(reps[0], p[0].as_dvec3(), "the lowest index represents its class");
+        // The tolerance follows the mesh and the texel size, not below float noise.
+        let big = [Vec3::ZERO, Vec3::splat(100.0)];
+        assert!((weld_tolerance(&big, 0.5) - 5e-4).abs() < 1e-12, "10⁻³ texel");
+        assert!((weld_tolerance(&[Vec3::ZERO, Vec3::splat(0.1)], 0.5) - 1.7320508e-5).abs() < 1e-9, "10⁻⁴ diagonal");
+        let far = [Vec3::splat(1e5), Vec3::splat(1e5 + 1e-3)];
+        assert!(weld_tolerance(&far, 1e-3) >= 1e5 * f32::EPSILON as f64 * 16.0);
+    }
+
+    /// A box seen at coarse texels (a 0.6 m × 5.5 m column shaft at 0.33 m: sides two
+    /// texels wide) is unfolded into fewer, larger charts whose rectangles together are
+    /// smaller than the six separate ones; at 5 cm (sides 12 texels across, never thin) the
+    /// six faces stay six charts.
+    #[test]
+    fn thin_box_sides_unfold_into_strips() {
+        let mut b = SceneBuilder::new();
+        let m = b.material(white());
+        b.cuboid("shaft", Vec3::ZERO, Vec3::new(0.6, 5.5, 0.6), false, m);
+        let s = b.build();
+        let rect_area = |charts: &[LocalChart], texel: f64| -> u64 {
+            charts
+                .iter()
+                .map(|c| {
+                    let p = super::super::pack::place_free(c.extent / texel).unwrap().rect_size();
+                    p.0 as u64 * p.1 as u64
+                })
+                .sum()
+        };
+        let coarse = &unwrap_all(&s, 0.33)[0];
+        assert!(coarse.len() < 6, "{} charts", coarse.len());
+        for c in coarse {
+            assert_no_overlap(c, 0.33);
+        }
+        // Six separate faces: four 2×17 sides and two 2×2 caps, with borders.
+        assert!(rect_area(coarse, 0.33) < 4 * 4 * 19 + 2 * 4 * 4, "{} texels", rect_area(coarse, 0.33));
+        let fine = &unwrap_all(&s, 0.05)[0];
+        assert_eq!(fine.len(), 6);
+    }
+}

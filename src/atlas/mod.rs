@@ -477,7 +477,8 @@ fn solve_texel_size(
             _ => -2.0,
         };
         tried.push((lt, c));
-        t = (lt + (target - c) / slope).exp();
+        // Rounded to f32, as the atlas stores it: the layout is made at the stored size.
+        t = (lt + (target - c) / slope).exp() as f32 as f64;
         if !(t.is_finite() && t > 0.0 && (t as f32) > 0.0) {
             break;
         }

@@ -401,6 +401,26 @@ fn budget_sets_the_texel_size() {
     check(&s, &a, 1, true);
 }
 
+/// The budget search on counts shaped like an atlas's (area / t² + border and partly covered
+/// pixels ∝ 1/t + one texel per small chart whatever t): from a start that covers 40 % too
+/// many, within the 2 % stop in its four tries; with that floor above the budget it returns
+/// a finite size, its closest try, instead of running off.
+#[test]
+fn budget_search_converges_or_returns_its_closest_try() {
+    let count = |t: f64| -> Result<u64, AtlasError> { Ok((50.0 / (t * t) + 300.0 / t + 2000.0) as u64) };
+    let mut tries = 0;
+    let t = solve_texel_size(20_000, (50.0f64 / 20_000.0).sqrt(), |t| {
+        tries += 1;
+        count(t)
+    })
+    .unwrap();
+    let c = count(t).unwrap() as f64;
+    assert!((c / 20_000.0 - 1.0).abs() < 0.02, "{c} texels at {t} m after {tries} tries");
+    assert!(tries <= BUDGET_STEPS);
+    let t = solve_texel_size(1_000, 0.1, count).unwrap();
+    assert!(t.is_finite() && t > 0.1, "{t}");
+}
+
 /// Many small objects (1000 boxes of 3–8 cm at texels of their size): conservative coverage (every
 /// face touches whole pixels, every chart its partly covered border pixels) puts far more
 /// texels on them than area / texel²: sized by area alone (the old rule) the atlas misses
