@@ -1,4 +1,5 @@
-//! The `livebake` command. With no arguments it bakes the bundled default scene into `./out`.
+//! The `livebake` command. With no arguments it views the bundled default scene (headless
+//! without a display: the runtime for 3 s into `./out`).
 
 mod cli;
 

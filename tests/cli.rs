@@ -172,6 +172,29 @@ fn no_arguments_runs_the_runtime_on_the_cornell_box_into_out() {
     assert!(stdout.contains("first light") && stdout.contains("report.json"), "{stdout}");
 }
 
+#[test]
+fn no_arguments_with_an_unreachable_display_falls_back_to_headless() {
+    // DISPLAY names an X server that is not there (no socket for display 65 530): the viewer
+    // cannot open, one warning says so, and the headless run follows, exit 0.
+    let tmp = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_livebake"))
+        .current_dir(tmp.path())
+        .env_remove("RUST_LOG")
+        .env_remove("WAYLAND_DISPLAY")
+        .env("DISPLAY", ":65530")
+        .output()
+        .expect("cannot run livebake");
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "livebake failed ({}):\n{stderr}", out.status);
+    assert!(!stderr.contains("panicked") && !stderr.contains("internal error"), "{stderr}");
+    let fallback: Vec<&str> = stderr.lines().filter(|l| l.contains("running headless instead")).collect();
+    assert_eq!(fallback.len(), 1, "{stderr}");
+    assert!(fallback[0].contains("display"), "{}", fallback[0]);
+    let report = read_json(&tmp.path().join("out/report.json"));
+    assert_eq!(report["config"]["seconds"], 3.0);
+    read_exr(&tmp.path().join("out/lightmap_lod0.exr"));
+}
+
 // ---------------------------------------------------------------------------------------------
 // probe
 

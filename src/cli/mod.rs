@@ -122,12 +122,7 @@ pub fn run() -> Result<()> {
     init_logging(cli.quiet, cli.verbose);
     let ui = progress::Ui::new(cli.quiet);
     match cli.command {
-        None => run::run(
-            &default_scene(),
-            &SceneOptions::default(),
-            &run::RunOptions { seconds: 3.0, ..Default::default() },
-            &ui,
-        ),
+        None => run_default(&ui),
         Some(Command::Run { scene, options, run }) => run::run(&scene, &options, &run, &ui),
         Some(Command::Bake { scene, out, export_gltf, options }) => {
             bake::run(&scene, &out, export_gltf.as_deref(), &options, &ui)
@@ -139,6 +134,29 @@ pub fn run() -> Result<()> {
         Some(Command::Converge { scene, options, converge }) => converge::run(&scene, &options, &converge, &ui),
         Some(Command::Bench { out, only, quick }) => bench::run(&out, &only, quick, &ui),
     }
+}
+
+/// `livebake` without arguments: the viewer on the default scene when a display is there
+/// (`DISPLAY` or `WAYLAND_DISPLAY` set and a window opens), else the headless runtime for
+/// 3 s after first light into `./out`. A display that cannot be used is one warning, then
+/// the headless run.
+fn run_default(ui: &progress::Ui) -> Result<()> {
+    let scene = default_scene();
+    let options = SceneOptions::default();
+    let has_display = ["DISPLAY", "WAYLAND_DISPLAY"].iter().any(|v| std::env::var_os(v).is_some_and(|d| !d.is_empty()));
+    if has_display {
+        let opened = livebake::viewer::ViewerLoop::open()
+            .map_err(anyhow::Error::from)
+            .and_then(|display| view::run_on(Some(display), &scene, &view::ViewOptions::default(), &options, ui));
+        match opened {
+            Ok(_) => return Ok(()),
+            Err(e) if e.downcast_ref::<livebake::viewer::ViewerError>().is_some_and(|v| v.is_open_failure()) => {
+                tracing::warn!("{e:#}; running headless instead");
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    run::run(&scene, &options, &run::RunOptions { seconds: 3.0, ..Default::default() }, ui)
 }
 
 fn init_logging(quiet: bool, verbose: u8) {

@@ -12,7 +12,8 @@ use livebake::cpu::CpuProvider;
 use livebake::gpu::layout::ViewMode;
 use livebake::runtime::Runtime;
 use livebake::viewer::camera::parse_pose;
-use livebake::viewer::{DrawSettings, RuntimeLight, ViewerOptions, ViewerReport};
+use livebake::viewer::{DrawSettings, RuntimeLight, ViewerLoop, ViewerOptions, ViewerReport};
+use livebake::watch::WatchConfig;
 
 use super::SceneOptions;
 use super::bake::load_scene;
@@ -70,8 +71,31 @@ pub struct ViewOptions {
     /// What to show first (keys 1-5 switch).
     #[arg(long, value_enum, default_value_t = View::Lit)]
     pub view: View,
+    /// Do not watch the scene's files (by default every good save is reloaded into the
+    /// running view; the title shows the last reload's milliseconds and the last error).
+    #[arg(long)]
+    pub no_watch: bool,
     #[command(flatten)]
     pub runtime: RuntimeOptions,
+}
+
+/// What `livebake` without arguments opens: the command-line defaults (a test holds them equal).
+impl Default for ViewOptions {
+    fn default() -> Self {
+        ViewOptions {
+            screenshot: None,
+            frames: None,
+            camera: None,
+            stereo: false,
+            ipd: 0.063,
+            exposure: None,
+            size: (1280, 720),
+            stats: None,
+            view: View::Lit,
+            no_watch: false,
+            runtime: RuntimeOptions::default(),
+        }
+    }
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -85,6 +109,18 @@ fn parse_size(s: &str) -> Result<(u32, u32), String> {
 
 /// Opens the viewer on `scene_path`; returns when the window closes (or the screenshot is written).
 pub fn run(scene_path: &Path, view: &ViewOptions, options: &SceneOptions, ui: &Ui) -> Result<ViewerReport> {
+    run_on(None, scene_path, view, options, ui)
+}
+
+/// [`run`] on a display connection already made (`None`: made here, once the scene loaded
+/// and before the runtime starts, so that a missing display costs no bake).
+pub fn run_on(
+    display: Option<ViewerLoop>,
+    scene_path: &Path,
+    view: &ViewOptions,
+    options: &SceneOptions,
+    ui: &Ui,
+) -> Result<ViewerReport> {
     let launched = Instant::now();
     if let Some(e) = view.exposure
         && !(e.is_finite() && e > 0.0)
@@ -99,8 +135,16 @@ pub fn run(scene_path: &Path, view: &ViewOptions, options: &SceneOptions, ui: &U
     }
     let config = runtime_config(options, &view.runtime)?;
     let (scene, _) = load_scene(scene_path, options)?;
-    let runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new()))
+    let display = match display {
+        Some(d) => d,
+        None => ViewerLoop::open()?,
+    };
+    let mut runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new()))
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
+    if !view.no_watch {
+        let watch = WatchConfig { sky: options.sky, ..WatchConfig::default() };
+        runtime.watch(scene_path, watch).with_context(|| format!("cannot watch {}", scene_path.display()))?;
+    }
     let mut source = RuntimeLight::new(runtime);
     let viewer = ViewerOptions {
         pose: view.camera,
@@ -115,7 +159,7 @@ pub fn run(scene_path: &Path, view: &ViewOptions, options: &SceneOptions, ui: &U
         launched,
         auto_exposure: view.exposure.is_none(),
     };
-    let report = livebake::viewer::run(&mut source, viewer, None)?;
+    let report = display.run(&mut source, viewer, None)?;
     if let Some(path) = &view.stats {
         livebake::output::write_json(path, &report.to_json())
             .with_context(|| format!("cannot write {}", path.display()))?;
@@ -132,6 +176,20 @@ pub fn run(scene_path: &Path, view: &ViewOptions, options: &SceneOptions, ui: &U
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn default_options_are_the_command_line_defaults() {
+        // `livebake` with no arguments must view as `livebake view SCENE` does.
+        #[derive(clap::Parser)]
+        struct Wrap {
+            #[command(flatten)]
+            view: ViewOptions,
+        }
+        let parsed = <Wrap as clap::Parser>::parse_from(["livebake"]).view;
+        assert_eq!(format!("{parsed:?}"), format!("{:?}", ViewOptions::default()));
+        let no_watch = <Wrap as clap::Parser>::parse_from(["livebake", "--no-watch"]).view;
+        assert!(no_watch.no_watch && !parsed.no_watch);
+    }
 
     #[test]
     fn size_parses_and_refuses_nonsense() {

@@ -29,6 +29,9 @@ pub enum ViewerError {
     EventLoop(#[from] winit::error::EventLoopError),
     #[error("cannot create the window: {0}")]
     Window(#[from] winit::error::OsError),
+    /// The window, its surface or its GPU device could not be set up (nothing was drawn).
+    #[error("{0}")]
+    Open(Box<ViewerError>),
     #[error(transparent)]
     Gpu(#[from] GpuError),
     #[error("the window's surface offers no configuration for this adapter")]
@@ -161,6 +164,44 @@ struct App<'a, 'h> {
     shots: u32,
 }
 
+impl ViewerError {
+    /// The viewer could not open at all (no display server reachable, no window, no GPU for
+    /// its surface): a front end may do without it. Anything else happened while showing.
+    pub fn is_open_failure(&self) -> bool {
+        matches!(self, ViewerError::EventLoop(_) | ViewerError::Window(_) | ViewerError::Open(_))
+    }
+}
+
+/// The viewer's connection to the display server, made before anything else so that a
+/// front end learns whether a window can open before it starts work for one. winit allows
+/// one per process.
+pub struct ViewerLoop {
+    event_loop: EventLoop<()>,
+}
+
+impl ViewerLoop {
+    /// Connects to the display server (X11: `DISPLAY`).
+    pub fn open() -> Result<ViewerLoop, ViewerError> {
+        let mut builder = EventLoop::builder();
+        // Tests drive the viewer from a test thread; X11 allows any thread.
+        winit::platform::x11::EventLoopBuilderExtX11::with_any_thread(&mut builder, true);
+        let event_loop = builder.build()?;
+        event_loop.set_control_flow(ControlFlow::Poll);
+        Ok(ViewerLoop { event_loop })
+    }
+
+    /// Opens the window on `source` and runs until it closes, `options.frames` frames were
+    /// drawn, or the hook says stop.
+    pub fn run(
+        self,
+        source: &mut dyn LightSource,
+        options: ViewerOptions,
+        hook: Option<&mut FrameHook>,
+    ) -> Result<ViewerReport, ViewerError> {
+        run_loop(self.event_loop, source, options, hook)
+    }
+}
+
 /// Opens the viewer on `source` and runs until the window closes, `options.frames` frames
 /// were drawn, or the hook says stop.
 pub fn run(
@@ -168,11 +209,15 @@ pub fn run(
     options: ViewerOptions,
     hook: Option<&mut FrameHook>,
 ) -> Result<ViewerReport, ViewerError> {
-    let mut builder = EventLoop::builder();
-    // Tests drive the viewer from a test thread; X11 allows any thread.
-    winit::platform::x11::EventLoopBuilderExtX11::with_any_thread(&mut builder, true);
-    let event_loop = builder.build()?;
-    event_loop.set_control_flow(ControlFlow::Poll);
+    ViewerLoop::open()?.run(source, options, hook)
+}
+
+fn run_loop(
+    event_loop: EventLoop<()>,
+    source: &mut dyn LightSource,
+    options: ViewerOptions,
+    hook: Option<&mut FrameHook>,
+) -> Result<ViewerReport, ViewerError> {
     let state = source.scene();
     let camera = match options.pose {
         Some((eye, target)) => {
@@ -440,7 +485,7 @@ impl ApplicationHandler for App<'_, '_> {
         if self.state.is_none()
             && let Err(e) = self.open(event_loop)
         {
-            self.fail(event_loop, e);
+            self.fail(event_loop, ViewerError::Open(Box::new(e)));
         }
     }
 

@@ -6,7 +6,7 @@ pub mod render;
 pub mod source;
 pub mod xvfb;
 
-pub use app::{FrameContext, ViewerError, ViewerOptions, ViewerReport, run};
+pub use app::{FrameContext, ViewerError, ViewerLoop, ViewerOptions, ViewerReport, run};
 pub use camera::Camera;
 pub use render::{DrawSettings, Renderer};
 pub use source::{LightSource, RuntimeLight, SceneState, SourceStatus};
