@@ -15,6 +15,7 @@ use livebake::probe::SurfaceLocator;
 use livebake::runtime::world::World;
 use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent};
 use livebake::scene::{LoadOptions, Scene, load_gltf};
+use livebake::viewer::{LightSource, RuntimeLight};
 use livebake::watch::{SceneDiff, WatchConfig};
 use serde_json::json;
 use support::Doc;
@@ -397,4 +398,59 @@ fn soak_of_rapid_saves() {
     let diff = relative_rms(&reloaded, &clean);
     eprintln!("soak: noise {noise:.4}, final vs clean {diff:.4}");
     assert!(diff <= 2.0 * noise, "after the soak the floor differs by {diff} (noise {noise})");
+}
+
+/// The viewer's light with hot reload (what `livebake view` runs unless --no-watch): a save
+/// while viewing reaches the source as a reload (its status has the reload's milliseconds, for
+/// the title), its scene becomes the new one (a new generation, so the renderer re-uploads the
+/// geometry), and the map it shows changed: the floor where the box stood, black under the box
+/// before (its bottom faces the floor, the back of a closed box sees nothing), is lit after.
+#[test]
+fn viewer_light_follows_a_save() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = write_room(dir.path(), &BOXES, false);
+    let runtime = start(&path);
+    // The floor under the first box's middle, in the floor's chart (unchanged by the move).
+    // (A locator would find the box's bottom there: it lies on the floor.)
+    let world = runtime.world();
+    let target = Vec3::new(1.4, 0.0, 2.0);
+    let (tri, u, v) = (0..world.geom.corners.len())
+        .find_map(|t| {
+            let [a, b, c] = world.geom.corners[t];
+            if world.geom.normals[t].y < 0.9 || [a, b, c].iter().any(|q| q.y != 0.0) {
+                return None;
+            }
+            // Barycentrics in the xz plane.
+            let (e1, e2, d) = (b - a, c - a, target - a);
+            let det = e1.x * e2.z - e1.z * e2.x;
+            let (u, v) = ((d.x * e2.z - d.z * e2.x) / det, (e1.x * d.z - e1.z * d.x) / det);
+            (u >= 0.0 && v >= 0.0 && u + v <= 1.0).then_some((t as u32, u, v))
+        })
+        .expect("the floor under the box");
+    let face = world.atlas.face(tri, livebake::scene::Side::Front).expect("lit floor");
+    let (uv, p): (Vec2, Vec3) = (world.atlas.faces[face as usize].uv_at(u, v), world.geom.point(tri, u, v));
+    let mut light = RuntimeLight::new(runtime);
+    light.poll();
+    let (before_state, before) = (light.scene(), light.shown().expect("first light"));
+    assert!(light.status().last_reload_ms.is_none() && light.status().last_error.is_none());
+    write_room(dir.path(), &moved(), true);
+    let deadline = Instant::now() + PATIENCE;
+    while light.status().last_reload_ms.is_none() {
+        assert!(Instant::now() < deadline, "no reload reached the viewer's source");
+        std::thread::sleep(Duration::from_millis(20));
+        light.poll();
+    }
+    let status = light.status();
+    assert!(status.last_error.is_none(), "{:?}", status.last_error);
+    assert_eq!(light.reloads(), 1);
+    let after_state = light.scene();
+    assert_eq!(after_state.generation, before_state.generation + 1);
+    assert!(!Arc::ptr_eq(&after_state.scene, &before_state.scene));
+    let after = light.shown().expect("lit");
+    let (e0, e1) = (before.irradiance(p, uv), after.irradiance(p, uv));
+    eprintln!("floor at the old box: E {e0} before, {e1} after the reload ({:.0} ms)", status.last_reload_ms.unwrap());
+    // Unlit under the box: at most a few per cent of the lit value (bilinear taps at the
+    // footprint's middle are all under the box, 0.4 m from its edges).
+    assert!(e1.x > 0.0 && e0.x < 0.05 * e1.x, "before {e0}, after {e1}");
+    light.shutdown().expect("shutdown");
 }

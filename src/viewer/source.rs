@@ -86,18 +86,50 @@ pub fn grid_over(scene: &Scene, cell_size: f32) -> Result<Grid, GridError> {
 }
 
 /// The live runtime as the viewer's light: LOD 0 at first light, then the cells the
-/// camera sees refined in the background and swapped in as they converge.
+/// camera sees refined in the background and swapped in as they converge. With hot reload
+/// ([`Runtime::watch`]) the scene is replaced when the runtime serves a new one, and the
+/// status reports the last reload's time and the last error.
 pub struct RuntimeLight {
     runtime: Option<Runtime>,
     state: SceneState,
-    last_error: Option<String>,
+    /// The runtime stopped working (it shows no new light).
+    failed: Option<String>,
+    /// The last hot reload that failed, until one succeeds.
+    reload_error: Option<String>,
+    last_reload_ms: Option<f64>,
+    reloads: u64,
 }
 
 impl RuntimeLight {
     pub fn new(runtime: Runtime) -> RuntimeLight {
         let world = runtime.world();
         let state = SceneState { generation: 0, scene: world.scene.clone(), atlas: world.atlas.clone() };
-        RuntimeLight { runtime: Some(runtime), state, last_error: None }
+        RuntimeLight {
+            runtime: Some(runtime),
+            state,
+            failed: None,
+            reload_error: None,
+            last_reload_ms: None,
+            reloads: 0,
+        }
+    }
+
+    /// Hot reloads applied so far.
+    pub fn reloads(&self) -> u64 {
+        self.reloads
+    }
+
+    /// Takes the runtime's world when it is not the one shown (a reload replaced it).
+    fn follow_world(&mut self) {
+        let Some(runtime) = &self.runtime else { return };
+        let world = runtime.world();
+        if !(Arc::ptr_eq(&world.scene, &self.state.scene) && Arc::ptr_eq(&world.atlas, &self.state.atlas)) {
+            self.state = SceneState {
+                generation: self.state.generation + 1,
+                scene: world.scene.clone(),
+                atlas: world.atlas.clone(),
+            };
+        }
     }
 }
 
@@ -126,10 +158,28 @@ impl LightSource for RuntimeLight {
 
     fn poll(&mut self) {
         let Some(runtime) = &self.runtime else { return };
+        let mut reloaded = false;
         while let Ok(TimedEvent { event, .. }) = runtime.events().try_recv() {
-            if let RuntimeEvent::Failed { error } = event {
-                self.last_error = Some(error);
+            match event {
+                RuntimeEvent::Failed { error } => self.failed = Some(error),
+                RuntimeEvent::ReloadApplied { changed_meshes, invalidated_cells, ms, .. } => {
+                    tracing::info!(
+                        "reloaded: {changed_meshes} meshes changed, {invalidated_cells} cells re-baked, {ms:.0} ms"
+                    );
+                    self.last_reload_ms = Some(ms);
+                    self.reload_error = None;
+                    self.reloads += 1;
+                    reloaded = true;
+                }
+                RuntimeEvent::ReloadFailed { path, error } => {
+                    tracing::warn!("reload of {path} failed (the last good scene stays): {error}");
+                    self.reload_error = Some(format!("reload failed: {error}"));
+                }
+                _ => {}
             }
+        }
+        if reloaded {
+            self.follow_world();
         }
     }
 
@@ -141,7 +191,12 @@ impl LightSource for RuntimeLight {
         } else {
             "first light...".to_string()
         };
-        SourceStatus { queued: Some(stats.queue), last_reload_ms: None, last_error: self.last_error.clone(), state }
+        SourceStatus {
+            queued: Some(stats.queue),
+            last_reload_ms: self.last_reload_ms,
+            last_error: self.failed.clone().or_else(|| self.reload_error.clone()),
+            state,
+        }
     }
 
     fn shutdown(&mut self) -> Result<(), String> {
