@@ -901,3 +901,173 @@ fn engines_bevy_snippet_matches_the_files() {
         }
     }
 }
+
+/// `livebake run SCENE --export-gltf OUT.gltf`: when the run ends, the light map as shown is
+/// exported at the finest LOD any cell shows; the validator accepts the files, and the
+/// export's light map, read back as an engine reads it (TEXCOORD_1 of the re-loaded export,
+/// bilinear over the EXR), matches what `run --points` read from the shown map at the same
+/// 332 surface points of the 2 m room.
+///
+/// Bound, per point (E_exp: the export read back; E_run: `run --points`). The export's pixels
+/// hold the one sampling function S at their texels' surface points and pixel centres, so
+/// E_exp is bilinear interpolation of S at the export's resolution:
+/// * **Cells shown at the export LOD L**, farther than the blend band plus 3 LOD-L texels from
+///   any face shared with a coarser cell (so no tap is blended, and every tap's texel lies in
+///   a cell at LOD L): S at a pixel centre is that published pixel itself (the bilinear
+///   weight there is 1), so both sides interpolate the same four values with the same
+///   weights; only the position differs, as in [`round_trip`]: 2·δ × the 4×4 range, plus f32
+///   rounding (1e-6 of the values).
+/// * **Elsewhere** (cells shown coarser, blend bands): S is bilinear at a coarser LOD k
+///   (possibly blended), whose breaks (the LOD-k pixel centres) fall midway between LOD-L
+///   pixel centres. Along one axis, interpolating a piecewise linear function with a break
+///   midway between two samples errs by at most |a − b|/4 for slopes a, b on the two sides;
+///   each slope is a difference of two neighbouring samples on its side (a piece spans
+///   2^(L−k) ≥ 2 samples), so at most the range R of the 4×4 samples around the point: at
+///   most R/2 per axis, R for the two axes. The blend weight, linear in position over a band
+///   of 2^(L+1) LOD-L texels, adds at most (1/8)·2·|∇w|·R ≤ R/8 (curvature of w·(C − F) over
+///   a unit square). Bound: 1.125·R + the rounding above.
+#[test]
+fn run_exports_the_light_map_it_showed() {
+    let dir = tempfile::tempdir().unwrap();
+    let room = asset("cornell_2m/cornell_2m.gltf");
+    let points = asset("cornell_2m/points.json");
+    let (room_s, points_s) = (room.display().to_string(), points.display().to_string());
+    let args = [
+        "run",
+        &room_s,
+        "--seconds",
+        "4",
+        "--threads",
+        "2",
+        "--camera",
+        "0.3,1,1.7,1.7,0.6,0.3",
+        "--out",
+        "o",
+        "--points",
+        &points_s,
+        "--points-out",
+        "p.json",
+        "--export-gltf",
+        "web/room.gltf",
+    ];
+    let out = livebake(dir.path(), &args);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert_eq!(files_in(&dir.path().join("web")), ["room.bin", "room.gltf", "room.lightmap.exr", "room.lightmap.png"]);
+    let report = read_json(&dir.path().join("o/report.json"));
+    let export = &report["export"];
+    let lod = export["lod"].as_u64().unwrap() as u32;
+    assert_eq!(export["finest_shown_lod"].as_u64(), Some(lod as u64), "{export}");
+    assert!(lod >= 1, "no cell was refined in the run: {export}");
+    let gltf = dir.path().join("web/room.gltf");
+    assert_eq!(read_json(&gltf)["asset"]["extras"]["livebake"]["lightmap"]["lod"], lod);
+    validate(&gltf);
+
+    // The run's grid and the LOD each cell showed at the end.
+    let cells = read_json(&dir.path().join("o/cells.json"));
+    let g = &cells["grid"];
+    let v3 = |v: &Value| {
+        Vec3::new(v[0].as_f64().unwrap() as f32, v[1].as_f64().unwrap() as f32, v[2].as_f64().unwrap() as f32)
+    };
+    let grid = livebake::grid::Grid {
+        origin: v3(&g["origin"]),
+        cell_size: g["cell_size"].as_f64().unwrap() as f32,
+        dims: [0, 1, 2].map(|i| g["dims"][i].as_u64().unwrap() as u32),
+    };
+    let mut cell_lod = vec![0u32; grid.len()];
+    for c in cells["cells"].as_array().unwrap() {
+        cell_lod[c["cell"].as_u64().unwrap() as usize] = c["shown_lod"].as_u64().unwrap() as u32;
+    }
+    let texel0 = report["atlas"]["texel_size"].as_f64().unwrap() as f32;
+    let texel_l = texel0 / (1u32 << lod) as f32;
+    // As the runtime sets it (runtime::scheduler::empty_shown).
+    let blend_band = (2.0 * texel0).min(grid.cell_size * 0.25);
+    let exact_class = |p: Vec3| {
+        let cell = grid.cell_of(p);
+        if cell_lod[cell as usize] != lod {
+            return false;
+        }
+        let (lo, hi) = grid.bounds(cell);
+        (0..3).all(|axis| {
+            [(-1, p[axis] - lo[axis]), (1, hi[axis] - p[axis])].iter().all(|&(step, d)| {
+                d >= blend_band + 3.0 * texel_l
+                    || grid.neighbour(cell, axis, step).is_none_or(|n| cell_lod[n as usize] >= lod)
+            })
+        })
+    };
+
+    let scene = load(&room);
+    let geom = SceneGeometry::new(&scene);
+    let bvh = livebake::reference::Bvh::for_scene(&scene, &geom);
+    let locator = livebake::probe::SurfaceLocator::new(&geom, &bvh);
+    let back = load(&gltf);
+    let mut by_corners: HashMap<[[u32; 3]; 3], Vec<(usize, usize)>> = HashMap::new();
+    for (mi, m) in back.meshes.iter().enumerate() {
+        for t in 0..m.triangles.len() {
+            by_corners.entry(corner_key(&m.corners(t))).or_default().push((mi, t));
+        }
+    }
+    let exr = image::open(dir.path().join("web/room.lightmap.exr")).unwrap().to_rgb32f();
+    let size = Vec2::new(exr.width() as f32, exr.height() as f32);
+    assert_eq!(
+        (exr.width(), exr.height()),
+        (export["width"].as_u64().unwrap() as u32, export["height"].as_u64().unwrap() as u32)
+    );
+    let delta = 8.0 * size.max_element() * f32::EPSILON / 2.0;
+    let probed = read_json(&dir.path().join("p.json"));
+    let (mut exact, mut other, mut worst_exact, mut worst_other) = (0, 0, 0.0f32, 0.0f32);
+    for q in probed["points"].as_array().unwrap() {
+        let (p, n) = (v3(&q["p"]), v3(&q["n"]));
+        let Some(e) = q["E"].as_array() else { panic!("run --points could not read {q}") };
+        let expected =
+            Vec3::new(e[0].as_f64().unwrap() as f32, e[1].as_f64().unwrap() as f32, e[2].as_f64().unwrap() as f32);
+        let at = locator.locate(p, n).unwrap();
+        let corners = geom.corners[at.tri as usize];
+        let normal = geom.normals[at.tri as usize] * at.side.sign();
+        let candidates: Vec<&(usize, usize)> = by_corners[&corner_key(&corners)]
+            .iter()
+            .filter(|&&(m, t)| {
+                let [a, b, c] = back.meshes[m].corners(t);
+                (b - a).cross(c - a).dot(normal) > 0.0
+            })
+            .collect();
+        assert_eq!(candidates.len(), 1, "point {p}: {} exported triangles", candidates.len());
+        let &(m, t) = candidates[0];
+        let mesh = &back.meshes[m];
+        let exported_corners = mesh.corners(t);
+        let uv1 = mesh.uv1.as_ref().unwrap();
+        let weights = [1.0 - at.u - at.v, at.u, at.v];
+        let uv = (0..3).fold(Vec2::ZERO, |acc, j| {
+            let k = corners.iter().position(|c| *c == exported_corners[j]).unwrap();
+            acc + uv1[mesh.triangles[t][j] as usize] * weights[k]
+        });
+        let px = uv * size;
+        let got = bilinear(&exr, px);
+        let (range, _) = local_range(&exr, px);
+        let rounding = 1e-6 * expected.abs().max_element().max(1e-6);
+        let surface = geom.point(at.tri, at.u, at.v);
+        let is_exact = exact_class(surface);
+        let bound = if is_exact { 2.0 * delta * range + rounding } else { 1.125 * range + rounding };
+        let err = (got - expected).abs().max_element();
+        assert!(
+            err <= bound,
+            "point {p} ({}): export {got} vs run {expected} (error {err:e} > bound {bound:e}, 4×4 range {range:e})",
+            if is_exact { "cell at the export LOD" } else { "coarser or blended" }
+        );
+        let ratio = err / range.max(1e-12);
+        if is_exact {
+            exact += 1;
+            worst_exact = worst_exact.max(err);
+        } else {
+            other += 1;
+            worst_other = worst_other.max(ratio);
+        }
+    }
+    eprintln!(
+        "export LOD {lod} ({}×{}): {exact} points in cells at LOD {lod} (worst error {worst_exact:e} W/m²), {other} elsewhere (worst error {worst_other:.3} of the 4×4 range)",
+        exr.width(),
+        exr.height()
+    );
+    // Both kinds of point are compared.
+    assert!(exact >= 10 && other >= 10, "{exact} exact, {other} other");
+}

@@ -16,9 +16,12 @@ use serde::Deserialize;
 use serde_json::{Value, json};
 
 use livebake::cpu::CpuProvider;
+use livebake::export::{ExportOptions, ExportReport, export_gltf};
 use livebake::output::{write_json, write_rgb_exr};
 use livebake::probe::{ProbeError, SurfaceLocator};
-use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
+use livebake::runtime::shown::ShownLightmap;
+use livebake::runtime::world::World;
+use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent, resample};
 use livebake::scene::{Rgb, Scene};
 use livebake::watch::WatchConfig;
 
@@ -76,6 +79,12 @@ pub struct RunOptions {
     /// Hot reload: watch the scene's files and follow every good save (reload_* events).
     #[arg(long)]
     pub watch: bool,
+    /// At the end, also write the scene with the light map as shown attached, for other
+    /// engines (as `bake --export-gltf`: TEXCOORD_1 + MOZ_lightmap; OUT.bin,
+    /// OUT.lightmap.exr and OUT.lightmap.png beside it). The map is resampled at the finest
+    /// LOD any cell shows (at most 4 M pixels; see report.json "export").
+    #[arg(long, value_name = "OUT.gltf")]
+    pub export_gltf: Option<PathBuf>,
     #[command(flatten)]
     pub runtime: RuntimeOptions,
 }
@@ -91,6 +100,7 @@ impl Default for RunOptions {
             points: None,
             points_out: None,
             watch: false,
+            export_gltf: None,
             runtime: RuntimeOptions::default(),
         }
     }
@@ -256,6 +266,11 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     if !(run.seconds.is_finite() && run.seconds >= 0.0) {
         bail!("--seconds must be a non-negative number, got {}", run.seconds);
     }
+    if let Some(out) = &run.export_gltf
+        && !out.extension().is_some_and(|e| e.eq_ignore_ascii_case("gltf"))
+    {
+        bail!("--export-gltf {}: the export must be a .gltf file name", out.display());
+    }
     let (scene, load_seconds) = load_scene(scene_path, options)?;
     let interrupted = Arc::new(AtomicBool::new(false));
     // Ctrl-C ends the run early; the outputs are still written.
@@ -369,6 +384,10 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         })).collect::<Vec<_>>(),
     });
     write_json(&run.out.join("cells.json"), &cells_json)?;
+    let export = match &run.export_gltf {
+        Some(out) => Some(export_shown(&world, &shown, out)?),
+        None => None,
+    };
     let report = json!({
         "scene": scene_path.display().to_string(),
         "triangles": scene.triangle_count(),
@@ -394,6 +413,11 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
             "lod": lod, "file": f.file_name().map(|n| n.to_string_lossy().to_string()),
             "origin": [r.0, r.1], "size": [r.2 - r.0, r.3 - r.1],
         })).collect::<Vec<_>>(),
+        "export": export.as_ref().map(|e| json!({
+            "gltf": e.gltf, "lod": e.lod, "width": e.width, "height": e.height,
+            "finest_shown_lod": shown.cell_lod.iter().copied().max().unwrap_or(0),
+            "png_intensity": e.png_intensity,
+        })),
     });
     write_json(&run.out.join("report.json"), &report)?;
     if let (Some((mut doc, queries)), Some(out)) = (points, run.points_out.as_deref()) {
@@ -412,7 +436,26 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     log.write(t_end, &json!({"event": "finished", "stats": stats}))?;
     log.flush()?;
     summarise(ui, scene_path, &scene, &stats, &written, &run.out);
+    if let Some(e) = &export {
+        ui.say(format!("  exported {} (light map at LOD {}, {}×{})", e.gltf.display(), e.lod, e.width, e.height));
+    }
     Ok(())
+}
+
+/// The glTF export of the light map as shown at the end of the run: resampled at the finest
+/// LOD any cell shows, capped at [`resample::MAX_EXPORT_PIXELS`] (`runtime::resample`).
+fn export_shown(world: &World, shown: &ShownLightmap, out: &Path) -> Result<ExportReport> {
+    let lod = resample::export_lod(shown, resample::MAX_EXPORT_PIXELS);
+    let finest = shown.cell_lod.iter().copied().max().unwrap_or(0) as u32;
+    if lod < finest {
+        tracing::warn!(
+            "the export holds LOD {lod}: LOD {finest}, the finest shown, would exceed {} pixels; cells shown finer lose detail",
+            resample::MAX_EXPORT_PIXELS
+        );
+    }
+    let image = resample::shown_image(world, shown, lod);
+    export_gltf(&world.scene, &world.atlas, &image, out, &ExportOptions::default())
+        .with_context(|| format!("cannot export {}", out.display()))
 }
 
 /// Largest LOD image `run` writes (16 M pixels: 200 MB of f32 RGB).

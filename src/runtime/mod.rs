@@ -18,6 +18,7 @@
 pub mod cell_bake;
 pub mod policy;
 mod reload;
+pub mod resample;
 mod scheduler;
 pub mod shown;
 pub mod source;

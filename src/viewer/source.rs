@@ -171,10 +171,8 @@ impl LightSource for RuntimeLight {
                     self.reloads += 1;
                     reloaded = true;
                 }
-                RuntimeEvent::ReloadFailed { path, error } => {
-                    tracing::warn!("reload of {path} failed (the last good scene stays): {error}");
-                    self.reload_error = Some(format!("reload failed: {error}"));
-                }
+                // (The watcher has logged it.)
+                RuntimeEvent::ReloadFailed { error, .. } => self.reload_error = Some(format!("reload failed: {error}")),
                 _ => {}
             }
         }
