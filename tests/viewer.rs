@@ -242,3 +242,49 @@ fn mirror_grows_its_pool_and_frees_removed_pages() {
         assert_eq!(*got, shrunk.irradiance(p, uv), "uv {uv}");
     }
 }
+
+/// `livebake` without arguments, with a display (Xvfb): it opens the viewer on the default
+/// scene (the window's GPU device is set up: the headless run never makes one) instead of
+/// running headless (which would write ./out). The window stays until closed; the test kills it.
+#[test]
+fn no_arguments_with_a_display_opens_the_viewer() {
+    use std::io::{BufRead, BufReader};
+    let xvfb = xvfb();
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = livebake()
+        .current_dir(dir.path())
+        .env("DISPLAY", &xvfb.display)
+        .env_remove("WAYLAND_DISPLAY")
+        .env_remove("RUST_LOG")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let stderr = child.stderr.take().unwrap();
+    // Read stderr on a thread; the lines come back over a channel so the wait is bounded.
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    let mut seen = Vec::new();
+    let opened = loop {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        match rx.recv_timeout(left) {
+            Ok(line) if line.contains("GPU device") => break true,
+            Ok(line) => seen.push(line),
+            Err(_) => break false,
+        }
+    };
+    let exited = child.try_wait().unwrap();
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(opened, "no window's GPU device within 120 s (exited: {exited:?}); stderr:\n{}", seen.join("\n"));
+    assert!(exited.is_none(), "livebake exited instead of showing the window");
+    assert!(seen.iter().all(|l| !l.contains("headless")), "{}", seen.join("\n"));
+    assert!(!dir.path().join("out").exists(), "the headless run wrote ./out");
+}
