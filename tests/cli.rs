@@ -462,5 +462,6 @@ fn run_refuses_bad_options_with_one_line() {
     fails(tmp.path(), &["run", &c, "--lods", "20"], &["lods"]);
     fails(tmp.path(), &["run", &c, "--max-directions", "4", "--min-directions", "8"], &["max-directions"]);
     fails(tmp.path(), &["run", "missing.gltf"], &["missing.gltf"]);
+    fails(tmp.path(), &["run", &c, "--export-gltf", "room.glb"], &["export", ".gltf"]);
     assert!(!tmp.path().join("out").exists(), "a refused run wrote outputs");
 }
