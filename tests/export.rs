@@ -906,7 +906,7 @@ fn engines_bevy_snippet_matches_the_files() {
 /// exported at the finest LOD any cell shows; the validator accepts the files, and the
 /// export's light map, read back as an engine reads it (TEXCOORD_1 of the re-loaded export,
 /// bilinear over the EXR), matches what `run --points` read from the shown map at the same
-/// 332 surface points of the 2 m room.
+/// 332 surface points of the 2 m room and 2000 on its walls.
 ///
 /// Bound, per point (E_exp: the export read back; E_run: `run --points`). The export's pixels
 /// hold the one sampling function S at their texels' surface points and pixel centres, so
@@ -930,7 +930,25 @@ fn engines_bevy_snippet_matches_the_files() {
 fn run_exports_the_light_map_it_showed() {
     let dir = tempfile::tempdir().unwrap();
     let room = asset("cornell_2m/cornell_2m.gltf");
-    let points = asset("cornell_2m/points.json");
+    // The room's 332 reference points, and a 20 × 20 grid on each of its five walls (so
+    // that, whichever cells the run's few seconds refine, some points lie in them).
+    let mut list = read_json(&asset("cornell_2m/points.json"))["points"].as_array().unwrap().clone();
+    for i in 0..20 {
+        for j in 0..20 {
+            let (a, b) = (0.05 + 0.1 * i as f32, 0.05 + 0.1 * j as f32);
+            for (p, n) in [
+                ([a, 0.0, b], [0.0, 1.0, 0.0]),
+                ([a, 2.0, b], [0.0, -1.0, 0.0]),
+                ([a, b, 0.0], [0.0, 0.0, 1.0]),
+                ([0.0, a, b], [1.0, 0.0, 0.0]),
+                ([2.0, a, b], [-1.0, 0.0, 0.0]),
+            ] {
+                list.push(json!({ "p": p, "n": n }));
+            }
+        }
+    }
+    let points = dir.path().join("points.json");
+    std::fs::write(&points, serde_json::to_vec(&json!({ "points": list })).unwrap()).unwrap();
     let (room_s, points_s) = (room.display().to_string(), points.display().to_string());
     let args = [
         "run",
@@ -1015,10 +1033,15 @@ fn run_exports_the_light_map_it_showed() {
     );
     let delta = 8.0 * size.max_element() * f32::EPSILON / 2.0;
     let probed = read_json(&dir.path().join("p.json"));
-    let (mut exact, mut other, mut worst_exact, mut worst_other) = (0, 0, 0.0f32, 0.0f32);
+    let (mut exact, mut other, mut worst_exact, mut worst_other, mut unread) = (0, 0, 0.0f32, 0.0f32, 0);
     for q in probed["points"].as_array().unwrap() {
         let (p, n) = (v3(&q["p"]), v3(&q["n"]));
-        let Some(e) = q["E"].as_array() else { panic!("run --points could not read {q}") };
+        // Floor points under a box find the box's bottom (the back of a single-sided face).
+        let Some(e) = q["E"].as_array() else {
+            assert!(q["error"].as_str().is_some_and(|e| e.contains("single-sided")), "{q}");
+            unread += 1;
+            continue;
+        };
         let expected =
             Vec3::new(e[0].as_f64().unwrap() as f32, e[1].as_f64().unwrap() as f32, e[2].as_f64().unwrap() as f32);
         let at = locator.locate(p, n).unwrap();
@@ -1069,5 +1092,5 @@ fn run_exports_the_light_map_it_showed() {
         exr.height()
     );
     // Both kinds of point are compared.
-    assert!(exact >= 10 && other >= 10, "{exact} exact, {other} other");
+    assert!(exact >= 10 && other >= 100 && unread < 400, "{exact} exact, {other} other, {unread} not read");
 }
