@@ -6,6 +6,22 @@
 //! last sides see the sky. A side that is not a lit face (the back of a single-sided surface:
 //! the inside of closed geometry) is black and receives nothing — that is what stops leaks.
 //!
+//! **Layers.** Coplanar surfaces facing the same way at the same depth along a line are
+//! one surface for it: such fragments form a *layer* (see [`Coincidence`]), and light is
+//! exchanged between consecutive layers, never inside one. Every side of a layer that looks
+//! along +ω sees the next layer's face (the brightest of its sides that look −ω and are lit
+//! faces; black when it has none), and every side looking −ω sees the previous layer's
+//! face. Real assets are full of such stacks: tiles or rugs modelled on the floor, an
+//! emissive quad on a ceiling, duplicated meshes, z-fighting copies a fraction of a
+//! millimetre apart. Without layers, the copy a line happens to list first looks straight
+//! at the other's back and sees black, for half of all directions: a tile on a floor got
+//! 46% of its light, a lamp on its ceiling lost half its emission. Only coplanar fragments
+//! join: surfaces that merely pass close to each other (at an edge or a corner, where a
+//! room's floor meets its neighbour's wall) keep their depth order, or a layer would let
+//! one see past the other. Two rooms sharing a zero-thickness wall (coplanar but facing
+//! apart) stay two layers, ordered by facing (see [`sort_by_depth`]): the backs face each
+//! other and no light crosses.
+//!
 //! A side is coded in 31 bits: a texel of the bake's target (below [`FOREIGN`]), a lit face
 //! outside the target (`FOREIGN + k`, k naming the fragment's triangle for whoever resolves
 //! it: its radiance is looked up, it receives nothing), or [`NO_SIDE`].
@@ -14,10 +30,12 @@
 //! the self-normalising `E = π · Σ a·L / Σ a` (hits are cosine-distributed because a texel's
 //! projected area is ∝ |n·ω|).
 //!
-//! The light pass uses the same ordering but only emitter fragments give: the neighbour
-//! facing an emitting side receives `a_px · Le`, normalised later by the texel's area.
+//! The light pass uses the same layers but only emitter faces give: the sides facing a
+//! layer whose face emits receive `a_px · Le`, normalised later by the texel's area.
 //!
 //! These functions are the spec the GPU resolve shader is held equal to.
+
+use glam::Vec3;
 
 use crate::scene::Rgb;
 
@@ -52,6 +70,10 @@ pub struct Fragment {
     pub plus: u32,
     /// Code of the side looking along −ω; may carry [`FRONT_LOOKS_PLUS`].
     pub minus: u32,
+    /// The triangle's unit front normal in the bundle frame (along t, b, ω; see
+    /// [`BundleFrame::coords`](super::raster::BundleFrame::coords)), [`pack_normal`]ed:
+    /// which fragments are coplanar, and how steeply their depth changes.
+    pub normal: u32,
 }
 
 impl Fragment {
@@ -81,25 +103,118 @@ impl Fragment {
     }
 }
 
-/// Whether `a` lies before `b` along ω. Depths within `eps` are one place: back-to-back
-/// coincident surfaces (two rooms sharing a zero-thickness wall, each room's wall facing
-/// into it) must be ordered by facing, or rounding could put the far room's wall first and
-/// let the rooms see each other through the wall. The surface whose front looks back along
-/// −ω goes first; its room lies before it.
-#[inline]
-fn before(a: &Fragment, b: &Fragment, eps: f32) -> bool {
-    if (a.depth - b.depth).abs() <= eps { a.coincident_rank() < b.coincident_rank() } else { a.depth < b.depth }
+/// Octahedral encoding of a unit vector in 2 × 16 bits (Cigolle et al., JCGT 2014):
+/// about 5·10⁻⁵ rad of resolution, far below [`COPLANAR_COS`].
+pub fn pack_normal(n: Vec3) -> u32 {
+    let n = n / (n.x.abs() + n.y.abs() + n.z.abs()).max(f32::MIN_POSITIVE);
+    let folded = |a: f32, b: f32| (1.0 - b.abs()) * if a >= 0.0 { 1.0 } else { -1.0 };
+    let (u, v) = if n.z >= 0.0 { (n.x, n.y) } else { (folded(n.x, n.y), folded(n.y, n.x)) };
+    let q = |x: f32| ((x.clamp(-1.0, 1.0) * 0.5 + 0.5) * 65535.0).round() as u32;
+    q(u) | q(v) << 16
 }
 
-/// Sorts one pixel's fragments along ω (see [`before`]; `eps` is the depth tolerance of
-/// coincident surfaces). Insertion sort: lists are short (a few surfaces) and it is stable,
-/// so ties keep their deterministic build order.
+/// The unit vector [`pack_normal`] encoded.
+pub fn unpack_normal(packed: u32) -> Vec3 {
+    let d = |q: u32| (q & 0xFFFF) as f32 / 65535.0 * 2.0 - 1.0;
+    let (u, v) = (d(packed), d(packed >> 16));
+    let z = 1.0 - u.abs() - v.abs();
+    let t = (-z).max(0.0);
+    let x = u + if u >= 0.0 { -t } else { t };
+    let y = v + if v >= 0.0 { -t } else { t };
+    Vec3::new(x, y, z).normalize()
+}
+
+/// Fragments whose normals are closer than this (cosine of 10⁻³ rad) are coplanar when
+/// they are at the same depth: copies of one surface are parallel to rounding (10⁻⁶);
+/// faces that intersect at a visible angle are not one surface.
+pub const COPLANAR_COS: f32 = 0.999_999_5;
+
+/// When two fragments adjacent in depth order are one layer.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Coincidence {
+    /// Depths within this are one place for [`sort_by_depth`], ordered by facing: two rooms
+    /// sharing a zero-thickness wall, whose order rounding would decide (metres; a few f32
+    /// ulps of the scene's coordinates). Kept small: it also catches lines grazing a
+    /// concave edge, where the tie-break costs that line's sample.
+    pub rounding: f32,
+    /// Coplanar fragments facing the same way (fronts both looking +ω, or both −ω) closer
+    /// than this along their normal are one layer: stacked copies. The scene's ray offset ε
+    /// (see [`crate::reference::ray_epsilon`]), the gap the reference tracer and the
+    /// Mitsuba cross-check step over, so that every estimator agrees on what one surface is.
+    pub stacked: f32,
+    /// Depth error per unit of depth slope of the rasteriser at this tile's pixel size
+    /// ([`snapped_depth_slack`](super::raster::snapped_depth_slack)): what two coplanar
+    /// fragments' depths may differ by besides their real gap.
+    pub snap: f32,
+}
+
+impl Coincidence {
+    /// Depth gaps beyond this are never a tie or a join, whatever the slope (up to 89.4°
+    /// from the normal: |n_ω| ≥ 0.01; lines closer to grazing keep their depth order).
+    #[inline]
+    fn reach(&self) -> f32 {
+        self.rounding + 100.0 * (self.stacked + self.snap)
+    }
+
+    /// The gap along the normal `n` of two fragments `gap` apart in depth, and what
+    /// rounding and snapping allow there (a depth gap Δ along ω is Δ·|n_ω| along the
+    /// normal; the snapping error, slope tanθ times `snap` along ω, is `snap`·sinθ along it).
+    #[inline]
+    fn normal_gap(&self, gap: f32, n: Vec3) -> (f32, f32) {
+        let cos = n.z.abs();
+        let sin = (1.0 - cos * cos).max(0.0).sqrt();
+        (gap * cos, self.rounding * cos + self.snap * sin)
+    }
+
+    /// Whether `a` and `b` are at one place along the line, for [`sort_by_depth`]: depths
+    /// within rounding, or parallel surfaces (facing either way) within rounding and
+    /// snapping.
+    #[inline]
+    fn same_place(&self, a: &Fragment, b: &Fragment) -> bool {
+        let gap = (b.depth - a.depth).abs();
+        if gap <= self.rounding {
+            return true;
+        }
+        if gap > self.reach() {
+            return false;
+        }
+        let (na, nb) = (unpack_normal(a.normal), unpack_normal(b.normal));
+        let (along, slack) = self.normal_gap(gap, na);
+        along <= slack && na.dot(nb).abs() >= COPLANAR_COS
+    }
+
+    /// Whether `b`, which follows `a` in depth order, lies in `a`'s layer: same facing,
+    /// parallel, and closer along the normal than [`stacked`](Self::stacked) once rounding
+    /// and snapping are allowed for.
+    #[inline]
+    fn joins(&self, a: &Fragment, b: &Fragment) -> bool {
+        let gap = (b.depth - a.depth).abs();
+        if a.coincident_rank() != b.coincident_rank() || gap > self.reach() {
+            return false;
+        }
+        let (na, nb) = (unpack_normal(a.normal), unpack_normal(b.normal));
+        let (along, slack) = self.normal_gap(gap, na);
+        along <= slack + self.stacked && na.dot(nb) >= COPLANAR_COS
+    }
+}
+
+/// Whether `a` lies before `b` along ω. Fragments at one place (see
+/// [`Coincidence::same_place`]) are ordered by facing: the surface whose front looks back
+/// along −ω goes first (its room lies before it). Two rooms sharing a zero-thickness wall
+/// then never see each other, whatever order rounding or snapping would give their walls.
 #[inline]
-pub fn sort_by_depth(frags: &mut [Fragment], eps: f32) {
+fn before(a: &Fragment, b: &Fragment, c: &Coincidence) -> bool {
+    if c.same_place(a, b) { a.coincident_rank() < b.coincident_rank() } else { a.depth < b.depth }
+}
+
+/// Sorts one pixel's fragments along ω (see [`before`]). Insertion sort: lists are short
+/// (a few surfaces) and it is stable, so ties keep their deterministic build order.
+#[inline]
+pub fn sort_by_depth(frags: &mut [Fragment], c: Coincidence) {
     for i in 1..frags.len() {
         let f = frags[i];
         let mut j = i;
-        while j > 0 && before(&f, &frags[j - 1], eps) {
+        while j > 0 && before(&f, &frags[j - 1], &c) {
             frags[j] = frags[j - 1];
             j -= 1;
         }
@@ -107,57 +222,132 @@ pub fn sort_by_depth(frags: &mut [Fragment], eps: f32) {
     }
 }
 
+/// The end (exclusive) of the layer that starts at `start` in depth-sorted `frags`.
+#[inline]
+fn layer_end(frags: &[Fragment], start: usize, c: Coincidence) -> usize {
+    let mut end = start + 1;
+    while end < frags.len() && c.joins(&frags[end - 1], &frags[end]) {
+        end += 1;
+    }
+    end
+}
+
+/// The radiance a layer shows toward one side: the brightest (by r + g + b) of `radiance`
+/// over its fragments whose side toward the viewer (`side(f)`: `f.minus` seen from before
+/// the layer, `f.plus` from after it) is a lit face; `None` when it has none. Members of one
+/// layer see the same light and differ only by albedo and emission: the one on top (an
+/// emissive quad on a ceiling, a decal) is there to be seen. Ties go to the first.
+#[inline]
+fn layer_face(
+    layer: &[Fragment],
+    side: fn(&Fragment) -> u32,
+    mut radiance: impl FnMut(&Fragment, u32) -> Option<Rgb>,
+) -> Option<Rgb> {
+    let mut best: Option<Rgb> = None;
+    for f in layer {
+        let code = side(f) & CODE_MASK;
+        if code == NO_SIDE {
+            continue;
+        }
+        if let Some(l) = radiance(f, code)
+            && best.is_none_or(|b| l.element_sum() > b.element_sum())
+        {
+            best = Some(l);
+        }
+    }
+    best
+}
+
+fn minus_side(f: &Fragment) -> u32 {
+    f.minus
+}
+
+fn plus_side(f: &Fragment) -> u32 {
+    f.plus
+}
+
 /// Receives hits. `texel` is a lit face's texel.
 pub trait HitSink {
     fn hit(&mut self, texel: u32, weighted_radiance: Rgb, weight: f32);
 }
 
-/// Global-bundle exchange over one pixel's depth-sorted fragments: every target side
-/// receives the radiance of what it sees. `seen(code)` is the outgoing radiance toward the
-/// bundle of the side with that code (target texel or foreign; never called for
-/// [`NO_SIDE`], which is black).
+/// Global-bundle exchange over one pixel's depth-sorted fragments (sorted with
+/// [`sort_by_depth`] and the same `c`): every target side receives the radiance of what it
+/// sees (the neighbouring layer's face, module docs). `seen(code)`
+/// is the outgoing radiance toward the bundle of the side with that code (target texel or
+/// foreign; never called for [`NO_SIDE`], which is black, and only for faces some target
+/// side sees). Hits arrive fragment by fragment, the side looking +ω first.
 #[inline]
-pub fn exchange(frags: &[Fragment], a_px: f32, sky: Rgb, mut seen: impl FnMut(u32) -> Rgb, sink: &mut impl HitSink) {
-    let mut look = |side: u32| {
-        let code = side & CODE_MASK;
-        if code == NO_SIDE { Rgb::ZERO } else { seen(code) }
-    };
-    let m = frags.len();
-    for i in 0..m {
-        let f = &frags[i];
-        if let Some(t) = f.plus_texel() {
-            let l = if i + 1 < m { look(frags[i + 1].minus) } else { sky };
-            sink.hit(t, l * a_px, a_px);
+pub fn exchange(
+    frags: &[Fragment],
+    c: Coincidence,
+    a_px: f32,
+    sky: Rgb,
+    mut seen: impl FnMut(u32) -> Rgb,
+    sink: &mut impl HitSink,
+) {
+    let mut start = 0;
+    let mut end = if frags.is_empty() { 0 } else { layer_end(frags, 0, c) };
+    // The layer before the current one; `None` before the first (the sky).
+    let mut behind: Option<&[Fragment]> = None;
+    while start < frags.len() {
+        let next_end = if end < frags.len() { layer_end(frags, end, c) } else { end };
+        let ahead = (end < frags.len()).then(|| &frags[end..next_end]);
+        // What the layer's sides see, looked up once, when a target side needs it.
+        let (mut l_ahead, mut l_behind) = (None, None);
+        let mut look = |layer: Option<&[Fragment]>, side: fn(&Fragment) -> u32| match layer {
+            None => sky,
+            Some(layer) => layer_face(layer, side, |_, code| Some(seen(code))).unwrap_or(Rgb::ZERO),
+        };
+        for f in &frags[start..end] {
+            if let Some(t) = f.plus_texel() {
+                let l = *l_ahead.get_or_insert_with(|| look(ahead, minus_side));
+                sink.hit(t, l * a_px, a_px);
+            }
+            if let Some(t) = f.minus_texel() {
+                let l = *l_behind.get_or_insert_with(|| look(behind, plus_side));
+                sink.hit(t, l * a_px, a_px);
+            }
         }
-        if let Some(t) = f.minus_texel() {
-            let l = if i > 0 { look(frags[i - 1].plus) } else { sky };
-            sink.hit(t, l * a_px, a_px);
-        }
+        behind = Some(&frags[start..end]);
+        (start, end) = (end, next_end);
     }
 }
 
-/// Light-pass exchange: each emitter fragment's emitting side lights the target side of the
-/// neighbour facing it. `emission(code)` is the emitted radiance of the side with that code
+/// Light-pass exchange: where a layer's side faces an emitter of the light pass (fragments
+/// carrying [`EMITTER_FLAG`]; the brightest when several), every target side of the
+/// neighbouring layer facing it receives that emission. `emission(code)` is the emitted radiance of the side with that code
 /// (zero if it does not emit).
 #[inline]
-pub fn emit(frags: &[Fragment], a_px: f32, mut emission: impl FnMut(u32) -> Rgb, sink: &mut impl HitSink) {
-    let m = frags.len();
-    for i in 0..m {
-        let f = &frags[i];
-        if !f.is_emitter() {
-            continue;
+pub fn emit(
+    frags: &[Fragment],
+    c: Coincidence,
+    a_px: f32,
+    mut emission: impl FnMut(u32) -> Rgb,
+    sink: &mut impl HitSink,
+) {
+    let mut emitted = |layer: &[Fragment], side: fn(&Fragment) -> u32| {
+        layer_face(layer, side, |f, code| f.is_emitter().then(|| emission(code)))
+    };
+    let mut start = 0;
+    let mut previous: Option<&[Fragment]> = None;
+    while start < frags.len() {
+        let end = layer_end(frags, start, c);
+        let layer = &frags[start..end];
+        if let Some(before) = previous {
+            if let Some(le) = emitted(before, plus_side) {
+                for dst in layer.iter().filter_map(Fragment::minus_texel) {
+                    sink.hit(dst, le * a_px, a_px);
+                }
+            }
+            if let Some(le) = emitted(layer, minus_side) {
+                for dst in before.iter().filter_map(Fragment::plus_texel) {
+                    sink.hit(dst, le * a_px, a_px);
+                }
+            }
         }
-        let (plus, minus) = (f.plus & CODE_MASK, f.minus & CODE_MASK);
-        if let (true, Some(next)) = (plus != NO_SIDE, frags.get(i + 1))
-            && let Some(dst) = next.minus_texel()
-        {
-            sink.hit(dst, emission(plus) * a_px, a_px);
-        }
-        if let (true, Some(prev)) = (minus != NO_SIDE, i.checked_sub(1).map(|j| &frags[j]))
-            && let Some(dst) = prev.plus_texel()
-        {
-            sink.hit(dst, emission(minus) * a_px, a_px);
-        }
+        previous = Some(layer);
+        start = end;
     }
 }
 
@@ -173,14 +363,19 @@ mod tests {
         }
     }
 
+    /// Tolerances of the tests: rounding 1e-4, stacked copies within 1e-3, no snapping.
+    const C: Coincidence = Coincidence { rounding: 1e-4, stacked: 1e-3, snap: 0.0 };
+
+    /// A fragment of a surface whose normal is +ω's (every test surface is parallel to
+    /// the others unless it says otherwise).
     fn frag(depth: f32, plus: u32, minus: u32) -> Fragment {
-        Fragment { depth, plus, minus }
+        Fragment { depth, plus, minus, normal: pack_normal(Vec3::Z) }
     }
 
     #[test]
     fn sorting_is_stable_by_depth() {
         let mut f = vec![frag(3.0, 1, 1), frag(1.0, 2, 2), frag(3.0, 3, 3), frag(-1.0, 4, 4)];
-        sort_by_depth(&mut f, 0.0);
+        sort_by_depth(&mut f, Coincidence { rounding: 0.0, stacked: 0.0, snap: 0.0 });
         assert_eq!(f.iter().map(|f| f.plus).collect::<Vec<_>>(), vec![4, 2, 1, 3]);
     }
 
@@ -195,11 +390,11 @@ mod tests {
         let b_far = frag(9.0, NO_SIDE, 4 | FRONT_LOOKS_PLUS);
         for order in [[a_floor, a_wall, b_wall, b_far], [a_floor, b_wall, a_wall, b_far]] {
             let mut f = order.to_vec();
-            sort_by_depth(&mut f, 1e-4);
+            sort_by_depth(&mut f, C);
             assert_eq!(f[1], a_wall);
             let mut log = Log::default();
             // Room A's texels (1, 3) glow; room B's (2, 4) must see nothing of them.
-            exchange(&f, 1.0, Rgb::ZERO, |t| if t == 1 || t == 3 { Rgb::ONE } else { Rgb::ZERO }, &mut log);
+            exchange(&f, C, 1.0, Rgb::ZERO, |t| if t == 1 || t == 3 { Rgb::ONE } else { Rgb::ZERO }, &mut log);
             for (t, l, _) in log.0 {
                 if t == 2 || t == 4 {
                     assert_eq!(l, Rgb::ZERO, "texel {t} of the dark room sees light");
@@ -215,7 +410,7 @@ mod tests {
         let frags = [frag(0.0, 10, NO_SIDE), frag(2.0, NO_SIDE, 20)];
         let source = |t: u32| Rgb::splat(t as f32);
         let mut log = Log::default();
-        exchange(&frags, 0.5, Rgb::splat(7.0), source, &mut log);
+        exchange(&frags, C, 0.5, Rgb::splat(7.0), source, &mut log);
         assert_eq!(log.0, vec![(10, Rgb::splat(10.0), 0.5), (20, Rgb::splat(5.0), 0.5)]);
     }
 
@@ -226,7 +421,7 @@ mod tests {
         // A double-sided panel (texels 1 and 2) in front of a wall seen from behind.
         let frags = [frag(0.0, 1, 2), frag(1.0, 3, NO_SIDE)];
         let mut log = Log::default();
-        exchange(&frags, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32 * 100.0), &mut log);
+        exchange(&frags, C, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32 * 100.0), &mut log);
         assert_eq!(log.0, vec![(1, Rgb::ZERO, 1.0), (2, Rgb::splat(4.0), 1.0), (3, Rgb::splat(4.0), 1.0)]);
     }
 
@@ -240,7 +435,129 @@ mod tests {
             frag(2.0, NO_SIDE, 7),                // ceiling beyond, looks −ω at the lamp's back
         ];
         let mut log = Log::default();
-        emit(&frags, 0.25, |t| if t == 6 { Rgb::splat(8.0) } else { Rgb::ZERO }, &mut log);
+        emit(&frags, C, 0.25, |t| if t == 6 { Rgb::splat(8.0) } else { Rgb::ZERO }, &mut log);
         assert_eq!(log.0, vec![(5, Rgb::splat(2.0), 0.25)]);
+    }
+
+    /// Every input order of `frags`, sorted as the resolve sorts them.
+    fn orders(frags: &[Fragment]) -> Vec<Vec<Fragment>> {
+        let mut out = Vec::new();
+        let n = frags.len();
+        let mut idx: Vec<usize> = (0..n).collect();
+        // Heap's algorithm over the few fragments of a test.
+        fn permute(k: usize, idx: &mut Vec<usize>, frags: &[Fragment], out: &mut Vec<Vec<Fragment>>) {
+            if k <= 1 {
+                let mut f: Vec<Fragment> = idx.iter().map(|&i| frags[i]).collect();
+                sort_by_depth(&mut f, C);
+                out.push(f);
+                return;
+            }
+            for i in 0..k {
+                permute(k - 1, idx, frags, out);
+                idx.swap(if k % 2 == 0 { i } else { 0 }, k - 1);
+            }
+        }
+        permute(n, &mut idx, frags, &mut out);
+        out
+    }
+
+    /// A floor (single-sided, front looks +ω: texel 1) with a double-sided tile on it
+    /// (front 2, back 3), 5e-4 apart (a stacked copy, inside `C.stacked`), under a glowing
+    /// ceiling (texel 9, front looks −ω). Whatever order the copies arrive in, both fronts
+    /// see the ceiling, the tile's back sees the sky below, and the ceiling sees the
+    /// brighter of the two fronts.
+    #[test]
+    fn stacked_copies_are_one_layer() {
+        let floor = frag(0.0, 1, NO_SIDE | FRONT_LOOKS_PLUS);
+        let tile = frag(5e-4, 2, 3 | FRONT_LOOKS_PLUS);
+        let ceiling = frag(2.0, NO_SIDE, 9);
+        let radiance = |t: u32| Rgb::splat(t as f32);
+        for f in orders(&[floor, tile, ceiling]) {
+            let mut log = Log::default();
+            exchange(&f, C, 1.0, Rgb::splat(0.5), radiance, &mut log);
+            log.0.sort_by_key(|h| h.0);
+            assert_eq!(
+                log.0,
+                vec![
+                    (1, Rgb::splat(9.0), 1.0),
+                    (2, Rgb::splat(9.0), 1.0),
+                    (3, Rgb::splat(0.5), 1.0),
+                    (9, Rgb::splat(2.0), 1.0)
+                ],
+                "{f:?}"
+            );
+        }
+        // Further apart than `C.stacked`, the tile is a surface of its own: the floor under
+        // it looks at the tile's back.
+        let mut f = vec![floor, frag(2e-3, 2, 3 | FRONT_LOOKS_PLUS), ceiling];
+        sort_by_depth(&mut f, C);
+        let mut log = Log::default();
+        exchange(&f, C, 1.0, Rgb::ZERO, radiance, &mut log);
+        assert_eq!(log.0[0], (1, Rgb::splat(3.0), 1.0));
+    }
+
+    /// Facing each other, two surfaces 5e-4 apart are a real gap (fronts facing: they see
+    /// each other) or a thin solid (backs facing), whichever their depths say: opposite
+    /// facings never join.
+    #[test]
+    fn opposite_facings_keep_their_order() {
+        let up = frag(0.0, 1, NO_SIDE | FRONT_LOOKS_PLUS); // front looks +ω
+        let down = frag(5e-4, NO_SIDE, 2); // front looks −ω
+        let mut log = Log::default();
+        exchange(&[up, down], C, 1.0, Rgb::splat(7.0), |t| Rgb::splat(t as f32), &mut log);
+        assert_eq!(log.0, vec![(1, Rgb::splat(2.0), 1.0), (2, Rgb::splat(1.0), 1.0)]);
+    }
+
+    /// A line grazing the corner where a lit room's wall (front looks −ω) backs onto a dark
+    /// room, whose floor (front also looks −ω, another plane) meets the wall there: their
+    /// depths agree to far less than the stacked-copy tolerance, but they are not one
+    /// surface. The dark floor must see the wall's back, never past it into the lit room.
+    #[test]
+    fn surfaces_meeting_at_an_edge_are_not_one_layer() {
+        let lit_room = frag(-1.0, 9, NO_SIDE | FRONT_LOOKS_PLUS);
+        let lit_wall = Fragment { normal: pack_normal(-Vec3::X), ..frag(0.0, NO_SIDE, 1) };
+        let dark_floor = Fragment { normal: pack_normal(Vec3::new(0.0, -0.6, -0.8)), ..frag(5e-4, NO_SIDE, 2) };
+        let mut log = Log::default();
+        exchange(
+            &[lit_room, lit_wall, dark_floor],
+            C,
+            1.0,
+            Rgb::ZERO,
+            |t| Rgb::splat((t == 9) as u32 as f32),
+            &mut log,
+        );
+        assert!(
+            log.0.iter().all(|&(t, l, _)| t != 2 || l == Rgb::ZERO),
+            "the dark floor sees the lit room: {:?}",
+            log.0
+        );
+    }
+
+    #[test]
+    fn packed_normals_round_trip() {
+        let mut rng = crate::sampling::Rng::new(3, 0);
+        for _ in 0..1000 {
+            let n = crate::sampling::uniform_sphere(rng.next_vec2()).normalize();
+            let back = unpack_normal(pack_normal(n));
+            assert!(n.cross(back).length() < 1e-4, "{n} → {back}");
+        }
+        for n in [Vec3::X, -Vec3::Y, Vec3::Z, -Vec3::Z, Vec3::new(1.0, 0.0, -1e-9).normalize()] {
+            assert!(n.dot(unpack_normal(pack_normal(n))) >= COPLANAR_COS);
+        }
+    }
+
+    /// An emissive quad (light-pass emitter, emitting along −ω: texel 6) on a ceiling
+    /// (texel 4, same facing), at exactly the same depth, over a floor (texel 5): the floor
+    /// receives the lamp's emission whichever order the two arrive in, once.
+    #[test]
+    fn a_lamp_on_its_ceiling_lights_the_floor() {
+        let floor = frag(0.0, 5, NO_SIDE | FRONT_LOOKS_PLUS);
+        let ceiling = frag(2.0, NO_SIDE, 4);
+        let lamp = frag(2.0, NO_SIDE | EMITTER_FLAG, 6);
+        for f in orders(&[floor, ceiling, lamp]) {
+            let mut log = Log::default();
+            emit(&f, C, 0.25, |t| if t == 6 { Rgb::splat(8.0) } else { Rgb::ZERO }, &mut log);
+            assert_eq!(log.0, vec![(5, Rgb::splat(2.0), 0.25)], "{f:?}");
+        }
     }
 }

@@ -192,6 +192,16 @@ impl Planes {
     }
 }
 
+/// How far apart (metres along ω, per unit of depth slope tanθ) the depths of two coplanar
+/// triangles may be at one pixel of side `pixel`: each corner snaps by at most half a
+/// subpixel in x and in y, which tilts a triangle's depth plane (interpolated over the
+/// snapped corners) by at most (√2/2)/SUBPIXEL pixel times its slope, each triangle
+/// differently. The depths stay consistent with the coverage, which is what keeps a closed
+/// mesh closed; stacked copies must allow for it.
+pub fn snapped_depth_slack(pixel: f32) -> f32 {
+    std::f32::consts::SQRT_2 * pixel / SUBPIXEL as f32
+}
+
 /// An affine function f(x, y) = c[0]·x + c[1]·y + c[2] of grid coordinates at (x, y).
 #[inline]
 pub fn eval(c: &[f32; 3], x: f32, y: f32) -> f32 {

@@ -257,10 +257,10 @@ fn trace_global(
 
         let t = Instant::now();
         let a_px = vp.pixel_area();
-        let (sky, source) = (ctx.sky, ctx.source);
+        let (sky, source, coincidence) = (ctx.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel));
         let mut sink = BundleHits(&mut sums.bundle);
         stats.covered_pixels += s.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
-            exchange(f, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lost), &mut sink)
+            exchange(f, coincidence, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lost), &mut sink)
         });
         stats.resolve_seconds += seconds(t);
     }
@@ -400,12 +400,14 @@ fn trace_light(
         stats.light_fragments += count;
         stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
         let a_px = vp.pixel_area();
+        let coincidence = ctx.scene.coincidence_at(vp.pixel);
         let (own, source) = (ctx.target.emission, ctx.source);
         let mut sink = LightHits(&mut sums.light);
         s.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
             stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
             emit(
                 f,
+                coincidence,
                 a_px,
                 |code| {
                     if is_own(code) {

@@ -19,7 +19,9 @@
 use super::scene::CpuScene;
 use crate::atlas::lookup::TexelTable;
 use crate::atlas::texels::NO_TEXEL;
-use crate::bundle::estimator::{EMITTER_FLAG, FOREIGN, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, sort_by_depth};
+use crate::bundle::estimator::{
+    EMITTER_FLAG, FOREIGN, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, pack_normal, sort_by_depth,
+};
 use crate::bundle::raster::{BundleFrame, Planes, ScreenTriangle, Viewport, eval, grid_centre};
 use crate::bundle::target::{BakeTarget, NO_GROUP};
 use crate::scene::Side;
@@ -37,6 +39,8 @@ struct TileTriangle {
     emitter: bool,
     /// Holds texels of the bake's target (only pixels with such a fragment can receive).
     receiver: bool,
+    /// Its front normal in the bundle frame, packed (which fragments are coplanar).
+    normal: u32,
 }
 
 /// What the fragments of one triangle carry, as affine functions of grid pixel coordinates
@@ -51,6 +55,8 @@ struct FragmentPlanes {
     /// Flags the fragments carry: [`EMITTER_FLAG`] on `plus`, [`FRONT_LOOKS_PLUS`] on `minus`.
     plus_flag: u32,
     minus_flag: u32,
+    /// The triangle's front normal, packed (which fragments are coplanar).
+    normal: u32,
 }
 
 /// How a side of a tile triangle gets its code (see [`crate::bundle::estimator`]).
@@ -81,6 +87,8 @@ pub struct TileFragments {
     height: u32,
     /// The viewport's offset in its pixel grid: attributes are evaluated in grid coordinates.
     offset: (u32, u32),
+    /// The viewport's pixel side (m): how far rasterised depths may stray.
+    pixel: f32,
     tris: Vec<TileTriangle>,
     planes: Vec<FragmentPlanes>,
     /// A light pass: only pixels an emitter covers are resolved (no other pixel can receive
@@ -119,6 +127,7 @@ impl TileFragments {
         self.width = viewport.width;
         self.height = viewport.height;
         self.offset = viewport.offset;
+        self.pixel = viewport.pixel;
         self.emitters_only = emitter_group.is_some();
         self.tris.clear();
         let geom = &scene.bundle.geom;
@@ -126,7 +135,8 @@ impl TileFragments {
             let i = t as usize;
             if let Some(screen) = ScreenTriangle::setup(frame, viewport, &geom.corners[i], geom.normals[i]) {
                 let emitter = emitter_group.is_some_and(|g| g != NO_GROUP && scene.bundle.group_of[i] == g);
-                self.tris.push(TileTriangle { index: t, screen, emitter, receiver: receiver(t) });
+                let normal = pack_normal(frame.coords(geom.normals[i]));
+                self.tris.push(TileTriangle { index: t, screen, emitter, receiver: receiver(t), normal });
             }
         }
         self.size_buckets();
@@ -205,6 +215,7 @@ impl TileFragments {
         mut visit: impl FnMut(&[Fragment], &ForeignSides, f32, f32),
     ) -> u64 {
         self.set_up_planes(scene, target);
+        let coincidence = scene.coincidence_at(self.pixel);
         let mut covered = 0;
         for bucket in 0..self.bucket_len.len() {
             let Some((lo, hi)) = self.window(bucket) else { continue };
@@ -216,7 +227,7 @@ impl TileFragments {
                 if b > a {
                     let frags = &mut self.frags[a..b];
                     if frags.len() > 1 {
-                        sort_by_depth(frags, scene.coincident_depth);
+                        sort_by_depth(frags, coincidence);
                     }
                     visit(frags, &foreign, grid_centre(self.offset.0, lo + p as u32), cy);
                     covered += 1;
@@ -256,6 +267,7 @@ impl TileFragments {
                 minus: in_grid(lookup(k, tri.index, minus_side, true)),
                 plus_flag: if tri.emitter { EMITTER_FLAG } else { 0 },
                 minus_flag: if tri.screen.front_faces_dir { FRONT_LOOKS_PLUS } else { 0 },
+                normal: tri.normal,
             });
         }
     }
@@ -304,7 +316,7 @@ impl TileFragments {
             *e = total;
             total += running;
         }
-        grow(&mut self.frags, total as usize, Fragment { depth: 0.0, plus: NO_SIDE, minus: NO_SIDE });
+        grow(&mut self.frags, total as usize, Fragment { depth: 0.0, plus: NO_SIDE, minus: NO_SIDE, normal: 0 });
         let cy = grid_centre(self.offset.1, row);
         for s in spans {
             let (x0, x1) = clip(s);
@@ -407,8 +419,12 @@ impl SpanFill<'_> {
         for (x, cursor) in (self.x0..).zip(self.cursors.iter_mut()) {
             let cx = grid_centre(self.offset, x);
             let (plus, minus) = sides(cx);
-            self.frags[*cursor as usize] =
-                Fragment { depth: eval(&p.depth, cx, self.cy), plus: plus | p.plus_flag, minus: minus | p.minus_flag };
+            self.frags[*cursor as usize] = Fragment {
+                depth: eval(&p.depth, cx, self.cy),
+                plus: plus | p.plus_flag,
+                minus: minus | p.minus_flag,
+                normal: p.normal,
+            };
             *cursor += 1;
         }
     }

@@ -1,6 +1,6 @@
 //! Per-scene data the CPU bundle passes read for every direction, built once per scene and
 //! shared (`Arc`) by every worker: texel densities, the triangles' bounding-sphere tree, the
-//! scene's bounding sphere and the coincident-depth tolerance.
+//! scene's bounding sphere and when fragments are one layer.
 
 use std::sync::Arc;
 
@@ -8,6 +8,9 @@ use glam::Vec3;
 
 use super::spheres::SphereTree;
 use crate::bundle::BundleScene;
+use crate::bundle::estimator::Coincidence;
+use crate::bundle::raster::snapped_depth_slack;
+use crate::reference::ray_epsilon;
 use crate::scene::Side;
 
 pub struct CpuScene {
@@ -21,14 +24,19 @@ pub struct CpuScene {
     /// Centre and radius of the scene's bounding sphere.
     pub centre: Vec3,
     pub radius: f32,
-    /// Depth difference (m) below which two fragments count as coincident surfaces: far
-    /// below any real wall thickness, above f32 rounding of depths at this scene's scale
-    /// (~10⁻⁷ relative). Kept small because it also catches lines grazing a convex edge,
-    /// where the tie-break (leak-safe: back sides face each other) costs that line's sample.
-    pub coincident_depth: f32,
+    /// When fragments are one layer ([`Coincidence`]): `rounding` is far below any real
+    /// wall thickness and above f32 rounding of depths at this scene's scale (~10⁻⁷
+    /// relative); `stacked` is the scene's ray offset ε, as the reference tracer's; `snap`
+    /// is left to each tile ([`CpuScene::coincidence_at`]).
+    pub coincidence: Coincidence,
 }
 
 impl CpuScene {
+    /// The layer tolerances of a tile with pixels of side `pixel` (metres).
+    pub fn coincidence_at(&self, pixel: f32) -> Coincidence {
+        Coincidence { snap: snapped_depth_slack(pixel), ..self.coincidence }
+    }
+
     pub fn new(bundle: Arc<BundleScene>) -> Self {
         let (geom, atlas) = (&bundle.geom, &bundle.atlas);
         let density = (0..geom.len() as u32)
@@ -56,7 +64,9 @@ impl CpuScene {
             })
             .collect();
         let spheres = SphereTree::new(spheres);
-        let coincident_depth = 1e-6 * (radius + centre.abs().max_element());
-        CpuScene { bundle, density, spheres, centre, radius, coincident_depth }
+        let rounding = 1e-6 * (radius + centre.abs().max_element());
+        // `snap` depends on each tile's pixel size: set per tile.
+        let coincidence = Coincidence { rounding, stacked: ray_epsilon(&bundle.scene).max(rounding), snap: 0.0 };
+        CpuScene { bundle, density, spheres, centre, radius, coincidence }
     }
 }
