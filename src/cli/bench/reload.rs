@@ -225,6 +225,8 @@ struct Move {
     refreshed_by_workers: usize,
     /// Cells not invalidated, not published or evicted, whose shown LOD changed.
     lod_changed_not_invalidated: usize,
+    /// Invalidated cells whose LOD-0 light changed (the audit's control: all of them should).
+    invalidated_with_changed_light: usize,
     audited_cells: usize,
 }
 
@@ -318,12 +320,14 @@ fn one_move(
         rebaked_not_invalidated: Vec::new(),
         refreshed_by_workers: 0,
         lod_changed_not_invalidated: 0,
+        invalidated_with_changed_light: 0,
         audited_cells: 0,
     };
     if repacked || world.atlas.width != width_before {
         return Ok(m); // everything was re-baked: nothing to audit
     }
     let changed = changed_lod0(&world, &before, &after);
+    m.invalidated_with_changed_light = is_invalid.iter().filter(|&&c| changed[c as usize] > 0).count();
     let lod_before: std::collections::HashMap<CellId, u32> =
         cells_before.iter().map(|c| (c.cell, c.shown_lod)).collect();
     for c in cells_after.iter().filter(|c| !is_invalid.contains(&c.cell)) {
@@ -434,6 +438,7 @@ fn case(c: &Case, root: &Path, quick: bool, ui: &Ui) -> Result<Value> {
             "rebaked_not_invalidated": m.rebaked_not_invalidated,
             "refreshed_by_workers_in_window": m.refreshed_by_workers,
             "lod_changed_not_invalidated": m.lod_changed_not_invalidated,
+            "invalidated_with_changed_light": m.invalidated_with_changed_light,
         })).collect::<Vec<_>>(),
     }))
 }
