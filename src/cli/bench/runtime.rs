@@ -323,7 +323,8 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
         bail!("only {} surface points in view", points.len());
     }
     let reader = ShownReader::new(&world, &points)?;
-    let mut swaps: Vec<(f64, u32)> = Vec::new();
+    // (time, LOD, directions, estimated error) of each swap.
+    let mut swaps: Vec<(f64, u32, u64, f32)> = Vec::new();
     let mut stats: Vec<(f64, RuntimeStats)> = Vec::new();
     let mut evictions = 0;
     let mut snapshots = vec![(t_light, light_shown.clone())];
@@ -341,7 +342,7 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
         let wait = Duration::from_secs_f64((end.min(next_snapshot) - now).clamp(0.001, 0.1));
         if let Some(e) = next_event(&runtime, wait)? {
             match e.event {
-                RuntimeEvent::CellPublished { lod, .. } => swaps.push((e.t, lod)),
+                RuntimeEvent::CellPublished { lod, directions, error, .. } => swaps.push((e.t, lod, directions, error)),
                 RuntimeEvent::CellEvicted { .. } => evictions += 1,
                 RuntimeEvent::Stats(s) => stats.push((e.t, s)),
                 _ => {}
@@ -383,8 +384,11 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
         per_lod[c.shown_lod as usize] += 1;
     }
     let swap_times: Vec<f64> = swaps.iter().map(|s| s.0).collect();
+    let swap_directions: Vec<f64> = swaps.iter().map(|s| s.2 as f64).collect();
+    let swap_errors: Vec<f64> = swaps.iter().map(|s| s.3 as f64).collect();
+    let at_max = swaps.iter().filter(|s| s.2 >= config.max_directions as u64).count();
     let mut swaps_per_lod = vec![0usize; world.lods as usize];
-    for &(_, lod) in &swaps {
+    for &(_, lod, _, _) in &swaps {
         swaps_per_lod[lod as usize] += 1;
     }
     let refine_stats: Vec<&RuntimeStats> = stats.iter().filter(|(t, _)| *t > t_light + 1.0).map(|(_, s)| s).collect();
@@ -426,6 +430,10 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
             "cells_per_shown_lod": per_lod,
             "swaps": swaps.len(),
             "swaps_per_lod": swaps_per_lod,
+            "directions_per_swap": { "median": quantile(&swap_directions, 0.5), "p90": quantile(&swap_directions, 0.9) },
+            "estimated_error_per_swap": { "median": quantile(&swap_errors, 0.5), "p90": quantile(&swap_errors, 0.9) },
+            "swaps_at_max_directions": at_max,
+            "swap_rule": { "min_directions": config.min_directions, "max_directions": config.max_directions, "error_bound": config.error_bound },
             "swap_seconds_from_start": { "median": quantile(&swap_times, 0.5), "p90": quantile(&swap_times, 0.9), "first": swap_times.first(), "last": swap_times.last() },
             "evictions": evictions,
             "median_texel_samples_per_second": quantile(&rates, 0.5),
