@@ -225,7 +225,8 @@ struct Move {
     refreshed_by_workers: usize,
     /// Cells not invalidated, not published or evicted, whose shown LOD changed.
     lod_changed_not_invalidated: usize,
-    /// Invalidated cells whose LOD-0 light changed (the audit's control: all of them should).
+    /// Invalidated cells whose LOD-0 light changed (the audit's control: nearly all; a re-bake
+    /// is deterministic, so a cell whose inputs came back as they were may get the same values).
     invalidated_with_changed_light: usize,
     audited_cells: usize,
 }
