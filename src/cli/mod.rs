@@ -98,12 +98,14 @@ enum Command {
         run: run::RunOptions,
     },
     /// Measure: load and unwrap/pack, reference rays/s, startup bake, bundle throughput,
-    /// convergence against Mitsuba and Cycles, tiling modes. Writes JSON (medians and ratios from one run).
+    /// convergence against Mitsuba and Cycles, tiling modes, the viewer, the live runtime and
+    /// hot reload. Writes JSON (medians and ratios from one run).
     Bench {
         /// Output JSON.
         #[arg(long, default_value = "bench.json")]
         out: PathBuf,
-        /// Only these sections (atlas, reference, startup, throughput, convergence, tiling, viewer).
+        /// Only these sections (atlas, reference, startup, throughput, convergence, tiling, viewer,
+        /// runtime, reload).
         #[arg(long, value_delimiter = ',')]
         only: Vec<String>,
         /// Smaller sample sets and fewer repeats (a smoke run, not a measurement).

@@ -4,6 +4,8 @@
 mod atlas;
 mod convergence;
 mod reference;
+mod reload;
+mod runtime;
 mod startup;
 mod throughput;
 mod tiling;
@@ -29,7 +31,7 @@ pub fn assets() -> PathBuf {
 type Bench = fn(bool, &Ui) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 7] = [
+pub const SECTIONS: [(&str, Bench); 9] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -37,6 +39,8 @@ pub const SECTIONS: [(&str, Bench); 7] = [
     ("convergence", convergence::run),
     ("tiling", tiling::run),
     ("viewer", viewer::run),
+    ("runtime", runtime::run),
+    ("reload", reload::run),
 ];
 
 /// Runs `f` `runs` times and returns the median of its results (seconds or rates).
