@@ -5,7 +5,7 @@
 //! directions in order into its own hit sums, and the lanes are added in order. The sums
 //! therefore do not depend on how many threads ran the lanes.
 
-mod analysis;
+pub(crate) mod analysis;
 mod direction;
 mod fragments;
 pub mod scene;

@@ -96,7 +96,9 @@ impl GpuContext {
         let info = adapter.get_info();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("livebake"),
-            required_features: wgpu::Features::empty(),
+            // f64 where the adapter has it (lavapipe does): the GPU tile planner then decides
+            // in the same f64 arithmetic as the CPU's `TilePlanner` (see `bundle_tiles`).
+            required_features: adapter.features() & wgpu::Features::SHADER_F64,
             required_limits: adapter.limits(),
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::Performance,
@@ -127,6 +129,11 @@ impl GpuContext {
     /// Whether the adapter is a software rasteriser (lavapipe), for reports.
     pub fn is_software(&self) -> bool {
         self.info.device_type == DeviceType::Cpu
+    }
+
+    /// Whether shaders may use `f64` (the device was given `SHADER_F64`).
+    pub fn has_f64(&self) -> bool {
+        self.device.features().contains(wgpu::Features::SHADER_F64)
     }
 
     /// Blocks until the GPU has finished all submitted work.

@@ -94,6 +94,49 @@ pub struct ProbePoint {
     pub _pad1: [f32; 2],
 }
 
+/// `AnalysisParams` (bundle_analysis.wgsl): one direction's frame and analysis window.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct AnalysisParams {
+    pub t: [f32; 3],
+    pub pixel: f32,
+    pub b: [f32; 3],
+    pub res: u32,
+    pub origin: [f32; 2],
+    pub drawn_count: u32,
+    pub _pad: u32,
+}
+
+/// `MipLevel` (bundle_mips.wgsl): one reduction step, element offsets into the mip buffers.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct MipLevel {
+    pub src: u32,
+    pub dst: u32,
+    pub dst_side: u32,
+    pub _pad: u32,
+}
+
+/// `TilePassParams` (bundle_tiles.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct TilePassParams {
+    pub side: u32,
+    pub top_level: u32,
+    pub capacity: u32,
+    pub _pad: u32,
+}
+
+/// `PlannedTile` (bundle_tiles.wgsl): a tile as Program 1 appends it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq, Eq)]
+pub struct PlannedTile {
+    pub level: u32,
+    pub x: u32,
+    pub y: u32,
+    pub res: u32,
+}
+
 /// One corner of a drawn triangle (vertex buffer; `VertexInput` in surface.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
@@ -168,6 +211,15 @@ mod tests {
             [grid_origin, cell_size, grid_dims, lod_count, atlas_size, blend_band, pool_columns, levels]
         );
         assert_layout!("irradiance_probe.wgsl", ProbePoint, "ProbePoint", [position, _pad0, uv, _pad1]);
+        assert_layout!(
+            "bundle_analysis.wgsl",
+            AnalysisParams,
+            "AnalysisParams",
+            [t, pixel, b, res, origin, drawn_count, _pad]
+        );
+        assert_layout!("bundle_mips.wgsl", MipLevel, "MipLevel", [src, dst, dst_side, _pad]);
+        assert_layout!("bundle_tiles.wgsl", TilePassParams, "TilePassParams", [side, top_level, capacity, _pad]);
+        assert_layout!("bundle_tiles.wgsl", PlannedTile, "PlannedTile", [level, x, y, res]);
     }
 
     /// The vertex buffer's attributes sit where the Rust struct's fields are.
