@@ -19,7 +19,8 @@ struct AnalysisParams {
     origin: vec2<f32>,
     // Triangles drawn (entries of `drawn`).
     drawn_count: u32,
-    _pad: u32,
+    // Side V of the viewport (a power of two, centred on the attachment's corner; see vs_main).
+    view_side: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: AnalysisParams;
@@ -57,12 +58,14 @@ fn vs_main(@builtin(vertex_index) vertex: u32) -> VertexOut {
     let slot = vertex / 3u;
     let tri = drawn[slot];
     let g = grid_of(corners[3u * tri + vertex % 3u].xyz);
-    // Snapped to 1/256 pixel: a multiple of 2^-8 below 2^13, so s·(2/R) − 1 and the
-    // viewport transform back to s are exact in f32 (R a power of two).
+    // Snapped to 1/256 pixel. The viewport is V×V pixels centred on the attachment's corner
+    // (V a power of two, up to the device's texture limit), so the viewport transform is
+    // fb = ndc·V/2 with no offset: s·(2/V) and back are exact, and corners within V/2 pixels
+    // of the window are inside the clip volume (not clipped into new, unsnapped corners).
     let s = round_away(g * 256.0) / 256.0;
-    let k = 2.0 / f32(params.res);
+    let k = 2.0 / f32(params.view_side);
     var out: VertexOut;
-    out.position = vec4<f32>(s.x * k - 1.0, 1.0 - s.y * k, 0.5, 1.0);
+    out.position = vec4<f32>(s.x * k, -s.y * k, 0.5, 1.0);
     out.slot = slot;
     return out;
 }

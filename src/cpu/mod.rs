@@ -6,8 +6,8 @@
 //! therefore do not depend on how many threads ran the lanes.
 
 pub(crate) mod analysis;
-mod direction;
-mod fragments;
+pub(crate) mod direction;
+pub(crate) mod fragments;
 pub mod scene;
 mod spheres;
 

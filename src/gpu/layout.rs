@@ -104,7 +104,7 @@ pub struct AnalysisParams {
     pub res: u32,
     pub origin: [f32; 2],
     pub drawn_count: u32,
-    pub _pad: u32,
+    pub view_side: u32,
 }
 
 /// `MipLevel` (bundle_mips.wgsl): one reduction step, element offsets into the mip buffers.
@@ -135,6 +135,24 @@ pub struct PlannedTile {
     pub x: u32,
     pub y: u32,
     pub res: u32,
+}
+
+/// `ListParams` (bundle_lists.wgsl): one tile rectangle's raster into linked lists.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct ListParams {
+    pub t: [f32; 3],
+    pub pixel: f32,
+    pub b: [f32; 3],
+    pub capacity: u32,
+    pub dir: [f32; 3],
+    pub width: u32,
+    pub origin: [f32; 2],
+    pub offset: [u32; 2],
+    pub height: u32,
+    pub view_side: u32,
+    pub drawn_count: u32,
+    pub _pad: u32,
 }
 
 /// One corner of a drawn triangle (vertex buffer; `VertexInput` in surface.wgsl).
@@ -215,11 +233,17 @@ mod tests {
             "bundle_analysis.wgsl",
             AnalysisParams,
             "AnalysisParams",
-            [t, pixel, b, res, origin, drawn_count, _pad]
+            [t, pixel, b, res, origin, drawn_count, view_side]
         );
         assert_layout!("bundle_mips.wgsl", MipLevel, "MipLevel", [src, dst, dst_side, _pad]);
         assert_layout!("bundle_tiles.wgsl", TilePassParams, "TilePassParams", [side, top_level, capacity, _pad]);
         assert_layout!("bundle_tiles.wgsl", PlannedTile, "PlannedTile", [level, x, y, res]);
+        assert_layout!(
+            "bundle_lists.wgsl",
+            ListParams,
+            "ListParams",
+            [t, pixel, b, capacity, dir, width, origin, offset, height, view_side, drawn_count, _pad]
+        );
     }
 
     /// The vertex buffer's attributes sit where the Rust struct's fields are.

@@ -3,7 +3,8 @@
 //!
 //! - [`bundle_analysis`], [`bundle_mips`]: the GPU bundle backend's analysis raster and mip
 //!   passes (twins of `cpu::analysis` and `bundle::mips`); [`bundle_tiles`]: Program 1
-//!   (twin of `bundle::tiles::TilePlanner`).
+//!   (twin of `bundle::tiles::TilePlanner`); [`bundle_lists`]: per-tile linked lists with
+//!   overflow split-and-redo.
 //! - [`device`]: adapter and device selection, shared by everything on the GPU.
 //! - [`shader`]: the WGSL files under `shaders/` and the include preprocessor.
 //! - [`layout`]: the structs uploaded to the GPU, checked against the shaders in tests.
@@ -14,6 +15,7 @@
 //! - [`target`]: render targets and read-back to images.
 
 pub mod bundle_analysis;
+pub mod bundle_lists;
 pub mod bundle_mips;
 pub mod bundle_tiles;
 pub mod device;
