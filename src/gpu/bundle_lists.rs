@@ -506,4 +506,149 @@ mod tests {
         eprintln!("split twin: {overflowed} overflowed rectangles split and redone");
         assert!(overflowed >= 5, "the test must overflow");
     }
+
+    /// Per-direction times of the stages done on the GPU (analysis, mips, Program 1; list
+    /// builds) against the CPU backend's same steps, on the Cornell box and on a 120k-triangle
+    /// tessellated room. Prints only (speed is measured, never asserted, in tests):
+    /// `cargo test --release --lib per_direction_timings -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn per_direction_timings() {
+        use std::sync::Arc;
+        use std::time::Instant;
+
+        use crate::atlas::{Atlas, AtlasConfig};
+        use crate::bundle::{BundleConfig, BundleScene};
+        use crate::gpu::bundle_analysis::{AnalysisPass, Drawn};
+        use crate::gpu::bundle_mips::{AnalysisMaps, MipPass};
+        use crate::gpu::bundle_tiles::TilePass;
+        use crate::scene::SceneGeometry;
+        use crate::scene::builder::{SceneBuilder, white};
+
+        let gpu = GpuContext::headless().expect("a Vulkan adapter (lavapipe: mesa-vulkan-drivers)");
+        let room = {
+            let mut b = SceneBuilder::new();
+            let m = b.material(white());
+            crate::reference::scenes::grid_room(
+                &mut b,
+                glam::Vec3::ZERO,
+                glam::Vec3::new(6.0, 3.0, 5.0),
+                (100, 100, 100),
+                m,
+                m,
+                m,
+            );
+            let scene = Arc::new(b.build());
+            let geom = SceneGeometry::new(&scene);
+            let atlas = Atlas::build(&scene, &geom, &AtlasConfig::default()).expect("atlas");
+            let bundle = BundleScene::new(scene, Arc::new(geom), Arc::new(atlas), BundleConfig::default());
+            Arc::new(CpuScene::new(Arc::new(bundle)))
+        };
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2] * 1e3
+        };
+        let (analysis, mips, tiles, lists) = (
+            AnalysisPass::new(&gpu).unwrap(),
+            MipPass::new(&gpu).unwrap(),
+            TilePass::new(&gpu).unwrap(),
+            ListPass::new(&gpu).unwrap(),
+        );
+        eprintln!("adapter: {} ({:?}); machine shared with other builds", gpu.info.name, gpu.info.device_type);
+        for (name, scene) in [("cornell_box", cornell()), ("grid room 120k", room)] {
+            let geom = &scene.bundle.geom;
+            let cfg = &scene.bundle.config;
+            let os = cfg.oversampling;
+            let importance: Vec<f32> = scene.density.iter().map(|d| d * os * os).collect();
+            let tris = GpuTriangles::new(&gpu, &geom.corners);
+            tris.set_importance(&gpu, &importance);
+            let dirs = BundleDirections::new(11);
+            let res = cfg.analysis_res;
+            let n = 16u64;
+            // CPU: analysis, mips, plan per direction (one thread).
+            let (mut ca, mut cm, mut cp) = (Vec::new(), Vec::new(), Vec::new());
+            let mut cpu = Analysis::default();
+            let mut plans = Vec::new();
+            for i in 0..n {
+                let (frame, vp) = window(&scene, &dirs, i, res);
+                let t = Instant::now();
+                cpu.run(&scene, &frame, &vp, None, &importance);
+                ca.push(t.elapsed().as_secs_f64());
+                let t = Instant::now();
+                let imp = MipChain::max_mips(res, std::mem::take(&mut cpu.importance)).unwrap();
+                let frags = MipChain::average_mips(res, std::mem::take(&mut cpu.fragments)).unwrap();
+                cm.push(t.elapsed().as_secs_f64());
+                let t = Instant::now();
+                let params = TileParams {
+                    w: cfg.head_side,
+                    n: cfg.node_capacity,
+                    alpha: cfg.alpha,
+                    pixel_area: (vp.pixel as f64).powi(2),
+                };
+                let plan = TilePlanner::new(&imp, &frags, params).unwrap().plan(TilingMode::Adaptive).unwrap();
+                cp.push(t.elapsed().as_secs_f64());
+                plans.push((frame, vp, params, plan));
+            }
+            // GPU: one submission and wait per direction.
+            let mut maps: Vec<AnalysisMaps> = (0..n).map(|_| AnalysisMaps::new(&gpu, res).unwrap()).collect();
+            let outs: Vec<_> = (0..n).map(|_| tiles.buffers(&gpu, res)).collect();
+            let mut single = Vec::new();
+            for (k, (frame, vp, params, plan)) in plans.iter().enumerate() {
+                let t = Instant::now();
+                let mut encoder = gpu.device.create_command_encoder(&Default::default());
+                analysis.encode(&gpu, &mut encoder, &tris, Drawn::All, frame, vp, &maps[k]);
+                mips.encode(&gpu, &mut encoder, &mut maps[k], true);
+                tiles.encode(&gpu, &mut encoder, &maps[k], params, &outs[k]);
+                gpu.queue.submit([encoder.finish()]);
+                let got = outs[k].read(&gpu).unwrap();
+                single.push(t.elapsed().as_secs_f64());
+                assert_eq!(&got, plan, "the timed GPU plan is the CPU's");
+            }
+            // GPU: all directions in one submission.
+            let t = Instant::now();
+            let mut encoder = gpu.device.create_command_encoder(&Default::default());
+            for (k, (frame, vp, params, _)) in plans.iter().enumerate() {
+                analysis.encode(&gpu, &mut encoder, &tris, Drawn::All, frame, vp, &maps[k]);
+                mips.encode(&gpu, &mut encoder, &mut maps[k], true);
+                tiles.encode(&gpu, &mut encoder, &maps[k], params, &outs[k]);
+            }
+            gpu.queue.submit([encoder.finish()]);
+            gpu.wait_idle().unwrap();
+            let batched = t.elapsed().as_secs_f64() / n as f64;
+            gpu.take_error().unwrap();
+            // List builds of the first direction's tiles: GPU (build + 4-byte read-back per
+            // tile) against the CPU backend's exact count of the same tiles.
+            let (frame, global, _, plan) = &plans[0];
+            let out = lists.buffers(&gpu, cfg.head_side, cfg.node_capacity).unwrap();
+            let all: Vec<u32> = (0..geom.len() as u32).collect();
+            let mut counter = TileFragments::default();
+            let (mut g_lists, mut c_count, mut frags) = (0.0, 0.0, 0u64);
+            for tile in &plan.tiles {
+                let vp = tile_viewport(global, tile);
+                let t = Instant::now();
+                let c = lists.build(&gpu, &tris, frame, &vp, &out).unwrap();
+                g_lists += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let cc = counter.prepare(&scene, frame, &vp, &all, None, |_| true);
+                c_count += t.elapsed().as_secs_f64();
+                assert_eq!(c, cc);
+                frags += c;
+            }
+            eprintln!(
+                "{name}: {} triangles, R = {res}; per direction (median of {n}, ms): CPU analysis {:.2}, mips {:.3}, \
+                 plan {:.3}; GPU analysis+mips+plan, one submit and read-back each {:.2}, {n} directions in one \
+                 submit {:.2}. Direction 0: {} tiles, {frags} fragments: GPU list builds {:.1} ms, CPU counts \
+                 (TileFragments::prepare) {:.1} ms",
+                geom.len(),
+                median(ca),
+                median(cm),
+                median(cp),
+                median(single),
+                batched * 1e3,
+                plan.tiles.len(),
+                g_lists * 1e3,
+                c_count * 1e3
+            );
+        }
+    }
 }
