@@ -616,29 +616,86 @@ pub(crate) mod tests {
             gpu.wait_idle().unwrap();
             let batched = t.elapsed().as_secs_f64() / n as f64;
             gpu.take_error().unwrap();
-            // List builds of the first direction's tiles: GPU (build + 4-byte read-back per
-            // tile) against the CPU backend's exact count of the same tiles.
+            // Direction 0's tiles, built and resolved: GPU (list build with its 4-byte
+            // read-back, then the resolve, waited for) against the CPU backend's count, build
+            // and exchange of the same tiles into f32 sums (LOD 0, every texel a target).
             let (frame, global, _, plan) = &plans[0];
+            let b = &scene.bundle;
+            let texels = crate::atlas::texels::TexelMap::build(&b.scene, geom, &b.atlas, 0);
+            let tables = vec![crate::atlas::lookup::TexelTable::of_map(&texels)];
+            let triangles = crate::bundle::target::target_triangles(&b.atlas, &texels.face);
+            let target = crate::bundle::target::BakeTarget {
+                lod: 0,
+                face: &texels.face,
+                emission: &texels.emission,
+                tables: &tables,
+                window: None,
+                triangles: &triangles,
+            };
+            let own = vec![crate::scene::Rgb::splat(0.5); texels.face.len()];
+            let sky = crate::scene::Rgb::splat(1.0);
+            let resolve = crate::gpu::bundle_resolve::ResolvePass::new(&gpu).unwrap();
+            let gpu_target = resolve.target(&gpu, geom, &b.atlas, 0, &tables[0], texels.face.len()).unwrap();
+            gpu_target.set_source(&gpu, &own);
+            let fixed =
+                crate::gpu::bundle_resolve::FixedPoint::for_hits((global.pixel * global.pixel).max(1e-30) * 4.0, 1.0);
             let out = lists.buffers(&gpu, cfg.head_side, cfg.node_capacity).unwrap();
             let all: Vec<u32> = (0..geom.len() as u32).collect();
             let mut counter = TileFragments::default();
-            let (mut g_lists, mut c_count, mut frags) = (0.0, 0.0, 0u64);
+            let mut cpu_sums = vec![[0f32; 4]; texels.face.len()];
+            let (mut g_lists, mut g_resolve, mut c_count, mut c_resolve, mut frags) = (0.0, 0.0, 0.0, 0.0, 0u64);
             for tile in &plan.tiles {
                 let vp = tile_viewport(global, tile);
                 let t = Instant::now();
                 let c = lists.build(&gpu, &tris, frame, &vp, &out).unwrap();
                 g_lists += t.elapsed().as_secs_f64();
                 let t = Instant::now();
-                let cc = counter.prepare(&scene, frame, &vp, &all, None, |_| true);
+                let mut encoder = gpu.device.create_command_encoder(&Default::default());
+                resolve.encode(
+                    &gpu,
+                    &mut encoder,
+                    &tris,
+                    &gpu_target,
+                    frame,
+                    &vp,
+                    &out,
+                    sky,
+                    scene.coincident_depth,
+                    fixed,
+                );
+                gpu.queue.submit([encoder.finish()]);
+                gpu.wait_idle().unwrap();
+                g_resolve += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let cc = counter.prepare(&scene, frame, &vp, &all, None, |t| scene.density[t as usize] > 0.0);
                 c_count += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let a_px = vp.pixel_area();
+                counter.resolve(&scene, &target, |f, _, _, _| {
+                    crate::bundle::estimator::exchange(
+                        f,
+                        a_px,
+                        sky,
+                        |c| {
+                            if c < crate::bundle::estimator::FOREIGN {
+                                own[c as usize]
+                            } else {
+                                crate::scene::Rgb::ZERO
+                            }
+                        },
+                        &mut SumSink(&mut cpu_sums),
+                    )
+                });
+                c_resolve += t.elapsed().as_secs_f64();
                 assert_eq!(c, cc);
                 frags += c;
             }
+            gpu.take_error().unwrap();
             eprintln!(
                 "{name}: {} triangles, R = {res}; per direction (median of {n}, ms): CPU analysis {:.2}, mips {:.3}, \
                  plan {:.3}; GPU analysis+mips+plan, one submit and read-back each {:.2}, {n} directions in one \
-                 submit {:.2}. Direction 0: {} tiles, {frags} fragments: GPU list builds {:.1} ms, CPU counts \
-                 (TileFragments::prepare) {:.1} ms",
+                 submit {:.2}. Direction 0: {} tiles, {frags} fragments: GPU list builds {:.1} ms + resolve {:.1} ms; \
+                 CPU count {:.1} ms + build and resolve {:.1} ms",
                 geom.len(),
                 median(ca),
                 median(cm),
@@ -647,8 +704,22 @@ pub(crate) mod tests {
                 batched * 1e3,
                 plan.tiles.len(),
                 g_lists * 1e3,
-                c_count * 1e3
+                g_resolve * 1e3,
+                c_count * 1e3,
+                c_resolve * 1e3
             );
+        }
+    }
+
+    struct SumSink<'a>(&'a mut [[f32; 4]]);
+
+    impl crate::bundle::estimator::HitSink for SumSink<'_> {
+        fn hit(&mut self, texel: u32, l: crate::scene::Rgb, a: f32) {
+            let s = &mut self.0[texel as usize];
+            s[0] += l.x;
+            s[1] += l.y;
+            s[2] += l.z;
+            s[3] += a;
         }
     }
 }
