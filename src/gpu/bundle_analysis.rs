@@ -94,6 +94,7 @@ const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
 
 impl AnalysisPass {
     pub fn new(gpu: &GpuContext) -> Result<AnalysisPass, GpuError> {
+        gpu.require_fragment_storage()?;
         let device = &gpu.device;
         let all = wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
         let written = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;

@@ -72,6 +72,7 @@ pub enum ListError {
 
 impl ListPass {
     pub fn new(gpu: &GpuContext) -> Result<ListPass, GpuError> {
+        gpu.require_fragment_storage()?;
         let device = &gpu.device;
         let entry = |binding, visibility, ty| wgpu::BindGroupLayoutEntry {
             binding,
