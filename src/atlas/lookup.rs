@@ -52,6 +52,18 @@ impl TexelTable {
         self.entries[i] = v;
     }
 
+    /// The entries in their storage order (8×8 blocks, row-major blocks; see `index`), for
+    /// uploads: entry of (x, y) is at `((y' >> 3)·blocks_x + (x' >> 3)) << 6 | (y' & 7) << 3 |
+    /// (x' & 7)` with (x', y') relative to the rect's corner.
+    pub fn entries(&self) -> &[u32] {
+        &self.entries
+    }
+
+    /// 8×8 blocks per row of the entries.
+    pub fn blocks_x(&self) -> i64 {
+        self.blocks_x
+    }
+
     pub fn bytes(&self) -> usize {
         self.entries.len() * 4
     }

@@ -125,7 +125,7 @@ impl Tile {
 
     /// Position along the Z-order curve of the finest pixel at the tile's corner (planned
     /// tiles only: they never overlap, so no two share a key).
-    fn morton_key(&self) -> u64 {
+    pub fn morton_key(&self) -> u64 {
         let shift = self.level.max(0) as u32;
         interleave_bits(self.x << shift) | (interleave_bits(self.y << shift) << 1)
     }

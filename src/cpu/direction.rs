@@ -142,7 +142,8 @@ fn analysis_viewport(ctx: &PassContext, frame: &BundleFrame, jitter: Vec2) -> Vi
 /// See [`analysis_viewport`].
 const BUNDLE_PIXELS_PER_ANALYSIS_PIXEL: f32 = 8.0;
 
-fn tile_viewport(global: &Viewport, tile: &Tile) -> Viewport {
+/// The bundle viewport of planned tile `tile` of the analysis window `global`.
+pub(crate) fn tile_viewport(global: &Viewport, tile: &Tile) -> Viewport {
     let w = tile.window();
     let side = w.side as f32 * global.pixel;
     Viewport::square(global.origin + Vec2::new(w.x as f32, w.y as f32) * global.pixel, side / tile.res as f32, tile.res)

@@ -5,9 +5,9 @@
 //! directions in order into its own hit sums, and the lanes are added in order. The sums
 //! therefore do not depend on how many threads ran the lanes.
 
-mod analysis;
-mod direction;
-mod fragments;
+pub(crate) mod analysis;
+pub(crate) mod direction;
+pub(crate) mod fragments;
 pub mod scene;
 mod spheres;
 

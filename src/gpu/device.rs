@@ -33,6 +33,8 @@ pub enum GpuError {
     Device { adapter: String, source: wgpu::RequestDeviceError },
     #[error("GPU validation error: {0}")]
     Validation(String),
+    #[error("the adapter {adapter:?} cannot run the GPU bundle backend: it lacks {missing}")]
+    Unsupported { adapter: String, missing: &'static str },
     #[error("GPU buffer read-back failed: {0}")]
     Readback(String),
     #[error("light map: {0}")]
@@ -96,7 +98,9 @@ impl GpuContext {
         let info = adapter.get_info();
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("livebake"),
-            required_features: wgpu::Features::empty(),
+            // f64 where the adapter has it (lavapipe does): the GPU tile planner then decides
+            // in the same f64 arithmetic as the CPU's `TilePlanner` (see `bundle_tiles`).
+            required_features: adapter.features() & wgpu::Features::SHADER_F64,
             required_limits: adapter.limits(),
             experimental_features: wgpu::ExperimentalFeatures::disabled(),
             memory_hints: wgpu::MemoryHints::Performance,
@@ -127,6 +131,22 @@ impl GpuContext {
     /// Whether the adapter is a software rasteriser (lavapipe), for reports.
     pub fn is_software(&self) -> bool {
         self.info.device_type == DeviceType::Cpu
+    }
+
+    /// `Err(Unsupported)` unless fragment shaders may write storage buffers (the bundle
+    /// rasters' atomics and linked lists need it; every Vulkan adapter we know has it).
+    pub fn require_fragment_storage(&self) -> Result<(), GpuError> {
+        let flags = self.adapter.get_downlevel_capabilities().flags;
+        if flags.contains(wgpu::DownlevelFlags::FRAGMENT_WRITABLE_STORAGE) {
+            Ok(())
+        } else {
+            Err(GpuError::Unsupported { adapter: self.info.name.clone(), missing: "fragment-stage writable storage" })
+        }
+    }
+
+    /// Whether shaders may use `f64` (the device was given `SHADER_F64`).
+    pub fn has_f64(&self) -> bool {
+        self.device.features().contains(wgpu::Features::SHADER_F64)
     }
 
     /// Blocks until the GPU has finished all submitted work.
@@ -163,6 +183,14 @@ mod tests {
         let mut kinds = [DeviceType::Cpu, DeviceType::Other, DeviceType::IntegratedGpu, DeviceType::DiscreteGpu];
         kinds.sort_by_key(|&k| preference(k));
         assert_eq!(kinds, [DeviceType::DiscreteGpu, DeviceType::IntegratedGpu, DeviceType::Cpu, DeviceType::Other]);
+    }
+
+    #[test]
+    fn lavapipe_runs_the_bundle_rasters() {
+        let gpu = GpuContext::headless().expect("a Vulkan adapter (lavapipe: mesa-vulkan-drivers)");
+        gpu.require_fragment_storage().unwrap();
+        let msg = GpuError::Unsupported { adapter: "x".into(), missing: "fragment-stage writable storage" }.to_string();
+        assert!(msg.contains("fragment-stage writable storage"), "{msg}");
     }
 
     #[test]

@@ -94,6 +94,104 @@ pub struct ProbePoint {
     pub _pad1: [f32; 2],
 }
 
+/// `AnalysisParams` (bundle_analysis.wgsl): one direction's frame and analysis window.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct AnalysisParams {
+    pub t: [f32; 3],
+    pub pixel: f32,
+    pub b: [f32; 3],
+    pub res: u32,
+    pub origin: [f32; 2],
+    pub drawn_count: u32,
+    pub view_side: u32,
+}
+
+/// `MipLevel` (bundle_mips.wgsl): one reduction step, element offsets into the mip buffers.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct MipLevel {
+    pub src: u32,
+    pub dst: u32,
+    pub dst_side: u32,
+    pub _pad: u32,
+}
+
+/// `TilePassParams` (bundle_tiles.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct TilePassParams {
+    pub side: u32,
+    pub top_level: u32,
+    pub capacity: u32,
+    pub _pad: u32,
+}
+
+/// `PlannedTile` (bundle_tiles.wgsl): a tile as Program 1 appends it.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq, Eq)]
+pub struct PlannedTile {
+    pub level: u32,
+    pub x: u32,
+    pub y: u32,
+    pub res: u32,
+}
+
+/// `ListParams` (bundle_lists.wgsl): one tile rectangle's raster into linked lists.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct ListParams {
+    pub t: [f32; 3],
+    pub pixel: f32,
+    pub b: [f32; 3],
+    pub capacity: u32,
+    pub dir: [f32; 3],
+    pub width: u32,
+    pub origin: [f32; 2],
+    pub offset: [u32; 2],
+    pub height: u32,
+    pub view_side: u32,
+    pub drawn_count: u32,
+    pub _pad: u32,
+}
+
+/// `ResolveParams` (bundle_resolve.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct ResolveParams {
+    pub t: [f32; 3],
+    pub pixel: f32,
+    pub b: [f32; 3],
+    pub width: u32,
+    pub dir: [f32; 3],
+    pub height: u32,
+    pub origin: [f32; 2],
+    pub offset: [u32; 2],
+    pub sky: [f32; 3],
+    pub a_px: f32,
+    pub rect: [i32; 4],
+    pub blocks_x: i32,
+    pub uv_scale: f32,
+    pub coincident: f32,
+    pub radiance_scale: f32,
+    pub area_scale: f32,
+    pub one: f32,
+    pub _pad1: u32,
+    pub _pad2: u32,
+}
+
+/// `TriangleFaces` (bundle_resolve.wgsl): a triangle's front and back atlas UVs.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct TriangleFaces {
+    pub front: [[f32; 2]; 3],
+    pub back: [[f32; 2]; 3],
+    pub faces: u32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+    pub _pad2: u32,
+}
+
 /// One corner of a drawn triangle (vertex buffer; `VertexInput` in surface.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
@@ -168,6 +266,53 @@ mod tests {
             [grid_origin, cell_size, grid_dims, lod_count, atlas_size, blend_band, pool_columns, levels]
         );
         assert_layout!("irradiance_probe.wgsl", ProbePoint, "ProbePoint", [position, _pad0, uv, _pad1]);
+        assert_layout!(
+            "bundle_analysis.wgsl",
+            AnalysisParams,
+            "AnalysisParams",
+            [t, pixel, b, res, origin, drawn_count, view_side]
+        );
+        assert_layout!("bundle_mips.wgsl", MipLevel, "MipLevel", [src, dst, dst_side, _pad]);
+        assert_layout!("bundle_tiles.wgsl", TilePassParams, "TilePassParams", [side, top_level, capacity, _pad]);
+        assert_layout!("bundle_tiles.wgsl", PlannedTile, "PlannedTile", [level, x, y, res]);
+        assert_layout!(
+            "bundle_resolve.wgsl",
+            ResolveParams,
+            "ResolveParams",
+            [
+                t,
+                pixel,
+                b,
+                width,
+                dir,
+                height,
+                origin,
+                offset,
+                sky,
+                a_px,
+                rect,
+                blocks_x,
+                uv_scale,
+                coincident,
+                radiance_scale,
+                area_scale,
+                one,
+                _pad1,
+                _pad2
+            ]
+        );
+        assert_layout!(
+            "bundle_resolve.wgsl",
+            TriangleFaces,
+            "TriangleFaces",
+            [front, back, faces, _pad0, _pad1, _pad2]
+        );
+        assert_layout!(
+            "bundle_lists.wgsl",
+            ListParams,
+            "ListParams",
+            [t, pixel, b, capacity, dir, width, origin, offset, height, view_side, drawn_count, _pad]
+        );
     }
 
     /// The vertex buffer's attributes sit where the Rust struct's fields are.

@@ -11,12 +11,24 @@ pub const SOURCES: &[(&str, &str)] = &[
     ("lightmap.inc.wgsl", include_str!("../../shaders/lightmap.inc.wgsl")),
     ("surface.wgsl", include_str!("../../shaders/surface.wgsl")),
     ("irradiance_probe.wgsl", include_str!("../../shaders/irradiance_probe.wgsl")),
+    ("bundle_analysis.wgsl", include_str!("../../shaders/bundle_analysis.wgsl")),
+    ("bundle_mips.wgsl", include_str!("../../shaders/bundle_mips.wgsl")),
+    ("bundle_tiles.wgsl", include_str!("../../shaders/bundle_tiles.wgsl")),
+    ("bundle_lists.wgsl", include_str!("../../shaders/bundle_lists.wgsl")),
+    ("bundle_resolve.wgsl", include_str!("../../shaders/bundle_resolve.wgsl")),
 ];
+
+/// The line of a pass that names its float type for host-precision arithmetic
+/// (`bundle_tiles.wgsl`); [`source_f64`] rewrites it.
+pub const REAL_F32: &str = "alias real = f32;";
+const REAL_F64: &str = "alias real = f64;";
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ShaderError {
     #[error("shader {0:?} is not one of livebake's shaders")]
     Unknown(String),
+    #[error("shader {0:?} has no `alias real = f32;` line to make f64")]
+    NoRealAlias(String),
     #[error("{file}:{line}: malformed #include (expected #include \"NAME.inc.wgsl\")")]
     BadInclude { file: String, line: usize },
 }
@@ -29,6 +41,16 @@ pub fn passes() -> impl Iterator<Item = &'static str> {
 /// The source of `name` with its includes resolved.
 pub fn source(name: &str) -> Result<String, ShaderError> {
     preprocess(name, &|n| SOURCES.iter().find(|(k, _)| *k == n).map(|(_, s)| *s))
+}
+
+/// [`source`] with `real` aliased to f64 (for devices with `SHADER_F64`): an error if the pass
+/// has no [`REAL_F32`] line.
+pub fn source_f64(name: &str) -> Result<String, ShaderError> {
+    let text = source(name)?;
+    if !text.lines().any(|l| l.trim() == REAL_F32) {
+        return Err(ShaderError::NoRealAlias(name.to_string()));
+    }
+    Ok(text.lines().map(|l| if l.trim() == REAL_F32 { REAL_F64 } else { l }).collect::<Vec<_>>().join("\n"))
 }
 
 /// [`source`] over any file set (`lookup` gives a file's text by name).
@@ -68,11 +90,15 @@ fn expand<'a>(
 /// A shader module for pass `name` (errors: an unknown name; WGSL errors surface as wgpu
 /// validation errors, which the shader tests rule out).
 pub fn module(device: &wgpu::Device, name: &str) -> Result<wgpu::ShaderModule, ShaderError> {
-    let text = source(name)?;
-    Ok(device.create_shader_module(wgpu::ShaderModuleDescriptor {
+    Ok(module_from(device, name, source(name)?))
+}
+
+/// A shader module for pass `name` from its (preprocessed, possibly rewritten) text.
+pub fn module_from(device: &wgpu::Device, name: &str, text: String) -> wgpu::ShaderModule {
+    device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(name),
         source: wgpu::ShaderSource::Wgsl(text.into()),
-    }))
+    })
 }
 
 #[cfg(test)]
@@ -126,6 +152,17 @@ mod tests {
             naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::default())
                 .validate(&module)
                 .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&text)));
+            // Passes with a `real` alias also validate in their f64 form.
+            if let Ok(text) = source_f64(name) {
+                let module = naga::front::wgsl::parse_str(&text)
+                    .unwrap_or_else(|e| panic!("{name} (f64): {}", e.emit_to_string(&text)));
+                let caps = naga::valid::Capabilities::default() | naga::valid::Capabilities::FLOAT64;
+                naga::valid::Validator::new(naga::valid::ValidationFlags::all(), caps)
+                    .validate(&module)
+                    .unwrap_or_else(|e| panic!("{name} (f64): {}", e.emit_to_string(&text)));
+            }
         }
+        assert!(source_f64("bundle_tiles.wgsl").is_ok());
+        assert_eq!(source_f64("surface.wgsl"), Err(ShaderError::NoRealAlias("surface.wgsl".into())));
     }
 }

@@ -1,0 +1,726 @@
+//! Per-tile linked-list build of the GPU bundle backend (paper Sect. 4.4): the tile's bundle
+//! pixels are rasterised into a head buffer (at most W×W pixels) and a node buffer of capacity
+//! N with an atomic counter. The counter counts every fragment, stored or not, so an overflow
+//! is seen exactly (count > N); the tile's pixel grid is then split in four
+//! (`Viewport::split`, the same parts the CPU backend redoes) and each part redone, so no
+//! sample is lost. A single pixel deeper than N cannot be split and is reported.
+//!
+//! Today the host reads the 4-byte counter after each tile to decide on a split (one small
+//! read-back per tile); a GPU-side split (indirect draws of the parts) would remove it.
+
+use wgpu::util::DeviceExt;
+
+use super::GpuError;
+use super::bundle_analysis::{GpuTriangles, set_view, view_side};
+use super::device::GpuContext;
+use super::layout::ListParams;
+use super::shader;
+use crate::bundle::raster::{BundleFrame, Viewport};
+
+const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
+
+/// One node: depth along ω (f32 bits) and the triangle.
+const NODE_BYTES: u64 = 8;
+
+/// The list-build pipeline.
+pub struct ListPass {
+    layout: wgpu::BindGroupLayout,
+    pipeline: wgpu::RenderPipeline,
+}
+
+/// Head, node and link buffers for tiles of at most W×W pixels and N fragments.
+pub struct ListBuffers {
+    pub head_side: u32,
+    pub capacity: u32,
+    pub heads: wgpu::Buffer,
+    pub nodes: wgpu::Buffer,
+    pub links: wgpu::Buffer,
+    pub counter: wgpu::Buffer,
+    target: wgpu::TextureView,
+    readback: wgpu::Buffer,
+}
+
+/// A tile rectangle rasterised into the buffers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BuiltTile {
+    pub viewport: Viewport,
+    /// Its fragments (all stored: ≤ N, or a single pixel beyond N, see `overflowed`).
+    pub fragments: u64,
+}
+
+/// What building one planned tile took.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BuildReport {
+    /// Tiles whose count exceeded N (each split and redone, or unsplittable).
+    pub overflowed: usize,
+    /// Fragments over N, summed over the overflowed tiles.
+    pub overflow_fragments: u64,
+    /// Single pixels deeper than N: built anyway, their nodes beyond N dropped.
+    pub unsplittable: usize,
+}
+
+/// Errors of the list build.
+#[derive(Debug, thiserror::Error)]
+pub enum ListError {
+    #[error("node capacity {0} exceeds what the device's storage bindings hold")]
+    Capacity(u64),
+    #[error("head-pointer side {0} exceeds the device's texture or storage limits")]
+    HeadSide(u32),
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+}
+
+impl ListPass {
+    pub fn new(gpu: &GpuContext) -> Result<ListPass, GpuError> {
+        gpu.require_fragment_storage()?;
+        let device = &gpu.device;
+        let entry = |binding, visibility, ty| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility,
+            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
+            count: None,
+        };
+        let both = wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::FRAGMENT;
+        let fragment = wgpu::ShaderStages::FRAGMENT;
+        let read = wgpu::BufferBindingType::Storage { read_only: true };
+        let write = wgpu::BufferBindingType::Storage { read_only: false };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("bundle lists"),
+            entries: &[
+                entry(0, both, wgpu::BufferBindingType::Uniform),
+                entry(1, both, read),
+                entry(2, both, read),
+                entry(3, fragment, write),
+                entry(4, fragment, write),
+                entry(5, fragment, write),
+                entry(6, fragment, write),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("bundle lists"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let module = shader::module(device, "bundle_lists.wgsl")?;
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("bundle lists"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs_main"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState {
+                topology: wgpu::PrimitiveTopology::TriangleList,
+                front_face: wgpu::FrontFace::Ccw,
+                cull_mode: None,
+                ..Default::default()
+            },
+            depth_stencil: None,
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_main"),
+                compilation_options: Default::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: TARGET_FORMAT,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::empty(),
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        gpu.take_error()?;
+        Ok(ListPass { layout, pipeline })
+    }
+
+    /// Buffers for tiles of at most `head_side`² pixels and `capacity` nodes.
+    pub fn buffers(&self, gpu: &GpuContext, head_side: u32, capacity: u64) -> Result<ListBuffers, ListError> {
+        let device = &gpu.device;
+        let limits = device.limits();
+        let side = head_side.max(1);
+        let heads_bytes = 4 * head_side as u64 * head_side as u64;
+        if side > limits.max_texture_dimension_2d || heads_bytes > limits.max_storage_buffer_binding_size {
+            return Err(ListError::HeadSide(head_side));
+        }
+        if capacity == 0
+            || capacity * NODE_BYTES > limits.max_storage_buffer_binding_size
+            || capacity >= u32::MAX as u64
+        {
+            return Err(ListError::Capacity(capacity));
+        }
+        let buffer = |label, size, extra| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC | extra,
+                mapped_at_creation: false,
+            })
+        };
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("bundle lists target"),
+            size: wgpu::Extent3d { width: side, height: side, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: TARGET_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
+            view_formats: &[],
+        });
+        Ok(ListBuffers {
+            head_side,
+            capacity: capacity as u32,
+            heads: buffer("bundle heads", heads_bytes, wgpu::BufferUsages::COPY_DST),
+            nodes: buffer("bundle nodes", capacity * NODE_BYTES, wgpu::BufferUsages::empty()),
+            links: buffer("bundle links", capacity * 4, wgpu::BufferUsages::empty()),
+            counter: buffer("bundle node counter", 4, wgpu::BufferUsages::COPY_DST),
+            target: texture.create_view(&Default::default()),
+            readback: device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("bundle node counter read-back"),
+                size: 4,
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                mapped_at_creation: false,
+            }),
+        })
+    }
+
+    /// Records the list build of rectangle `vp` (at most W×W pixels) along `frame`, drawing
+    /// every triangle: clears the heads and the counter, rasterises.
+    pub fn encode(
+        &self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        triangles: &GpuTriangles,
+        frame: &BundleFrame,
+        vp: &Viewport,
+        out: &ListBuffers,
+    ) {
+        debug_assert!(vp.width <= out.head_side && vp.height <= out.head_side);
+        let device = &gpu.device;
+        let params = ListParams {
+            t: frame.t.to_array(),
+            pixel: vp.pixel,
+            b: frame.b.to_array(),
+            capacity: out.capacity,
+            dir: frame.dir.to_array(),
+            width: vp.width,
+            origin: vp.origin.to_array(),
+            offset: [vp.offset.0, vp.offset.1],
+            height: vp.height,
+            view_side: view_side(gpu),
+            drawn_count: triangles.count,
+            _pad: 0,
+        };
+        let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("bundle list params"),
+            contents: bytemuck::bytes_of(&params),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("bundle lists"),
+            layout: &self.layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: params.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: triangles.corners.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: triangles.all.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 3, resource: out.heads.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 4, resource: out.nodes.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 5, resource: out.links.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 6, resource: out.counter.as_entire_binding() },
+            ],
+        });
+        encoder.clear_buffer(&out.heads, 0, Some(4 * vp.width as u64 * vp.height as u64));
+        encoder.clear_buffer(&out.counter, 0, None);
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("bundle lists"),
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &out.target,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(wgpu::Color::BLACK), store: wgpu::StoreOp::Discard },
+            })],
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        if triangles.count > 0 && vp.width > 0 && vp.height > 0 {
+            set_view(&mut pass, gpu);
+            pass.set_pipeline(&self.pipeline);
+            pass.set_bind_group(0, &group, &[]);
+            pass.set_scissor_rect(0, 0, vp.width, vp.height);
+            pass.draw(0..3 * triangles.count, 0..1);
+        }
+    }
+
+    /// Builds rectangle `vp` and returns its fragment count (read back from the counter).
+    pub fn build(
+        &self,
+        gpu: &GpuContext,
+        triangles: &GpuTriangles,
+        frame: &BundleFrame,
+        vp: &Viewport,
+        out: &ListBuffers,
+    ) -> Result<u64, GpuError> {
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        self.encode(gpu, &mut encoder, triangles, frame, vp, out);
+        encoder.copy_buffer_to_buffer(&out.counter, 0, &out.readback, 0, 4);
+        gpu.queue.submit([encoder.finish()]);
+        let bytes = gpu.read_buffer(&out.readback, 4)?;
+        gpu.take_error()?;
+        Ok(u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as u64)
+    }
+
+    /// Builds planned tile `vp`, splitting and redoing every rectangle whose count exceeds N
+    /// as the CPU backend does; calls `built` with each rectangle whose lists are complete in
+    /// `out` (before the next one overwrites them), in the CPU's order.
+    pub fn build_tile(
+        &self,
+        gpu: &GpuContext,
+        triangles: &GpuTriangles,
+        frame: &BundleFrame,
+        vp: &Viewport,
+        out: &ListBuffers,
+        mut built: impl FnMut(BuiltTile, &ListBuffers) -> Result<(), GpuError>,
+    ) -> Result<BuildReport, GpuError> {
+        let mut report = BuildReport::default();
+        let mut queue = vec![*vp];
+        while let Some(vp) = queue.pop() {
+            let count = self.build(gpu, triangles, frame, &vp, out)?;
+            if count > out.capacity as u64 {
+                report.overflowed += 1;
+                report.overflow_fragments += count - out.capacity as u64;
+                match vp.split() {
+                    Some(parts) => {
+                        queue.extend(parts.iter().rev());
+                        continue;
+                    }
+                    None => report.unsplittable += 1,
+                }
+            }
+            built(BuiltTile { viewport: vp, fragments: count }, out)?;
+        }
+        Ok(report)
+    }
+}
+
+impl ListBuffers {
+    /// Reads the lists of a built `width`×`height` rectangle: per pixel (row-major), its
+    /// (depth, triangle) nodes in list order.
+    pub fn read_lists(&self, gpu: &GpuContext, width: u32, height: u32) -> Result<Vec<Vec<(f32, u32)>>, GpuError> {
+        let device = &gpu.device;
+        let pixels = width as u64 * height as u64;
+        let sizes = [4 * pixels, self.capacity as u64 * NODE_BYTES, self.capacity as u64 * 4];
+        let staging = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bundle lists read-back"),
+            size: sizes.iter().sum(),
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut encoder = device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(&self.heads, 0, &staging, 0, sizes[0]);
+        encoder.copy_buffer_to_buffer(&self.nodes, 0, &staging, sizes[0], sizes[1]);
+        encoder.copy_buffer_to_buffer(&self.links, 0, &staging, sizes[0] + sizes[1], sizes[2]);
+        gpu.queue.submit([encoder.finish()]);
+        let data = gpu.read_buffer(&staging, sizes.iter().sum())?;
+        let words: &[u32] = bytemuck::cast_slice(&data);
+        let (heads, rest) = words.split_at(pixels as usize);
+        let (nodes, links) = rest.split_at(2 * self.capacity as usize);
+        Ok(heads
+            .iter()
+            .map(|&head| {
+                let mut list = Vec::new();
+                let mut next = head;
+                while next != 0 && list.len() <= self.capacity as usize {
+                    let n = (next - 1) as usize;
+                    list.push((f32::from_bits(nodes[2 * n]), nodes[2 * n + 1]));
+                    next = links[n];
+                }
+                list
+            })
+            .collect())
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::bundle::directions::BundleDirections;
+    use crate::bundle::mips::MipChain;
+    use crate::bundle::raster::{ScreenTriangle, eval, grid_centre};
+    use crate::bundle::tiles::{TileParams, TilePlanner, TilingMode};
+    use crate::cpu::CpuScene;
+    use crate::cpu::analysis::Analysis;
+    use crate::cpu::direction::tile_viewport;
+    use crate::cpu::fragments::TileFragments;
+    use crate::gpu::bundle_analysis::tests::{cornell, window};
+
+    /// The CPU raster's lists of rectangle `vp`: per pixel, (depth, triangle) sorted by
+    /// triangle, from `bundle::raster` directly.
+    fn cpu_lists(scene: &CpuScene, frame: &BundleFrame, vp: &Viewport) -> Vec<Vec<(f32, u32)>> {
+        let geom = &scene.bundle.geom;
+        let mut lists = vec![Vec::new(); (vp.width * vp.height) as usize];
+        for t in 0..geom.len() {
+            let Some(screen) = ScreenTriangle::setup(frame, vp, &geom.corners[t], geom.normals[t]) else { continue };
+            let depth = screen.planes().depth_coefficients();
+            screen.for_each_span(|y, x0, x1| {
+                for x in x0..x1 {
+                    let d = eval(&depth, grid_centre(vp.offset.0, x), grid_centre(vp.offset.1, y));
+                    lists[(y * vp.width + x) as usize].push((d, t as u32));
+                }
+            });
+        }
+        lists
+    }
+
+    /// The planned tiles of direction `i` on the Cornell box (CPU analysis and planner; the
+    /// GPU's are equal, see the analysis and tile tests).
+    pub(crate) fn planned(scene: &CpuScene, i: u64, w: u32, n: u64) -> (BundleFrame, Vec<Viewport>) {
+        let dirs = BundleDirections::new(3);
+        let (frame, global) = window(scene, &dirs, i, 64);
+        let os = scene.bundle.config.oversampling;
+        let importance: Vec<f32> = scene.density.iter().map(|d| d * os * os).collect();
+        let mut analysis = Analysis::default();
+        analysis.run(scene, &frame, &global, None, &importance);
+        let imp = MipChain::max_mips(64, std::mem::take(&mut analysis.importance)).unwrap();
+        let frags = MipChain::average_mips(64, std::mem::take(&mut analysis.fragments)).unwrap();
+        let params = TileParams { w, n, alpha: 0.9, pixel_area: (global.pixel as f64).powi(2) };
+        let plan = TilePlanner::new(&imp, &frags, params).unwrap().plan(TilingMode::Adaptive).unwrap();
+        (frame, plan.tiles.iter().map(|t| tile_viewport(&global, t)).collect())
+    }
+
+    /// Every pixel's list on the GPU holds exactly the CPU raster's triangles, and every
+    /// tile's count equals `TileFragments::prepare`'s exact count, on the planned tiles of
+    /// three Cornell-box directions (lavapipe: 469 tiles, 3.8 M fragments, no pixel differs).
+    /// Depths are the rasteriser's interpolation, not the CPU's plane evaluation: within
+    /// 2⁻¹⁶ m here (measured 1.2·10⁻⁵ m), above the CPU's coincident-surface tolerance
+    /// (1e-6 × the scene's scale), so the resolve must order by depths recomputed the CPU's way
+    /// from the triangle, never by these.
+    #[test]
+    fn lists_hold_the_cpu_rasters_fragments() {
+        let gpu = GpuContext::headless().expect("a Vulkan adapter (lavapipe: mesa-vulkan-drivers)");
+        let scene = cornell();
+        let geom = &scene.bundle.geom;
+        let tris = GpuTriangles::new(&gpu, &geom.corners);
+        let pass = ListPass::new(&gpu).unwrap();
+        let out = pass.buffers(&gpu, 128, 1 << 20).unwrap();
+        let all: Vec<u32> = (0..geom.len() as u32).collect();
+        let mut cpu = TileFragments::default();
+        let (mut tiles, mut fragments, mut worst_depth, mut swapped) = (0, 0u64, 0f32, 0u64);
+        for i in 0..3 {
+            let (frame, viewports) = planned(&scene, i, 128, 1 << 20);
+            assert!(viewports.len() > 1, "direction {i} has tiles");
+            for vp in viewports.iter() {
+                let count = pass.build(&gpu, &tris, &frame, vp, &out).unwrap();
+                assert_eq!(count, cpu.prepare(&scene, &frame, vp, &all, None, |_| true), "tile {vp:?}");
+                let mut got = out.read_lists(&gpu, vp.width, vp.height).unwrap();
+                let want = cpu_lists(&scene, &frame, vp);
+                for (p, (g, w)) in got.iter_mut().zip(&want).enumerate() {
+                    g.sort_by_key(|&(_, t)| t);
+                    let triangles = |l: &[(f32, u32)]| l.iter().map(|&(_, t)| t).collect::<Vec<_>>();
+                    // Watertight either way: one fragment per surface crossed.
+                    assert_eq!(g.len(), w.len(), "pixel {p} of {vp:?}");
+                    if triangles(g) != triangles(w) {
+                        swapped += 1;
+                        continue;
+                    }
+                    for (a, b) in g.iter().zip(w) {
+                        worst_depth = worst_depth.max((a.0 - b.0).abs());
+                    }
+                }
+                tiles += 1;
+                fragments += count;
+            }
+        }
+        eprintln!(
+            "list twin: {tiles} tiles, {fragments} fragments, {swapped} pixels with an edge centre given to the \
+             other triangle, worst depth difference {worst_depth:e} m"
+        );
+        assert!(fragments > 10_000);
+        assert_eq!(swapped, 0, "pixels whose centre went to the other triangle of an edge");
+        assert!(worst_depth <= 2f32.powi(-16), "depth off by {worst_depth}");
+    }
+
+    /// A node buffer far too small for the tiles: every overflow is seen from the counter, the
+    /// tile is split and redone exactly as the CPU backend splits it (same rectangles, same
+    /// counts, in the same order), and the parts hold every fragment of the whole tile.
+    #[test]
+    fn overflowing_tiles_are_split_and_redone_without_losing_a_sample() {
+        let gpu = GpuContext::headless().expect("a Vulkan adapter (lavapipe: mesa-vulkan-drivers)");
+        let scene = cornell();
+        let geom = &scene.bundle.geom;
+        let tris = GpuTriangles::new(&gpu, &geom.corners);
+        let pass = ListPass::new(&gpu).unwrap();
+        let all: Vec<u32> = (0..geom.len() as u32).collect();
+        let mut cpu = TileFragments::default();
+        let (frame, viewports) = planned(&scene, 1, 128, 1 << 20);
+        let capacity = 700u64;
+        let small = pass.buffers(&gpu, 128, capacity).unwrap();
+        let big = pass.buffers(&gpu, 128, 1 << 20).unwrap();
+        let mut overflowed = 0;
+        for vp in viewports.iter().take(12) {
+            // The CPU backend's split-and-redo of this tile (cpu::direction::overflowed).
+            let mut expected = Vec::new();
+            let mut queue = vec![*vp];
+            while let Some(part) = queue.pop() {
+                let count = cpu.prepare(&scene, &frame, &part, &all, None, |_| true);
+                if count > capacity
+                    && let Some(parts) = part.split()
+                {
+                    queue.extend(parts.iter().rev());
+                    continue;
+                }
+                expected.push(BuiltTile { viewport: part, fragments: count });
+            }
+            // Whole tile's fragments, by grid pixel.
+            let whole_count = pass.build(&gpu, &tris, &frame, vp, &big).unwrap();
+            let whole = big.read_lists(&gpu, vp.width, vp.height).unwrap();
+            let mut seen = vec![Vec::new(); whole.len()];
+            let mut got = Vec::new();
+            let report = pass
+                .build_tile(&gpu, &tris, &frame, vp, &small, |b, lists| {
+                    let part = lists.read_lists(&gpu, b.viewport.width, b.viewport.height)?;
+                    for (k, list) in part.into_iter().enumerate() {
+                        let (x, y) = (k as u32 % b.viewport.width, k as u32 / b.viewport.width);
+                        let (gx, gy) = (x + b.viewport.offset.0 - vp.offset.0, y + b.viewport.offset.1 - vp.offset.1);
+                        seen[(gy * vp.width + gx) as usize].extend(list);
+                    }
+                    got.push(b);
+                    Ok(())
+                })
+                .unwrap();
+            assert_eq!(got, expected, "tile {vp:?}");
+            assert_eq!(got.iter().map(|b| b.fragments).sum::<u64>(), whole_count);
+            assert_eq!(report.unsplittable, 0);
+            for (a, b) in seen.into_iter().zip(whole) {
+                let triangles = |l: Vec<(f32, u32)>| {
+                    let mut t: Vec<u32> = l.into_iter().map(|(_, t)| t).collect();
+                    t.sort_unstable();
+                    t
+                };
+                assert_eq!(triangles(a), triangles(b), "a part lost or gained a fragment");
+            }
+            overflowed += report.overflowed;
+        }
+        eprintln!("split twin: {overflowed} overflowed rectangles split and redone");
+        assert!(overflowed >= 5, "the test must overflow");
+    }
+
+    /// Per-direction times of the stages done on the GPU (analysis, mips, Program 1; list
+    /// builds) against the CPU backend's same steps, on the Cornell box and on a 120k-triangle
+    /// tessellated room. Prints only (speed is measured, never asserted, in tests):
+    /// `cargo test --release --lib per_direction_timings -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn per_direction_timings() {
+        use std::sync::Arc;
+        use std::time::Instant;
+
+        use crate::atlas::{Atlas, AtlasConfig};
+        use crate::bundle::{BundleConfig, BundleScene};
+        use crate::gpu::bundle_analysis::{AnalysisPass, Drawn};
+        use crate::gpu::bundle_mips::{AnalysisMaps, MipPass};
+        use crate::gpu::bundle_tiles::TilePass;
+        use crate::scene::SceneGeometry;
+        use crate::scene::builder::{SceneBuilder, white};
+
+        let gpu = GpuContext::headless().expect("a Vulkan adapter (lavapipe: mesa-vulkan-drivers)");
+        let room = {
+            let mut b = SceneBuilder::new();
+            let m = b.material(white());
+            crate::reference::scenes::grid_room(
+                &mut b,
+                glam::Vec3::ZERO,
+                glam::Vec3::new(6.0, 3.0, 5.0),
+                (100, 100, 100),
+                m,
+                m,
+                m,
+            );
+            let scene = Arc::new(b.build());
+            let geom = SceneGeometry::new(&scene);
+            let atlas = Atlas::build(&scene, &geom, &AtlasConfig::default()).expect("atlas");
+            let bundle = BundleScene::new(scene, Arc::new(geom), Arc::new(atlas), BundleConfig::default());
+            Arc::new(CpuScene::new(Arc::new(bundle)))
+        };
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2] * 1e3
+        };
+        let (analysis, mips, tiles, lists) = (
+            AnalysisPass::new(&gpu).unwrap(),
+            MipPass::new(&gpu).unwrap(),
+            TilePass::new(&gpu).unwrap(),
+            ListPass::new(&gpu).unwrap(),
+        );
+        eprintln!("adapter: {} ({:?}); machine shared with other builds", gpu.info.name, gpu.info.device_type);
+        for (name, scene) in [("cornell_box", cornell()), ("grid room 120k", room)] {
+            let geom = &scene.bundle.geom;
+            let cfg = &scene.bundle.config;
+            let os = cfg.oversampling;
+            let importance: Vec<f32> = scene.density.iter().map(|d| d * os * os).collect();
+            let tris = GpuTriangles::new(&gpu, &geom.corners);
+            tris.set_importance(&gpu, &importance);
+            let dirs = BundleDirections::new(11);
+            let res = cfg.analysis_res;
+            let n = 16u64;
+            // CPU: analysis, mips, plan per direction (one thread).
+            let (mut ca, mut cm, mut cp) = (Vec::new(), Vec::new(), Vec::new());
+            let mut cpu = Analysis::default();
+            let mut plans = Vec::new();
+            for i in 0..n {
+                let (frame, vp) = window(&scene, &dirs, i, res);
+                let t = Instant::now();
+                cpu.run(&scene, &frame, &vp, None, &importance);
+                ca.push(t.elapsed().as_secs_f64());
+                let t = Instant::now();
+                let imp = MipChain::max_mips(res, std::mem::take(&mut cpu.importance)).unwrap();
+                let frags = MipChain::average_mips(res, std::mem::take(&mut cpu.fragments)).unwrap();
+                cm.push(t.elapsed().as_secs_f64());
+                let t = Instant::now();
+                let params = TileParams {
+                    w: cfg.head_side,
+                    n: cfg.node_capacity,
+                    alpha: cfg.alpha,
+                    pixel_area: (vp.pixel as f64).powi(2),
+                };
+                let plan = TilePlanner::new(&imp, &frags, params).unwrap().plan(TilingMode::Adaptive).unwrap();
+                cp.push(t.elapsed().as_secs_f64());
+                plans.push((frame, vp, params, plan));
+            }
+            // GPU: one submission and wait per direction.
+            let mut maps: Vec<AnalysisMaps> = (0..n).map(|_| AnalysisMaps::new(&gpu, res).unwrap()).collect();
+            let outs: Vec<_> = (0..n).map(|_| tiles.buffers(&gpu, res)).collect();
+            let mut single = Vec::new();
+            for (k, (frame, vp, params, plan)) in plans.iter().enumerate() {
+                let t = Instant::now();
+                let mut encoder = gpu.device.create_command_encoder(&Default::default());
+                analysis.encode(&gpu, &mut encoder, &tris, Drawn::All, frame, vp, &maps[k]);
+                mips.encode(&gpu, &mut encoder, &mut maps[k], true);
+                tiles.encode(&gpu, &mut encoder, &maps[k], params, &outs[k]);
+                gpu.queue.submit([encoder.finish()]);
+                let got = outs[k].read(&gpu).unwrap();
+                single.push(t.elapsed().as_secs_f64());
+                assert_eq!(&got, plan, "the timed GPU plan is the CPU's");
+            }
+            // GPU: all directions in one submission.
+            let t = Instant::now();
+            let mut encoder = gpu.device.create_command_encoder(&Default::default());
+            for (k, (frame, vp, params, _)) in plans.iter().enumerate() {
+                analysis.encode(&gpu, &mut encoder, &tris, Drawn::All, frame, vp, &maps[k]);
+                mips.encode(&gpu, &mut encoder, &mut maps[k], true);
+                tiles.encode(&gpu, &mut encoder, &maps[k], params, &outs[k]);
+            }
+            gpu.queue.submit([encoder.finish()]);
+            gpu.wait_idle().unwrap();
+            let batched = t.elapsed().as_secs_f64() / n as f64;
+            gpu.take_error().unwrap();
+            // Direction 0's tiles, built and resolved: GPU (list build with its 4-byte
+            // read-back, then the resolve, waited for) against the CPU backend's count, build
+            // and exchange of the same tiles into f32 sums (LOD 0, every texel a target).
+            let (frame, global, _, plan) = &plans[0];
+            let b = &scene.bundle;
+            let texels = crate::atlas::texels::TexelMap::build(&b.scene, geom, &b.atlas, 0);
+            let tables = vec![crate::atlas::lookup::TexelTable::of_map(&texels)];
+            let triangles = crate::bundle::target::target_triangles(&b.atlas, &texels.face);
+            let target = crate::bundle::target::BakeTarget {
+                lod: 0,
+                face: &texels.face,
+                emission: &texels.emission,
+                tables: &tables,
+                window: None,
+                triangles: &triangles,
+            };
+            let own = vec![crate::scene::Rgb::splat(0.5); texels.face.len()];
+            let sky = crate::scene::Rgb::splat(1.0);
+            let resolve = crate::gpu::bundle_resolve::ResolvePass::new(&gpu).unwrap();
+            let gpu_target = resolve.target(&gpu, geom, &b.atlas, 0, &tables[0], texels.face.len()).unwrap();
+            gpu_target.set_source(&gpu, &own);
+            let fixed =
+                crate::gpu::bundle_resolve::FixedPoint::for_hits((global.pixel * global.pixel).max(1e-30) * 4.0, 1.0);
+            let out = lists.buffers(&gpu, cfg.head_side, cfg.node_capacity).unwrap();
+            let all: Vec<u32> = (0..geom.len() as u32).collect();
+            let mut counter = TileFragments::default();
+            let mut cpu_sums = vec![[0f32; 4]; texels.face.len()];
+            let (mut g_lists, mut g_resolve, mut c_count, mut c_resolve, mut frags) = (0.0, 0.0, 0.0, 0.0, 0u64);
+            for tile in &plan.tiles {
+                let vp = tile_viewport(global, tile);
+                let t = Instant::now();
+                let c = lists.build(&gpu, &tris, frame, &vp, &out).unwrap();
+                g_lists += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let mut encoder = gpu.device.create_command_encoder(&Default::default());
+                resolve.encode(
+                    &gpu,
+                    &mut encoder,
+                    &tris,
+                    &gpu_target,
+                    frame,
+                    &vp,
+                    &out,
+                    sky,
+                    scene.coincident_depth,
+                    fixed,
+                );
+                gpu.queue.submit([encoder.finish()]);
+                gpu.wait_idle().unwrap();
+                g_resolve += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let cc = counter.prepare(&scene, frame, &vp, &all, None, |t| scene.density[t as usize] > 0.0);
+                c_count += t.elapsed().as_secs_f64();
+                let t = Instant::now();
+                let a_px = vp.pixel_area();
+                counter.resolve(&scene, &target, |f, _, _, _| {
+                    crate::bundle::estimator::exchange(
+                        f,
+                        a_px,
+                        sky,
+                        |c| {
+                            if c < crate::bundle::estimator::FOREIGN {
+                                own[c as usize]
+                            } else {
+                                crate::scene::Rgb::ZERO
+                            }
+                        },
+                        &mut SumSink(&mut cpu_sums),
+                    )
+                });
+                c_resolve += t.elapsed().as_secs_f64();
+                assert_eq!(c, cc);
+                frags += c;
+            }
+            gpu.take_error().unwrap();
+            eprintln!(
+                "{name}: {} triangles, R = {res}; per direction (median of {n}, ms): CPU analysis {:.2}, mips {:.3}, \
+                 plan {:.3}; GPU analysis+mips+plan, one submit and read-back each {:.2}, {n} directions in one \
+                 submit {:.2}. Direction 0: {} tiles, {frags} fragments: GPU list builds {:.1} ms + resolve {:.1} ms; \
+                 CPU count {:.1} ms + build and resolve {:.1} ms",
+                geom.len(),
+                median(ca),
+                median(cm),
+                median(cp),
+                median(single),
+                batched * 1e3,
+                plan.tiles.len(),
+                g_lists * 1e3,
+                g_resolve * 1e3,
+                c_count * 1e3,
+                c_resolve * 1e3
+            );
+        }
+    }
+
+    struct SumSink<'a>(&'a mut [[f32; 4]]);
+
+    impl crate::bundle::estimator::HitSink for SumSink<'_> {
+        fn hit(&mut self, texel: u32, l: crate::scene::Rgb, a: f32) {
+            let s = &mut self.0[texel as usize];
+            s[0] += l.x;
+            s[1] += l.y;
+            s[2] += l.z;
+            s[3] += a;
+        }
+    }
+}
