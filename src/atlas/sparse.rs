@@ -306,6 +306,8 @@ fn footprint(geom: &SceneGeometry, tri: u32, uv: &[DVec2; 3], lo: Vec3, hi: Vec3
     let (e1, e2) = (c[1] - c[0], c[2] - c[0]);
     let (a11, a12, a22) = (e1.dot(e1), e1.dot(e2), e2.dot(e2));
     let det = a11 * a22 - a12 * a12;
+    // Written so that a NaN determinant also takes the whole-triangle path.
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
     if !(det > 1e-12 * a11.max(a22).powi(2)) {
         return whole();
     }

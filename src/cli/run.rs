@@ -134,7 +134,7 @@ fn parse_bytes(s: &str) -> Result<u64, String> {
         _ => return Err(format!("unknown unit in {s:?} (use K, M or G)")),
     };
     let bytes = n * scale;
-    if !(bytes.is_finite() && bytes >= 0.0 && bytes < 1.8e19) {
+    if !(bytes.is_finite() && (0.0..1.8e19).contains(&bytes)) {
         return Err(format!("{s:?} is not a byte count"));
     }
     Ok(bytes as u64)
@@ -477,14 +477,10 @@ fn runtime_report_config(options: &SceneOptions, run: &RunOptions) -> Value {
     })
 }
 
-fn summarise(
-    ui: &Ui,
-    path: &Path,
-    scene: &Scene,
-    stats: &RuntimeStats,
-    written: &[(u32, (u64, u64, u64, u64), PathBuf)],
-    out: &Path,
-) {
+/// A light map written at the end: its LOD, its pixel rectangle (x0, y0, x1, y1), its file.
+type WrittenLod = (u32, (u64, u64, u64, u64), PathBuf);
+
+fn summarise(ui: &Ui, path: &Path, scene: &Scene, stats: &RuntimeStats, written: &[WrittenLod], out: &Path) {
     ui.say(format!("livebake run: {} ({} triangles)", path.display(), scene.triangle_count()));
     if let Some(t) = stats.first_light_seconds {
         ui.say(format!("  first light after {t:.2} s"));

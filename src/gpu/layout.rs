@@ -155,43 +155,6 @@ pub struct ListParams {
     pub _pad: u32,
 }
 
-/// `ResolveParams` (bundle_resolve.wgsl).
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
-pub struct ResolveParams {
-    pub t: [f32; 3],
-    pub pixel: f32,
-    pub b: [f32; 3],
-    pub width: u32,
-    pub dir: [f32; 3],
-    pub height: u32,
-    pub origin: [f32; 2],
-    pub offset: [u32; 2],
-    pub sky: [f32; 3],
-    pub a_px: f32,
-    pub rect: [i32; 4],
-    pub blocks_x: i32,
-    pub uv_scale: f32,
-    pub coincident: f32,
-    pub radiance_scale: f32,
-    pub area_scale: f32,
-    pub one: f32,
-    pub _pad1: u32,
-    pub _pad2: u32,
-}
-
-/// `TriangleFaces` (bundle_resolve.wgsl): a triangle's front and back atlas UVs.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
-pub struct TriangleFaces {
-    pub front: [[f32; 2]; 3],
-    pub back: [[f32; 2]; 3],
-    pub faces: u32,
-    pub _pad0: u32,
-    pub _pad1: u32,
-    pub _pad2: u32,
-}
-
 /// One corner of a drawn triangle (vertex buffer; `VertexInput` in surface.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
@@ -275,38 +238,6 @@ mod tests {
         assert_layout!("bundle_mips.wgsl", MipLevel, "MipLevel", [src, dst, dst_side, _pad]);
         assert_layout!("bundle_tiles.wgsl", TilePassParams, "TilePassParams", [side, top_level, capacity, _pad]);
         assert_layout!("bundle_tiles.wgsl", PlannedTile, "PlannedTile", [level, x, y, res]);
-        assert_layout!(
-            "bundle_resolve.wgsl",
-            ResolveParams,
-            "ResolveParams",
-            [
-                t,
-                pixel,
-                b,
-                width,
-                dir,
-                height,
-                origin,
-                offset,
-                sky,
-                a_px,
-                rect,
-                blocks_x,
-                uv_scale,
-                coincident,
-                radiance_scale,
-                area_scale,
-                one,
-                _pad1,
-                _pad2
-            ]
-        );
-        assert_layout!(
-            "bundle_resolve.wgsl",
-            TriangleFaces,
-            "TriangleFaces",
-            [front, back, faces, _pad0, _pad1, _pad2]
-        );
         assert_layout!(
             "bundle_lists.wgsl",
             ListParams,

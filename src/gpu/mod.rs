@@ -4,8 +4,7 @@
 //! - [`bundle_analysis`], [`bundle_mips`]: the GPU bundle backend's analysis raster and mip
 //!   passes (twins of `cpu::analysis` and `bundle::mips`); [`bundle_tiles`]: Program 1
 //!   (twin of `bundle::tiles::TilePlanner`); [`bundle_lists`]: per-tile linked lists with
-//!   overflow split-and-redo; [`bundle_resolve`]: the per-pixel exchange into fixed-point
-//!   per-texel sums.
+//!   overflow split-and-redo. The resolve and the backend itself are not built yet.
 //! - [`device`]: adapter and device selection, shared by everything on the GPU.
 //! - [`shader`]: the WGSL files under `shaders/` and the include preprocessor.
 //! - [`layout`]: the structs uploaded to the GPU, checked against the shaders in tests.
@@ -18,7 +17,6 @@
 pub mod bundle_analysis;
 pub mod bundle_lists;
 pub mod bundle_mips;
-pub mod bundle_resolve;
 pub mod bundle_tiles;
 pub mod device;
 pub mod layout;

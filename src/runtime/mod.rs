@@ -185,6 +185,8 @@ pub enum RuntimeError {
 /// What the runtime tells its front ends.
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
+// `Stats` is the large variant; a few events a second, boxing it would only add noise.
+#[allow(clippy::large_enum_variant)]
 pub enum RuntimeEvent {
     /// LOD 0 is published everywhere.
     FirstLight {

@@ -177,7 +177,7 @@ fn relight(
     backend: &mut dyn crate::bundle::BundleBackend,
     invalid: &BTreeSet<CellId>,
     threads: usize,
-) -> Result<(ShownLightmap, Vec<Vec<[u32; 2]>>), String> {
+) -> Result<(ShownLightmap, super::scheduler::PixelLists), String> {
     let grid = world.grid;
     let mut map = (*shared.shown()).clone();
     map.resize(world.atlas.width, world.atlas.height);

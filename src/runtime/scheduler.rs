@@ -169,6 +169,9 @@ fn fixed_bytes(world: &World) -> u64 {
         + world.cell_triangles.triangles.len() as u64 * 4
 }
 
+/// Light-map pixels (x, y) in lists: per cell, or per LOD.
+pub(super) type PixelLists = Vec<Vec<[u32; 2]>>;
+
 /// Bakes LOD 0 of the whole scene with `backend` and returns `map` with it published
 /// (filtered within charts, as every publish is), the pixels each cell owns there, and the
 /// bake's figures.
@@ -178,7 +181,7 @@ pub fn bake_first_light(
     threads: usize,
     mut map: ShownLightmap,
     cancel: &AtomicBool,
-) -> Result<(ShownLightmap, Vec<Vec<[u32; 2]>>, BundleLodStats), String> {
+) -> Result<(ShownLightmap, PixelLists, BundleLodStats), String> {
     let baked = bake_lod(&world.bundle, &world.bvh, backend, &world.lod0, None, threads, &NoProgress, cancel)
         .map_err(|e| e.to_string())?;
     if baked.stats.pass.unplanned_directions > 0 {
