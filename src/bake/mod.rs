@@ -224,12 +224,13 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 CpuProvider::new().backend(&bundle, config.threads()).map_err(|e| BakeError::Backend(e.to_string()))?;
             for lod in 0..config.lods {
                 let t0 = Instant::now();
-                let texels = TexelMap::build(scene, &geom, &atlas, lod);
+                let mut texels = TexelMap::build(scene, &geom, &atlas, lod);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
                 let never = std::sync::atomic::AtomicBool::new(false);
+                let threads = config.threads();
                 let Ok(bundle::LodIrradiance { irradiance, stats: bstats, .. }) =
-                    bundle::bake_lod(&bundle, &bvh, &mut backend, &texels, coarser, config.threads(), progress, &never)
+                    bundle::bake_lod_lean(&bundle, &bvh, &mut backend, &mut texels, coarser, threads, progress, &never)
                 else {
                     unreachable!("an offline bake is never cancelled")
                 };
