@@ -333,14 +333,18 @@ pub fn check_memory(atlas: &Atlas, config: &BakeConfig, light_pass: bool) -> Res
     })
 }
 
+/// Share of `--texel-budget` taken as the least the atlas covers: its texel-size search
+/// aims at the budget, and lands within ±20% of it (or above, on atlases of tiny charts).
+const EARLY_BUDGET_SHARE: f64 = 0.8;
+
 /// The guard before the atlas is built (under a second however fine the texels): a lower
 /// bound of the texels — from the lit area alone with `--texel-size`
-/// ([`crate::atlas::min_texels`]), else half the budget the atlas aims at — and no light
-/// pass nor lane buffers, so what it refuses the full check would refuse too.
+/// ([`crate::atlas::min_texels`]), else [`EARLY_BUDGET_SHARE`] of the budget — and no
+/// light pass nor lane buffers, so what it refuses the full check would refuse too.
 fn check_memory_early(scene: &Scene, geom: &SceneGeometry, config: &BakeConfig) -> Result<(), BakeError> {
     let texels = match config.atlas.texel_size {
         Some(_) => crate::atlas::min_texels(scene, geom, &config.atlas).unwrap_or(0),
-        None => config.atlas.texel_budget / 2,
+        None => (config.atlas.texel_budget as f64 * EARLY_BUDGET_SHARE) as u64,
     };
     let mut estimate = memory::estimate_from_lod0(texels, None, config, false);
     // The lanes' buffers are counted at their most: not part of a lower bound.
