@@ -47,11 +47,30 @@ fn write_atomically(
     }
 }
 
-/// Linear RGB irradiance of every pixel of `lod` (gutters filled, empty pixels 0).
+/// Linear RGB irradiance of every pixel of `lod` (gutters filled, empty pixels 0), written
+/// straight into the image (no full-size copy of the map beside it).
 pub fn irradiance_image(lod: &BakedLod) -> Rgb32FImage {
-    let img = lod.texels.to_image(&lod.irradiance, Rgb::ZERO);
-    let w = lod.texels.width;
-    Rgb32FImage::from_fn(w, lod.texels.height, |x, y| image::Rgb(img[(y * w + x) as usize].to_array()))
+    spread(lod, &lod.irradiance, image::Rgb([0.0; 3]), |e| image::Rgb(e.to_array()))
+}
+
+/// An image of `lod`'s size with each texel's `value` mapped by `pixel` at its pixel and
+/// at the gutter pixels copying it; other pixels are `empty`.
+fn spread<P: image::Pixel, T: Copy>(
+    lod: &BakedLod,
+    values: &[T],
+    empty: P,
+    pixel: impl Fn(T) -> P,
+) -> image::ImageBuffer<P, Vec<P::Subpixel>> {
+    let t = &lod.texels;
+    let mut img = image::ImageBuffer::from_pixel(t.width, t.height, empty);
+    let mut put = |p: u32, v: T| img.put_pixel(p % t.width, p / t.width, pixel(v));
+    for (i, &p) in t.pixel.iter().enumerate() {
+        put(p, values[i]);
+    }
+    for &(p, i) in &t.gutter {
+        put(p, values[i as usize]);
+    }
+    img
 }
 
 /// Tone-mapped sRGB preview of outgoing radiance `L = Le + albedo/π·E`. Exposure is set from
@@ -61,12 +80,11 @@ pub fn radiance_preview(lod: &BakedLod) -> RgbImage {
     let mut lum: Vec<f32> = radiance.iter().map(|c| luminance(*c)).filter(|l| l.is_finite()).collect();
     lum.sort_by(f32::total_cmp);
     let p99 = lum.get(lum.len() * 99 / 100).copied().unwrap_or(1.0);
+    drop(lum);
     let exposure = if p99 > 0.0 { 1.5 / p99 } else { 1.0 };
     const EMPTY: [u8; 3] = [24, 24, 28];
-    let img = lod.texels.to_image(&radiance, Rgb::splat(f32::NAN));
-    let w = lod.texels.width;
-    RgbImage::from_fn(w, lod.texels.height, |x, y| {
-        let c = img[(y * w + x) as usize];
+    // A texel whose radiance is NaN shows as empty, as pixels without a texel do.
+    spread(lod, &radiance, image::Rgb(EMPTY), |c: Rgb| {
         image::Rgb(if c.x.is_nan() { EMPTY } else { tone_map(c * exposure) })
     })
 }

@@ -332,6 +332,44 @@ fn bad_input_exits_with_an_error_line_and_no_panic() {
     assert!(!dir.join("o").exists());
 }
 
+/// The memory guard (issue 8): a bake whose estimated peak exceeds the limit is refused before
+/// any texel map is built, with exit code 1 and one `error:` line naming the limit and the
+/// options that lower the need; a limit it fits in bakes.
+#[test]
+fn bakes_over_the_memory_limit_are_refused_naming_what_to_change() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let scene = cornell();
+    let out = dir.join("o").display().to_string();
+    let refused = |args: &[&str], needles: &[&str]| {
+        let mut all = vec!["bake", scene.as_str(), "--out", out.as_str(), "-q"];
+        all.extend_from_slice(args);
+        assert_eq!(fails(dir, &all, needles), 1, "{all:?}");
+    };
+    // ~500k texels at the default budget need ~170 MB: 100 MB is too little.
+    refused(&["--memory-limit", "100M"], &["needs ", "texels", "--memory-limit", "--texel-budget", "--lanes"]);
+    refused(&["--memory-limit", "100M", "--texel-size", "0.01"], &["--texel-size", "--memory-limit"]);
+    refused(&["--memory-limit", "300M", "--texel-size", "0.02", "--lods", "3"], &["--lods", "--texel-size"]);
+    // Below what the process already holds: only a larger limit helps.
+    refused(&["--memory-limit", "1k"], &["--memory-limit"]);
+    // Texels so fine that the lit area alone rules the bake out, before the atlas is built
+    // (or, on a machine with the memory, the atlas's own limit does).
+    let room = asset("van_gogh_room/van_gogh_room_lit.gltf").display().to_string();
+    let out_arg = out.as_str();
+    let fine = ["bake", room.as_str(), "--out", out_arg, "-q", "--texel-size", "0.0005"];
+    assert_eq!(fails(dir, &fine, &["--texel-size"]), 1);
+    // Not a size: the argument parser refuses it (exit 2).
+    assert_eq!(fails(dir, &["bake", &scene, "--out", &out, "--memory-limit", "lots"], &["--memory-limit"]), 2);
+    assert!(!dir.join("o").exists(), "a refused bake wrote nothing");
+    // The same bake within a limit that holds it runs, and reports its estimate.
+    ok(dir, &["bake", &scene, "--out", &out, "-q", "--texel-size", "0.05", "--samples", "8", "--memory-limit", "1G"]);
+    let report = read_json(&dir.join("o/report.json"));
+    let estimate = &report["memory"]["estimate"];
+    assert!(estimate["bytes"].as_u64().is_some_and(|b| b > 0 && b < 1 << 30), "{estimate}");
+    assert_eq!(report["memory"]["limit_bytes"].as_u64(), Some(1 << 30));
+    assert_eq!(report["memory"]["limit_source"], "option");
+}
+
 // ---------------------------------------------------------------------------------------------
 // determinism
 

@@ -267,6 +267,22 @@ fn lit_triangles(face_of: &[[FaceId; 2]], geom: &SceneGeometry, mi: usize) -> Ve
     (geom.mesh_offsets[mi]..geom.mesh_offsets[mi + 1]).filter(|&t| face_of[t as usize][0] != NO_FACE).collect()
 }
 
+/// A lower bound of the LOD-0 texels [`Atlas::build`] would cover for `config`, from the lit
+/// area alone (no charting or packing: milliseconds), as its own early refusal uses: a
+/// chart's faces are within `chart_max_angle` of its seed's normal, so its UV area is at
+/// least cos(angle) × its area. `None` without `--texel-size` (the budget bounds the texels,
+/// and with them the atlas's cost).
+pub fn min_texels(scene: &Scene, geom: &SceneGeometry, config: &AtlasConfig) -> Option<u64> {
+    let t0 = config.texel_size? as f64;
+    let lit_area: f64 = (0..geom.len())
+        .filter(|&t| is_lit(geom, t))
+        .map(|t| geom.areas[t] as f64 * (1.0 + f64::from(u8::from(double_sided(scene, geom, t)))))
+        .sum();
+    let cos = (charts::effective_max_angle(config.chart_max_angle) as f64).cos();
+    let n = lit_area * cos / (t0 * t0);
+    (n.is_finite() && t0 > 0.0).then_some(n.min(u64::MAX as f64 / 2.0) as u64)
+}
+
 /// Cheap lower bound before any work: a chart's faces are within `chart_max_angle` of its
 /// seed's normal, so its UV area is at least cos(angle) × its area (and a TEXCOORD_1 block
 /// has at least its area in texels).

@@ -233,6 +233,40 @@ impl TexelMap {
         self.pixel.len()
     }
 
+    /// Gives up the texels' positions and normals (24 B a texel) while a bake that no longer
+    /// reads them runs; [`restore_geometry`](Self::restore_geometry) recomputes them.
+    pub fn drop_geometry(&mut self) {
+        self.position = Vec::new();
+        self.normal = Vec::new();
+    }
+
+    /// Recomputes the positions and normals [`drop_geometry`](Self::drop_geometry) gave up:
+    /// the same function of each texel's face and pixel as [`build`](Self::build), so the
+    /// same values bit for bit.
+    pub fn restore_geometry(&mut self, scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, threads: usize) {
+        let n = self.len();
+        let mut position = vec![Vec3::ZERO; n];
+        let mut normal = vec![Vec3::ZERO; n];
+        let chunk = n.div_ceil(threads.max(1) * 4).max(4096);
+        let (w, lod) = (self.width, self.lod);
+        let items: Vec<_> = position
+            .chunks_mut(chunk)
+            .zip(normal.chunks_mut(chunk))
+            .zip(self.face.chunks(chunk).zip(self.pixel.chunks(chunk)))
+            .collect();
+        par_for_each(items, threads, |((position, normal), (face, pixel))| {
+            for k in 0..face.len() {
+                let uv = atlas.faces[face[k] as usize].uv_lod(lod);
+                let (x, y) = ((pixel[k] % w) as i64, (pixel[k] / w) as i64);
+                let a = TexelAttributes::at(scene, geom, atlas, face[k], &uv, x, y);
+                position[k] = a.position;
+                normal[k] = a.normal;
+            }
+        });
+        self.position = position;
+        self.normal = normal;
+    }
+
     pub fn is_empty(&self) -> bool {
         self.pixel.is_empty()
     }

@@ -95,7 +95,54 @@ pub fn bake_lod_observed(
         source
     });
     let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None };
-    bake_region_observed(bundle, bvh, backend, &region, converged, threads, progress, cancel, observe)
+    bake_region_observed(bundle, bvh, backend, &region, converged, None, threads, progress, cancel, observe)
+}
+
+/// [`bake_lod`] holding less at its peak: the punctual pass first, then the texels'
+/// positions and normals (read by nothing else) are given up while the bundles run and
+/// recomputed at the end ([`TexelMap::restore_geometry`]: the same values). Same result.
+#[allow(clippy::too_many_arguments)]
+pub fn bake_lod_lean(
+    bundle: &BundleScene,
+    bvh: &Bvh,
+    backend: &mut dyn BundleBackend,
+    texels: &mut TexelMap,
+    coarser: Option<CoarserLod>,
+    threads: usize,
+    progress: &dyn Progress,
+    cancel: &AtomicBool,
+) -> Result<LodIrradiance, Cancelled> {
+    let t0 = Instant::now();
+    let punctual =
+        punctual_irradiance(&bundle.scene, bvh, &texels.position, &texels.normal, ray_epsilon(&bundle.scene), threads);
+    let punctual = (punctual, t0.elapsed().as_secs_f64());
+    texels.drop_geometry();
+    let result = {
+        let texels = &*texels;
+        let tables = [TexelTable::of_map(texels)];
+        let converged = coarser.map(|c| {
+            let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
+            let mut source = Vec::new();
+            source_from_coarser(texels, &c, &carried, &mut source);
+            source
+        });
+        let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None };
+        let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
+        bake_region_observed(
+            bundle,
+            bvh,
+            backend,
+            &region,
+            converged,
+            Some(punctual),
+            threads,
+            progress,
+            cancel,
+            never_stop,
+        )
+    };
+    texels.restore_geometry(&bundle.scene, &bundle.geom, &bundle.atlas, threads);
+    result
 }
 
 /// Texels to bake with a bundle backend, and what lies around them.
@@ -125,10 +172,12 @@ pub fn bake_region(
     cancel: &AtomicBool,
 ) -> Result<LodIrradiance, Cancelled> {
     let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
-    bake_region_observed(bundle, bvh, backend, region, converged, threads, progress, cancel, never_stop)
+    bake_region_observed(bundle, bvh, backend, region, converged, None, threads, progress, cancel, never_stop)
 }
 
-/// [`bake_region`] with an observer (see [`bake_lod_observed`]).
+/// [`bake_region`] with an observer (see [`bake_lod_observed`]); `punctual`: the punctual
+/// pass's irradiance and seconds when already computed (the region's positions and normals
+/// are then not read).
 #[allow(clippy::too_many_arguments)]
 fn bake_region_observed(
     bundle: &BundleScene,
@@ -136,6 +185,7 @@ fn bake_region_observed(
     backend: &mut dyn BundleBackend,
     region: &Region,
     converged: Option<Vec<Rgb>>,
+    punctual: Option<(Vec<Rgb>, f64)>,
     threads: usize,
     progress: &dyn Progress,
     cancel: &AtomicBool,
@@ -144,10 +194,19 @@ fn bake_region_observed(
     let texels = &region.texels;
     let config = &bundle.config;
     let mut stats = BundleLodStats::default();
-    let t0 = Instant::now();
-    let punctual =
-        punctual_irradiance(&bundle.scene, bvh, texels.position, texels.normal, ray_epsilon(&bundle.scene), threads);
-    stats.punctual_seconds = t0.elapsed().as_secs_f64();
+    let (punctual, seconds) = punctual.unwrap_or_else(|| {
+        let t0 = Instant::now();
+        let e = punctual_irradiance(
+            &bundle.scene,
+            bvh,
+            texels.position,
+            texels.normal,
+            ray_epsilon(&bundle.scene),
+            threads,
+        );
+        (e, t0.elapsed().as_secs_f64())
+    });
+    stats.punctual_seconds = seconds;
 
     let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
     let triangles = crate::bundle::target::target_triangles(&bundle.atlas, texels.face);
@@ -172,7 +231,8 @@ fn bake_region_observed(
 
     let t1 = Instant::now();
     let jobs = JobSequence::new(config.seed, bundle.emitters.small.len(), config.light_directions);
-    let mut sums = BatchSums::new(texels.len());
+    // Sized by the backend (lane 0's buffer; light-pass sums only with a light pass).
+    let mut sums = BatchSums::default();
     progress.begin(&format!("LOD {} bundles", texels.lod), config.directions as u64);
     let per_batch = config.batch_size() as u64;
     let mut first = 0u64;
@@ -204,7 +264,12 @@ fn bake_region_observed(
     stats.batches = estimate.batches();
     stats.light_directions_per_group = estimate.light_directions();
     stats.unsampled_texels = estimate.unsampled();
-    Ok(LodIrradiance { irradiance: estimate.irradiance(), punctual: estimate.punctual().to_vec(), stats })
+    drop(sums);
+    // The irradiance goes into the source buffer, and the punctual part is moved out: no
+    // per-texel buffer is added at the bake's peak.
+    let mut irradiance = source;
+    estimate.irradiance_into(threads, &mut irradiance);
+    Ok(LodIrradiance { irradiance, punctual: estimate.into_punctual(), stats })
 }
 
 /// A whole LOD's bundle bake.

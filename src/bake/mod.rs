@@ -3,6 +3,7 @@
 //! around them.
 
 pub mod bundle;
+pub mod memory;
 mod reference;
 pub mod report;
 
@@ -57,6 +58,9 @@ pub struct BakeConfig {
     pub bundle: BundleConfig,
     /// Worker threads; `None` uses every core.
     pub threads: Option<usize>,
+    /// Most bytes the bake may hold (checked against an estimate before any texel map is
+    /// built); `None`: three quarters of the machine's memory.
+    pub memory_limit: Option<u64>,
 }
 
 impl Default for BakeConfig {
@@ -69,6 +73,7 @@ impl Default for BakeConfig {
             seed: 0,
             bundle: BundleConfig::default(),
             threads: None,
+            memory_limit: None,
         }
     }
 }
@@ -127,9 +132,26 @@ pub enum BakeError {
     )]
     UnplannedDirections { lod: u32, count: u64, directions: u64 },
     #[error(
-        "LOD {lod} would have {texels} texels, above the limit of {max}; use fewer --lods or a larger --texel-size"
+        "LOD {lod} would have {pixels} atlas pixels, more than texel ids can number ({max}); use fewer --lods or a larger --texel-size"
     )]
-    LodTooLarge { lod: u32, texels: u64, max: u64 },
+    LodTooLarge { lod: u32, pixels: u64, max: u64 },
+    #[error(
+        "this bake needs {about}{need} ({texels} texels × {per_texel:.0} B, with {resident} already in use); the limit is {limit} ({limit_source}); {advice}",
+        need = memory::human_bytes(.need),
+        resident = memory::human_bytes(.resident),
+        limit = memory::human_bytes(.limit)
+    )]
+    OutOfMemory {
+        /// "~" for an estimate, "at least " for a lower bound.
+        about: &'static str,
+        need: u64,
+        texels: u64,
+        per_texel: f64,
+        resident: u64,
+        limit: u64,
+        limit_source: &'static str,
+        advice: String,
+    },
 }
 
 /// Most samples a bake may take, a time bound: at the few milliseconds a bundle direction
@@ -186,8 +208,9 @@ pub fn check_node_capacity(bvh: &Bvh, config: &BundleConfig) -> Result<(), BakeE
     Ok(())
 }
 
-/// Largest atlas (pixels) a single LOD may have: 2^28 pixels is ~8 GB of texel data.
-const MAX_LOD_PIXELS: u64 = 1 << 28;
+/// Most atlas pixels a LOD may have: pixel and texel ids are `u32`, [`crate::atlas::texels::NO_TEXEL`]
+/// excluded. Memory is the tighter bound in practice ([`check_memory`]).
+const MAX_LOD_PIXELS: u64 = u32::MAX as u64 - 1;
 const MAX_LODS: u32 = 8;
 
 /// Bakes `config.lods` levels of `scene`'s light map (lit by `scene.sky` as well as its emitters).
@@ -195,13 +218,18 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
     config.validate()?;
     let started = Instant::now();
     let geom = SceneGeometry::new(scene);
+    // The atlas options' own errors first (they say more than a memory figure would).
+    config.atlas.validate()?;
+    check_memory_early(scene, &geom, config)?;
     let atlas = Atlas::build(scene, &geom, &config.atlas)?;
     check_lod_sizes(&atlas, config.lods)?;
     let mut report = BakeReport::new(scene, &atlas, config);
     let mut lods: Vec<BakedLod> = Vec::new();
     match config.backend {
         BackendKind::Reference => {
+            report.memory = check_memory(&atlas, config, false)?;
             let backend = reference::ReferenceBackend::new(scene, config);
+            report.memory.resident_at_start = memory::resident_bytes();
             for lod in 0..config.lods {
                 let t0 = Instant::now();
                 let texels = TexelMap::build(scene, &geom, &atlas, lod);
@@ -212,24 +240,30 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
             }
         }
         BackendKind::Cpu => {
-            let bvh = Bvh::for_scene(scene, &geom);
-            check_node_capacity(&bvh, &config.bundle_config())?;
             let bundle = Arc::new(BundleScene::new(
                 scene.clone(),
                 Arc::new(geom.clone()),
                 Arc::new(atlas.clone()),
                 config.bundle_config(),
             ));
+            let light_pass = !bundle.emitters.small.is_empty();
+            report.memory = check_memory(&atlas, config, light_pass)?;
+            let bvh = Bvh::for_scene(scene, &geom);
+            check_node_capacity(&bvh, &config.bundle_config())?;
             let mut backend =
                 CpuProvider::new().backend(&bundle, config.threads()).map_err(|e| BakeError::Backend(e.to_string()))?;
+            // Measured from here: what grows with the texels (the scene, its BVH and the
+            // per-triangle tables are resident already).
+            report.memory.resident_at_start = memory::resident_bytes();
             for lod in 0..config.lods {
                 let t0 = Instant::now();
-                let texels = TexelMap::build(scene, &geom, &atlas, lod);
+                let mut texels = TexelMap::build(scene, &geom, &atlas, lod);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
                 let never = std::sync::atomic::AtomicBool::new(false);
+                let threads = config.threads();
                 let Ok(bundle::LodIrradiance { irradiance, stats: bstats, .. }) =
-                    bundle::bake_lod(&bundle, &bvh, &mut backend, &texels, coarser, config.threads(), progress, &never)
+                    bundle::bake_lod_lean(&bundle, &bvh, &mut backend, &mut texels, coarser, threads, progress, &never)
                 else {
                     unreachable!("an offline bake is never cancelled")
                 };
@@ -248,6 +282,8 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
         }
     }
     report.total_seconds = started.elapsed().as_secs_f64();
+    report.memory.measure();
+    report.bytes_per_texel = report.memory.measured_bytes_per_texel;
     Ok(BakeOutput { atlas, lods, report })
 }
 
@@ -268,14 +304,114 @@ impl BakeConfig {
     }
 }
 
-/// Refuses an atlas whose LODs 0 … `lods`−1 would not fit in memory.
+/// Refuses an atlas whose LODs 0 … `lods`−1 have more pixels than `u32` ids can number.
 pub fn check_lod_sizes(atlas: &Atlas, lods: u32) -> Result<(), BakeError> {
     let hierarchy = atlas.lods(lods);
     for lod in 0..lods {
-        let texels = hierarchy.texel_count(lod);
-        if texels > MAX_LOD_PIXELS {
-            return Err(BakeError::LodTooLarge { lod, texels, max: MAX_LOD_PIXELS });
+        let pixels = hierarchy.texel_count(lod);
+        if pixels > MAX_LOD_PIXELS {
+            return Err(BakeError::LodTooLarge { lod, pixels, max: MAX_LOD_PIXELS });
         }
+    }
+    Ok(())
+}
+
+/// The memory guard: estimates the peak of baking `config` on `atlas` ([`memory::estimate`];
+/// `light_pass`: whether the scene has small emitters) before anything per texel is
+/// allocated and refuses it when that, with what the process already holds, exceeds the
+/// limit (`config.memory_limit`, else 3/4 of the machine's memory). The error names the
+/// options that lower it. Returns the memory part of the report, measured figures to come.
+pub fn check_memory(atlas: &Atlas, config: &BakeConfig, light_pass: bool) -> Result<memory::MemoryReport, BakeError> {
+    let estimate = memory::estimate(atlas, config, light_pass);
+    let (limit, source) = memory::memory_limit(config.memory_limit);
+    refuse_over_limit(&estimate, config, light_pass, Some(atlas.texel_size), "~")?;
+    Ok(memory::MemoryReport {
+        estimate,
+        limit_bytes: limit,
+        limit_source: Some(source),
+        ..memory::MemoryReport::default()
+    })
+}
+
+/// Share of `--texel-budget` taken as the least the atlas covers: its texel-size search
+/// aims at the budget, and lands within ±20% of it (or above, on atlases of tiny charts).
+const EARLY_BUDGET_SHARE: f64 = 0.8;
+
+/// The guard before the atlas is built (under a second however fine the texels): a lower
+/// bound of the texels — from the lit area alone with `--texel-size`
+/// ([`crate::atlas::min_texels`]), else [`EARLY_BUDGET_SHARE`] of the budget — and no
+/// light pass nor lane buffers, so what it refuses the full check would refuse too.
+fn check_memory_early(scene: &Scene, geom: &SceneGeometry, config: &BakeConfig) -> Result<(), BakeError> {
+    let texels = match config.atlas.texel_size {
+        Some(_) => crate::atlas::min_texels(scene, geom, &config.atlas).unwrap_or(0),
+        None => (config.atlas.texel_budget as f64 * EARLY_BUDGET_SHARE) as u64,
+    };
+    let mut estimate = memory::estimate_from_lod0(texels, None, config, false);
+    // The lanes' buffers are counted at their most: not part of a lower bound.
+    estimate.bytes = estimate.texel_bytes;
+    estimate.lane_bytes = 0;
+    estimate.bytes_per_texel = estimate.bytes as f64 / estimate.texels.max(1) as f64;
+    refuse_over_limit(&estimate, config, false, config.atlas.texel_size, "at least ")
+}
+
+/// Refuses `estimate` (of a bake at `texel_size` m, when known) when it, with what the process holds
+/// already, exceeds the limit; the error says which options bring it within.
+fn refuse_over_limit(
+    estimate: &memory::MemoryEstimate,
+    config: &BakeConfig,
+    light_pass: bool,
+    texel_size: Option<f32>,
+    about: &'static str,
+) -> Result<(), BakeError> {
+    let (limit, source) = memory::memory_limit(config.memory_limit);
+    let resident = memory::resident_bytes().unwrap_or(0);
+    let need = estimate.bytes.saturating_add(resident);
+    if need > limit {
+        // Texels scale as 1/texel size²: the size (or budget) that brings the texel part
+        // within what is left, with 5% to spare.
+        let room = limit.saturating_sub(resident).saturating_sub(estimate.lane_bytes) as f64;
+        let shrink = estimate.texel_bytes as f64 / room.max(1.0) * 1.05;
+        let size = texel_size.map(|t| memory::metres(t as f64 * shrink.sqrt()));
+        let mut advice = if room < 1.0 {
+            "raise --memory-limit (what does not grow with the texels alone exceeds it), or lower --nodes".to_string()
+        } else if let (Some(_), Some(size)) = (config.atlas.texel_size, &size) {
+            format!("raise --texel-size to at least {size} m")
+        } else {
+            let budget = ((config.atlas.texel_budget as f64 / shrink) as u64).max(1);
+            match &size {
+                Some(size) => {
+                    format!("lower --texel-budget to at most {budget} (or give --texel-size of at least {size} m)")
+                }
+                None => format!("lower --texel-budget to at most {budget}"),
+            }
+        };
+        if config.lods > 1 {
+            advice.push_str(&format!(
+                ", or bake fewer --lods (each finer one has 4× the texels of the one before; {} now)",
+                config.lods
+            ));
+        }
+        if config.backend == BackendKind::Cpu && config.bundle.lanes > 1 {
+            advice.push_str(&format!(
+                ", or lower --lanes ({} now, {} B a texel each)",
+                config.bundle.lanes,
+                16 + 12 * u64::from(light_pass)
+            ));
+        }
+        let limit_source = match source {
+            memory::LimitSource::Option => "--memory-limit",
+            memory::LimitSource::Machine => "3/4 of this machine's memory; --memory-limit sets it",
+        };
+        return Err(BakeError::OutOfMemory {
+            about,
+            need,
+            texels: estimate.texels,
+            per_texel: estimate.bytes_per_texel,
+            resident,
+            limit,
+            limit_source,
+            advice,
+        });
     }
     Ok(())
 }

@@ -6,6 +6,7 @@ use crate::atlas::{Atlas, AtlasStats, TexelMap};
 use crate::scene::{LoadStats, Rgb, Scene};
 
 use super::bundle::BundleLodStats;
+use super::memory::MemoryReport;
 use super::{BackendStats, BakeConfig};
 
 #[derive(Clone, Debug, Serialize)]
@@ -157,6 +158,11 @@ pub struct BakeReport {
     pub phases: PhaseTimings,
     /// Atlas + texel maps + baking, seconds (excludes load and write; see `phases`).
     pub total_seconds: f64,
+    /// Measured bytes per texel: the peak growth of the resident set over the bake (and, for
+    /// `livebake bake`, the writing of its light maps) per texel baked (all LODs); `null`
+    /// where /proc cannot be read. `memory` has the estimate beside it.
+    pub bytes_per_texel: Option<f64>,
+    pub memory: MemoryReport,
 }
 
 impl BakeReport {
@@ -189,6 +195,8 @@ impl BakeReport {
             lods: Vec::new(),
             phases: PhaseTimings::default(),
             total_seconds: 0.0,
+            bytes_per_texel: None,
+            memory: MemoryReport::default(),
         }
     }
 }

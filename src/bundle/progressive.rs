@@ -31,13 +31,24 @@ use crate::scene::Rgb;
 pub struct BatchSums {
     /// Global bundles: (Σ a·L rgb, Σ a).
     pub bundle: Vec<[f32; 4]>,
-    /// Light pass: Σ a·Le (rgb).
+    /// Light pass: Σ a·Le (rgb); empty when the bake has no light pass (no small emitter),
+    /// which then reads as zero everywhere.
     pub light: Vec<Rgb>,
 }
 
 impl BatchSums {
     pub fn new(texels: usize) -> Self {
-        BatchSums { bundle: vec![[0.0; 4]; texels], light: vec![Rgb::ZERO; texels] }
+        Self::with_light(texels, true)
+    }
+
+    /// Zeroed sums of `texels` texels, the light-pass sums only when `light`.
+    pub fn with_light(texels: usize, light: bool) -> Self {
+        BatchSums { bundle: vec![[0.0; 4]; texels], light: if light { vec![Rgb::ZERO; texels] } else { Vec::new() } }
+    }
+
+    /// Whether these are zeroed sums of `texels` texels with (or without) light-pass sums.
+    pub fn fits(&self, texels: usize, light: bool) -> bool {
+        self.bundle.len() == texels && self.light.len() == if light { texels } else { 0 }
     }
 
     pub fn clear(&mut self) {
@@ -45,41 +56,44 @@ impl BatchSums {
         self.light.fill(Rgb::ZERO);
     }
 
-    /// Sets `self` to the texel-wise sum of `lanes`, added in lane order (so the sums are
-    /// deterministic whatever the thread count), and zeroes the lanes for the next batch.
-    pub fn reduce_from(&mut self, lanes: &mut [BatchSums], threads: usize) {
+    /// Adds `lanes` to `self` texel by texel, in lane order after `self` (so `self` ends as
+    /// `self + lanes[0] + lanes[1] + …`, deterministic whatever the thread count: `self` is
+    /// lane 0 of the batch, and no separate buffer holds the total), and zeroes the lanes
+    /// for the next batch. Every lane has the same shape as `self`.
+    pub fn add_lanes(&mut self, lanes: &mut [BatchSums], threads: usize) {
         let n = self.bundle.len();
         let chunk = n.div_ceil(threads.max(1) * 4).max(4096);
-        // Work item: one chunk of the output and the same chunk of every lane.
-        type Item<'a> = ((&'a mut [[f32; 4]], &'a mut [Rgb]), Vec<(&'a mut [[f32; 4]], &'a mut [Rgb])>);
-        let mut items: Vec<Item> = self
-            .bundle
-            .chunks_mut(chunk)
-            .zip(self.light.chunks_mut(chunk))
-            .map(|out| (out, Vec::with_capacity(lanes.len())))
-            .collect();
+        let light = !self.light.is_empty();
+        // Work item: one chunk of the output and the same chunk of every lane (light-pass
+        // chunks empty without a light pass).
+        type Part<'a> = (&'a mut [[f32; 4]], &'a mut [Rgb]);
+        fn split<'a>(s: &'a mut BatchSums, chunk: usize, light: bool) -> Vec<Part<'a>> {
+            if light {
+                s.bundle.chunks_mut(chunk).zip(s.light.chunks_mut(chunk)).collect()
+            } else {
+                s.bundle.chunks_mut(chunk).map(|b| (b, <&mut [Rgb]>::default())).collect()
+            }
+        }
+        let mut items: Vec<(Part, Vec<Part>)> =
+            split(self, chunk, light).into_iter().map(|out| (out, Vec::with_capacity(lanes.len()))).collect();
         for lane in lanes.iter_mut() {
-            for (item, part) in items.iter_mut().zip(lane.bundle.chunks_mut(chunk).zip(lane.light.chunks_mut(chunk))) {
+            for (item, part) in items.iter_mut().zip(split(lane, chunk, light)) {
                 item.1.push(part);
             }
         }
         par_for_each(items, threads, |((out_b, out_l), mut parts)| {
-            // Texel by texel, so each output is written once; the first lane is taken as is
-            // and the others added to it in lane order.
-            for (i, (o_b, o_l)) in out_b.iter_mut().zip(out_l.iter_mut()).enumerate() {
-                let (mut b, mut l) = ([0.0f32; 4], Rgb::ZERO);
-                for (k, (lane_b, lane_l)) in parts.iter_mut().enumerate() {
-                    let (x_b, x_l) = (std::mem::take(&mut lane_b[i]), std::mem::take(&mut lane_l[i]));
-                    if k == 0 {
-                        (b, l) = (x_b, x_l);
-                    } else {
-                        for c in 0..4 {
-                            b[c] += x_b[c];
-                        }
-                        l += x_l;
+            for (i, o_b) in out_b.iter_mut().enumerate() {
+                for (lane_b, _) in parts.iter_mut() {
+                    let x_b = std::mem::take(&mut lane_b[i]);
+                    for c in 0..4 {
+                        o_b[c] += x_b[c];
                     }
                 }
-                (*o_b, *o_l) = (b, l);
+            }
+            for (i, o_l) in out_l.iter_mut().enumerate() {
+                for (_, lane_l) in parts.iter_mut() {
+                    *o_l += std::mem::take(&mut lane_l[i]);
+                }
             }
         });
     }
@@ -94,18 +108,20 @@ pub enum SourceKind {
     Converged,
 }
 
-/// Weighted sums of one texel over all batches so far.
+/// Weighted global-bundle sums of one texel over all batches so far.
 #[derive(Clone, Copy, Debug, Default)]
 struct TexelTotals {
     bundle_sum: DVec3,
     bundle_weight: f64,
-    light_sum: DVec3,
 }
 
 /// Running irradiance estimate of one LOD's texels.
 pub struct ProgressiveEstimate {
     kind: SourceKind,
     totals: Vec<TexelTotals>,
+    /// Light-pass sums per texel; empty until a batch brings light-pass sums (a bake
+    /// without small emitters never does), zero where empty.
+    light: Vec<DVec3>,
     /// Light directions traced so far (per emitter group: every group gets the same count).
     light_directions: u64,
     batches: u64,
@@ -121,6 +137,7 @@ impl ProgressiveEstimate {
         ProgressiveEstimate {
             kind,
             totals: vec![TexelTotals::default(); n],
+            light: Vec::new(),
             light_directions: 0,
             batches: 0,
             punctual,
@@ -146,11 +163,16 @@ impl ProgressiveEstimate {
             Rgb::ZERO
         };
         let light = if self.light_directions > 0 && self.area[i] > 0.0 {
-            (t.light_sum * (std::f64::consts::TAU / self.light_directions as f64 / self.area[i] as f64)).as_vec3()
+            (self.light_sum(i) * (std::f64::consts::TAU / self.light_directions as f64 / self.area[i] as f64)).as_vec3()
         } else {
             Rgb::ZERO
         };
         (bundle, t.bundle_weight, light)
+    }
+
+    #[inline]
+    fn light_sum(&self, i: usize) -> DVec3 {
+        self.light.get(i).copied().unwrap_or(DVec3::ZERO)
     }
 
     /// Irradiance from punctual lights per texel (exact, noise-free).
@@ -176,9 +198,18 @@ impl ProgressiveEstimate {
                     t.bundle_sum += DVec3::new(b[0] as f64, b[1] as f64, b[2] as f64) * w;
                     t.bundle_weight += b[3] as f64 * w;
                 }
-                t.light_sum += sums.light[start + k].as_dvec3();
             }
         });
+        if !sums.light.is_empty() {
+            if self.light.is_empty() {
+                self.light = vec![DVec3::ZERO; self.totals.len()];
+            }
+            par_chunks_mut(&mut self.light, threads, |start, chunk| {
+                for (k, l) in chunk.iter_mut().enumerate() {
+                    *l += sums.light[start + k].as_dvec3();
+                }
+            });
+        }
         self.light_directions += light_directions;
         self.batches += 1;
     }
@@ -201,13 +232,30 @@ impl ProgressiveEstimate {
         let mut e = self.punctual[i];
         if self.light_directions > 0 && self.area[i] > 0.0 {
             let norm = std::f64::consts::TAU / self.light_directions as f64 / self.area[i] as f64;
-            e += (self.totals[i].light_sum * norm).as_vec3();
+            e += (self.light_sum(i) * norm).as_vec3();
         }
         e
     }
 
     pub fn irradiance(&self) -> Vec<Rgb> {
         (0..self.area.len()).map(|i| self.irradiance_of(i)).collect()
+    }
+
+    /// [`irradiance`](Self::irradiance) into `out`, reusing its allocation (a bake's source
+    /// buffer at its end: no second per-texel buffer while the totals are alive).
+    pub fn irradiance_into(&self, threads: usize, out: &mut Vec<Rgb>) {
+        out.clear();
+        out.resize(self.area.len(), Rgb::ZERO);
+        par_chunks_mut(out, threads, |start, chunk| {
+            for (k, o) in chunk.iter_mut().enumerate() {
+                *o = self.irradiance_of(start + k);
+            }
+        });
+    }
+
+    /// The punctual irradiance, the estimate given up.
+    pub fn into_punctual(self) -> Vec<Rgb> {
+        self.punctual
     }
 
     /// Texels no global bundle has hit yet.

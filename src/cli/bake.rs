@@ -5,7 +5,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use livebake::bake::{BakeOutput, bake};
+use livebake::bake::{BakeConfig, BakeOutput, bake};
 use livebake::export::{ExportOptions, export_gltf};
 use livebake::output::{irradiance_image, write_json, write_lightmaps};
 use livebake::scene::{LoadOptions, Scene, load_gltf};
@@ -31,8 +31,15 @@ pub fn load_scene(path: &Path, options: &SceneOptions) -> Result<(Arc<Scene>, f6
     Ok((Arc::new(scene), t0.elapsed().as_secs_f64()))
 }
 
-pub fn run(scene_path: &Path, out: &Path, export: Option<&Path>, options: &SceneOptions, ui: &Ui) -> Result<()> {
-    let config = options.bake_config(default_samples)?;
+pub fn run(
+    scene_path: &Path,
+    out: &Path,
+    export: Option<&Path>,
+    memory_limit: Option<u64>,
+    options: &SceneOptions,
+    ui: &Ui,
+) -> Result<()> {
+    let config = BakeConfig { memory_limit, ..options.bake_config(default_samples)? };
     let (scene, load_seconds) = load_scene(scene_path, options)?;
     tracing::info!(
         "loaded {}: {} meshes, {} triangles, {} lights in {:.2} s",
@@ -54,6 +61,9 @@ pub fn run(scene_path: &Path, out: &Path, export: Option<&Path>, options: &Scene
     }
     baked.report.phases.load = load_seconds;
     baked.report.phases.write = t_write.elapsed().as_secs_f64();
+    // The peak again, now that the light maps are written.
+    baked.report.memory.measure();
+    baked.report.bytes_per_texel = baked.report.memory.measured_bytes_per_texel;
     let report_path = out.join("report.json");
     write_json(&report_path, &baked.report)?;
     summarise(ui, scene_path, &baked, &files, &report_path);

@@ -25,7 +25,7 @@ use serde_json::{Value, json};
 
 use livebake::atlas::{Atlas, TexelMap};
 use livebake::bake::bundle::{BatchDone, bake_lod_observed};
-use livebake::bake::{BakeConfig, BakeError, MAX_SAMPLES, check_lod_sizes, check_node_capacity};
+use livebake::bake::{BakeConfig, BakeError, MAX_SAMPLES, check_lod_sizes, check_memory, check_node_capacity};
 use livebake::bundle::progressive::ProgressiveEstimate;
 use livebake::bundle::{BackendProvider, BundleScene};
 use livebake::cpu::CpuProvider;
@@ -149,6 +149,8 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     let geom = Arc::new(SceneGeometry::new(&scene));
     let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas).map_err(BakeError::from)?);
     check_lod_sizes(&atlas, 1)?;
+    // As `bake` does (one LOD; a light pass assumed: the estimate bounds the bake's part).
+    check_memory(&atlas, &BakeConfig { lods: 1, ..config.clone() }, true)?;
     let texels = TexelMap::build(&scene, &geom, &atlas, 0);
     let bvh = Bvh::for_scene(&scene, &geom);
     check_node_capacity(&bvh, &config.bundle_config())?;

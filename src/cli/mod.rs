@@ -49,6 +49,10 @@ enum Command {
         /// beside it).
         #[arg(long, value_name = "OUT.gltf")]
         export_gltf: Option<PathBuf>,
+        /// Most memory the bake may hold (e.g. 8G, 512M; K/M/G/T are powers of 1024),
+        /// checked against an estimate before the texel maps are built. Default: 3/4 of RAM.
+        #[arg(long, value_name = "BYTES", value_parser = livebake::bake::memory::parse_bytes)]
+        memory_limit: Option<u64>,
         #[command(flatten)]
         options: SceneOptions,
     },
@@ -126,8 +130,8 @@ pub fn run() -> Result<()> {
     match cli.command {
         None => run_default(&ui),
         Some(Command::Run { scene, options, run }) => run::run(&scene, &options, &run, &ui),
-        Some(Command::Bake { scene, out, export_gltf, options }) => {
-            bake::run(&scene, &out, export_gltf.as_deref(), &options, &ui)
+        Some(Command::Bake { scene, out, export_gltf, memory_limit, options }) => {
+            bake::run(&scene, &out, export_gltf.as_deref(), memory_limit, &options, &ui)
         }
         Some(Command::Probe { scene, points, out, options }) => {
             probe::run(&scene, &points, out.as_deref(), &options, &ui)

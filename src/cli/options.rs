@@ -192,6 +192,7 @@ impl SceneOptions {
                 ..BundleConfig::default()
             },
             threads: self.threads,
+            memory_limit: None,
         })
     }
 }

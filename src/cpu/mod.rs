@@ -69,9 +69,19 @@ impl BundleBackend for CpuBundleBackend {
         cancel: &AtomicBool,
     ) -> Result<PassStats, Cancelled> {
         self.set_importance(target, true);
-        for lane in &mut self.lanes {
-            if lane.sums.bundle.len() != target.len() {
-                lane.sums = BatchSums::new(target.len());
+        // Lane 0 accumulates into `sums` itself (the caller is done with the last batch's),
+        // the others into their own buffers, zeroed by the previous reduction.
+        let light = !self.scene.bundle.emitters.small.is_empty();
+        let n = target.len();
+        if sums.fits(n, light) {
+            sums.clear();
+        } else {
+            *sums = BatchSums::with_light(n, light);
+        }
+        self.lanes[0].sums = std::mem::take(sums);
+        for lane in &mut self.lanes[1..] {
+            if !lane.sums.fits(n, light) {
+                lane.sums = BatchSums::with_light(n, light);
             }
         }
         let bundle = &self.scene.bundle;
@@ -105,13 +115,12 @@ impl BundleBackend for CpuBundleBackend {
                 Err(Cancelled) => cancelled = true,
             }
         }
-        let mut lane_sums: Vec<BatchSums> = self.lanes.iter_mut().map(|l| std::mem::take(&mut l.sums)).collect();
-        if sums.bundle.len() != target.len() {
-            *sums = BatchSums::new(target.len());
-        }
-        // Reducing also zeroes the lanes for the next batch (a cancelled batch included).
-        sums.reduce_from(&mut lane_sums, self.threads);
-        for (lane, s) in self.lanes.iter_mut().zip(lane_sums) {
+        // Reducing also zeroes lanes 1… for the next batch (a cancelled batch included).
+        let (first, rest) = self.lanes.split_at_mut(1);
+        *sums = std::mem::take(&mut first[0].sums);
+        let mut others: Vec<BatchSums> = rest.iter_mut().map(|l| std::mem::take(&mut l.sums)).collect();
+        sums.add_lanes(&mut others, self.threads);
+        for (lane, s) in rest.iter_mut().zip(others) {
             lane.sums = s;
         }
         if cancelled { Err(Cancelled) } else { Ok(total) }

@@ -180,7 +180,8 @@ impl CellBake {
                     r += std::f64::consts::PI * (seen - ratio * b[3] as f64) / mean_weight;
                 }
                 if light_directions > 0 && t.area[i] > 0.0 {
-                    let l = luminance(self.sums.light[i]) as f64 * std::f64::consts::TAU
+                    let l = luminance(self.sums.light.get(i).copied().unwrap_or(Rgb::ZERO)) as f64
+                        * std::f64::consts::TAU
                         / light_directions as f64
                         / t.area[i] as f64;
                     r += l - luminance(light) as f64;

@@ -1,0 +1,298 @@
+//! A bake's memory: what it will hold, estimated from the atlas before anything per texel is
+//! allocated, the guard that refuses a bake over the limit, and what it did hold (peak RSS).
+//!
+//! The model counts what is live at a bake's peak: the end of the last batch of the finest
+//! LOD, with every coarser LOD's texel map and irradiance kept (they are the output). Per
+//! covered texel of the LOD being baked (CPU backend, `L` lanes, sizes of the structures in
+//! [`crate::atlas::texels`], [`crate::atlas::lookup`], [`crate::bundle::progressive`] and
+//! [`crate::cpu`]):
+//!
+//! | structure | bytes |
+//! |---|---|
+//! | texel map: pixel, face, area (u32, u32, f32) | 12 |
+//! | texel map: albedo, emission (2 × Vec3) | 24 |
+//! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]) | 0 |
+//! | punctual irradiance (Rgb) | 12 |
+//! | which texels the bundles carry the emission of (bool) | 1 |
+//! | progressive totals: Σw·S (DVec3) and Σw·A (f64) | 32 |
+//! | progressive totals: light-pass Σ (DVec3), only with a light pass | 24 |
+//! | the estimate's copy of the texel areas (f32) | 4 |
+//! | source radiance, reused for the irradiance at the end (Rgb) | 12 |
+//! | hit sums per lane, lane 0 being the batch's sums: (Σa·L, Σa) f32 × 4 | 16 L |
+//! | light-pass hit sums per lane, only with a light pass (Rgb) | 12 L |
+//!
+//! plus, per atlas pixel of that LOD, the texel map's pixel → texel slots and the blocked
+//! lookup table the bundles read (4 B each), and per gutter pixel 8 B (its pixel and source
+//! texel; the number is only known once the map is built, so a quarter of the texels is
+//! assumed: the rooms measured have 13–25%). Per lane, the fragment buffers: up to N
+//! fragments (12 B) and as many spans (12 B), and a row of W head pointers per row of W.
+//! What does not grow with the texels (scene, BVH, atlas) is already resident when the
+//! guard runs and is read from the process's resident set.
+//!
+//! Before this model (and the changes it describes), the same bake held 253 B per texel plus
+//! 8 B per pixel: the texel map whole (60), punctual (12), carried (1), totals in seven f64
+//! (56), the area copy (4), source (12), the batch's sums beside the two lanes' (3 × 28) and,
+//! at the end, the irradiance and a copy of the punctual part (24) — 265 B per texel
+//! measured (peak RSS growth) on the Van Gogh room at 1 cm (1.7 M texels, fill 0.70), with
+//! or without a light pass. Now: lane 0 accumulates into the batch's sums, light-pass sums
+//! and totals exist only with a light pass, positions and normals are recomputed rather
+//! than held through the bundle passes, the irradiance reuses the source buffer, and the
+//! light-map images are filled straight from the texels (no full-size copy beside them).
+
+use serde::Serialize;
+
+use crate::atlas::Atlas;
+
+use super::{BackendKind, BakeConfig};
+
+/// Texel-map bytes per covered texel: pixel, face, area (4 B each) and position, normal,
+/// albedo, emission (12 B each).
+pub const TEXEL_MAP_BYTES: u64 = 12 + 48;
+/// The same while the bundles run: positions and normals given up.
+pub const LEAN_TEXEL_MAP_BYTES: u64 = 12 + 24;
+/// Irradiance kept per texel of a baked LOD (the output, Rgb).
+pub const IRRADIANCE_BYTES: u64 = 12;
+/// Per atlas pixel of the LOD being baked: texel-map slot and lookup-table entry.
+pub const PIXEL_BYTES: u64 = 4 + 4;
+/// Per atlas pixel of a baked, kept LOD: its texel-map slot.
+pub const KEPT_PIXEL_BYTES: u64 = 4;
+/// Per gutter pixel: (pixel, source texel).
+pub const GUTTER_BYTES: u64 = 8;
+/// Gutter pixels assumed per covered texel before the map is built.
+pub const GUTTER_PER_TEXEL: f64 = 0.25;
+
+/// Bytes per covered texel of the LOD being baked, its texel map and irradiance included,
+/// with `lanes` accumulation lanes and (or not) a light pass, at the bake's peak.
+pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, light_pass: bool) -> u64 {
+    match backend {
+        // The texel map and the irradiance; the tracer's state is per thread.
+        BackendKind::Reference => TEXEL_MAP_BYTES + IRRADIANCE_BYTES,
+        BackendKind::Cpu => {
+            let lanes = lanes.max(1) as u64;
+            let light = u64::from(light_pass);
+            // lean map + punctual + carried + totals + area copy + source (then the
+            // irradiance) + lane sums
+            LEAN_TEXEL_MAP_BYTES + 12 + 1 + 32 + 24 * light + 4 + 12 + lanes * (16 + 12 * light)
+        }
+    }
+}
+
+/// What a bake is expected to hold at its peak, before it allocates anything per texel.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct MemoryEstimate {
+    /// Covered texels of every LOD baked (the finest's estimated from LOD 0's for LOD ≥ 1).
+    pub texels: u64,
+    /// Bytes that grow with the texels (texel maps, sums, estimates, tables).
+    pub texel_bytes: u64,
+    /// Bytes per lane that do not (fragment and span buffers).
+    pub lane_bytes: u64,
+    /// Everything: `texel_bytes + lane_bytes`.
+    pub bytes: u64,
+    /// `bytes / texels`.
+    pub bytes_per_texel: f64,
+}
+
+/// The peak bytes of baking `config.lods` levels of `atlas` (see the module docs).
+pub fn estimate(atlas: &Atlas, config: &BakeConfig, light_pass: bool) -> MemoryEstimate {
+    let hierarchy = atlas.lods(config.lods);
+    estimate_from_lod0(atlas.stats.covered_texels_lod0, Some(&|lod| hierarchy.texel_count(lod)), config, light_pass)
+}
+
+/// [`estimate`] from LOD 0's covered texels and each LOD's atlas pixels (`None`: as many as
+/// texels, a lower bound, for a guard before the atlas exists). LOD k is taken to cover 4^k
+/// times LOD 0's texels: conservative coverage adds a rim of pixels around every face whose
+/// share falls at finer LODs, so this bounds finer levels from above (by a few percent on
+/// rooms, more on atlases of tiny charts).
+pub fn estimate_from_lod0(
+    texels0: u64,
+    pixels_at: Option<&dyn Fn(u32) -> u64>,
+    config: &BakeConfig,
+    light_pass: bool,
+) -> MemoryEstimate {
+    let finest = config.lods.saturating_sub(1);
+    let mut texels = 0u64;
+    let mut bytes = 0f64;
+    for lod in 0..config.lods {
+        let t = texels0.saturating_mul(1u64 << (2 * lod.min(31)));
+        let pixels = pixels_at.map_or(t, |p| p(lod));
+        texels = texels.saturating_add(t);
+        let gutter = (t as f64 * GUTTER_PER_TEXEL).min(pixels.saturating_sub(t) as f64);
+        bytes += gutter * GUTTER_BYTES as f64;
+        if lod == finest {
+            let per = bake_bytes_per_texel(config.backend, config.bundle.lanes, light_pass);
+            bytes += t as f64 * per as f64 + pixels as f64 * PIXEL_BYTES as f64;
+        } else {
+            bytes += t as f64 * (TEXEL_MAP_BYTES + IRRADIANCE_BYTES) as f64 + pixels as f64 * KEPT_PIXEL_BYTES as f64;
+        }
+    }
+    let lane_bytes = match config.backend {
+        BackendKind::Reference => 0,
+        BackendKind::Cpu => {
+            let b = &config.bundle;
+            let per_lane = b.node_capacity.saturating_mul(24) + b.head_side as u64 * 8;
+            per_lane.saturating_mul(b.lanes.max(1) as u64)
+        }
+    };
+    let texel_bytes = bytes.min(u64::MAX as f64 / 2.0) as u64;
+    let total = texel_bytes.saturating_add(lane_bytes);
+    MemoryEstimate {
+        texels,
+        texel_bytes,
+        lane_bytes,
+        bytes: total,
+        bytes_per_texel: if texels > 0 { total as f64 / texels as f64 } else { 0.0 },
+    }
+}
+
+/// Where a bake's memory limit came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LimitSource {
+    /// `--memory-limit`.
+    Option,
+    /// Three quarters of the machine's memory.
+    Machine,
+}
+
+/// The limit a bake's estimated peak is held to: `configured`, else 3/4 of the machine's
+/// memory (8 GiB where /proc/meminfo cannot be read).
+pub fn memory_limit(configured: Option<u64>) -> (u64, LimitSource) {
+    match configured {
+        Some(b) => (b, LimitSource::Option),
+        None => {
+            let total = meminfo_kib("MemTotal:").map(|kib| kib * 1024).unwrap_or(32 << 30);
+            (total / 4 * 3, LimitSource::Machine)
+        }
+    }
+}
+
+fn meminfo_kib(key: &str) -> Option<u64> {
+    let m = std::fs::read_to_string("/proc/meminfo").ok()?;
+    m.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// A `/proc/self/status` figure in bytes (`VmRSS:` now, `VmHWM:` the peak so far); `None`
+/// where it cannot be read.
+pub fn process_kib(key: &str) -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kib: u64 = s.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+/// Resident bytes now.
+pub fn resident_bytes() -> Option<u64> {
+    process_kib("VmRSS:")
+}
+
+/// Peak resident bytes so far.
+pub fn peak_resident_bytes() -> Option<u64> {
+    process_kib("VmHWM:")
+}
+
+/// A length in metres with three significant digits: `0.0129`, `0.250`, `1.50`.
+pub fn metres(m: f64) -> String {
+    let decimals = if m > 0.0 && m.is_finite() { (2 - m.log10().floor() as i64).clamp(0, 9) as usize } else { 3 };
+    format!("{m:.decimals$}")
+}
+
+/// Bytes in a human unit: `12.3 GB`, `512 MB`.
+pub fn human_bytes(b: &u64) -> String {
+    let b = *b as f64;
+    if b >= 1e9 {
+        format!("{:.1} GB", b / 1e9)
+    } else if b >= 1e6 {
+        format!("{:.0} MB", b / 1e6)
+    } else {
+        format!("{:.0} kB", b / 1e3)
+    }
+}
+
+/// Parses a byte count: a number with an optional unit K, M, G, T (powers of 1024, an
+/// optional trailing `B` or `iB`, case-insensitive): `8G`, `512MiB`, `1000000`.
+pub fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let lower = t.to_ascii_lowercase();
+    let body = lower.strip_suffix("ib").or_else(|| lower.strip_suffix('b')).unwrap_or(&lower);
+    let (num, shift) = match body.chars().next_back() {
+        Some('k') => (&body[..body.len() - 1], 10),
+        Some('m') => (&body[..body.len() - 1], 20),
+        Some('g') => (&body[..body.len() - 1], 30),
+        Some('t') => (&body[..body.len() - 1], 40),
+        _ => (body, 0),
+    };
+    let v: f64 = num.trim().parse().map_err(|_| format!("expected a size such as 8G, 512M or 1000000, got {s:?}"))?;
+    let bytes = v * (1u64 << shift) as f64;
+    if !(bytes.is_finite() && bytes >= 1.0 && bytes < u64::MAX as f64) {
+        return Err(format!("expected a size of at least one byte, got {s:?}"));
+    }
+    Ok(bytes as u64)
+}
+
+/// What the bake's report says about memory.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct MemoryReport {
+    /// The estimate the guard checked, before any texel map was built.
+    pub estimate: MemoryEstimate,
+    /// The limit it was held to and where that came from.
+    pub limit_bytes: u64,
+    pub limit_source: Option<LimitSource>,
+    /// Resident bytes before the first texel map (scene, atlas, BVH and backend built).
+    pub resident_at_start: Option<u64>,
+    /// Peak resident bytes of the process (after writing the light maps, for `livebake bake`).
+    pub peak_resident: Option<u64>,
+    /// Peak growth over the start: `peak_resident − resident_at_start`.
+    pub peak_growth: Option<u64>,
+    /// `peak_growth / estimate.texels`: the measured bytes per texel.
+    pub measured_bytes_per_texel: Option<f64>,
+}
+
+impl MemoryReport {
+    /// Reads the peak now and updates the measured figures.
+    pub fn measure(&mut self) {
+        self.peak_resident = peak_resident_bytes();
+        self.peak_growth = match (self.peak_resident, self.resident_at_start) {
+            (Some(p), Some(s)) => Some(p.saturating_sub(s)),
+            _ => None,
+        };
+        self.measured_bytes_per_texel =
+            self.peak_growth.filter(|_| self.estimate.texels > 0).map(|g| g as f64 / self.estimate.texels as f64);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_with_binary_units() {
+        assert_eq!(parse_bytes("8G").unwrap(), 8 << 30);
+        assert_eq!(parse_bytes("512MiB").unwrap(), 512 << 20);
+        assert_eq!(parse_bytes("1.5k").unwrap(), 1536);
+        assert_eq!(parse_bytes("1000000").unwrap(), 1_000_000);
+        assert_eq!(parse_bytes("2 gb").unwrap(), 2 << 30);
+        for bad in ["", "G", "-1G", "0", "lots", "nanG", "1e30T"] {
+            assert!(parse_bytes(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn lengths_keep_three_significant_digits() {
+        assert_eq!(metres(0.0129), "0.0129");
+        assert_eq!(metres(0.25), "0.250");
+        assert_eq!(metres(1.5), "1.50");
+        assert_eq!(metres(12.0), "12.0");
+    }
+
+    #[test]
+    fn lanes_and_the_light_pass_cost_what_the_table_says() {
+        assert_eq!(bake_bytes_per_texel(BackendKind::Cpu, 1, false), 36 + 12 + 1 + 32 + 4 + 12 + 16);
+        assert_eq!(
+            bake_bytes_per_texel(BackendKind::Cpu, 2, true) - bake_bytes_per_texel(BackendKind::Cpu, 2, false),
+            24 + 2 * 12
+        );
+        assert_eq!(
+            bake_bytes_per_texel(BackendKind::Cpu, 3, false) - bake_bytes_per_texel(BackendKind::Cpu, 2, false),
+            16
+        );
+    }
+}
