@@ -39,7 +39,7 @@ pub struct RuntimeOptions {
     pub cell_size: Option<f32>,
     /// Memory the shown pages and bakes in progress may use, bytes or with a K/M/G suffix
     /// (default: a quarter of the machine's memory, at most 4G).
-    #[arg(long, value_name = "BYTES", value_parser = parse_bytes)]
+    #[arg(long, value_name = "BYTES", value_parser = livebake::bake::memory::parse_bytes)]
     pub memory_budget: Option<u64>,
     /// Directions a cell needs at least before it may swap to the next LOD.
     #[arg(long, value_name = "N")]
@@ -118,28 +118,6 @@ fn parse_camera(s: &str) -> Result<(Vec3, Vec3), String> {
     }
     Ok((eye, target))
 }
-
-fn parse_bytes(s: &str) -> Result<u64, String> {
-    let t = s.trim();
-    let (digits, unit) = match t.char_indices().find(|(_, c)| c.is_ascii_alphabetic()) {
-        Some((i, _)) => (&t[..i], t[i..].to_ascii_uppercase()),
-        None => (t, String::new()),
-    };
-    let n: f64 = digits.trim().parse().map_err(|e| format!("{s:?}: {e}"))?;
-    let scale = match unit.trim_end_matches("IB").trim_end_matches('B') {
-        "" => 1.0,
-        "K" => 1024.0,
-        "M" => 1024.0 * 1024.0,
-        "G" => 1024.0 * 1024.0 * 1024.0,
-        _ => return Err(format!("unknown unit in {s:?} (use K, M or G)")),
-    };
-    let bytes = n * scale;
-    if !(bytes.is_finite() && (0.0..1.8e19).contains(&bytes)) {
-        return Err(format!("{s:?} is not a byte count"));
-    }
-    Ok(bytes as u64)
-}
-
 /// One key of a camera path.
 #[derive(Deserialize)]
 struct PathKey {
@@ -501,16 +479,6 @@ fn summarise(ui: &Ui, path: &Path, scene: &Scene, stats: &RuntimeStats, written:
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn byte_counts_parse_with_units() {
-        assert_eq!(parse_bytes("1024").unwrap(), 1024);
-        assert_eq!(parse_bytes("2K").unwrap(), 2048);
-        assert_eq!(parse_bytes("1.5G").unwrap(), 3 << 29);
-        assert_eq!(parse_bytes("512MiB").unwrap(), 512 << 20);
-        assert!(parse_bytes("12Q").is_err());
-        assert!(parse_bytes("-1").is_err());
-    }
 
     #[test]
     fn camera_paths_interpolate_and_hold() {
