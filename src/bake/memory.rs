@@ -220,7 +220,10 @@ pub fn parse_bytes(s: &str) -> Result<u64, String> {
         Some('t') => (&body[..body.len() - 1], 40),
         _ => (body, 0),
     };
-    let v: f64 = num.trim().parse().map_err(|_| format!("expected a size such as 8G, 512M or 1000000, got {s:?}"))?;
+    let v: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("expected a size such as 8G, 512M or 1000000 (unit K, M, G or T), got {s:?}"))?;
     let bytes = v * (1u64 << shift) as f64;
     if !(bytes.is_finite() && bytes >= 1.0 && bytes < u64::MAX as f64) {
         return Err(format!("expected a size of at least one byte, got {s:?}"));
