@@ -84,20 +84,20 @@ fn node_present() -> bool {
     Command::new("node").arg("--version").output().is_ok_and(|o| o.status.success())
 }
 
-/// The npm package `name` from scripts/test, or `None` (with a note) when Node is absent.
-/// Node present but the package missing is a failure: the README's test command installs it.
-fn npm_package(name: &str) -> Option<PathBuf> {
-    if !node_present() {
-        eprintln!("note: Node.js is not installed; skipping what needs {name} (scripts/test installs both)");
-        return None;
-    }
+/// The npm package `name` from scripts/test. Node or the package missing is a failure, never a
+/// skip: the README's test command installs both.
+fn npm_package(name: &str) -> PathBuf {
+    assert!(
+        node_present(),
+        "Node.js is not installed: run the tests through scripts/test, which installs it and {name}"
+    );
     let dir = node_tools().join("node_modules").join(name);
     assert!(
         dir.join("package.json").exists(),
         "Node.js is installed but the npm package {name} is not in {} (LIVEBAKE_NODE_TOOLS): run scripts/test, which installs it",
         node_tools().display()
     );
-    Some(dir)
+    dir
 }
 
 /// Runs `node script args…`, requires success, returns stdout.
@@ -109,8 +109,8 @@ fn node(script: &Path, args: &[&str]) -> String {
 }
 
 /// The Khronos validator's report of `gltf`; panics on any error or warning.
-fn validate(gltf: &Path) -> Option<Value> {
-    npm_package("gltf-validator")?;
+fn validate(gltf: &Path) -> Value {
+    npm_package("gltf-validator");
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/engines/validate.cjs");
     let tools = node_tools();
     let report: Value = serde_json::from_str(&node(&script, &[tools.to_str().unwrap(), gltf.to_str().unwrap()]))
@@ -120,7 +120,7 @@ fn validate(gltf: &Path) -> Option<Value> {
         issues["messages"].as_array().unwrap().iter().filter(|m| m["severity"].as_u64() <= Some(1)).collect();
     assert_eq!(issues["numErrors"], 0, "{}: validator errors: {bad:#?}", gltf.display());
     assert_eq!(issues["numWarnings"], 0, "{}: validator warnings: {bad:#?}", gltf.display());
-    Some(report)
+    report
 }
 
 // ---------------------------------------------------------------------------------------
@@ -138,7 +138,7 @@ fn validator_accepts_exports_of_the_bundled_scenes() {
         let out = dir.path().join(format!("{}.gltf", Path::new(rel).file_stem().unwrap().to_string_lossy()));
         let report = export(&scene, &baked, &out);
         assert!(report.primitives >= scene.meshes.len(), "{rel}: {} primitives", report.primitives);
-        let Some(v) = validate(&out) else { return };
+        let v = validate(&out);
         // The validator read every resource: the buffer, the embedded images, the PNG.
         let resources = v["info"]["resources"].as_array().unwrap();
         assert!(resources.iter().any(|r| r["uri"].as_str().is_some_and(|u| u.ends_with(".lightmap.png"))), "{v:#}");
@@ -762,9 +762,7 @@ fn check_engine_values(engine: &str, values: &Value, rt: &RoundTrip, intensity: 
 /// rounding.
 #[test]
 fn engines_three_js_reads_the_light_map_as_irradiance() {
-    if npm_package("three").is_none() {
-        return;
-    }
+    npm_package("three");
     let dir = tempfile::tempdir().unwrap();
     let (report, rt) = engine_fixture(dir.path());
     let out = run_harness("three_check.mjs", &report.gltf, &rt.samples);
@@ -796,9 +794,8 @@ fn engines_three_js_reads_the_light_map_as_irradiance() {
 /// rounding.
 #[test]
 fn engines_babylon_js_reads_the_light_map_as_irradiance_over_pi() {
-    if npm_package("@babylonjs/core").is_none() || npm_package("@babylonjs/loaders").is_none() {
-        return;
-    }
+    npm_package("@babylonjs/core");
+    npm_package("@babylonjs/loaders");
     let dir = tempfile::tempdir().unwrap();
     let (report, rt) = engine_fixture(dir.path());
     let out = run_harness("babylon_check.mjs", &report.gltf, &rt.samples);

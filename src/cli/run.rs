@@ -56,7 +56,7 @@ pub struct RuntimeOptions {
 #[derive(Args, Debug, Clone)]
 pub struct RunOptions {
     /// Camera pose: eye and target.
-    #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ", value_parser = parse_camera, allow_hyphen_values = true, conflicts_with = "camera_path")]
+    #[arg(long, value_name = "EX,EY,EZ,TX,TY,TZ", value_parser = livebake::viewer::camera::parse_pose, allow_hyphen_values = true, conflicts_with = "camera_path")]
     pub camera: Option<(Vec3, Vec3)>,
     /// Camera path: [{"t":s,"eye":[x,y,z],"target":[x,y,z]},...], interpolated, held after
     /// its last key.
@@ -106,18 +106,6 @@ impl Default for RunOptions {
     }
 }
 
-fn parse_camera(s: &str) -> Result<(Vec3, Vec3), String> {
-    let v: Vec<f32> =
-        s.split(',').map(|p| p.trim().parse::<f32>().map_err(|e| format!("{p:?}: {e}"))).collect::<Result<_, _>>()?;
-    if v.len() != 6 || v.iter().any(|x| !x.is_finite()) {
-        return Err(format!("expected six finite numbers EX,EY,EZ,TX,TY,TZ, got {s:?}"));
-    }
-    let (eye, target) = (Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5]));
-    if eye == target {
-        return Err("the eye and the target must differ".into());
-    }
-    Ok((eye, target))
-}
 /// One key of a camera path.
 #[derive(Deserialize)]
 struct PathKey {
@@ -487,8 +475,8 @@ mod tests {
         assert_eq!(p.at(1.0).0, Vec3::new(1.0, 0.0, 0.0));
         assert_eq!(p.at(-1.0).0, Vec3::ZERO);
         assert_eq!(p.at(9.0).0, Vec3::new(2.0, 0.0, 0.0));
-        assert!(parse_camera("0,0,0,0,0,1").is_ok());
-        assert!(parse_camera("0,0,0,0,0,0").is_err());
-        assert!(parse_camera("0,0,0").is_err());
+        assert!(livebake::viewer::camera::parse_pose("0,0,0,0,0,1").is_ok());
+        assert!(livebake::viewer::camera::parse_pose("0,0,0,0,0,0").is_err());
+        assert!(livebake::viewer::camera::parse_pose("0,0,0").is_err());
     }
 }
