@@ -18,7 +18,7 @@ use livebake::scene::{LoadOptions, Scene, load_gltf};
 use livebake::viewer::{LightSource, RuntimeLight};
 use livebake::watch::{SceneDiff, WatchConfig};
 use serde_json::json;
-use support::Doc;
+use support::{Doc, cube};
 
 const PATIENCE: Duration = Duration::from_secs(120);
 
@@ -59,27 +59,6 @@ fn room(boxes: &[[f32; 3]]) -> (Vec<u8>, Vec<u8>) {
     let gltf = serde_json::to_vec_pretty(&d.json_with_buffer(Some("room.bin".into()))).unwrap();
     (gltf, d.bin)
 }
-
-/// A cube `[0, s]³`, faces CCW seen from outside.
-fn cube(s: f32) -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u16>) {
-    let faces: [([f32; 3], [[f32; 3]; 4]); 6] = [
-        ([-1.0, 0.0, 0.0], [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, 1.0, 0.0]]),
-        ([1.0, 0.0, 0.0], [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 1.0, 1.0], [1.0, 0.0, 1.0]]),
-        ([0.0, -1.0, 0.0], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]]),
-        ([0.0, 1.0, 0.0], [[0.0, 1.0, 0.0], [0.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 0.0]]),
-        ([0.0, 0.0, -1.0], [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),
-        ([0.0, 0.0, 1.0], [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]]),
-    ];
-    let (mut p, mut n, mut idx) = (Vec::new(), Vec::new(), Vec::new());
-    for (normal, corners) in faces {
-        let base = p.len() as u16;
-        p.extend(corners.map(|c| c.map(|v| v * s)));
-        n.extend([normal; 4]);
-        idx.extend([base, base + 1, base + 2, base, base + 2, base + 3]);
-    }
-    (p, n, idx)
-}
-
 const BOXES: [[f32; 3]; 2] = [[1.0, 0.0, 1.6], [6.2, 0.0, 1.6]];
 
 fn moved() -> [[f32; 3]; 2] {

@@ -17,7 +17,7 @@ use glam::Vec3;
 use livebake::scene::{LoadOptions, Scene, load_gltf};
 use livebake::watch::{Aabb, FailureKind, SceneDiff, SceneWatcher, WatchConfig, WatchError, WatchEvent};
 use serde_json::json;
-use support::Doc;
+use support::{Doc, cube};
 
 /// How long to wait for a report before calling the test failed.
 const PATIENCE: Duration = Duration::from_secs(60);
@@ -70,27 +70,6 @@ impl Layout {
         Aabb { min, max: min + Vec3::splat(self.vertex_scale) }
     }
 }
-
-/// A cube `[0, s]³`: 4 vertices per face with the face's normal, CCW seen from outside.
-fn cube(s: f32) -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u16>) {
-    let faces: [([f32; 3], [[f32; 3]; 4]); 6] = [
-        ([-1.0, 0.0, 0.0], [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, 1.0, 0.0]]),
-        ([1.0, 0.0, 0.0], [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 1.0, 1.0], [1.0, 0.0, 1.0]]),
-        ([0.0, -1.0, 0.0], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]]),
-        ([0.0, 1.0, 0.0], [[0.0, 1.0, 0.0], [0.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 0.0]]),
-        ([0.0, 0.0, -1.0], [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),
-        ([0.0, 0.0, 1.0], [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]]),
-    ];
-    let (mut p, mut n, mut idx) = (Vec::new(), Vec::new(), Vec::new());
-    for (normal, corners) in faces {
-        let base = p.len() as u16;
-        p.extend(corners.map(|c| c.map(|x| x * s)));
-        n.extend([normal; 4]);
-        idx.extend([base, base + 1, base + 2, base, base + 2, base + 3]);
-    }
-    (p, n, idx)
-}
-
 fn save_in_place(path: &Path, bytes: &[u8]) {
     std::fs::write(path, bytes).unwrap();
 }

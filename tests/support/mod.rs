@@ -232,3 +232,23 @@ pub fn png(w: u32, h: u32, pixel: impl Fn(u32, u32) -> [u8; 4]) -> Vec<u8> {
     img.write_to(&mut out, image::ImageFormat::Png).unwrap();
     out.into_inner()
 }
+
+/// A cube `[0, s]³`: 4 vertices per face with the face's normal, CCW seen from outside.
+pub fn cube(s: f32) -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u16>) {
+    let faces: [([f32; 3], [[f32; 3]; 4]); 6] = [
+        ([-1.0, 0.0, 0.0], [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 1.0], [0.0, 1.0, 0.0]]),
+        ([1.0, 0.0, 0.0], [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 1.0, 1.0], [1.0, 0.0, 1.0]]),
+        ([0.0, -1.0, 0.0], [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, 1.0], [0.0, 0.0, 1.0]]),
+        ([0.0, 1.0, 0.0], [[0.0, 1.0, 0.0], [0.0, 1.0, 1.0], [1.0, 1.0, 1.0], [1.0, 1.0, 0.0]]),
+        ([0.0, 0.0, -1.0], [[0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0], [1.0, 0.0, 0.0]]),
+        ([0.0, 0.0, 1.0], [[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0], [0.0, 1.0, 1.0]]),
+    ];
+    let (mut p, mut n, mut idx) = (Vec::new(), Vec::new(), Vec::new());
+    for (normal, corners) in faces {
+        let base = p.len() as u16;
+        p.extend(corners.map(|c| c.map(|x| x * s)));
+        n.extend([normal; 4]);
+        idx.extend([base, base + 1, base + 2, base, base + 2, base + 3]);
+    }
+    (p, n, idx)
+}
