@@ -52,7 +52,7 @@ fn luminance(c: Rgb) -> f64 {
 /// Bakes `cell` at `lod` offline, in units of `unit` directions, until `directions`.
 fn bake_cell(world: &World, shown: &Arc<ShownLightmap>, cell: u32, lod: u32, seed: u64, directions: u32) -> CellBake {
     let mut backend = CpuProvider::new().backend(&world.bundle, 1).expect("backend");
-    let mut bake = CellBake::new(world, cell, lod, shown.clone(), seed, 2);
+    let mut bake = CellBake::new(world, &[cell], lod, shown.clone(), seed, 2);
     let never = AtomicBool::new(false);
     while bake.directions() < directions as u64 {
         bake.step(world, &mut backend, 4, &never).expect("not cancelled");
@@ -133,10 +133,13 @@ fn corner_camera() -> CameraView {
 /// With one worker the runtime refines cells strictly in priority order: visible before
 /// hidden, coarsest first, then nearest. Every cell starts at LOD 0 and wants LOD 1 here, so
 /// the first cells published are the visible ones in order of distance from the camera.
+/// (One cell a bake here: groups publish their leader's neighbours with it, see
+/// `a_group_bakes_exactly_its_cells_texels`.)
 #[test]
 fn cells_near_the_camera_reach_higher_lods_first() {
     let scene = load(ROOM);
-    let runtime = Runtime::start(scene, room_config(1), Arc::new(CpuProvider::new())).expect("start");
+    let config = RuntimeConfig { group_texels: 0, ..room_config(1) };
+    let runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new())).expect("start");
     let camera = corner_camera();
     runtime.set_camera(camera);
     let mut published = Vec::new();
@@ -176,20 +179,20 @@ fn a_cell_publishes_at_its_threshold_what_an_offline_bake_gives() {
     runtime.set_paused(false);
     let mut got = None;
     wait_for(&runtime, Duration::from_secs(120), "a publish", |e| {
-        if let RuntimeEvent::CellPublished { cell, lod, directions, error } = e.event {
-            got = Some((cell, lod, directions, error));
+        if let RuntimeEvent::CellPublished { lod, directions, error, group, .. } = &e.event {
+            got = Some((group.clone(), *lod, *directions, *error));
             return true;
         }
         false
     });
-    let (cell, lod, directions, error) = got.expect("published");
+    let (group, lod, directions, error) = got.expect("published");
     let shown = runtime.shown();
     let world = runtime.world().clone();
     runtime.shutdown().expect("clean shutdown");
 
     // Replay offline, unit by unit.
     let mut backend = CpuProvider::new().backend(&world.bundle, 1).expect("backend");
-    let mut bake = CellBake::new(&world, cell, lod, first.clone(), config.bundle.seed, 1);
+    let mut bake = CellBake::new(&world, &group, lod, first.clone(), config.bundle.seed, 1);
     let never = AtomicBool::new(false);
     let ready = |b: &CellBake| {
         let d = b.directions();
@@ -205,7 +208,39 @@ fn a_cell_publishes_at_its_threshold_what_an_offline_bake_gives() {
         let published = shown.levels[lod as usize].texel(p[0] as i64, p[1] as i64).expect("published texel");
         assert_eq!(published.to_array(), values[i].to_array(), "texel {i} at {p:?}");
     }
-    assert_eq!(shown.cell_lod[cell as usize] as u32, lod);
+    for &cell in &group {
+        assert_eq!(shown.cell_lod[cell as usize] as u32, lod);
+    }
+}
+
+/// A bake of several cells holds exactly the texels the bakes of each cell alone would (the
+/// same pixels, each in the cell holding its surface point), and hands every pixel it writes
+/// (texels and gutters) to one of its cells.
+#[test]
+fn a_group_bakes_exactly_its_cells_texels() {
+    let config = room_config(1);
+    let world = world(load(ROOM), &config);
+    let shown = first_light(&world);
+    let cells: Vec<u32> = largest_cells(&world).into_iter().take(5).collect();
+    let group = CellBake::new(&world, &cells, 1, shown.clone(), 1, 2);
+    for &c in &cells {
+        let alone = CellBake::new(&world, &[c], 1, shown.clone(), 1, 2);
+        let mut expected = alone.texels.pixel.clone();
+        let mut got: Vec<[u32; 2]> = (0..group.texels.len())
+            .filter(|&i| world.grid.cell_of(group.texels.position[i]) == c)
+            .map(|i| group.texels.pixel[i])
+            .collect();
+        expected.sort_unstable();
+        got.sort_unstable();
+        assert!(!got.is_empty(), "cell {c} has no texels at LOD 1");
+        assert_eq!(got, expected, "cell {c}'s texels in the group");
+    }
+    let mut written: Vec<[u32; 2]> = group.texels.pixel.clone();
+    written.extend(group.texels.gutter.iter().map(|g| g.0));
+    written.sort_unstable();
+    let mut handed: Vec<[u32; 2]> = group.pixels_per_cell().into_iter().flatten().collect();
+    handed.sort_unstable();
+    assert_eq!(handed, written, "every pixel of the group belongs to exactly one of its cells");
 }
 
 /// Work is kept when the camera leaves a cell and resumes where it was when it comes back;

@@ -50,6 +50,9 @@ pub struct RuntimeOptions {
     /// Estimated relative error at which a cell swaps.
     #[arg(long, value_name = "E")]
     pub error_bound: Option<f32>,
+    /// Texels a bake gathers from neighbouring cells wanting the same LOD (0: one cell a bake).
+    #[arg(long, value_name = "N")]
+    pub group_texels: Option<u32>,
 }
 
 /// Options of `run` itself.
@@ -184,6 +187,9 @@ pub fn runtime_config(options: &SceneOptions, runtime: &RuntimeOptions) -> Resul
     }
     if let Some(e) = runtime.error_bound {
         config.error_bound = e;
+    }
+    if let Some(n) = runtime.group_texels {
+        config.group_texels = n;
     }
     config.validate()?;
     Ok(config)
@@ -439,6 +445,7 @@ fn runtime_report_config(options: &SceneOptions, run: &RunOptions) -> Value {
         "min_directions": run.runtime.min_directions,
         "max_directions": run.runtime.max_directions,
         "error_bound": run.runtime.error_bound,
+        "group_texels": run.runtime.group_texels,
         "seconds": run.seconds,
     })
 }

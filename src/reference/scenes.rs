@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use glam::{Affine3A, Vec3};
 
 use crate::scene::builder::{diffuse, white};
-use crate::scene::{LightKind, MaterialId, PunctualLight, Scene, SceneBuilder};
+use crate::scene::{LightKind, MaterialId, PunctualLight, Rgb, Scene, SceneBuilder};
 
 /// A UV sphere facing outwards: `rings` latitude bands × `segments` longitudes,
 /// `2·segments·(rings − 1)` triangles (no degenerate triangles at the poles).
@@ -238,6 +238,13 @@ pub fn temple() -> Scene {
     let d = b.material(diffuse(Vec3::splat(0.7), Vec3::ZERO, true));
     // A "temple complex": 120 m courtyard, rooms, 400 columns (tori + spheres), tiled floors.
     b.cuboid("court", Vec3::new(-60.0, 0.0, -60.0), Vec3::new(60.0, 15.0, 60.0), true, m);
+    temple_columns(&mut b, m, d, 0.0);
+    b.build()
+}
+
+/// The temple's 400 columns (shafts and capitals in `m`, bases in `d`) on a 5.2 m grid, and
+/// its eight tiled floors (in `d`) `tiles_y` above the ground.
+fn temple_columns(b: &mut SceneBuilder, m: MaterialId, d: MaterialId, tiles_y: f32) {
     for i in 0..20 {
         for j in 0..20 {
             let c = Vec3::new(-50.0 + i as f32 * 5.2, 0.0, -50.0 + j as f32 * 5.2);
@@ -249,11 +256,36 @@ pub fn temple() -> Scene {
         }
     }
     for k in 0..8 {
-        let o = Vec3::new(-55.0 + k as f32 * 14.0, 0.0, 58.0);
+        let o = Vec3::new(-55.0 + k as f32 * 14.0, tiles_y, 58.0);
         b.grid_quad("tiles", [o, o + Vec3::X * 12.0, o + Vec3::new(12.0, 0.0, -12.0), o - Vec3::Z * 12.0], 40, d);
     }
+}
+
+/// [`temple`] lit, for the runtime's large-scene bench: the courtyard open to a uniform
+/// overcast sky of radiance [`TEMPLE_SKY`] (open ground receives π × that), its floor and
+/// walls of albedo 0.6 and the columns and tiles of 0.7 (an albedo of 1 would bounce light
+/// without loss), the tiles raised 5 cm onto a low stage rather than coplanar with the
+/// ground. 312k triangles, about 31 000 m² of lit surface.
+pub fn temple_courtyard() -> Scene {
+    let mut b = SceneBuilder::new();
+    let ground = b.material(diffuse(Vec3::splat(0.6), Vec3::ZERO, false));
+    let stone = b.material(diffuse(Vec3::splat(0.7), Vec3::ZERO, false));
+    let tiles = b.material(diffuse(Vec3::splat(0.7), Vec3::ZERO, true));
+    b.sky(TEMPLE_SKY);
+    let (lo, hi) = (Vec3::new(-60.0, 0.0, -60.0), Vec3::new(60.0, 15.0, 60.0));
+    let p = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
+    b.floor("court floor", p(0.0, 0.0, 0.0), hi.x - lo.x, ground);
+    // The four walls, facing into the courtyard (corners counter-clockwise seen from inside).
+    b.quad("wall -z", [p(lo.x, 0.0, lo.z), p(hi.x, 0.0, lo.z), p(hi.x, hi.y, lo.z), p(lo.x, hi.y, lo.z)], ground);
+    b.quad("wall +z", [p(hi.x, 0.0, hi.z), p(lo.x, 0.0, hi.z), p(lo.x, hi.y, hi.z), p(hi.x, hi.y, hi.z)], ground);
+    b.quad("wall -x", [p(lo.x, 0.0, hi.z), p(lo.x, 0.0, lo.z), p(lo.x, hi.y, lo.z), p(lo.x, hi.y, hi.z)], ground);
+    b.quad("wall +x", [p(hi.x, 0.0, lo.z), p(hi.x, 0.0, hi.z), p(hi.x, hi.y, hi.z), p(hi.x, hi.y, lo.z)], ground);
+    temple_columns(&mut b, stone, tiles, 0.05);
     b.build()
 }
+
+/// The sky radiance of [`temple_courtyard`], W/(sr·m²).
+pub const TEMPLE_SKY: Rgb = Vec3::new(1.0, 1.0, 1.0);
 
 /// `scene` as exporters without shared vertices write it (game assets, BIM exports): every
 /// triangle has its own three vertices with its face normal as shading normal, each vertex

@@ -1,5 +1,9 @@
-//! One cell refined to one LOD: its texels (made for this cell only), the punctual pass, and
-//! a resumable accumulation of bundle batches with a per-texel variance estimate.
+//! A group of neighbouring cells refined to one LOD together: their texels (made for these
+//! cells only), the punctual pass, and a resumable accumulation of bundle batches with a
+//! per-texel variance estimate. One bundle direction costs about the same for a few texels
+//! as for thousands (the window's occluders are rasterised either way), so the scheduler
+//! bakes small cells in groups (see `RuntimeConfig::group_texels`); a group of one is a
+//! cell bake.
 //!
 //! The bundles see the shown light map as it was when the bake started (one bounce from a
 //! converged field: every batch weighs the same), so the result depends only on that
@@ -34,9 +38,13 @@ struct BatchMoments {
 }
 
 pub struct CellBake {
-    pub cell: CellId,
+    /// The cells baked together; the first leads (a parked bake is kept in its slot, and
+    /// its id seeds the directions).
+    pub cells: Vec<CellId>,
     pub lod: u32,
     pub texels: SparseTexels,
+    /// Per texel: the index in `cells` of the cell holding it.
+    owner: Vec<u16>,
     triangles: Vec<u32>,
     window: (Vec3, Vec3),
     carried: Vec<bool>,
@@ -49,6 +57,9 @@ pub struct CellBake {
     source: ShownSource,
     own_source: Vec<Rgb>,
 }
+
+/// Most cells one bake may group (their index per texel is a `u16`; groups stay far smaller).
+pub const MAX_GROUP: usize = 512;
 
 /// What one unit of work did.
 pub struct UnitStats {
@@ -64,39 +75,48 @@ pub fn cell_seed(seed: u64, cell: CellId, lod: u32) -> u64 {
 }
 
 impl CellBake {
-    /// Makes `cell`'s texels at `lod` and lights them by the punctual lights; the bundles
-    /// will see `shown`.
+    /// Makes the texels of `cells` (the first leads; at most [`MAX_GROUP`] cells) at `lod`
+    /// and lights them by the punctual lights; the bundles will see `shown`.
     pub fn new(
         world: &World,
-        cell: CellId,
+        cells: &[CellId],
         lod: u32,
         shown: Arc<ShownLightmap>,
         seed: u64,
         threads: usize,
     ) -> CellBake {
-        let (lo, hi) = world.cell_box(cell);
+        assert!(!cells.is_empty() && cells.len() <= MAX_GROUP, "a bake of {} cells", cells.len());
+        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+        for &c in cells {
+            let (a, b) = world.cell_box(c);
+            lo = lo.min(a);
+            hi = hi.max(b);
+        }
+        let mut core: Vec<u32> = cells.iter().flat_map(|&c| world.cell_triangles.of(c).iter().copied()).collect();
+        if cells.len() > 1 {
+            core.sort_unstable();
+            core.dedup();
+        }
         let grid = world.grid;
-        let texels = SparseTexels::build(
-            &world.scene,
-            &world.geom,
-            &world.atlas,
-            lod,
-            world.cell_triangles.of(cell),
-            lo,
-            hi,
-            |p| grid.cell_of(p) == cell,
-        );
+        let index_of = |p: Vec3| {
+            let c = grid.cell_of(p);
+            cells.iter().position(|&m| m == c)
+        };
+        let texels =
+            SparseTexels::build(&world.scene, &world.geom, &world.atlas, lod, &core, lo, hi, |p| index_of(p).is_some());
+        let owner = texels.position.iter().map(|&p| index_of(p).unwrap_or(0) as u16).collect();
         let punctual =
             punctual_irradiance(&world.scene, &world.bvh, &texels.position, &texels.normal, world.epsilon, threads);
         // The window holds every texel's footprint: a texel's square reaches half a diagonal
-        // beyond its surface point, which is in the cell.
+        // beyond its surface point, which is in one of the cells.
         let reach = Vec3::splat(world.texel_size(lod) * 1.5);
         let carried = texels.face.iter().map(|&f| world.bundle.carried(f)).collect();
         let config = &world.bundle.config;
         let n = texels.len();
         let source = ShownSource { shown, bundle: world.bundle.clone() };
         CellBake {
-            cell,
+            cells: cells.to_vec(),
+            owner,
             lod,
             triangles: target_triangles(&world.atlas, &texels.face),
             window: (lo - reach, hi + reach),
@@ -104,7 +124,7 @@ impl CellBake {
             estimate: ProgressiveEstimate::new(SourceKind::Converged, punctual, texels.area.clone()),
             moments: vec![BatchMoments::default(); n],
             jobs: JobSequence::new(
-                cell_seed(seed, cell, lod),
+                cell_seed(seed, cells[0], lod),
                 world.bundle.emitters.small.len(),
                 config.light_directions,
             ),
@@ -118,6 +138,25 @@ impl CellBake {
 
     pub fn directions(&self) -> u64 {
         self.directions
+    }
+
+    /// The leading cell (see [`CellBake::cells`]).
+    pub fn leader(&self) -> CellId {
+        self.cells[0]
+    }
+
+    /// Per cell of the group (as in `cells`): the LOD pixels its texels and their gutter
+    /// pixels cover.
+    pub fn pixels_per_cell(&self) -> Vec<Vec<[u32; 2]>> {
+        let t = &self.texels;
+        let mut out = vec![Vec::new(); self.cells.len()];
+        for (i, p) in t.pixel.iter().enumerate() {
+            out[self.owner[i] as usize].push(*p);
+        }
+        for &(g, i) in &t.gutter {
+            out[self.owner[i as usize] as usize].push(g);
+        }
+        out
     }
 
     /// The snapshot the bundles see.
@@ -233,7 +272,7 @@ impl CellBake {
     /// Bytes held by the bake.
     pub fn bytes(&self) -> usize {
         let n = self.texels.len();
-        self.texels.bytes() + n * (std::mem::size_of::<BatchMoments>() + 28 + 56 + 12 + 12 + 4 + 1)
+        self.texels.bytes() + n * (std::mem::size_of::<BatchMoments>() + 28 + 56 + 12 + 12 + 4 + 1 + 2)
     }
 }
 

@@ -71,6 +71,10 @@ pub struct RuntimeConfig {
     pub error_bound: f32,
     /// Directions per unit of work (one batch of a cell bake).
     pub unit_directions: u32,
+    /// Texels a bake gathers from neighbouring cells that want the same LOD, at least (when
+    /// there are such cells), at most twice that: a bundle direction costs about as much for
+    /// a few texels as for thousands, so small cells are baked in groups. 0: one cell a bake.
+    pub group_texels: u32,
     /// Screen pixels a texel may cover before the cell wants a finer LOD.
     pub texel_pixels: f32,
     /// Worker threads; `None`: every core.
@@ -94,6 +98,7 @@ impl Default for RuntimeConfig {
             max_directions: 512,
             error_bound: 0.03,
             unit_directions: 4,
+            group_texels: 4096,
             texel_pixels: 2.0,
             threads: None,
             start_paused: false,
@@ -193,12 +198,15 @@ pub enum RuntimeEvent {
         texels: usize,
         directions: u32,
     },
-    /// A cell swapped to a finer LOD.
+    /// A cell swapped to a finer LOD (or was refreshed at its LOD). Cells baked together are
+    /// published at once, one event each; `group` lists them, its leader first (`[cell]`
+    /// for a bake of one cell).
     CellPublished {
         cell: CellId,
         lod: u32,
         directions: u64,
         error: f32,
+        group: Vec<CellId>,
     },
     /// A cell's finest LOD was dropped to stay within the memory budget.
     CellEvicted {
@@ -445,7 +453,12 @@ impl Runtime {
                     min: lo.to_array(),
                     max: hi.to_array(),
                     shown_lod: s.shown,
-                    baking_lod: s.bake.as_ref().map(|b| b.lod).or(if s.busy { Some(s.shown + 1) } else { None }),
+                    baking_lod: s
+                        .bake
+                        .as_ref()
+                        .or_else(|| s.member_of.and_then(|l| st.cells[l as usize].bake.as_ref()))
+                        .map(|b| b.lod)
+                        .or(if s.busy { Some(s.shown + 1) } else { None }),
                     baking_directions: s.baking_directions,
                     working: s.busy,
                     stale: s.stale,

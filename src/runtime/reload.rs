@@ -138,6 +138,7 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
     // holds when it brings them back (their generation is old).
     for s in st.cells.iter_mut() {
         s.bake = None;
+        s.member_of = None;
         s.baking_directions = 0;
     }
     st.bake_bytes = 0;

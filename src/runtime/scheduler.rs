@@ -35,7 +35,12 @@ pub(super) struct CellState {
     pub shown: u32,
     pub target: u32,
     pub view: Option<CellView>,
+    /// A bake in progress, parked here between units: this cell's own, or its group's when
+    /// this cell leads it.
     pub bake: Option<Box<CellBake>>,
+    /// The leader of the group bake this cell is part of, when another cell leads it.
+    pub member_of: Option<CellId>,
+    /// A worker is tracing a unit of this cell's bake (or its group's).
     pub busy: bool,
     /// Directions traced by the bake in progress (also while a worker holds it).
     pub baking_directions: u64,
@@ -251,11 +256,12 @@ pub(super) fn first_light(shared: &Shared) {
     shared.emit(RuntimeEvent::FirstLight { texels: world.lod0.len(), directions: shared.config.bundle.directions });
 }
 
-/// What a worker takes: a cell, the LOD to bake it at, and its bake if one is parked.
+/// What a worker takes: cells (the first leads), the LOD to bake them at, and their bake if
+/// one is parked.
 struct Job {
     world: Arc<World>,
     generation: u64,
-    cell: CellId,
+    cells: Vec<CellId>,
     lod: u32,
     bake: Option<Box<CellBake>>,
 }
@@ -274,7 +280,9 @@ fn next_lod(s: &CellState) -> Option<u32> {
 
 /// The next job: the most urgent cell below its target (or stale), not being worked on, with
 /// room for its bake within the memory budget (made by evicting what matters less,
-/// [`make_room`]); `None` when nothing is to be done or nothing fits.
+/// [`make_room`]); `None` when nothing is to be done or nothing fits. A cell whose group bake
+/// is parked (it is a member) brings its leader's bake back; a new bake gathers neighbours
+/// that want the same LOD ([`gather_group`]).
 fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
     let world = st.world.clone();
     let key = |st: &State, c: CellId| {
@@ -283,30 +291,93 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
         // Refinement before refreshing stale light (hot reload), then the policy's order.
         (s.target <= s.shown, priority(view, s.shown, false), c)
     };
+    let leader_of = |st: &State, c: CellId| st.cells[c as usize].member_of.unwrap_or(c);
     let c = world
         .non_empty_cells()
         .filter(|&c| {
             let s = &st.cells[c as usize];
-            !s.busy && s.view.is_some() && next_lod(s).is_some()
+            !st.cells[leader_of(st, c) as usize].busy && s.view.is_some() && next_lod(s).is_some()
         })
         .min_by_key(|&c| key(st, c))?;
-    let lod = next_lod(&st.cells[c as usize])?;
-    // A parked bake of another level (the cell was evicted or refreshed meanwhile) is dropped.
-    if let Some(b) = &st.cells[c as usize].bake
-        && b.lod != lod
-    {
-        let bytes = b.bytes() as u64;
-        st.cells[c as usize].bake = None;
-        st.cells[c as usize].baking_directions = 0;
-        st.bake_bytes -= bytes;
+    let leader = leader_of(st, c);
+    if let Some(bake) = st.cells[leader as usize].bake.take() {
+        // Resume the parked bake, unless it is of another level than its leader's next (the
+        // cell was evicted or refreshed meanwhile): then it is dropped and made anew.
+        let wanted = next_lod(&st.cells[leader as usize]);
+        if bake.cells.len() > 1 || wanted == Some(bake.lod) {
+            let (cells, lod) = (bake.cells.clone(), bake.lod);
+            for &m in &cells {
+                st.cells[m as usize].busy = true;
+            }
+            return Some(Job { world, generation: st.generation, cells, lod, bake: Some(bake) });
+        }
+        st.bake_bytes -= bake.bytes() as u64;
+        st.cells[leader as usize].baking_directions = 0;
     }
-    if st.cells[c as usize].bake.is_none() && !make_room(shared, st, c, bake_estimate(&world, c, lod)) {
+    let lod = next_lod(&st.cells[leader as usize])?;
+    let cells = gather_group(shared, st, leader, lod);
+    let need: u64 = cells.iter().map(|&m| bake_estimate(&world, m, lod)).sum();
+    if !make_room(shared, st, &cells, need) {
         return None;
     }
-    let s = &mut st.cells[c as usize];
-    s.busy = true;
-    Some(Job { world, generation: st.generation, cell: c, lod, bake: s.bake.take() })
+    for &m in &cells {
+        st.cells[m as usize].busy = true;
+    }
+    Some(Job { world, generation: st.generation, cells, lod, bake: None })
 }
+
+/// The cells a new bake of `leader` at `lod` takes: the leader, then its nearest neighbours
+/// (within [`GROUP_REACH`] cells on each axis) that also want `lod` next from the same shown
+/// LOD and are free (no bake of their own, not in a group), until the group has
+/// `config.group_texels` texels at `lod` (estimated from LOD 0's); never more than twice that.
+fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<CellId> {
+    let world = &st.world;
+    let want = shared.config.group_texels as u64;
+    let texels = |c: CellId| (world.lod0_texels[c as usize] as u64) << (2 * lod);
+    let mut cells = vec![leader];
+    let mut total = texels(leader);
+    if total >= want {
+        return cells;
+    }
+    let shown = st.cells[leader as usize].shown;
+    let [x, y, z] = world.grid.coords(leader);
+    let dims = world.grid.dims;
+    let range = |v: u32, n: u32| v.saturating_sub(GROUP_REACH)..=(v + GROUP_REACH).min(n - 1);
+    let mut near: Vec<(u32, CellId)> = Vec::new();
+    for k in range(z, dims[2]) {
+        for j in range(y, dims[1]) {
+            for i in range(x, dims[0]) {
+                let c = world.grid.index([i, j, k]);
+                let s = &st.cells[c as usize];
+                let free = !s.busy && s.bake.is_none() && s.member_of.is_none();
+                if c != leader
+                    && world.lod0_texels[c as usize] > 0
+                    && free
+                    && s.shown == shown
+                    && next_lod(s) == Some(lod)
+                {
+                    let d = i.abs_diff(x).max(j.abs_diff(y)).max(k.abs_diff(z));
+                    near.push((d, c));
+                }
+            }
+        }
+    }
+    near.sort_unstable();
+    for (_, c) in near {
+        if total >= want || cells.len() == super::cell_bake::MAX_GROUP {
+            break;
+        }
+        if total + texels(c) > 2 * want {
+            continue;
+        }
+        total += texels(c);
+        cells.push(c);
+    }
+    cells
+}
+
+/// How far (cells, per axis) a group reaches from its leader.
+const GROUP_REACH: u32 = 3;
 
 /// Bytes a bake of `cell` at `lod` will hold while it runs and its pages once published, from
 /// the cell's LOD-0 texel count (4^lod times as many texels at LOD `lod`).
@@ -327,22 +398,24 @@ fn budgeted_bytes(shared: &Shared, st: &State) -> u64 {
 }
 
 /// Frees memory until `need` more bytes fit the budget, taking from what matters less than
-/// `for_cell`: first parked bakes and finest levels of cells shown finer than they need, then
-/// those of cells farther from the camera than `for_cell`, farthest first. Returns whether
-/// it fits.
-fn make_room(shared: &Shared, st: &mut State, for_cell: CellId, need: u64) -> bool {
+/// the bake of `for_cells` (its leader first): first parked bakes and finest levels of cells
+/// shown finer than they need, then those of cells farther from the camera than the leader,
+/// farthest first. Cells in a parked group bake are let alone (the group's leader stands
+/// for them: its bake goes first). Returns whether it fits.
+fn make_room(shared: &Shared, st: &mut State, for_cells: &[CellId], need: u64) -> bool {
     let budget = shared.config.memory_budget;
     let world = st.world.clone();
     let distance = |st: &State, c: CellId| st.cells[c as usize].view.map_or(f32::MAX, |v| v.distance);
-    let mine = distance(st, for_cell);
+    let mine = distance(st, for_cells[0]);
     while budgeted_bytes(shared, st) + need > budget {
         // The cell whose memory matters least: beyond its target first, then farthest.
         let victim = world
             .non_empty_cells()
             .filter(|&c| {
                 let s = &st.cells[c as usize];
-                c != for_cell
+                !for_cells.contains(&c)
                     && !s.busy
+                    && s.member_of.is_none()
                     && (s.shown > 0 || s.bake.is_some())
                     && (s.shown > s.target || distance(st, c) > mine)
             })
@@ -351,16 +424,25 @@ fn make_room(shared: &Shared, st: &mut State, for_cell: CellId, need: u64) -> bo
                 (over(a), distance(st, a)).partial_cmp(&(over(b), distance(st, b))).unwrap_or(std::cmp::Ordering::Equal)
             });
         let Some(victim) = victim else { return false };
-        let s = &mut st.cells[victim as usize];
-        if let Some(bake) = s.bake.take() {
+        if st.cells[victim as usize].bake.is_some() {
             // A parked bake's work is lost; it would be the first thing rebuilt if needed.
-            s.baking_directions = 0;
-            st.bake_bytes -= bake.bytes() as u64;
+            drop_parked(st, victim);
             continue;
         }
         evict(shared, st, victim);
     }
     true
+}
+
+/// Drops the bake parked at `leader` (its group's with it): its work is lost.
+fn drop_parked(st: &mut State, leader: CellId) {
+    let Some(bake) = st.cells[leader as usize].bake.take() else { return };
+    st.bake_bytes -= bake.bytes() as u64;
+    for &m in &bake.cells {
+        let s = &mut st.cells[m as usize];
+        s.baking_directions = 0;
+        s.member_of = None;
+    }
 }
 
 /// Withdraws a cell's finest shown level (its pixels at that LOD) and shows the next coarser.
@@ -404,13 +486,16 @@ pub(super) fn worker(shared: &Shared) {
                 st = shared.wake.wait_timeout(st, Duration::from_millis(200)).unwrap_or_else(|e| e.into_inner()).0;
             }
         };
-        let Job { world, generation, cell, lod, bake } = job;
+        let Job { world, generation, cells, lod, bake } = job;
         if backend.as_ref().is_none_or(|(g, _)| *g != generation) {
             match (shared.make_backend)(&world.bundle, 1) {
                 Ok(b) => backend = Some((generation, b)),
                 Err(e) => {
                     shared.emit(RuntimeEvent::Failed { error: e.to_string() });
-                    shared.lock().cells[cell as usize].busy = false;
+                    let mut st = shared.lock();
+                    for &c in &cells {
+                        st.cells[c as usize].busy = false;
+                    }
                     return;
                 }
             }
@@ -420,7 +505,7 @@ pub(super) fn worker(shared: &Shared) {
             Some(b) => b,
             None => {
                 let t = Instant::now();
-                let b = Box::new(CellBake::new(&world, cell, lod, shared.shown(), shared.seed(), 1));
+                let b = Box::new(CellBake::new(&world, &cells, lod, shared.shown(), shared.seed(), 1));
                 let mut st = shared.lock();
                 st.bake_bytes += b.bytes() as u64;
                 st.stats.cell_setup_seconds += t.elapsed().as_secs_f64();
@@ -432,8 +517,10 @@ pub(super) fn worker(shared: &Shared) {
         if st.generation != generation {
             // A hot reload replaced the world: this bake's texels are of the old scene (the
             // reload recounted the bytes of what it kept). The grid is kept across reloads.
-            if let Some(s) = st.cells.get_mut(cell as usize) {
-                s.busy = false;
+            for &c in &cells {
+                if let Some(s) = st.cells.get_mut(c as usize) {
+                    s.busy = false;
+                }
             }
             continue;
         }
@@ -441,9 +528,7 @@ pub(super) fn worker(shared: &Shared) {
             Ok(u) => u,
             Err(_) => {
                 // Cancelled (shutting down): the bake keeps what it had before the unit.
-                let s = &mut st.cells[cell as usize];
-                s.busy = false;
-                s.bake = Some(bake);
+                park(&mut st, bake);
                 continue;
             }
         };
@@ -458,64 +543,94 @@ pub(super) fn worker(shared: &Shared) {
         if ready {
             st.bake_bytes -= bake.bytes() as u64;
             publish(shared, &mut st, &bake, error);
-            let s = &mut st.cells[cell as usize];
-            s.busy = false;
-            s.baking_directions = 0;
+            for &m in &bake.cells {
+                let s = &mut st.cells[m as usize];
+                s.busy = false;
+                s.member_of = None;
+                s.baking_directions = 0;
+            }
             drop(st);
-            shared.emit(RuntimeEvent::CellPublished { cell, lod: bake.lod, directions: d, error });
+            for &cell in &bake.cells {
+                shared.emit(RuntimeEvent::CellPublished {
+                    cell,
+                    lod: bake.lod,
+                    directions: d,
+                    error,
+                    group: bake.cells.clone(),
+                });
+            }
         } else {
-            let s = &mut st.cells[cell as usize];
-            s.busy = false;
-            s.baking_directions = bake.directions();
-            s.bake = Some(bake);
+            park(&mut st, bake);
         }
         shared.wake.notify_all();
     }
 }
 
+/// Puts a bake back between units: in its leader's slot, its cells free for the next unit.
+fn park(st: &mut State, bake: Box<CellBake>) {
+    let leader = bake.leader();
+    for &m in &bake.cells {
+        let s = &mut st.cells[m as usize];
+        s.busy = false;
+        s.baking_directions = bake.directions();
+        s.member_of = (m != leader).then_some(leader);
+    }
+    st.cells[leader as usize].bake = Some(bake);
+}
+
 /// Writes a converged bake's texels and gutter pixels (`values` per texel) into `map` at
-/// its LOD and swaps the cell to it. Returns the pixels written.
-pub fn publish_bake(map: &mut ShownLightmap, bake: &CellBake, values: &[Rgb]) -> Vec<[u32; 2]> {
+/// its LOD and swaps its cells to it. Returns the pixels written per cell of the bake.
+pub fn publish_bake(map: &mut ShownLightmap, bake: &CellBake, values: &[Rgb]) -> Vec<Vec<[u32; 2]>> {
     publish_texels(map, bake, values, &[])
 }
 
-/// [`publish_bake`], withdrawing first the pixels `replaced` of the cell's previous bake at
+/// [`publish_bake`], withdrawing first the pixels `replaced` of the cells' previous bakes at
 /// that LOD (a refresh).
-fn publish_texels(map: &mut ShownLightmap, bake: &CellBake, values: &[Rgb], replaced: &[[u32; 2]]) -> Vec<[u32; 2]> {
+fn publish_texels(
+    map: &mut ShownLightmap,
+    bake: &CellBake,
+    values: &[Rgb],
+    replaced: &[Vec<[u32; 2]>],
+) -> Vec<Vec<[u32; 2]>> {
     let t = &bake.texels;
     let mut writer = PageWriter::new(map);
-    for p in replaced {
+    for p in replaced.iter().flatten() {
         writer.clear(bake.lod, p[0], p[1]);
     }
-    let mut pixels = Vec::with_capacity(t.len() + t.gutter.len());
     for (i, p) in t.pixel.iter().enumerate() {
         writer.write(bake.lod, p[0], p[1], values[i]);
-        pixels.push(*p);
     }
     for &(g, i) in &t.gutter {
         writer.write(bake.lod, g[0], g[1], values[i as usize]);
-        pixels.push(g);
     }
-    writer.set_cell_lod(bake.cell, bake.lod);
+    for &c in &bake.cells {
+        writer.set_cell_lod(c, bake.lod);
+    }
     writer.finish();
-    pixels
+    bake.pixels_per_cell()
 }
 
-/// Publishes a converged bake in one new snapshot.
+/// Publishes a converged bake in one new snapshot (every cell of a group at once).
 fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32) {
     let values = bake.result();
     let lod = bake.lod as usize;
-    let cell = &mut st.cells[bake.cell as usize];
-    let replaced = cell.published.get_mut(lod).map(std::mem::take).unwrap_or_default();
+    let replaced: Vec<Vec<[u32; 2]>> = bake
+        .cells
+        .iter()
+        .map(|&c| st.cells[c as usize].published.get_mut(lod).map(std::mem::take).unwrap_or_default())
+        .collect();
     let mut map = (*shared.shown()).clone();
     let pixels = publish_texels(&mut map, bake, &values, &replaced);
     shared.set_shown(map);
-    cell.shown = bake.lod;
-    cell.stale = false;
-    cell.history.resize(lod + 1, (0, f32::INFINITY));
-    cell.history[lod] = (bake.directions(), error);
-    cell.published.resize(lod + 1, Vec::new());
-    cell.published[lod] = pixels;
+    for (&c, pixels) in bake.cells.iter().zip(pixels) {
+        let cell = &mut st.cells[c as usize];
+        cell.shown = bake.lod;
+        cell.stale = false;
+        cell.history.resize(lod + 1, (0, f32::INFINITY));
+        cell.history[lod] = (bake.directions(), error);
+        cell.published.resize(lod + 1, Vec::new());
+        cell.published[lod] = pixels;
+    }
     st.stats.publishes += 1;
 }
 

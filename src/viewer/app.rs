@@ -134,7 +134,12 @@ pub struct FrameContext<'a> {
 /// Inspects or changes things after each frame (tests); `false` closes the viewer.
 pub type FrameHook<'h> = dyn FnMut(&mut FrameContext) -> Result<bool, GpuError> + 'h;
 
-const UNLIT_FRAME_INTERVAL: Duration = Duration::from_millis(100);
+/// Until the first light there is little to see: a frame this often, so that a software
+/// rasteriser (45–70 ms a frame on lavapipe) leaves the cores to the first-light bake.
+const UNLIT_FRAME_INTERVAL: Duration = Duration::from_millis(500);
+/// How often the viewer looks for the first light between unlit frames: the first lit frame
+/// is drawn as soon as the light is there, not at the next unlit frame's time.
+const LIGHT_POLL: Duration = Duration::from_millis(10);
 
 const HELP: &str = "WASD/QE move, drag look, wheel speed, Tab orbit, 1-5 views, +/- exposure, P screenshot, Esc quit";
 
@@ -527,14 +532,13 @@ impl ApplicationHandler for App<'_, '_> {
 
     fn about_to_wait(&mut self, event_loop: &ActiveEventLoop) {
         let Some(s) = &self.state else { return };
-        // Until the first light there is little to see: at most 10 frames a second, so a
-        // software rasteriser leaves the cores to the bake.
+        // Before the first light: paced unlit frames, and the lit one as soon as it can be.
         if s.renderer.shown.is_none()
             && let Some(last) = self.last_frame
         {
-            let next = last + UNLIT_FRAME_INTERVAL;
-            if Instant::now() < next {
-                event_loop.set_control_flow(ControlFlow::WaitUntil(next));
+            let (now, next) = (Instant::now(), last + UNLIT_FRAME_INTERVAL);
+            if now < next && self.source.shown().is_none() {
+                event_loop.set_control_flow(ControlFlow::WaitUntil(next.min(now + LIGHT_POLL)));
                 return;
             }
         }

@@ -6,6 +6,7 @@ mod convergence;
 mod reference;
 mod reload;
 mod runtime;
+mod runtime_large;
 mod startup;
 mod throughput;
 mod tiling;
@@ -31,7 +32,7 @@ pub fn assets() -> PathBuf {
 type Bench = fn(bool, &Ui) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 9] = [
+pub const SECTIONS: [(&str, Bench); 10] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -40,6 +41,7 @@ pub const SECTIONS: [(&str, Bench); 9] = [
     ("tiling", tiling::run),
     ("viewer", viewer::run),
     ("runtime", runtime::run),
+    ("runtime_large", runtime_large::run),
     ("reload", reload::run),
 ];
 

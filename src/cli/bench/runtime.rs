@@ -28,7 +28,8 @@ use serde_json::{Value, json};
 
 use livebake::atlas::{Atlas, AtlasConfig, TexelMap};
 use livebake::bake::bundle::{BatchDone, bake_lod_observed};
-use livebake::bake::{check_lod_sizes, check_node_capacity};
+use livebake::bake::memory::{self, resident_bytes};
+use livebake::bake::{BakeConfig, check_lod_sizes, check_node_capacity};
 use livebake::bundle::{BackendProvider, BundleScene};
 use livebake::cpu::CpuProvider;
 use livebake::probe::{LightmapLookup, SurfaceLocator};
@@ -97,10 +98,18 @@ pub fn wait_first_light(runtime: &Runtime) -> Result<(f64, usize, Vec<TimedEvent
 /// Surface points in view: the hits of a grid of rays through the camera on light-mapped
 /// sides, the nearer half of them (the normal is the side facing the camera).
 fn points_in_view(world: &World, camera: &CameraView) -> Vec<Query> {
+    let mut hits = view_hits(world, camera, VIEW_RAYS);
+    hits.truncate(hits.len().div_ceil(2));
+    hits.into_iter().map(|(_, q)| q).collect()
+}
+
+/// The hits of a grid of `rays` (columns × rows) through the view on light-mapped sides, nearest
+/// first, with their distances (the normal is the side facing the camera).
+pub(super) fn view_hits(world: &World, camera: &CameraView, rays: (u32, u32)) -> Vec<(f32, Query)> {
     let (f, r, u) = camera.basis();
     let half_h = (camera.yfov * 0.5).tan();
     let half_w = half_h * camera.aspect;
-    let (nx, ny) = VIEW_RAYS;
+    let (nx, ny) = rays;
     let mut hits: Vec<(f32, Query)> = Vec::new();
     for j in 0..ny {
         for i in 0..nx {
@@ -118,12 +127,11 @@ fn points_in_view(world: &World, camera: &CameraView) -> Vec<Query> {
         }
     }
     hits.sort_by(|a, b| a.0.total_cmp(&b.0));
-    hits.truncate(hits.len().div_ceil(2));
-    hits.into_iter().map(|(_, q)| q).collect()
+    hits
 }
 
 /// The in-crate reference at `points` (`spp` paths each).
-fn reference_at(scene: &Scene, points: &[Query], spp: u32) -> ReferencePoints {
+pub(super) fn reference_at(scene: &Scene, points: &[Query], spp: u32) -> ReferencePoints {
     let tracer = ReferenceTracer::new(scene);
     let at: Vec<(Vec3, Vec3)> = points.iter().map(|q| (q.p, q.n)).collect();
     let (estimates, _) = tracer.irradiance_batch_estimates(&at, spp, 0x5EED, &|_| {});
@@ -135,12 +143,12 @@ fn reference_at(scene: &Scene, points: &[Query], spp: u32) -> ReferencePoints {
 }
 
 /// Where the error points read the shown light map: position and LOD-0 UV of each.
-struct ShownReader {
-    at: Vec<(Vec3, livebake::glam::Vec2)>,
+pub(super) struct ShownReader {
+    pub at: Vec<(Vec3, livebake::glam::Vec2)>,
 }
 
 impl ShownReader {
-    fn new(world: &World, points: &[Query]) -> Result<ShownReader> {
+    pub fn new(world: &World, points: &[Query]) -> Result<ShownReader> {
         let locator = SurfaceLocator::new(&world.geom, &world.bvh);
         let at = points
             .iter()
@@ -155,11 +163,11 @@ impl ShownReader {
         Ok(ShownReader { at })
     }
 
-    fn values(&self, shown: &ShownLightmap) -> Vec<DVec3> {
+    pub fn values(&self, shown: &ShownLightmap) -> Vec<DVec3> {
         self.at.iter().map(|&(p, uv)| shown.irradiance(p, uv).as_dvec3()).collect()
     }
 
-    fn error(&self, reference: &ReferencePoints, shown: &ShownLightmap) -> f64 {
+    pub fn error(&self, reference: &ReferencePoints, shown: &ShownLightmap) -> f64 {
         let got = self.values(shown);
         reference.relative_rms(|k| got[k])
     }
@@ -167,7 +175,7 @@ impl ShownReader {
 
 /// Median over the points of |E − E_ref| / |E_ref| (RGB lengths): the typical point, where
 /// the RMS is led by the worst.
-fn median_point_error(reference: &ReferencePoints, got: &[DVec3]) -> Option<f64> {
+pub(super) fn median_point_error(reference: &ReferencePoints, got: &[DVec3]) -> Option<f64> {
     let mut v: Vec<f64> = got
         .iter()
         .zip(&reference.e)
@@ -205,7 +213,7 @@ fn published_pixels(shown: &ShownLightmap) -> u64 {
     shown.levels.iter().flat_map(|l| l.rows.iter()).flat_map(|row| row.iter().flatten()).map(|p| p.valid as u64).sum()
 }
 
-fn quantile(v: &[f64], q: f64) -> Option<f64> {
+pub(super) fn quantile(v: &[f64], q: f64) -> Option<f64> {
     let mut v = v.to_vec();
     v.sort_by(f64::total_cmp);
     (!v.is_empty()).then(|| v[((v.len() - 1) as f64 * q).round() as usize])
@@ -214,32 +222,43 @@ fn quantile(v: &[f64], q: f64) -> Option<f64> {
 /// (seconds, directions, error) after each batch of a bake.
 type Curve = Vec<(f64, u64, f64)>;
 
-struct WholeBake {
-    texels: usize,
-    texel_size: f32,
-    curve: Curve,
+pub(super) struct WholeBake {
+    pub texels: usize,
+    pub texel_size: f32,
+    pub curve: Curve,
     /// E at the points after the last batch done within the budget.
-    values_at_t: Option<Vec<DVec3>>,
+    pub values_at_t: Option<Vec<DVec3>>,
+    /// The bake's peak bytes as `livebake bake` estimates them before allocating.
+    pub estimated_bytes: u64,
+    /// The most resident bytes seen after a batch, over those before the atlas (a lower bound
+    /// of its peak: sampled between batches).
+    pub sampled_peak_bytes: Option<u64>,
 }
 
 /// A whole-scene progressive bake of LOD 0 with `atlas_config` and the runtime's bundle
-/// settings, stopped at the first batch that ends after `budget` seconds: (seconds,
-/// directions, error) after every batch, on a clock started before the atlas.
-fn whole_bake(
+/// settings, stopped at the first batch that ends after `budget` seconds (or, with
+/// `stop_below`, whose error is at most that): (seconds, directions, error) after every
+/// batch, on a clock started before the atlas. Refused, like `livebake bake`, when its
+/// estimated peak exceeds the machine's memory limit.
+pub(super) fn whole_bake(
     scene: &Arc<Scene>,
     atlas_config: &AtlasConfig,
     points: &[Query],
     reference: &ReferencePoints,
     budget: f64,
+    stop_below: Option<f64>,
 ) -> Result<WholeBake> {
     let t = Instant::now();
+    let rss_before = resident_bytes();
     let runtime = RuntimeConfig::default();
     let geom = Arc::new(SceneGeometry::new(scene));
     let atlas = Arc::new(Atlas::build(scene, &geom, atlas_config)?);
     check_lod_sizes(&atlas, 1)?;
+    let bundle_config = livebake::bundle::BundleConfig { directions: 1 << 16, ..runtime.bundle.clone() };
+    let bundle = Arc::new(BundleScene::new(scene.clone(), geom.clone(), atlas.clone(), bundle_config.clone()));
+    let estimated_bytes = whole_bake_estimate(&atlas, !bundle.emitters.small.is_empty())?;
     let texels = TexelMap::build(scene, &geom, &atlas, 0);
     let bvh = Bvh::for_scene(scene, &geom);
-    let bundle_config = livebake::bundle::BundleConfig { directions: 1 << 16, ..runtime.bundle.clone() };
     check_node_capacity(&bvh, &bundle_config)?;
     let locate_bvh = Bvh::new(&geom);
     let locator = SurfaceLocator::new(&geom, &locate_bvh);
@@ -249,25 +268,55 @@ fn whole_bake(
         .enumerate()
         .map(|(k, q)| locator.locate(q.p, q.n).and_then(|at| lookup.taps(&at)).with_context(|| format!("point {k}")))
         .collect::<Result<Vec<_>>>()?;
-    let bundle = Arc::new(BundleScene::new(scene.clone(), geom.clone(), atlas.clone(), bundle_config));
     let threads = runtime.threads();
     let mut backend =
         CpuProvider::new().backend(&bundle, threads).map_err(|e| anyhow!("the bundle backend is unavailable: {e}"))?;
     let mut curve = Vec::new();
     let never = AtomicBool::new(false);
     let mut values_at_t = None;
+    let mut sampled_peak: Option<u64> = None;
     let mut observe = |done: &BatchDone| {
         let s = seconds(t);
+        if let (Some(now), Some(before)) = (resident_bytes(), rss_before) {
+            sampled_peak = Some(sampled_peak.unwrap_or(0).max(now.saturating_sub(before)));
+        }
         let got: Vec<DVec3> = taps.iter().map(|tap| tap.read(|i| done.estimate.irradiance_of(i)).as_dvec3()).collect();
-        curve.push((s, done.directions, reference.relative_rms(|k| got[k])));
+        let error = reference.relative_rms(|k| got[k]);
+        curve.push((s, done.directions, error));
         if s <= budget {
             values_at_t = Some(got);
         }
-        if s >= budget { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
+        let converged = stop_below.is_some_and(|bound| error <= bound);
+        if s >= budget || converged { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
     };
     bake_lod_observed(&bundle, &bvh, &mut backend, &texels, None, threads, &NoProgress, &never, &mut observe)
         .map_err(|_| anyhow!("the whole-scene bake was cancelled"))?;
-    Ok(WholeBake { texels: texels.len(), texel_size: atlas.texel_size, curve, values_at_t })
+    Ok(WholeBake {
+        texels: texels.len(),
+        texel_size: atlas.texel_size,
+        curve,
+        values_at_t,
+        estimated_bytes,
+        sampled_peak_bytes: sampled_peak,
+    })
+}
+
+/// The peak bytes `livebake bake` estimates for one LOD of `atlas` with the runtime's bundle
+/// settings (with or without the light pass); an error, as `livebake bake` refuses, beyond
+/// the machine's memory limit.
+pub(super) fn whole_bake_estimate(atlas: &Atlas, light_pass: bool) -> Result<u64> {
+    let config = BakeConfig { lods: 1, bundle: RuntimeConfig::default().bundle, ..BakeConfig::default() };
+    let estimate = memory::estimate(atlas, &config, light_pass);
+    let (limit, _) = memory::memory_limit(None);
+    if estimate.bytes > limit {
+        bail!(
+            "a whole-scene bake at {} m texels would hold about {} (limit {})",
+            atlas.texel_size,
+            memory::human_bytes(&estimate.bytes),
+            memory::human_bytes(&limit)
+        );
+    }
+    Ok(estimate.bytes)
 }
 
 /// The error a whole-scene bake shows at `t`: that of its last batch done by then.
@@ -281,6 +330,8 @@ fn whole_bake_json(bake: &WholeBake, reference: &ReferencePoints, t: f64, runtim
     json!({
         "texel_size_m": bake.texel_size,
         "texels": bake.texels,
+        "estimated_peak_bytes": bake.estimated_bytes,
+        "sampled_peak_bytes": bake.sampled_peak_bytes,
         "median_point_error_at_t": bake.values_at_t.as_ref().and_then(|v| median_point_error(reference, v)),
         "first_batch_seconds": curve.first().map(|c| c.0),
         "directions_at_t": at.map(|a| a.0),
@@ -370,10 +421,10 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
     let finest_near = point_lods.iter().fold(0.0f64, |a, &b| a.max(b)) as u32;
 
     ui.say(format!("  {name}: whole-scene bakes for {t_end:.1} s each ..."));
-    let lod0 = whole_bake(&scene, &config.atlas, &points, &reference, t_end)?;
+    let lod0 = whole_bake(&scene, &config.atlas, &points, &reference, t_end, None)?;
     let fine_atlas = AtlasConfig { texel_size: Some(world.texel_size(finest_near)), ..config.atlas.clone() };
     let fine = if finest_near > 0 {
-        let bake = whole_bake(&scene, &fine_atlas, &points, &reference, t_end)?;
+        let bake = whole_bake(&scene, &fine_atlas, &points, &reference, t_end, None)?;
         whole_bake_json(&bake, &reference, t_end, runtime_error)
     } else {
         Value::Null
