@@ -99,6 +99,8 @@ fn config() -> RuntimeConfig {
     };
     c.atlas.texel_budget = 12_000;
     c.bundle.directions = 64;
+    // First light is LOD 0 with all its directions: the clean maps compared are complete.
+    c.first_light_directions = c.bundle.directions;
     c
 }
 

@@ -171,7 +171,9 @@ fn cells_near_the_camera_reach_higher_lods_first() {
 #[test]
 fn a_cell_publishes_at_its_threshold_what_an_offline_bake_gives() {
     let scene = load(ROOM);
-    let config = RuntimeConfig { start_paused: true, ..room_config(1) };
+    // First light with all of LOD 0's directions: the map it shows is the one the bakes see.
+    let mut config = RuntimeConfig { start_paused: true, ..room_config(1) };
+    config.first_light_directions = config.bundle.directions;
     let runtime = Runtime::start(scene, config.clone(), Arc::new(CpuProvider::new())).expect("start");
     runtime.set_camera(corner_camera());
     runtime.wait_first_light(Duration::from_secs(60)).expect("first light");

@@ -50,6 +50,10 @@ pub struct RuntimeOptions {
     /// Estimated relative error at which a cell swaps.
     #[arg(long, value_name = "E")]
     pub error_bound: Option<f32>,
+    /// Directions of LOD 0 after which it is first shown (then again at twice as many, until
+    /// --samples).
+    #[arg(long, value_name = "N")]
+    pub first_light_directions: Option<u32>,
     /// Texels a bake gathers from neighbouring cells wanting the same LOD (0: one cell a bake).
     #[arg(long, value_name = "N")]
     pub group_texels: Option<u32>,
@@ -190,6 +194,9 @@ pub fn runtime_config(options: &SceneOptions, runtime: &RuntimeOptions) -> Resul
     }
     if let Some(n) = runtime.group_texels {
         config.group_texels = n;
+    }
+    if let Some(n) = runtime.first_light_directions {
+        config.first_light_directions = n;
     }
     config.validate()?;
     Ok(config)
@@ -446,6 +453,7 @@ fn runtime_report_config(options: &SceneOptions, run: &RunOptions) -> Value {
         "max_directions": run.runtime.max_directions,
         "error_bound": run.runtime.error_bound,
         "group_texels": run.runtime.group_texels,
+        "first_light_directions": run.runtime.first_light_directions,
         "seconds": run.seconds,
     })
 }

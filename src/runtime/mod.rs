@@ -57,6 +57,10 @@ pub struct RuntimeConfig {
     pub atlas: AtlasConfig,
     /// Bundle parameters; `directions` is the LOD-0 (first light) bake's direction count.
     pub bundle: BundleConfig,
+    /// LOD 0 is first shown after this many of its directions (first light), then again at
+    /// twice as many and so on until `bundle.directions`: light within a second that keeps
+    /// getting better.
+    pub first_light_directions: u32,
     /// LOD levels (LOD 0 … lods − 1); `None`: enough for [`FINEST_TEXEL`] texels.
     pub lods: Option<u32>,
     /// Grid cell side, metres; `None`: from the scene (a few thousand non-empty cells).
@@ -91,6 +95,7 @@ impl Default for RuntimeConfig {
         RuntimeConfig {
             atlas: AtlasConfig { texel_budget: 40_000, ..AtlasConfig::default() },
             bundle: BundleConfig { directions: 128, ..BundleConfig::default() },
+            first_light_directions: 32,
             lods: None,
             cell_size: None,
             memory_budget: default_memory_budget(),
@@ -141,8 +146,15 @@ impl RuntimeConfig {
         {
             return bad("--lods", format!("must be between 1 and {MAX_LODS}, got {k}"));
         }
-        if self.bundle.directions == 0 || self.min_directions == 0 || self.unit_directions == 0 {
-            return bad("--samples, --min-directions and the unit size", "must be at least 1".into());
+        if self.bundle.directions == 0
+            || self.min_directions == 0
+            || self.unit_directions == 0
+            || self.first_light_directions == 0
+        {
+            return bad(
+                "--samples, --first-light-directions, --min-directions and the unit size",
+                "must be at least 1".into(),
+            );
         }
         if self.max_directions < self.min_directions {
             return bad("--max-directions", format!("must be at least --min-directions ({})", self.min_directions));
@@ -193,10 +205,16 @@ pub enum RuntimeError {
 // `Stats` is the large variant; a few events a second, boxing it would only add noise.
 #[allow(clippy::large_enum_variant)]
 pub enum RuntimeEvent {
-    /// LOD 0 is published everywhere.
+    /// LOD 0 is published everywhere (first light), at `directions` directions: the first
+    /// `first_light_directions` of its progressive bake.
     FirstLight {
         texels: usize,
         directions: u32,
+    },
+    /// LOD 0 published again, its progressive bake having reached `directions` (twice as
+    /// many each time, then all of `--samples`); refinement starts after the last.
+    Lod0Published {
+        directions: u64,
     },
     /// A cell swapped to a finer LOD (or was refreshed at its LOD). Cells baked together are
     /// published at once, one event each; `group` lists them, its leader first (`[cell]`
@@ -270,6 +288,8 @@ pub struct RuntimeStats {
     /// Events dropped because nobody read the channel.
     pub dropped_events: u64,
     pub first_light_seconds: Option<f64>,
+    /// Bundle-pass counters and phase times of the LOD-0 bake (all its directions).
+    pub first_light_pass: crate::bundle::stats::PassStats,
     /// Bundle-pass counters and phase times summed over every unit of refinement.
     pub pass: crate::bundle::stats::PassStats,
     /// Seconds spent making cell texel maps and their punctual light.

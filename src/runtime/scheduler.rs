@@ -5,6 +5,7 @@
 //! camera, memory accounting), held only to decide and to publish, never while tracing.
 //! The shown light map is a separate snapshot pointer, swapped whole by each publish.
 
+use std::ops::ControlFlow;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard, RwLock};
 use std::time::{Duration, Instant};
@@ -17,7 +18,7 @@ use super::shown::{PageWriter, ShownLightmap};
 use super::world::World;
 use super::{RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
 use crate::atlas::lookup::TexelTable;
-use crate::bake::bundle::{BundleLodStats, bake_lod};
+use crate::bake::bundle::{BatchDone, BundleLodStats, bake_lod_observed};
 use crate::bundle::{BackendError, BundleBackend, BundleScene};
 use crate::grid::CellId;
 use crate::progress::NoProgress;
@@ -61,7 +62,12 @@ pub(super) struct State {
     pub paused: bool,
     /// A hot reload is re-baking LOD 0 of the cells it invalidated: workers wait.
     pub relighting: bool,
+    /// LOD 0 is shown (first light) ...
     pub first_light: bool,
+    /// ... and has all its directions: refinement may start.
+    pub lod0_done: bool,
+    /// Directions of the LOD 0 shown.
+    pub lod0_directions: u64,
     pub failed: Option<String>,
     pub bake_bytes: u64,
     /// Texel-samples traced since the last stats event.
@@ -79,6 +85,8 @@ impl State {
             paused,
             relighting: false,
             first_light: false,
+            lod0_done: false,
+            lod0_directions: 0,
             failed: None,
             bake_bytes: 0,
             window_samples: 0,
@@ -184,35 +192,71 @@ pub fn bake_first_light(
     world: &World,
     backend: &mut dyn BundleBackend,
     threads: usize,
-    mut map: ShownLightmap,
+    map: ShownLightmap,
     cancel: &AtomicBool,
 ) -> Result<(ShownLightmap, PixelLists, BundleLodStats), String> {
-    let baked = bake_lod(&world.bundle, &world.bvh, backend, &world.lod0, None, threads, &NoProgress, cancel)
-        .map_err(|e| e.to_string())?;
-    if baked.stats.pass.unplanned_directions > 0 {
-        return Err(format!("{} bundle directions could not be planned", baked.stats.pass.unplanned_directions));
-    }
+    bake_first_light_observed(world, backend, threads, map, cancel, &[], &mut |_, _, _| {})
+}
+
+/// [`bake_first_light`], handing out early results on the way: after the first batch that
+/// reaches each of `early` directions, `published(map, owned, directions)` gets `map` with
+/// the running estimate published (the progressive bake goes on: later directions only add
+/// to it).
+pub fn bake_first_light_observed(
+    world: &World,
+    backend: &mut dyn BundleBackend,
+    threads: usize,
+    map: ShownLightmap,
+    cancel: &AtomicBool,
+    early: &[u64],
+    published: &mut dyn FnMut(ShownLightmap, &PixelLists, u64),
+) -> Result<(ShownLightmap, PixelLists, BundleLodStats), String> {
     let lod0 = &world.lod0;
     let w = lod0.width;
     let pixels: Vec<[u32; 2]> = lod0.pixel.iter().map(|&p| [p % w, p / w]).collect();
     let table = TexelTable::of_map(lod0);
-    let direct = &baked.punctual;
-    let noisy: Vec<Rgb> = baked.irradiance.iter().zip(direct).map(|(e, d)| *e - *d).collect();
-    let values: Vec<Rgb> =
-        filter_within_charts(&pixels, |_| &table, &noisy).into_iter().zip(direct).map(|(n, d)| n + *d).collect();
     let cell_of: Vec<CellId> = lod0.position.iter().map(|&p| world.grid.cell_of(p)).collect();
     let mut owned = vec![Vec::new(); world.grid.len()];
-    let mut writer = PageWriter::new(&mut map);
     for (i, p) in pixels.iter().enumerate() {
-        writer.write(0, p[0], p[1], values[i]);
         owned[cell_of[i] as usize].push(*p);
     }
     for &(g, t) in &lod0.gutter {
-        let p = [g % w, g / w];
-        writer.write(0, p[0], p[1], values[t as usize]);
-        owned[cell_of[t as usize] as usize].push(p);
+        owned[cell_of[t as usize] as usize].push([g % w, g / w]);
     }
-    writer.finish();
+    // The published values: the noisy part (bundles, light pass) filtered within charts, plus
+    // the exact punctual part.
+    let publish = |mut map: ShownLightmap, irradiance: &dyn Fn(usize) -> Rgb, direct: &[Rgb]| {
+        let noisy: Vec<Rgb> = (0..pixels.len()).map(|i| irradiance(i) - direct[i]).collect();
+        let values: Vec<Rgb> =
+            filter_within_charts(&pixels, |_| &table, &noisy).into_iter().zip(direct).map(|(n, d)| n + *d).collect();
+        let mut writer = PageWriter::new(&mut map);
+        for (i, p) in pixels.iter().enumerate() {
+            writer.write(0, p[0], p[1], values[i]);
+        }
+        for &(g, t) in &lod0.gutter {
+            writer.write(0, g % w, g / w, values[t as usize]);
+        }
+        writer.finish();
+        map
+    };
+    let mut next = early.iter().copied().filter(|&d| d > 0).min();
+    let mut observe = |done: &BatchDone| {
+        if let Some(at) = next
+            && done.directions >= at
+        {
+            let e = done.estimate;
+            published(publish(map.clone(), &|i| e.irradiance_of(i), e.punctual()), &owned, done.directions);
+            next = early.iter().copied().filter(|&d| d > done.directions).min();
+        }
+        ControlFlow::Continue(())
+    };
+    let baked =
+        bake_lod_observed(&world.bundle, &world.bvh, backend, lod0, None, threads, &NoProgress, cancel, &mut observe)
+            .map_err(|e| e.to_string())?;
+    if baked.stats.pass.unplanned_directions > 0 {
+        return Err(format!("{} bundle directions could not be planned", baked.stats.pass.unplanned_directions));
+    }
+    let map = publish(map, &|i| baked.irradiance[i], &baked.punctual);
     Ok((map, owned, baked.stats))
 }
 
@@ -222,12 +266,59 @@ pub fn empty_shown(world: &World) -> ShownLightmap {
     ShownLightmap::new(world.grid, world.atlas.width, world.atlas.height, world.lods, blend_band)
 }
 
-/// Bakes LOD 0 of the whole scene on every core and publishes it (first light).
+/// Bakes LOD 0 of the whole scene on every core and publishes it: first light after
+/// `first_light_directions` (progressive: the bake goes on), then again at twice as many
+/// directions and so on, and when the bake has all its directions; refinement starts then.
 pub(super) fn first_light(shared: &Shared) {
     let world = shared.lock().world.clone();
     let threads = shared.config.threads();
+    let total = shared.config.bundle.directions as u64;
+    let mut early = Vec::new();
+    let mut d = (shared.config.first_light_directions as u64).max(1);
+    while d < total {
+        early.push(d);
+        d *= 2;
+    }
+    let generation = shared.lock().generation;
+    let mut show = |map: ShownLightmap, owned: &PixelLists, directions: u64| {
+        let mut st = shared.lock();
+        if st.generation != generation {
+            // A hot reload replaced the world meanwhile: it published its own light.
+            return;
+        }
+        shared.set_shown(map);
+        let first = !st.first_light;
+        for (c, pixels) in owned.iter().enumerate() {
+            let cell = &mut st.cells[c];
+            cell.history = vec![(directions, f32::NAN)];
+            if first {
+                cell.published = vec![pixels.clone()];
+            }
+        }
+        st.lod0_directions = directions;
+        if first {
+            st.first_light = true;
+            st.stats.first_light_seconds = Some(shared.started.elapsed().as_secs_f64());
+            update_views(shared, &mut st);
+        }
+        drop(st);
+        shared.wake.notify_all();
+        shared.emit(if first {
+            RuntimeEvent::FirstLight { texels: world.lod0.len(), directions: directions as u32 }
+        } else {
+            RuntimeEvent::Lod0Published { directions }
+        });
+    };
     let result = (shared.make_backend)(&world.bundle, threads).map_err(|e| e.to_string()).and_then(|mut backend| {
-        bake_first_light(&world, backend.as_mut(), threads, empty_shown(&world), &shared.shutdown)
+        bake_first_light_observed(
+            &world,
+            backend.as_mut(),
+            threads,
+            empty_shown(&world),
+            &shared.shutdown,
+            &early,
+            &mut show,
+        )
     });
     let (map, owned, stats) = match result {
         Ok(r) => r,
@@ -240,20 +331,14 @@ pub(super) fn first_light(shared: &Shared) {
             return;
         }
     };
+    show(map, &owned, stats.directions);
     let mut st = shared.lock();
-    shared.set_shown(map);
-    for (c, pixels) in owned.into_iter().enumerate() {
-        let cell = &mut st.cells[c];
-        cell.history = vec![(stats.directions, f32::NAN)];
-        cell.published = vec![pixels];
-    }
+    st.lod0_done = true;
     st.first_light = true;
-    st.stats.first_light_seconds = Some(shared.started.elapsed().as_secs_f64());
     st.stats.directions_traced += stats.directions;
-    update_views(shared, &mut st);
+    st.stats.first_light_pass = stats.pass.clone();
     drop(st);
     shared.wake.notify_all();
-    shared.emit(RuntimeEvent::FirstLight { texels: world.lod0.len(), directions: shared.config.bundle.directions });
 }
 
 /// What a worker takes: cells (the first leads), the LOD to bake them at, and their bake if
@@ -478,7 +563,7 @@ pub(super) fn worker(shared: &Shared) {
                 if shared.shutdown.load(Ordering::SeqCst) {
                     return;
                 }
-                if st.first_light && !st.paused && !st.relighting && st.failed.is_none() {
+                if st.lod0_done && !st.paused && !st.relighting && st.failed.is_none() {
                     if let Some(job) = pick(shared, &mut st) {
                         break job;
                     }

@@ -378,6 +378,8 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
     let mut swaps: Vec<(f64, u32, u64, f32)> = Vec::new();
     let mut stats: Vec<(f64, RuntimeStats)> = Vec::new();
     let mut evictions = 0;
+    // LOD 0 with all its directions (first light shows the first few of them).
+    let mut lod0_complete: Option<(f64, Arc<ShownLightmap>)> = None;
     let mut snapshots = vec![(t_light, light_shown.clone())];
     let mut next_snapshot = t_light + 1.0;
     let end = t_light + refine;
@@ -396,6 +398,9 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
                 RuntimeEvent::CellPublished { lod, directions, error, .. } => swaps.push((e.t, lod, directions, error)),
                 RuntimeEvent::CellEvicted { .. } => evictions += 1,
                 RuntimeEvent::Stats(s) => stats.push((e.t, s)),
+                RuntimeEvent::Lod0Published { directions } if directions >= config.bundle.directions as u64 => {
+                    lod0_complete = Some((e.t, runtime.shown()));
+                }
                 _ => {}
             }
         }
@@ -475,6 +480,10 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
             "seconds": first,
             "texels": texels,
             "cells": cells.len(),
+            "directions": config.first_light_directions.min(config.bundle.directions),
+            "lod0_complete_seconds": lod0_complete.as_ref().map(|l| l.0),
+            "lod0_directions": config.bundle.directions,
+            "first_light_pass": end_stats.first_light_pass,
         },
         "refinement": {
             "seconds": refine_seconds,
@@ -516,6 +525,7 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
             "shown_lod_at_points": { "median": quantile(&point_lods, 0.5), "max": finest_near },
             "t_seconds": t_end,
             "runtime_at_first_light": reader.error(&reference, &light_shown),
+            "runtime_at_lod0_complete": lod0_complete.as_ref().map(|l| reader.error(&reference, &l.1)),
             "runtime_at_t": runtime_error,
             "runtime_median_point_error_at_t": median_point_error(&reference, &reader.values(&shown)),
             "runtime_worst_points_at_t": worst_points(&reference, &reader.values(&shown), 3),
