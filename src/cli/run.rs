@@ -50,6 +50,10 @@ pub struct RuntimeOptions {
     /// Estimated relative error at which a cell swaps.
     #[arg(long, value_name = "E")]
     pub error_bound: Option<f32>,
+    /// Directions of a hot reload's quick re-bake of the cells it invalidated (default 32);
+    /// they are re-baked with --samples right after. At least --samples: one full re-bake.
+    #[arg(long, value_name = "N")]
+    pub reload_directions: Option<u32>,
 }
 
 /// Options of `run` itself.
@@ -184,6 +188,9 @@ pub fn runtime_config(options: &SceneOptions, runtime: &RuntimeOptions) -> Resul
     }
     if let Some(e) = runtime.error_bound {
         config.error_bound = e;
+    }
+    if let Some(d) = runtime.reload_directions {
+        config.reload_directions = d;
     }
     config.validate()?;
     Ok(config)
@@ -439,6 +446,7 @@ fn runtime_report_config(options: &SceneOptions, run: &RunOptions) -> Value {
         "min_directions": run.runtime.min_directions,
         "max_directions": run.runtime.max_directions,
         "error_bound": run.runtime.error_bound,
+        "reload_directions": run.runtime.reload_directions,
         "seconds": run.seconds,
     })
 }

@@ -41,6 +41,9 @@ pub(super) struct CellState {
     pub baking_directions: u64,
     /// Its light is older than the scene (hot reload): refresh it when nothing is more urgent.
     pub stale: bool,
+    /// Its LOD 0 is a hot reload's quick re-bake (fewer directions than first light): re-bake
+    /// LOD 0 with first light's directions before anything else.
+    pub provisional: bool,
     /// Directions and error of each shown level (index = LOD).
     pub history: Vec<(u64, f32)>,
     /// Pixels written at each LOD (index = LOD), to withdraw or replace them.
@@ -56,6 +59,8 @@ pub(super) struct State {
     pub paused: bool,
     /// A hot reload is re-baking LOD 0 of the cells it invalidated: workers wait.
     pub relighting: bool,
+    /// Provisional cells still to re-bake at full quality, since the last reload.
+    pub refining: Option<Refining>,
     pub first_light: bool,
     pub failed: Option<String>,
     pub bake_bytes: u64,
@@ -73,6 +78,7 @@ impl State {
             camera: None,
             paused,
             relighting: false,
+            refining: None,
             first_light: false,
             failed: None,
             bake_bytes: 0,
@@ -80,6 +86,14 @@ impl State {
             stats: RuntimeStats::default(),
         }
     }
+}
+
+/// A hot reload that published cells provisionally (see [`CellState::provisional`]):
+/// `left` counts the provisional cells (this reload's and any an earlier one left);
+/// `reload_refined` is sent when none is.
+pub(super) struct Refining {
+    pub seen_at: Instant,
+    pub left: usize,
 }
 
 pub(super) struct Shared {
@@ -146,7 +160,7 @@ pub(super) fn current_stats(shared: &Shared, st: &mut State) -> RuntimeStats {
     for c in world.non_empty_cells() {
         let cell = &st.cells[c as usize];
         s.cells_per_lod[(cell.shown as usize).min(world.lods as usize - 1)] += 1;
-        s.queue += usize::from(cell.target > cell.shown || cell.stale);
+        s.queue += usize::from(cell.target > cell.shown || cell.stale || cell.provisional);
         s.baking += usize::from(cell.bake.is_some() || cell.busy);
     }
     s.page_bytes = shown.page_bytes() as u64;
@@ -260,10 +274,13 @@ struct Job {
     bake: Option<Box<CellBake>>,
 }
 
-/// The LOD a cell's next bake is at: the next finer one below its target, else (a stale
-/// cell at its target) its shown LOD again, to refresh it.
+/// The LOD a cell's next bake is at: LOD 0 again for a provisional cell (its quick re-bake
+/// is replaced before it is refined on), the next finer one below its target, else (a
+/// stale cell at its target) its shown LOD again, to refresh it.
 fn next_lod(s: &CellState) -> Option<u32> {
-    if s.target > s.shown {
+    if s.provisional {
+        Some(0)
+    } else if s.target > s.shown {
         Some(s.shown + 1)
     } else if s.stale {
         Some(s.shown)
@@ -280,8 +297,9 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
     let key = |st: &State, c: CellId| {
         let s = &st.cells[c as usize];
         let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
-        // Refinement before refreshing stale light (hot reload), then the policy's order.
-        (s.target <= s.shown, priority(view, s.shown, false), c)
+        // A reload's provisional cells first (the change is shown at full quality soonest),
+        // refinement before refreshing stale light, then the policy's order.
+        (!s.provisional, s.target <= s.shown, priority(view, s.shown, false), c)
     };
     let c = world
         .non_empty_cells()
@@ -454,15 +472,24 @@ pub(super) fn worker(shared: &Shared) {
         let c = &shared.config;
         let error = bake.error();
         let d = bake.directions();
-        let ready = d >= c.max_directions as u64 || (d >= c.min_directions as u64 && error <= c.error_bound);
+        let ready = if bake.lod == 0 && st.cells[cell as usize].provisional {
+            // Replacing a reload's quick LOD 0: with first light's directions, as LOD 0 is
+            // everywhere else.
+            d >= c.bundle.directions as u64
+        } else {
+            d >= c.max_directions as u64 || (d >= c.min_directions as u64 && error <= c.error_bound)
+        };
         if ready {
             st.bake_bytes -= bake.bytes() as u64;
-            publish(shared, &mut st, &bake, error);
+            let refined = publish(shared, &mut st, &bake, error);
             let s = &mut st.cells[cell as usize];
             s.busy = false;
             s.baking_directions = 0;
             drop(st);
             shared.emit(RuntimeEvent::CellPublished { cell, lod: bake.lod, directions: d, error });
+            if let Some(ms) = refined {
+                shared.emit(RuntimeEvent::ReloadRefined { ms, directions: c.bundle.directions });
+            }
         } else {
             let s = &mut st.cells[cell as usize];
             s.busy = false;
@@ -501,8 +528,9 @@ fn publish_texels(map: &mut ShownLightmap, bake: &CellBake, values: &[Rgb], repl
     pixels
 }
 
-/// Publishes a converged bake in one new snapshot.
-fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32) {
+/// Publishes a converged bake in one new snapshot. Returns the milliseconds since the change
+/// was seen when this was the last provisional cell of a reload (`reload_refined`).
+fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32) -> Option<f64> {
     let values = bake.result();
     let lod = bake.lod as usize;
     let cell = &mut st.cells[bake.cell as usize];
@@ -512,11 +540,27 @@ fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32) {
     shared.set_shown(map);
     cell.shown = bake.lod;
     cell.stale = false;
+    // (A provisional cell's next bake is at LOD 0: `next_lod`.)
+    let was_provisional = cell.provisional && bake.lod == 0;
+    if was_provisional {
+        cell.provisional = false;
+    }
     cell.history.resize(lod + 1, (0, f32::INFINITY));
     cell.history[lod] = (bake.directions(), error);
     cell.published.resize(lod + 1, Vec::new());
     cell.published[lod] = pixels;
     st.stats.publishes += 1;
+    if !was_provisional {
+        return None;
+    }
+    let r = st.refining.as_mut()?;
+    r.left = r.left.saturating_sub(1);
+    if r.left > 0 {
+        return None;
+    }
+    let ms = r.seen_at.elapsed().as_secs_f64() * 1e3;
+    st.refining = None;
+    Some(ms)
 }
 
 pub(super) fn clock_thread(shared: &Shared) {
