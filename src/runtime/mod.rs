@@ -247,9 +247,11 @@ pub enum RuntimeEvent {
         ms: f64,
         directions: u32,
     },
-    /// Every cell the last reload invalidated has been re-baked at LOD 0 with first light's
-    /// directions (`ms` from the change being seen). Not sent when the relight already had
-    /// them, nor for a reload superseded by the next one before it got there.
+    /// No cell is provisional any more: every cell the last reload invalidated (and any an
+    /// earlier reload left provisional) has been re-baked at LOD 0 with first light's
+    /// `directions` (`ms` from the last change being seen). Not sent when the relight
+    /// already had them; a reload superseded before it got there is covered by the next
+    /// one's.
     ReloadRefined {
         ms: f64,
         directions: u32,
