@@ -57,6 +57,10 @@ pub struct RuntimeOptions {
     /// Texels a bake gathers from neighbouring cells wanting the same LOD (0: one cell a bake).
     #[arg(long, value_name = "N")]
     pub group_texels: Option<u32>,
+    /// Directions of a hot reload's quick re-bake of the cells it invalidated (default 32);
+    /// they are re-baked with --samples right after. At least --samples: one full re-bake.
+    #[arg(long, value_name = "N")]
+    pub reload_directions: Option<u32>,
 }
 
 /// Options of `run` itself.
@@ -197,6 +201,9 @@ pub fn runtime_config(options: &SceneOptions, runtime: &RuntimeOptions) -> Resul
     }
     if let Some(n) = runtime.first_light_directions {
         config.first_light_directions = n;
+    }
+    if let Some(d) = runtime.reload_directions {
+        config.reload_directions = d;
     }
     config.validate()?;
     Ok(config)
@@ -454,6 +461,7 @@ fn runtime_report_config(options: &SceneOptions, run: &RunOptions) -> Value {
         "error_bound": run.runtime.error_bound,
         "group_texels": run.runtime.group_texels,
         "first_light_directions": run.runtime.first_light_directions,
+        "reload_directions": run.runtime.reload_directions,
         "seconds": run.seconds,
     })
 }

@@ -43,6 +43,7 @@ use shown::ShownLightmap;
 use world::World;
 
 pub use policy::CameraView;
+pub use reload::{MIN_MARGIN_TEXELS, invalidation_margin};
 pub use scheduler::{MakeBackend, bake_first_light, empty_shown, publish_bake};
 
 /// Most LOD levels (LOD 0 … 7: 128× the LOD-0 resolution).
@@ -79,6 +80,11 @@ pub struct RuntimeConfig {
     /// there are such cells), at most twice that: a bundle direction costs about as much for
     /// a few texels as for thousands, so small cells are baked in groups. 0: one cell a bake.
     pub group_texels: u32,
+    /// Directions of a hot reload's first re-bake of the cells it invalidated (published at
+    /// once: `reload_relit`); those cells are then re-baked at LOD 0 with `bundle.directions`
+    /// (first light's count) before any other work (`reload_refined`). When it is at least
+    /// `bundle.directions`, the first re-bake is the final one.
+    pub reload_directions: u32,
     /// Screen pixels a texel may cover before the cell wants a finer LOD.
     pub texel_pixels: f32,
     /// Worker threads; `None`: every core.
@@ -104,6 +110,9 @@ impl Default for RuntimeConfig {
             error_bound: 0.03,
             unit_directions: 4,
             group_texels: 4096,
+            // A quarter of first light's: the re-bake's cost is about proportional to its
+            // directions, and 32 is the least a refinement publishes with (min_directions).
+            reload_directions: 32,
             texel_pixels: 2.0,
             threads: None,
             start_paused: false,
@@ -150,9 +159,10 @@ impl RuntimeConfig {
             || self.min_directions == 0
             || self.unit_directions == 0
             || self.first_light_directions == 0
+            || self.reload_directions == 0
         {
             return bad(
-                "--samples, --first-light-directions, --min-directions and the unit size",
+                "--samples, --first-light-directions, --min-directions, --reload-directions and the unit size",
                 "must be at least 1".into(),
             );
         }
@@ -241,22 +251,57 @@ pub enum RuntimeEvent {
         paths: Vec<String>,
     },
     /// The new scene is served (`ms` from the change being seen): its changed meshes, the
-    /// cells reset to LOD 0 around them, whether the atlas had to be packed anew.
+    /// cells reset to LOD 0 around them, whether the atlas had to be packed anew, and where
+    /// the time went.
     ReloadApplied {
         changed_meshes: usize,
         invalidated_cells: usize,
         repacked: bool,
         ms: f64,
+        steps_ms: ReloadSteps,
     },
-    /// Every invalidated cell is published again at LOD 0 (`ms` from the change being seen).
+    /// Every invalidated cell is published again at LOD 0 (`ms` from the change being seen),
+    /// baked with `directions` ([`RuntimeConfig::reload_directions`], or first light's count
+    /// when that is no more).
     ReloadRelit {
         ms: f64,
+        directions: u32,
+    },
+    /// No cell is provisional any more: every cell the last reload invalidated (and any an
+    /// earlier reload left provisional) has been re-baked at LOD 0 with first light's
+    /// `directions` (`ms` from the last change being seen). Not sent when the relight
+    /// already had them; a reload superseded before it got there is covered by the next
+    /// one's.
+    ReloadRefined {
+        ms: f64,
+        directions: u32,
     },
     /// The change could not be loaded; the last good scene is still served.
     ReloadFailed {
         path: String,
         error: String,
     },
+}
+
+/// Where a reload's time went, milliseconds (each step in the order `reload::apply` runs
+/// them; their sum is about `reload_applied.ms`).
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct ReloadSteps {
+    /// From the change being seen to the new scene reaching the runtime (the watcher's quiet
+    /// time, the load).
+    pub load: f64,
+    /// Diffing the scenes and the new scene's geometry.
+    pub diff: f64,
+    /// The atlas update.
+    pub atlas: f64,
+    /// The new world: BVH, the cells' triangle lists, the LOD-0 texels, the bundle scene.
+    pub world: f64,
+    /// The re-baked region's texels and their punctual light.
+    pub region: f64,
+    /// The LOD-0 re-bake itself (bundles).
+    pub bake: f64,
+    /// Filtering, publishing and swapping the new world in.
+    pub publish: f64,
 }
 
 /// An event and when it happened (seconds since [`Runtime::start`]).
@@ -270,7 +315,7 @@ pub struct TimedEvent {
 pub struct RuntimeStats {
     /// Non-empty cells shown at each LOD.
     pub cells_per_lod: Vec<usize>,
-    /// Non-empty cells below their target LOD.
+    /// Non-empty cells with work waiting: below their target LOD, stale or provisional.
     pub queue: usize,
     /// Cells with a bake in progress.
     pub baking: usize,
@@ -310,6 +355,9 @@ pub struct CellInfo {
     pub working: bool,
     /// Its light predates the last hot reload (it will be refreshed).
     pub stale: bool,
+    /// Its LOD 0 is a hot reload's quick re-bake (fewer directions than first light); it is
+    /// re-baked at full quality before anything else.
+    pub provisional: bool,
     /// Directions and estimated error of the shown LOD.
     pub directions: u64,
     pub error: f32,
@@ -482,6 +530,7 @@ impl Runtime {
                     baking_directions: s.baking_directions,
                     working: s.busy,
                     stale: s.stale,
+                    provisional: s.provisional,
                     directions,
                     error,
                     texels: world.lod0_texels[c as usize],

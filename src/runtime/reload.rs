@@ -3,14 +3,19 @@
 //! What a change invalidates (docs/ARCHITECTURE.md "Hot reload"):
 //! * meshes moved, edited, added or removed: the atlas is updated in place (unchanged
 //!   meshes keep their charts, so their published pages stay valid); the cells meeting the
-//!   changed meshes' old or new bounds, grown by [`INVALIDATION_MARGIN_CELLS`] cells for
-//!   shadows and bounce, drop to LOD 0 and are re-baked first — one progressive bake of all
-//!   their LOD-0 texels together (multi-bounce among them as at first light; the rest of the
-//!   scene seen through the shown map). Every other cell keeps its LOD but is marked stale:
-//!   its indirect light predates the change; a stale cell is refreshed (re-baked at its
-//!   shown LOD) when no refinement is waiting, or refined (which refreshes it too);
+//!   changed meshes' old or new bounds, grown by the mesh's own size for its shadows and
+//!   bounce ([`invalidation_margin`]), drop to LOD 0 and are re-baked first — one progressive
+//!   bake of all their LOD-0 texels together (multi-bounce among them as at first light; the
+//!   rest of the scene seen through the shown map) with
+//!   [`reload_directions`](super::RuntimeConfig::reload_directions), a quarter of first
+//!   light's by default. They are published at once and marked provisional: the workers
+//!   re-bake each at LOD 0 with first light's directions before any other work
+//!   (`reload_refined` when none is left). Every other cell keeps its LOD but is marked
+//!   stale: its indirect light predates the change; a stale cell is refreshed (re-baked at
+//!   its shown LOD) when no refinement is waiting, or refined (which refreshes it too);
 //! * a light, the sky or a material changed, or nothing fitted in the atlas (a full repack):
-//!   everything is affected; LOD 0 is re-baked everywhere at once, keeping the grid.
+//!   everything is affected; LOD 0 is re-baked everywhere at once with first light's
+//!   directions, keeping the grid.
 //!
 //! The new world is served (`reload_applied`) once its LOD 0 is published where it was
 //! invalidated (`reload_relit`); until then the old one is, so nothing is ever half applied.
@@ -24,23 +29,46 @@ use std::time::Instant;
 use glam::Vec3;
 
 use super::cell_bake::filter_within_charts;
-use super::scheduler::{CellState, Shared, bake_first_light, empty_shown, update_views};
+use super::scheduler::{CellState, Refining, Shared, bake_first_light, empty_shown, update_views};
 use super::shown::{PageWriter, ShownLightmap};
 use super::source::ShownSource;
 use super::world::World;
-use super::{RuntimeError, RuntimeEvent};
+use super::{ReloadSteps, RuntimeError, RuntimeEvent};
 use crate::atlas::Atlas;
 use crate::atlas::sparse::SparseTexels;
 use crate::atlas::update::MeshOrigin;
 use crate::bake::bundle::{Region, bake_region};
+use crate::bundle::{BundleConfig, BundleScene};
 use crate::grid::CellId;
 use crate::progress::NoProgress;
 use crate::scene::{Rgb, Scene, SceneGeometry};
-use crate::watch::{SceneDiff, SceneWatcher, WatchEvent};
+use crate::watch::{Aabb, SceneDiff, SceneWatcher, WatchEvent};
 
-/// Cells around a changed mesh's bounds that are re-baked with it: its shadows and the light
-/// it bounces reach its neighbourhood first. Farther cells are refreshed later (stale).
-pub const INVALIDATION_MARGIN_CELLS: f32 = 2.0;
+/// How far around a changed mesh's bounds (old or new) the cells re-baked with it reach,
+/// metres: the mesh's own size (the largest side of those bounds), at least
+/// [`MIN_MARGIN_TEXELS`] LOD-0 texels. Farther cells keep their light, marked stale, and are
+/// refreshed later.
+///
+/// Why its size: what a mesh changes around it is the light it blocks and the light it
+/// bounces. Seen from a point at distance `d` beyond its bounds, a mesh of size `s` covers
+/// a solid angle of about `s² / (d + s/2)²`: at `d = s` some 0.44 sr, at most 14 % of the
+/// cosine-weighted hemisphere (and much less at the grazing angles of the floor or wall it
+/// stands on), so the change there is a few per cent of the irradiance and falls off as
+/// `1/d²` beyond. Its shadow under a light above it reaches about its height beyond its
+/// footprint. A margin in cells (the rule before) grew with the grid, not the change: cells
+/// are at least 16 LOD-0 texels wide, so two of them covered most of a small room for a
+/// 0.1 m move. What this leaves out — a long shadow cast by a low light, the faint bounce
+/// beyond — is in the stale cells, refreshed at lower priority (see the module docs).
+pub fn invalidation_margin(bounds: &Aabb, texel0: f32) -> f32 {
+    let size = (bounds.max - bounds.min).max_element();
+    let floor = MIN_MARGIN_TEXELS * texel0;
+    if size.is_finite() { size.max(floor) } else { floor }
+}
+
+/// The least invalidation margin, in LOD-0 texels: the texels touching a changed surface,
+/// and their filter neighbours (the published LOD 0 is filtered over 3×3 texels), are
+/// re-baked even for a flat or tiny mesh.
+pub const MIN_MARGIN_TEXELS: f32 = 2.0;
 
 pub(super) fn watch_thread(shared: &Shared, watcher: SceneWatcher) {
     loop {
@@ -70,15 +98,29 @@ pub(super) fn watch_thread(shared: &Shared, watcher: SceneWatcher) {
 
 /// Replaces the world with `scene`'s (see the module docs).
 pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Result<(), RuntimeError> {
+    let ms = || seen_at.elapsed().as_secs_f64() * 1e3;
+    let mut steps = ReloadSteps { load: ms(), ..ReloadSteps::default() };
+    let mut clock = Instant::now();
+    let mut lap = |step: &mut f64| {
+        *step = clock.elapsed().as_secs_f64() * 1e3;
+        clock = Instant::now();
+    };
     let old = shared.lock().world.clone();
     let diff = SceneDiff::between(&old.scene, &scene);
-    let ms = || seen_at.elapsed().as_secs_f64() * 1e3;
     if diff.is_empty() {
-        shared.emit(RuntimeEvent::ReloadApplied { changed_meshes: 0, invalidated_cells: 0, repacked: false, ms: ms() });
-        shared.emit(RuntimeEvent::ReloadRelit { ms: ms() });
+        lap(&mut steps.diff);
+        shared.emit(RuntimeEvent::ReloadApplied {
+            changed_meshes: 0,
+            invalidated_cells: 0,
+            repacked: false,
+            ms: ms(),
+            steps_ms: steps,
+        });
+        shared.emit(RuntimeEvent::ReloadRelit { ms: ms(), directions: 0 });
         return Ok(());
     }
     let geom = Arc::new(SceneGeometry::new(&scene));
+    lap(&mut steps.diff);
     let mut origins = vec![MeshOrigin::Added; scene.meshes.len()];
     for &(o, n) in &diff.unchanged {
         origins[n] = MeshOrigin::Unchanged(o as u32);
@@ -87,19 +129,23 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
         origins[c.new] = MeshOrigin::Changed(c.old as u32);
     }
     let (atlas, update) = Atlas::update(&old.atlas, &scene, &geom, &shared.config.atlas, &origins)?;
+    lap(&mut steps.atlas);
     let changed_meshes = diff.changed.len() + diff.added.len() + diff.removed.len();
     let everything = diff.lights_changed || diff.sky_changed || diff.materials_changed;
     let relaid = update.repacked || atlas.width != old.atlas.width;
     let world = Arc::new(World::with_grid(scene, geom, Arc::new(atlas), &shared.config, old.grid)?);
     let grid = world.grid;
+    lap(&mut steps.world);
 
     // The cells to re-bake at LOD 0.
     let invalid: BTreeSet<CellId> = if everything || relaid {
         world.non_empty_cells().collect()
     } else {
-        let margin = INVALIDATION_MARGIN_CELLS * grid.cell_size;
-        let mut set: BTreeSet<CellId> =
-            diff.touched_bounds().flat_map(|b| grid.cells_meeting(b.min, b.max, margin).collect::<Vec<_>>()).collect();
+        let texel0 = world.texel_size(0);
+        let mut set: BTreeSet<CellId> = diff
+            .touched_bounds()
+            .flat_map(|b| grid.cells_meeting(b.min, b.max, invalidation_margin(&b, texel0)).collect::<Vec<_>>())
+            .collect();
         // Cells that gained or lost all their texels.
         set.extend(
             (0..grid.len() as u32)
@@ -110,16 +156,30 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
     };
 
     let threads = shared.config.threads();
-    let mut backend =
-        (shared.make_backend)(&world.bundle, threads).map_err(|e| RuntimeError::Backend(e.to_string()))?;
+    let full = everything || relaid;
+    // The invalidated cells are first re-baked quickly, with `reload_directions`, and marked
+    // provisional: the workers re-bake them with first light's directions before anything
+    // else. A change to everything re-bakes LOD 0 everywhere at full quality at once.
+    let full_directions = shared.config.bundle.directions;
+    let directions = if full { full_directions } else { shared.config.reload_directions.min(full_directions) };
+    let provisional = directions < full_directions;
+    let quick = if directions == full_directions {
+        world.bundle.clone()
+    } else {
+        let config = BundleConfig { directions, ..world.bundle.config.clone() };
+        Arc::new(BundleScene::new(world.scene.clone(), world.geom.clone(), world.atlas.clone(), config))
+    };
+    let mut backend = (shared.make_backend)(&quick, threads).map_err(|e| RuntimeError::Backend(e.to_string()))?;
     // Pause the workers: the re-bake takes every core, and nothing may be published into
     // the map being rebuilt.
     shared.lock().relighting = true;
     let result = if everything || relaid {
-        bake_first_light(&world, backend.as_mut(), threads, empty_shown(&world), &shared.shutdown)
-            .map(|(map, owned, _)| (map, owned))
+        let r = bake_first_light(&world, backend.as_mut(), threads, empty_shown(&world), &shared.shutdown)
+            .map(|(map, owned, _)| (map, owned));
+        lap(&mut steps.bake);
+        r
     } else {
-        relight(shared, &world, backend.as_mut(), &invalid, threads)
+        relight(shared, &world, &quick, backend.as_mut(), &invalid, threads, &mut lap, &mut steps)
     };
     let mut st = shared.lock();
     st.relighting = false;
@@ -142,42 +202,62 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
         s.baking_directions = 0;
     }
     st.bake_bytes = 0;
-    let full = everything || relaid;
     for c in 0..grid.len() as u32 {
         let s = &mut st.cells[c as usize];
         if full || invalid.contains(&c) {
             let busy = s.busy;
-            *s = CellState { busy, ..CellState::default() };
-            s.history = vec![(shared.config.bundle.directions as u64, f32::NAN)];
+            *s = CellState { busy, provisional, ..CellState::default() };
+            s.history = vec![(directions as u64, f32::NAN)];
             s.published = vec![owned[c as usize].clone()];
         } else if world.lod0_texels[c as usize] > 0 {
             s.stale = true;
         }
     }
+    // Provisional cells an earlier reload left (not invalidated this time) are still so.
+    let left = world.non_empty_cells().filter(|&c| st.cells[c as usize].provisional).count();
+    st.refining = (left > 0).then_some(Refining { seen_at, left });
     update_views(shared, &mut st);
     shared.set_shown(map);
     drop(st);
     shared.wake.notify_all();
     let t = ms();
+    lap(&mut steps.publish);
+    tracing::debug!(
+        "reload: {} cells re-baked in {t:.0} ms: load {:.0}, diff {:.0}, atlas {:.0}, world {:.0}, region {:.0}, \
+         bake {:.0}, publish {:.0} ms",
+        invalid.len(),
+        steps.load,
+        steps.diff,
+        steps.atlas,
+        steps.world,
+        steps.region,
+        steps.bake,
+        steps.publish
+    );
     shared.emit(RuntimeEvent::ReloadApplied {
         changed_meshes,
         invalidated_cells: invalid.len(),
         repacked: relaid,
         ms: t,
+        steps_ms: steps,
     });
-    shared.emit(RuntimeEvent::ReloadRelit { ms: t });
+    shared.emit(RuntimeEvent::ReloadRelit { ms: t, directions });
     Ok(())
 }
 
 /// Re-bakes LOD 0 of the `invalid` cells of the new `world` together and returns the shown
 /// map with it published and every other cell's levels kept, and the LOD-0 pixels each cell
 /// owns (for the invalid cells).
+#[allow(clippy::too_many_arguments)]
 fn relight(
     shared: &Shared,
     world: &World,
+    bundle: &BundleScene,
     backend: &mut dyn crate::bundle::BundleBackend,
     invalid: &BTreeSet<CellId>,
     threads: usize,
+    lap: &mut impl FnMut(&mut f64),
+    steps: &mut ReloadSteps,
 ) -> Result<(ShownLightmap, super::scheduler::PixelLists), String> {
     let grid = world.grid;
     let mut map = (*shared.shown()).clone();
@@ -222,8 +302,10 @@ fn relight(
         window: Some((lo - reach, hi + reach)),
         foreign: Some(&source),
     };
-    let baked = bake_region(&world.bundle, &world.bvh, backend, &region, None, threads, &NoProgress, &shared.shutdown)
+    lap(&mut steps.region);
+    let baked = bake_region(bundle, &world.bvh, backend, &region, None, threads, &NoProgress, &shared.shutdown)
         .map_err(|e| e.to_string())?;
+    lap(&mut steps.bake);
     let noisy: Vec<Rgb> = baked.irradiance.iter().zip(&baked.punctual).map(|(e, d)| *e - *d).collect();
     let values: Vec<Rgb> = filter_within_charts(&texels.pixel, |i| texels.table_of(i), &noisy)
         .into_iter()

@@ -47,6 +47,9 @@ pub(super) struct CellState {
     pub baking_directions: u64,
     /// Its light is older than the scene (hot reload): refresh it when nothing is more urgent.
     pub stale: bool,
+    /// Its LOD 0 is a hot reload's quick re-bake (fewer directions than first light): re-bake
+    /// LOD 0 with first light's directions before anything else.
+    pub provisional: bool,
     /// Directions and error of each shown level (index = LOD).
     pub history: Vec<(u64, f32)>,
     /// Pixels written at each LOD (index = LOD), to withdraw or replace them.
@@ -62,6 +65,8 @@ pub(super) struct State {
     pub paused: bool,
     /// A hot reload is re-baking LOD 0 of the cells it invalidated: workers wait.
     pub relighting: bool,
+    /// Provisional cells still to re-bake at full quality, since the last reload.
+    pub refining: Option<Refining>,
     /// LOD 0 is shown (first light) ...
     pub first_light: bool,
     /// ... and has all its directions: refinement may start.
@@ -84,6 +89,7 @@ impl State {
             camera: None,
             paused,
             relighting: false,
+            refining: None,
             first_light: false,
             lod0_done: false,
             lod0_directions: 0,
@@ -93,6 +99,14 @@ impl State {
             stats: RuntimeStats::default(),
         }
     }
+}
+
+/// A hot reload that published cells provisionally (see [`CellState::provisional`]):
+/// `left` counts the provisional cells (this reload's and any an earlier one left);
+/// `reload_refined` is sent when none is.
+pub(super) struct Refining {
+    pub seen_at: Instant,
+    pub left: usize,
 }
 
 pub(super) struct Shared {
@@ -159,7 +173,7 @@ pub(super) fn current_stats(shared: &Shared, st: &mut State) -> RuntimeStats {
     for c in world.non_empty_cells() {
         let cell = &st.cells[c as usize];
         s.cells_per_lod[(cell.shown as usize).min(world.lods as usize - 1)] += 1;
-        s.queue += usize::from(cell.target > cell.shown || cell.stale);
+        s.queue += usize::from(cell.target > cell.shown || cell.stale || cell.provisional);
         s.baking += usize::from(cell.bake.is_some() || cell.busy);
     }
     s.page_bytes = shown.page_bytes() as u64;
@@ -351,10 +365,13 @@ struct Job {
     bake: Option<Box<CellBake>>,
 }
 
-/// The LOD a cell's next bake is at: the next finer one below its target, else (a stale
-/// cell at its target) its shown LOD again, to refresh it.
+/// The LOD a cell's next bake is at: LOD 0 again for a provisional cell (its quick re-bake
+/// is replaced before it is refined on), the next finer one below its target, else (a
+/// stale cell at its target) its shown LOD again, to refresh it.
 fn next_lod(s: &CellState) -> Option<u32> {
-    if s.target > s.shown {
+    if s.provisional {
+        Some(0)
+    } else if s.target > s.shown {
         Some(s.shown + 1)
     } else if s.stale {
         Some(s.shown)
@@ -373,8 +390,9 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
     let key = |st: &State, c: CellId| {
         let s = &st.cells[c as usize];
         let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
-        // Refinement before refreshing stale light (hot reload), then the policy's order.
-        (s.target <= s.shown, priority(view, s.shown, false), c)
+        // A reload's provisional cells first (the change is shown at full quality soonest),
+        // refinement before refreshing stale light, then the policy's order.
+        (!s.provisional, s.target <= s.shown, priority(view, s.shown, false), c)
     };
     let leader_of = |st: &State, c: CellId| st.cells[c as usize].member_of.unwrap_or(c);
     let c = world
@@ -413,7 +431,7 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
 
 /// The cells a new bake of `leader` at `lod` takes: the leader, then its nearest neighbours
 /// (within [`GROUP_REACH`] cells on each axis) that also want `lod` next from the same shown
-/// LOD and are free (no bake of their own, not in a group), until the group has
+/// LOD (and are as provisional, see [`CellState::provisional`]) and are free (no bake of their own, not in a group), until the group has
 /// `config.group_texels` texels at `lod` (estimated from LOD 0's); never more than twice that.
 fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<CellId> {
     let world = &st.world;
@@ -424,7 +442,7 @@ fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<Ce
     if total >= want {
         return cells;
     }
-    let shown = st.cells[leader as usize].shown;
+    let (shown, provisional) = (st.cells[leader as usize].shown, st.cells[leader as usize].provisional);
     let [x, y, z] = world.grid.coords(leader);
     let dims = world.grid.dims;
     let range = |v: u32, n: u32| v.saturating_sub(GROUP_REACH)..=(v + GROUP_REACH).min(n - 1);
@@ -439,6 +457,7 @@ fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<Ce
                     && world.lod0_texels[c as usize] > 0
                     && free
                     && s.shown == shown
+                    && s.provisional == provisional
                     && next_lod(s) == Some(lod)
                 {
                     let d = i.abs_diff(x).max(j.abs_diff(y)).max(k.abs_diff(z));
@@ -624,10 +643,16 @@ pub(super) fn worker(shared: &Shared) {
         let c = &shared.config;
         let error = bake.error();
         let d = bake.directions();
-        let ready = d >= c.max_directions as u64 || (d >= c.min_directions as u64 && error <= c.error_bound);
+        let ready = if bake.lod == 0 && bake.cells.iter().any(|&m| st.cells[m as usize].provisional) {
+            // Replacing a reload's quick LOD 0: with first light's directions, as LOD 0 is
+            // everywhere else.
+            d >= c.bundle.directions as u64
+        } else {
+            d >= c.max_directions as u64 || (d >= c.min_directions as u64 && error <= c.error_bound)
+        };
         if ready {
             st.bake_bytes -= bake.bytes() as u64;
-            publish(shared, &mut st, &bake, error);
+            let refined = publish(shared, &mut st, &bake, error);
             for &m in &bake.cells {
                 let s = &mut st.cells[m as usize];
                 s.busy = false;
@@ -643,6 +668,9 @@ pub(super) fn worker(shared: &Shared) {
                     error,
                     group: bake.cells.clone(),
                 });
+            }
+            if let Some(ms) = refined {
+                shared.emit(RuntimeEvent::ReloadRefined { ms, directions: c.bundle.directions });
             }
         } else {
             park(&mut st, bake);
@@ -695,8 +723,10 @@ fn publish_texels(
     bake.pixels_per_cell()
 }
 
-/// Publishes a converged bake in one new snapshot (every cell of a group at once).
-fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32) {
+/// Publishes a converged bake in one new snapshot (every cell of a group at once). Returns
+/// the milliseconds since the change was seen when this published the last provisional cell
+/// of a reload (`reload_refined`).
+fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32) -> Option<f64> {
     let values = bake.result();
     let lod = bake.lod as usize;
     let replaced: Vec<Vec<[u32; 2]>> = bake
@@ -707,16 +737,33 @@ fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32) {
     let mut map = (*shared.shown()).clone();
     let pixels = publish_texels(&mut map, bake, &values, &replaced);
     shared.set_shown(map);
+    let mut refreshed = 0;
     for (&c, pixels) in bake.cells.iter().zip(pixels) {
         let cell = &mut st.cells[c as usize];
         cell.shown = bake.lod;
         cell.stale = false;
+        // (A provisional cell's next bake is at LOD 0: `next_lod`.)
+        if cell.provisional && bake.lod == 0 {
+            cell.provisional = false;
+            refreshed += 1;
+        }
         cell.history.resize(lod + 1, (0, f32::INFINITY));
         cell.history[lod] = (bake.directions(), error);
         cell.published.resize(lod + 1, Vec::new());
         cell.published[lod] = pixels;
     }
     st.stats.publishes += 1;
+    if refreshed == 0 {
+        return None;
+    }
+    let r = st.refining.as_mut()?;
+    r.left = r.left.saturating_sub(refreshed);
+    if r.left > 0 {
+        return None;
+    }
+    let ms = r.seen_at.elapsed().as_secs_f64() * 1e3;
+    st.refining = None;
+    Some(ms)
 }
 
 pub(super) fn clock_thread(shared: &Shared) {

@@ -7,7 +7,10 @@
 //! from the save to the event, the cells invalidated, and an audit of the cells that were
 //! not: their LOD-0 light (texels and gutter pixels, from the shown map before the save and
 //! right after `reload_relit`) must be unchanged unless a worker published the cell in that
-//! window (a stale cell's refresh, by design), and they must keep their shown LOD.
+//! window (a stale cell's refresh, by design), and they must keep their shown LOD. The
+//! relight is at `RuntimeConfig::reload_directions`; each move then waits for
+//! `reload_refined` (the same cells re-baked with first light's directions by the workers)
+//! and reports its time, and where the time of `apply` went (`steps_ms`).
 //!
 //! Also a generated ≥ 100k-triangle scene: the Van Gogh room with a finely tessellated torus
 //! (102 400 triangles) hung under the ceiling, written next to the room's copy.
@@ -211,7 +214,12 @@ fn drain(runtime: &Runtime, for_how_long: Duration, touched: &mut HashSet<CellId
 /// One move: what the runtime reported and what the audit found.
 struct Move {
     applied_ms: f64,
+    /// Where the time went (the runtime's figures).
+    steps_ms: livebake::runtime::ReloadSteps,
     relit_ms: f64,
+    relit_directions: u32,
+    /// `reload_refined.ms`: every invalidated cell re-baked with first light's directions.
+    refined_ms: Option<f64>,
     save_to_applied_ms: f64,
     changed_meshes: usize,
     invalidated: usize,
@@ -285,14 +293,14 @@ fn one_move(
         }
         let Some(e) = next_event(runtime, left)? else { continue };
         match e.event {
-            RuntimeEvent::ReloadApplied { changed_meshes, invalidated_cells, repacked, ms } => {
+            RuntimeEvent::ReloadApplied { changed_meshes, invalidated_cells, repacked, ms, steps_ms } => {
                 applies += 1;
                 if changed_meshes > 0 && applied.is_none() {
-                    applied = Some((changed_meshes, invalidated_cells, repacked, ms));
+                    applied = Some((changed_meshes, invalidated_cells, repacked, ms, steps_ms));
                     save_to_applied = saved.elapsed().as_secs_f64() * 1e3;
                 }
             }
-            RuntimeEvent::ReloadRelit { ms } if applied.is_some() => relit = Some(ms),
+            RuntimeEvent::ReloadRelit { ms, directions } if applied.is_some() => relit = Some((ms, directions)),
             RuntimeEvent::ReloadFailed { .. } => failed += 1,
             RuntimeEvent::CellPublished { cell, .. } | RuntimeEvent::CellEvicted { cell, .. } => {
                 touched.insert(cell);
@@ -305,12 +313,15 @@ fn one_move(
     let world = runtime.world();
     // A publish that made it into `after` sends its event right after; collect those too.
     drain(runtime, Duration::from_millis(30), &mut touched)?;
-    let (changed_meshes, invalidated_cells, repacked, applied_ms) = applied.context("no reload applied")?;
-    let relit_ms = relit.context("no reload relit")?;
+    let (changed_meshes, invalidated_cells, repacked, applied_ms, steps_ms) = applied.context("no reload applied")?;
+    let (relit_ms, relit_directions) = relit.context("no reload relit")?;
     let is_invalid: HashSet<CellId> = cells_after.iter().filter(|c| invalidated(c)).map(|c| c.cell).collect();
     let mut m = Move {
         applied_ms,
+        steps_ms,
         relit_ms,
+        relit_directions,
+        refined_ms: None,
         save_to_applied_ms: save_to_applied,
         changed_meshes,
         invalidated: invalidated_cells,
@@ -324,7 +335,27 @@ fn one_move(
         invalidated_with_changed_light: 0,
         audited_cells: 0,
     };
+    let refine = |m: &mut Move| -> Result<()> {
+        // The quick relight is replaced by first light's directions next: wait for it.
+        if m.relit_directions >= runtime.config().bundle.directions {
+            return Ok(());
+        }
+        let deadline = Instant::now() + PATIENCE;
+        while m.refined_ms.is_none() {
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                bail!("no reload_refined within {PATIENCE:?} of reload_relit");
+            }
+            if let Some(e) = next_event(runtime, left)?
+                && let RuntimeEvent::ReloadRefined { ms, .. } = e.event
+            {
+                m.refined_ms = Some(ms);
+            }
+        }
+        Ok(())
+    };
     if repacked || world.atlas.width != width_before {
+        refine(&mut m)?;
         return Ok(m); // everything was re-baked: nothing to audit
     }
     let changed = changed_lod0(&world, &before, &after);
@@ -345,6 +376,7 @@ fn one_move(
             m.lod_changed_not_invalidated += 1;
         }
     }
+    refine(&mut m)?;
     Ok(m)
 }
 
@@ -405,6 +437,10 @@ fn case(c: &Case, root: &Path, quick: bool, ui: &Ui) -> Result<Value> {
     runtime.shutdown()?;
     let applied: Vec<f64> = results.iter().map(|m| m.applied_ms).collect();
     let relit: Vec<f64> = results.iter().map(|m| m.relit_ms).collect();
+    let refined: Vec<f64> = results.iter().filter_map(|m| m.refined_ms).collect();
+    let step = |f: fn(&livebake::runtime::ReloadSteps) -> f64| {
+        quantiles(&results.iter().map(|m| f(&m.steps_ms)).collect::<Vec<_>>())["median"].clone()
+    };
     let save_to: Vec<f64> = results.iter().map(|m| m.save_to_applied_ms).collect();
     let invalid: Vec<f64> = results.iter().map(|m| m.invalidated as f64).collect();
     let rebaked: usize = results.iter().map(|m| m.rebaked_not_invalidated.len()).sum();
@@ -422,12 +458,26 @@ fn case(c: &Case, root: &Path, quick: bool, ui: &Ui) -> Result<Value> {
         "moves": results.len(),
         "reload_applied_ms": quantiles(&applied),
         "reload_relit_ms": quantiles(&relit),
+        "reload_relit_directions": results.first().map(|m| m.relit_directions),
+        "reload_refined_ms": quantiles(&refined),
+        "steps_ms_median": json!({
+            "load": step(|s| s.load),
+            "diff": step(|s| s.diff),
+            "atlas": step(|s| s.atlas),
+            "world": step(|s| s.world),
+            "region": step(|s| s.region),
+            "bake": step(|s| s.bake),
+            "publish": step(|s| s.publish),
+        }),
         "save_to_applied_event_ms": quantiles(&save_to),
         "invalidated_cells": quantiles(&invalid),
         "rebaked_not_invalidated": rebaked,
         "per_move": results.iter().map(|m| json!({
             "reload_applied_ms": m.applied_ms,
             "reload_relit_ms": m.relit_ms,
+            "reload_relit_directions": m.relit_directions,
+            "reload_refined_ms": m.refined_ms,
+            "steps_ms": m.steps_ms,
             "save_to_applied_event_ms": m.save_to_applied_ms,
             "changed_meshes": m.changed_meshes,
             "invalidated_cells": m.invalidated,
@@ -450,6 +500,7 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     let _ = std::fs::remove_dir_all(&root);
     Ok(json!({
         "config": "RuntimeConfig::default(), CPU bundle backend, WatchConfig::default(); refinement runs throughout",
+        "events": "reload_relit: every invalidated cell published again at LOD 0 with reload_relit_directions (RuntimeConfig::reload_directions); reload_refined: all of them re-baked with first light's directions (the next move waits for it)",
         "audit": "rebaked_not_invalidated: cells not invalidated whose LOD-0 light changed between the shown map before the save and right after reload_relit, with no publish of theirs in that window (must be 0)",
         "scenes": result?,
     }))
