@@ -6,8 +6,9 @@
 //! * **Near-camera convergence**: a camera at eye height among the columns; the error at the
 //!   surface points in view within [`NEAR`] metres (hits of a grid of view rays) against the
 //!   in-crate reference tracer, from snapshots of the shown map taken every second, until it
-//!   is at most [`GOAL`] (or the horizon passes). The reference is computed afterwards, on
-//!   neither clock.
+//!   is at most [`GOAL`] (or the horizon passes). The reference is computed first, on no
+//!   clock; each snapshot is scored when taken and let go (the memory measured is the
+//!   runtime's own).
 //! * **The whole-scene bake** at the texel size the runtime shows at those points (their
 //!   median LOD) when it got there, with the same bundle settings, on the same points: its
 //!   error after each batch, stopped at [`GOAL`] or at [`SPEEDUP`]× the runtime's time, so
@@ -29,12 +30,14 @@ use anyhow::{Context, Result, bail};
 use livebake::glam::Vec3;
 use serde_json::{Value, json};
 
-use livebake::atlas::AtlasConfig;
+use livebake::atlas::{Atlas, AtlasConfig};
 use livebake::bake::memory::{peak_resident_bytes, resident_bytes};
 use livebake::cpu::CpuProvider;
 use livebake::reference::scenes::temple_courtyard;
 use livebake::runtime::shown::ShownLightmap;
+use livebake::runtime::world::World;
 use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
+use livebake::scene::SceneGeometry;
 
 use super::runtime::{
     ShownReader, median_point_error, next_event, quantile, reference_at, view_hits, wait_first_light, whole_bake,
@@ -75,30 +78,55 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     let camera = start_camera();
     let provider = Arc::new(CpuProvider::new());
 
+    // The error points and their reference first, on no clock, from the world the runtime
+    // will build (the same atlas and grid: they are deterministic), so that the runtime's
+    // snapshots can be scored as they are taken and none is kept (the memory measured is
+    // the runtime's own).
+    let world = Arc::new(World::new(
+        scene.clone(),
+        Arc::new(SceneGeometry::new(&scene)),
+        Arc::new(Atlas::build(&scene, &SceneGeometry::new(&scene), &config.atlas)?),
+        &config,
+    )?);
+    let points: Vec<Query> =
+        view_hits(&world, &camera, VIEW_RAYS).into_iter().filter(|(t, _)| *t <= NEAR).map(|(_, q)| q).collect();
+    if points.len() < 16 {
+        bail!("only {} surface points within {NEAR} m in view", points.len());
+    }
+    ui.say(format!("  temple: reference at {} points, {spp} paths each ...", points.len()));
+    let reference = reference_at(&scene, &points, spp);
+    let reader = ShownReader::new(&world, &points)?;
+    drop(world);
+    // (seconds, error, median LOD at the points) of a snapshot, and its values at the points.
+    let score = |world: &World, t: f64, shown: &ShownLightmap| {
+        let lods: Vec<f64> =
+            reader.at.iter().map(|&(p, _)| shown.cell_lod[world.grid.cell_of(p) as usize] as f64).collect();
+        ((t, reader.error(&reference, shown), quantile(&lods, 0.5).unwrap_or(0.0)), reader.values(shown))
+    };
+
     ui.say(format!("  temple ({} triangles): first light ...", scene.triangle_count()));
     let rss_start = reset_peak();
     let runtime = Runtime::start(scene.clone(), config.clone(), provider).context("Runtime::start")?;
     runtime.set_camera(camera);
     let (t_light, texels, _) = wait_first_light(&runtime)?;
     let world = runtime.world();
-    let points: Vec<Query> =
-        view_hits(&world, &camera, VIEW_RAYS).into_iter().filter(|(t, _)| *t <= NEAR).map(|(_, q)| q).collect();
-    if points.len() < 16 {
-        bail!("only {} surface points within {NEAR} m in view", points.len());
-    }
-    let reader = ShownReader::new(&world, &points)?;
 
-    // Refinement with a fixed camera: a snapshot every second until the horizon. Which one
-    // first meets the goal is found once the reference is known.
+    // Refinement with a fixed camera, a snapshot scored every second until the horizon.
     ui.say(format!("  temple: refining near the camera for up to {horizon} s ..."));
-    let mut snapshots: Vec<(f64, Arc<ShownLightmap>)> = vec![(t_light, runtime.shown())];
+    let (first, first_values) = score(&world, t_light, &runtime.shown());
+    let mut values_goal = (first.1 <= GOAL).then_some(first_values);
+    let mut curve: Vec<(f64, f64, f64)> = vec![first];
     let mut stats: Vec<(f64, RuntimeStats)> = Vec::new();
     let mut swaps = 0usize;
     let mut next = t_light + 1.0;
     while runtime.elapsed() < t_light + horizon {
         let now = runtime.elapsed();
         if now >= next {
-            snapshots.push((now, runtime.shown()));
+            let (c, values) = score(&world, now, &runtime.shown());
+            if values_goal.is_none() && c.1 <= GOAL {
+                values_goal = Some(values);
+            }
+            curve.push(c);
             next += 1.0;
         }
         if let Some(e) = next_event(&runtime, Duration::from_secs_f64((next - now).clamp(0.001, 0.1)))? {
@@ -176,21 +204,10 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     let end_stats = runtime.stats();
     runtime.shutdown()?;
 
-    // The reference near the camera (on neither clock), then the runtime's curve.
-    ui.say(format!("  temple: reference at {} points, {spp} paths each ...", points.len()));
-    let reference = reference_at(&scene, &points, spp);
-    let curve: Vec<(f64, f64, f64)> = snapshots
-        .iter()
-        .map(|(t, s)| {
-            let lods: Vec<f64> =
-                reader.at.iter().map(|&(p, _)| s.cell_lod[world.grid.cell_of(p) as usize] as f64).collect();
-            (*t, reader.error(&reference, s), quantile(&lods, 0.5).unwrap_or(0.0))
-        })
-        .collect();
     let reached = curve.iter().position(|c| c.1 <= GOAL);
-    let (t_goal, lod_goal, values_goal) = match reached {
-        Some(i) => (curve[i].0, curve[i].2 as u32, Some(reader.values(&snapshots[i].1))),
-        None => (curve.last().map_or(horizon, |c| c.0), curve.last().map_or(0.0, |c| c.2) as u32, None),
+    let (t_goal, lod_goal) = match reached {
+        Some(i) => (curve[i].0, curve[i].2 as u32),
+        None => (curve.last().map_or(horizon, |c| c.0), curve.last().map_or(0.0, |c| c.2) as u32),
     };
     let texel_goal = world.texel_size(lod_goal);
 
