@@ -23,6 +23,7 @@ use super::GpuError;
 use super::bundle_mips::AnalysisMaps;
 use super::device::GpuContext;
 use super::layout::AnalysisParams;
+use super::pass::{self, READ, UNIFORM, WRITE};
 use super::shader;
 use crate::bundle::raster::{BundleFrame, Viewport};
 
@@ -89,71 +90,28 @@ pub struct AnalysisPass {
     touch: wgpu::ComputePipeline,
 }
 
-/// Colour target the raster needs (wgpu wants an attachment; nothing is written to it).
-const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
-
 impl AnalysisPass {
     pub fn new(gpu: &GpuContext) -> Result<AnalysisPass, GpuError> {
         gpu.require_fragment_storage()?;
         let device = &gpu.device;
         let all = wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
         let written = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
-        let entry = |binding, visibility, ty| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
-        let read = wgpu::BufferBindingType::Storage { read_only: true };
-        let write = wgpu::BufferBindingType::Storage { read_only: false };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("bundle analysis"),
-            entries: &[
-                entry(0, all, wgpu::BufferBindingType::Uniform),
-                entry(1, all, read),
-                entry(2, all, read),
-                entry(3, all, read),
-                entry(4, written, write),
-                entry(5, written, write),
-                entry(6, written, write),
+        let layout = pass::buffer_layout(
+            device,
+            "bundle analysis",
+            &[
+                (all, UNIFORM),
+                (all, READ),
+                (all, READ),
+                (all, READ),
+                (written, WRITE),
+                (written, WRITE),
+                (written, WRITE),
             ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("bundle analysis"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
+        );
+        let pipeline_layout = pass::single_group(device, "bundle analysis", &layout);
         let module = shader::module(device, "bundle_analysis.wgsl")?;
-        let raster = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("bundle analysis raster"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState {
-                topology: wgpu::PrimitiveTopology::TriangleList,
-                front_face: wgpu::FrontFace::Ccw,
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: None,
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: TARGET_FORMAT,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::empty(),
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+        let raster = pass::bundle_raster(device, "bundle analysis raster", &pipeline_layout, &module);
         let touch = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some("bundle analysis touch"),
             layout: Some(&pipeline_layout),
@@ -290,7 +248,7 @@ pub fn analysis_target(gpu: &GpuContext, res: u32) -> wgpu::TextureView {
         mip_level_count: 1,
         sample_count: 1,
         dimension: wgpu::TextureDimension::D2,
-        format: TARGET_FORMAT,
+        format: pass::RASTER_TARGET_FORMAT,
         usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
         view_formats: &[],
     });

@@ -14,10 +14,9 @@ use super::GpuError;
 use super::bundle_analysis::{GpuTriangles, set_view, view_side};
 use super::device::GpuContext;
 use super::layout::ListParams;
+use super::pass::{self, READ, UNIFORM, WRITE};
 use super::shader;
 use crate::bundle::raster::{BundleFrame, Viewport};
-
-const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
 
 /// One node: depth along ω (f32 bits) and the triangle.
 const NODE_BYTES: u64 = 8;
@@ -74,64 +73,24 @@ impl ListPass {
     pub fn new(gpu: &GpuContext) -> Result<ListPass, GpuError> {
         gpu.require_fragment_storage()?;
         let device = &gpu.device;
-        let entry = |binding, visibility, ty| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
         let both = wgpu::ShaderStages::VERTEX | wgpu::ShaderStages::FRAGMENT;
         let fragment = wgpu::ShaderStages::FRAGMENT;
-        let read = wgpu::BufferBindingType::Storage { read_only: true };
-        let write = wgpu::BufferBindingType::Storage { read_only: false };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("bundle lists"),
-            entries: &[
-                entry(0, both, wgpu::BufferBindingType::Uniform),
-                entry(1, both, read),
-                entry(2, both, read),
-                entry(3, fragment, write),
-                entry(4, fragment, write),
-                entry(5, fragment, write),
-                entry(6, fragment, write),
+        let layout = pass::buffer_layout(
+            device,
+            "bundle lists",
+            &[
+                (both, UNIFORM),
+                (both, READ),
+                (both, READ),
+                (fragment, WRITE),
+                (fragment, WRITE),
+                (fragment, WRITE),
+                (fragment, WRITE),
             ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("bundle lists"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
+        );
+        let pipeline_layout = pass::single_group(device, "bundle lists", &layout);
         let module = shader::module(device, "bundle_lists.wgsl")?;
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("bundle lists"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState {
-                topology: wgpu::PrimitiveTopology::TriangleList,
-                front_face: wgpu::FrontFace::Ccw,
-                cull_mode: None,
-                ..Default::default()
-            },
-            depth_stencil: None,
-            multisample: Default::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: Some("fs_main"),
-                compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: TARGET_FORMAT,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::empty(),
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
+        let pipeline = pass::bundle_raster(device, "bundle lists", &pipeline_layout, &module);
         gpu.take_error()?;
         Ok(ListPass { layout, pipeline })
     }
@@ -165,7 +124,7 @@ impl ListPass {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: TARGET_FORMAT,
+            format: pass::RASTER_TARGET_FORMAT,
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT,
             view_formats: &[],
         });

@@ -13,6 +13,7 @@ use super::GpuError;
 use super::bundle_mips::AnalysisMaps;
 use super::device::GpuContext;
 use super::layout::{PlannedTile, TilePassParams};
+use super::pass::{self, READ, UNIFORM, WRITE};
 use super::shader;
 use crate::bundle::tiles::{PlanStats, Tile, TileParams, TilePlan};
 
@@ -41,30 +42,13 @@ impl TilePass {
     pub fn new(gpu: &GpuContext) -> Result<TilePass, GpuError> {
         let device = &gpu.device;
         let f64 = gpu.has_f64();
-        let entry = |binding, ty| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
-            count: None,
-        };
-        let read = wgpu::BufferBindingType::Storage { read_only: true };
-        let write = wgpu::BufferBindingType::Storage { read_only: false };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("bundle tiles"),
-            entries: &[
-                entry(0, wgpu::BufferBindingType::Uniform),
-                entry(1, read),
-                entry(2, read),
-                entry(3, read),
-                entry(4, write),
-                entry(5, write),
-            ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("bundle tiles"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
+        let c = wgpu::ShaderStages::COMPUTE;
+        let layout = pass::buffer_layout(
+            device,
+            "bundle tiles",
+            &[(c, UNIFORM), (c, READ), (c, READ), (c, READ), (c, WRITE), (c, WRITE)],
+        );
+        let pipeline_layout = pass::single_group(device, "bundle tiles", &layout);
         let name = "bundle_tiles.wgsl";
         let text = if f64 { shader::source_f64(name)? } else { shader::source(name)? };
         let module = shader::module_from(device, name, text);

@@ -5,6 +5,7 @@
 //!   passes (twins of `cpu::analysis` and `bundle::mips`); [`bundle_tiles`]: Program 1
 //!   (twin of `bundle::tiles::TilePlanner`); [`bundle_lists`]: per-tile linked lists with
 //!   overflow split-and-redo. The resolve and the backend itself are not built yet.
+//! - [`pass`]: set-up the bundle passes share (buffer layouts, the attachment-less raster).
 //! - [`device`]: adapter and device selection, shared by everything on the GPU.
 //! - [`shader`]: the WGSL files under `shaders/` and the include preprocessor.
 //! - [`layout`]: the structs uploaded to the GPU, checked against the shaders in tests.
@@ -21,6 +22,7 @@ pub mod bundle_tiles;
 pub mod device;
 pub mod layout;
 pub mod lightmap;
+pub mod pass;
 pub mod probe;
 pub mod scene;
 pub mod shader;
