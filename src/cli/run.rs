@@ -333,8 +333,9 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         }
     }
     ui.end_phase();
-    let shown = runtime.shown();
-    let cells = runtime.cells();
+    // One moment's map and cell table: a publish between two reads would make cells.json
+    // name LODs the written map does not show.
+    let (shown, cells) = runtime.snapshot();
     let stats = runtime.stats();
     let world = runtime.world();
     // On the runtime's clock, as every event's "t" is.

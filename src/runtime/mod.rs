@@ -508,36 +508,14 @@ impl Runtime {
 
     /// The cell table (non-empty cells).
     pub fn cells(&self) -> Vec<CellInfo> {
+        cell_table(&self.shared.lock())
+    }
+
+    /// The shown light map and the cell table as of one moment (every publish swaps the map
+    /// under the state lock, which this holds while it reads both).
+    pub fn snapshot(&self) -> (Arc<ShownLightmap>, Vec<CellInfo>) {
         let st = self.shared.lock();
-        let world = &st.world;
-        world
-            .non_empty_cells()
-            .map(|c| {
-                let s = &st.cells[c as usize];
-                let (lo, hi) = world.grid.bounds(c);
-                let (directions, error) = s.history.get(s.shown as usize).copied().unwrap_or((0, f32::INFINITY));
-                CellInfo {
-                    cell: c,
-                    min: lo.to_array(),
-                    max: hi.to_array(),
-                    shown_lod: s.shown,
-                    baking_lod: s
-                        .bake
-                        .as_ref()
-                        .or_else(|| s.member_of.and_then(|l| st.cells[l as usize].bake.as_ref()))
-                        .map(|b| b.lod)
-                        .or(if s.busy { Some(s.shown + 1) } else { None }),
-                    baking_directions: s.baking_directions,
-                    working: s.busy,
-                    stale: s.stale,
-                    provisional: s.provisional,
-                    directions,
-                    error,
-                    texels: world.lod0_texels[c as usize],
-                    target_lod: s.target,
-                }
-            })
-            .collect()
+        (self.shared.shown(), cell_table(&st))
     }
 
     pub fn stats(&self) -> RuntimeStats {
@@ -561,6 +539,39 @@ impl Runtime {
         // A panic is a bug; the panic hook reported it. Shutting down goes on for the others.
         self.threads.drain(..).map(|h| h.join()).filter(Result::is_err).count()
     }
+}
+
+/// The cell table of `st` (non-empty cells).
+fn cell_table(st: &State) -> Vec<CellInfo> {
+    let world = &st.world;
+    world
+        .non_empty_cells()
+        .map(|c| {
+            let s = &st.cells[c as usize];
+            let (lo, hi) = world.grid.bounds(c);
+            let (directions, error) = s.history.get(s.shown as usize).copied().unwrap_or((0, f32::INFINITY));
+            CellInfo {
+                cell: c,
+                min: lo.to_array(),
+                max: hi.to_array(),
+                shown_lod: s.shown,
+                baking_lod: s
+                    .bake
+                    .as_ref()
+                    .or_else(|| s.member_of.and_then(|l| st.cells[l as usize].bake.as_ref()))
+                    .map(|b| b.lod)
+                    .or(if s.busy { Some(s.shown + 1) } else { None }),
+                baking_directions: s.baking_directions,
+                working: s.busy,
+                stale: s.stale,
+                provisional: s.provisional,
+                directions,
+                error,
+                texels: world.lod0_texels[c as usize],
+                target_lod: s.target,
+            }
+        })
+        .collect()
 }
 
 impl Drop for Runtime {

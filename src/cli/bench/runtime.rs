@@ -406,8 +406,7 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
         }
     }
     let t_end = runtime.elapsed();
-    let shown = runtime.shown();
-    let cells = runtime.cells();
+    let (shown, cells) = runtime.snapshot();
     let end_stats = runtime.stats();
     runtime.shutdown()?;
 
