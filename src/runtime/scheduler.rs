@@ -431,8 +431,9 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
 
 /// The cells a new bake of `leader` at `lod` takes: the leader, then its nearest neighbours
 /// (within [`GROUP_REACH`] cells on each axis) that also want `lod` next from the same shown
-/// LOD (and are as provisional, see [`CellState::provisional`]) and are free (no bake of their own, not in a group), until the group has
-/// `config.group_texels` texels at `lod` (estimated from LOD 0's); never more than twice that.
+/// LOD (and are as provisional, see [`CellState::provisional`]) and are free (no bake of
+/// their own, not in a group), until the group has `config.group_texels` texels at `lod` (estimated from LOD 0's); never more than twice that,
+/// nor more than the memory budget has free.
 fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<CellId> {
     let world = &st.world;
     let want = shared.config.group_texels as u64;
@@ -442,6 +443,8 @@ fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<Ce
     if total >= want {
         return cells;
     }
+    let free = shared.config.memory_budget.saturating_sub(budgeted_bytes(shared, st));
+    let mut bytes = bake_estimate(world, leader, lod);
     let (shown, provisional) = (st.cells[leader as usize].shown, st.cells[leader as usize].provisional);
     let [x, y, z] = world.grid.coords(leader);
     let dims = world.grid.dims;
@@ -471,9 +474,13 @@ fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<Ce
         if total >= want || cells.len() == super::cell_bake::MAX_GROUP {
             break;
         }
-        if total + texels(c) > 2 * want {
+        // Never past twice the wanted size, and a group grows only into free memory: making
+        // room for a larger one would drop other cells' parked work (under a tight budget and
+        // a moving camera, again and again).
+        if total + texels(c) > 2 * want || bytes + bake_estimate(world, c, lod) > free {
             continue;
         }
+        bytes += bake_estimate(world, c, lod);
         total += texels(c);
         cells.push(c);
     }
