@@ -316,7 +316,7 @@ fn bad_input_exits_with_an_error_line_and_no_panic() {
     fails(dir, &["bake", &scene, "--out", &out, "--texel-size", "0.05", "--samples", "0"], &["--samples"]);
     fails(dir, &["bake", &scene, "--out", &out, "--threads", "0"], &["--threads"]);
     fails(dir, &["bake", &scene, "--out", &out, "--texel-size", "0.0001"], &["--texel-size"]);
-    fails(dir, &["bake", &scene, "--out", &out, "--backend", "gpu"], &["--backend", "gpu"]);
+    fails(dir, &["bake", &scene, "--out", &out, "--backend", "quantum"], &["--backend", "quantum"]);
     // Absurd options (issue 8): each refused with exit code 1 before any work, the limit named.
     let absurd = |dir: &Path, args: &[&str], needles: &[&str]| assert_eq!(fails(dir, args, needles), 1, "{args:?}");
     absurd(dir, &["bake", &scene, "--out", &out, "--lanes", "100000"], &["--lanes", "64", "100000"]);

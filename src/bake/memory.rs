@@ -67,12 +67,19 @@ pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, light_pass: bool) 
     match backend {
         // The texel map and the irradiance; the tracer's state is per thread.
         BackendKind::Reference => TEXEL_MAP_BYTES + IRRADIANCE_BYTES,
-        BackendKind::Cpu => {
+        BackendKind::Cpu | BackendKind::Gpu | BackendKind::Auto => {
             let lanes = lanes.max(1) as u64;
             let light = u64::from(light_pass);
             // lean map + punctual + carried + totals + area copy + source (then the
             // irradiance) + lane sums
-            LEAN_TEXEL_MAP_BYTES + 12 + 1 + 32 + 24 * light + 4 + 12 + lanes * (16 + 12 * light)
+            let cpu = LEAN_TEXEL_MAP_BYTES + 12 + 1 + 32 + 24 * light + 4 + 12 + lanes * (16 + 12 * light);
+            // The GPU backend keeps the CPU's (its light pass) and adds its buffers, which
+            // are host memory on a software adapter: the sources (12 B) and the fixed-point
+            // sums with their read-back copy (2 × 32 B). `auto` may pick either.
+            match backend {
+                BackendKind::Cpu => cpu,
+                _ => cpu + 12 + 64,
+            }
         }
     }
 }
@@ -120,17 +127,22 @@ pub fn estimate_from_lod0(
         bytes += gutter * GUTTER_BYTES as f64;
         if lod == finest {
             let per = bake_bytes_per_texel(config.backend, config.bundle.lanes, light_pass);
-            bytes += t as f64 * per as f64 + pixels as f64 * PIXEL_BYTES as f64;
+            // The GPU backend uploads a copy of the lookup table (4 B a pixel).
+            let table_copy = if config.backend == BackendKind::Cpu { 0 } else { 4 };
+            bytes += t as f64 * per as f64 + pixels as f64 * (PIXEL_BYTES + table_copy) as f64;
         } else {
             bytes += t as f64 * (TEXEL_MAP_BYTES + IRRADIANCE_BYTES) as f64 + pixels as f64 * KEPT_PIXEL_BYTES as f64;
         }
     }
     let lane_bytes = match config.backend {
         BackendKind::Reference => 0,
-        BackendKind::Cpu => {
+        BackendKind::Cpu | BackendKind::Gpu | BackendKind::Auto => {
             let b = &config.bundle;
             let per_lane = b.node_capacity.saturating_mul(24) + b.head_side as u64 * 8;
-            per_lane.saturating_mul(b.lanes.max(1) as u64)
+            let cpu = per_lane.saturating_mul(b.lanes.max(1) as u64);
+            // GPU: nodes (8 B) and links (4 B), and heads (W² × 4 B).
+            let gpu = b.node_capacity.saturating_mul(12) + (b.head_side as u64).pow(2) * 4;
+            if config.backend == BackendKind::Cpu { cpu } else { cpu.saturating_add(gpu) }
         }
     };
     let texel_bytes = bytes.min(u64::MAX as f64 / 2.0) as u64;

@@ -2,6 +2,7 @@
 //! and counts for the report. Backends compute the irradiance; this module owns everything
 //! around them.
 
+mod backend;
 pub mod bundle;
 pub mod memory;
 mod reference;
@@ -14,8 +15,7 @@ use serde::Serialize;
 use std::sync::Arc;
 
 use crate::atlas::{Atlas, AtlasConfig, AtlasError, TexelMap};
-use crate::bundle::{BackendProvider, BundleConfig, BundleConfigError, BundleScene};
-use crate::cpu::CpuProvider;
+use crate::bundle::{BundleConfig, BundleConfigError, BundleScene};
 use crate::progress::Progress;
 use crate::reference::Bvh;
 use crate::scene::{Rgb, Scene, SceneGeometry};
@@ -31,6 +31,11 @@ pub enum BackendKind {
     /// Adaptive ray bundles on CPU worker threads (`cpu` module).
     #[default]
     Cpu,
+    /// Adaptive ray bundles on the GPU (`gpu::bundle_backend`; Vulkan, lavapipe without a GPU).
+    Gpu,
+    /// The GPU backend on a hardware adapter; on a software one the faster of the two,
+    /// measured once (`gpu::choice`).
+    Auto,
 }
 
 impl BackendKind {
@@ -38,6 +43,8 @@ impl BackendKind {
         match self {
             BackendKind::Reference => "reference",
             BackendKind::Cpu => "cpu",
+            BackendKind::Gpu => "gpu",
+            BackendKind::Auto => "auto",
         }
     }
 }
@@ -239,7 +246,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 lods.push(BakedLod { texels, irradiance });
             }
         }
-        BackendKind::Cpu => {
+        BackendKind::Cpu | BackendKind::Gpu | BackendKind::Auto => {
             let bundle = Arc::new(BundleScene::new(
                 scene.clone(),
                 Arc::new(geom.clone()),
@@ -250,8 +257,8 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
             report.memory = check_memory(&atlas, config, light_pass)?;
             let bvh = Bvh::for_scene(scene, &geom);
             check_node_capacity(&bvh, &config.bundle_config())?;
-            let mut backend =
-                CpuProvider::new().backend(&bundle, config.threads()).map_err(|e| BakeError::Backend(e.to_string()))?;
+            let mut backend = backend::bundle_backend(config.backend, &bundle, config.threads())?;
+            report.backend = backend.name();
             // Measured from here: what grows with the texels (the scene, its BVH and the
             // per-triangle tables are resident already).
             report.memory.resident_at_start = memory::resident_bytes();
@@ -262,9 +269,16 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
                 let never = std::sync::atomic::AtomicBool::new(false);
                 let threads = config.threads();
-                let Ok(bundle::LodIrradiance { irradiance, stats: bstats, .. }) =
-                    bundle::bake_lod_lean(&bundle, &bvh, &mut backend, &mut texels, coarser, threads, progress, &never)
-                else {
+                let Ok(bundle::LodIrradiance { irradiance, stats: bstats, .. }) = bundle::bake_lod_lean(
+                    &bundle,
+                    &bvh,
+                    &mut *backend,
+                    &mut texels,
+                    coarser,
+                    threads,
+                    progress,
+                    &never,
+                ) else {
                     unreachable!("an offline bake is never cancelled")
                 };
                 if bstats.pass.unplanned_directions > 0 {
@@ -391,7 +405,7 @@ fn refuse_over_limit(
                 config.lods
             ));
         }
-        if config.backend == BackendKind::Cpu && config.bundle.lanes > 1 {
+        if config.backend != BackendKind::Reference && config.bundle.lanes > 1 {
             advice.push_str(&format!(
                 ", or lower --lanes ({} now, {} B a texel each)",
                 config.bundle.lanes,

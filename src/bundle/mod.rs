@@ -22,6 +22,7 @@ pub mod raster;
 pub mod stats;
 pub mod target;
 pub mod tiles;
+pub mod window;
 
 use glam::{Vec2, Vec3};
 use serde::Serialize;

@@ -154,32 +154,54 @@ macro_rules! span_int {
 span_int!(i64, i128);
 
 /// Barycentric weights of the *original* corners 1 and 2 and the depth, as affine
-/// functions of continuous *grid* pixel coordinates: f(x, y) = c[0]·x + c[1]·y + c[2].
-/// Grid, not rectangle, coordinates: a pixel gets bit-identical attributes whichever part
-/// of a split viewport it is rasterised in.
+/// functions of continuous *grid* pixel coordinates relative to the snapped corner 0 (the
+/// anchor): f(x, y) = c[0]·(x − a.x) + c[1]·(y − a.y) + c[2], c[2] being the value at the
+/// anchor. Grid, not rectangle, coordinates: a pixel gets bit-identical attributes
+/// whichever part of a split viewport it is rasterised in.
+///
+/// Relative to the anchor, because that keeps the evaluation well conditioned: about the
+/// grid's origin the constant term is a large sum that cancels (an atlas UV of thousands
+/// of pixels minus gradient × hundreds of pixels), and its rounding (10⁻³ pixel) decided
+/// which texel a line near a texel edge credited, differently on the GPU's arithmetic.
+/// `x − a.x` is exact (both are multiples of 1/256 below 2^16), so what remains is the
+/// rounding of terms the size of the triangle's extent in the tile.
 #[derive(Clone, Copy, Debug)]
 pub struct Planes {
     bary_u: [f32; 3],
     bary_v: [f32; 3],
     depth: [f32; 3],
+    anchor: Vec2,
 }
 
 impl Planes {
-    /// The depth along ω as an affine function of grid coordinates (coefficients as in
-    /// [`gradient`](Self::gradient); evaluate with [`eval`]).
+    /// The depth along ω as an affine function (coefficients as in
+    /// [`gradient`](Self::gradient); evaluate with [`at`](Self::at)).
     pub fn depth_coefficients(&self) -> [f32; 3] {
         self.depth
+    }
+
+    /// Grid coordinates (x, y) relative to the anchor, where coefficients are evaluated.
+    #[inline]
+    pub fn local(&self, x: f32, y: f32) -> (f32, f32) {
+        (x - self.anchor.x, y - self.anchor.y)
+    }
+
+    /// Affine function `c` (of [`gradient`](Self::gradient)) at grid coordinates (x, y).
+    #[inline]
+    pub fn at(&self, c: &[f32; 3], x: f32, y: f32) -> f32 {
+        let (dx, dy) = self.local(x, y);
+        eval(c, dx, dy)
     }
 
     /// Barycentric weights (of the original corners 1 and 2) at grid coordinates (x, y),
     /// clamped onto the triangle (a pixel centre it covers lies on it up to rounding).
     pub fn barycentrics(&self, x: f32, y: f32) -> (f32, f32) {
-        let u = eval(&self.bary_u, x, y).clamp(0.0, 1.0);
-        let v = eval(&self.bary_v, x, y).clamp(0.0, 1.0 - u);
+        let u = self.at(&self.bary_u, x, y).clamp(0.0, 1.0);
+        let v = self.at(&self.bary_v, x, y).clamp(0.0, 1.0 - u);
         (u, v)
     }
 
-    /// Affine coefficients (per +1 pixel in x, per +1 pixel in y, at grid pixel (0,0)) of a
+    /// Affine coefficients (per +1 pixel in x, per +1 pixel in y, at the anchor) of a
     /// value interpolated from the three original corners.
     pub fn gradient(&self, values: [f32; 3]) -> [f32; 3] {
         let mut out = [0.0; 3];
@@ -202,7 +224,8 @@ pub fn snapped_depth_slack(pixel: f32) -> f32 {
     std::f32::consts::SQRT_2 * pixel / SUBPIXEL as f32
 }
 
-/// An affine function f(x, y) = c[0]·x + c[1]·y + c[2] of grid coordinates at (x, y).
+/// An affine function f(x, y) = c[0]·x + c[1]·y + c[2] at (x, y) (coordinates relative to
+/// the function's anchor, see [`Planes`]).
 #[inline]
 pub fn eval(c: &[f32; 3], x: f32, y: f32) -> f32 {
     c[0] * x + c[1] * y + c[2]
@@ -373,9 +396,14 @@ impl ScreenTriangle {
             let (d1, d2) = (v[1] - v[0], v[2] - v[0]);
             let cx = (d1 * e2.y - d2 * e1.y) * inv;
             let cy = (d2 * e1.x - d1 * e2.x) * inv;
-            [cx, cy, v[0] - cx * p[0].x - cy * p[0].y]
+            [cx, cy, v[0]]
         };
-        Planes { bary_u: plane([0.0, 1.0, 0.0]), bary_v: plane([0.0, 0.0, 1.0]), depth: plane(self.corner_depths) }
+        Planes {
+            bary_u: plane([0.0, 1.0, 0.0]),
+            bary_v: plane([0.0, 0.0, 1.0]),
+            depth: plane(self.corner_depths),
+            anchor: p[0],
+        }
     }
 }
 
@@ -615,13 +643,15 @@ mod tests {
         let c = [Vec3::new(1.0, 1.0, 2.0), Vec3::new(9.0, 1.0, 4.0), Vec3::new(1.0, 9.0, 6.0)];
         let t = setup(c, 16).unwrap();
         let planes = t.planes();
-        let (u, v) =
-            (eval(&planes.gradient([0.0, 1.0, 0.0]), 5.0, 5.0), eval(&planes.gradient([0.0, 0.0, 1.0]), 5.0, 5.0));
+        let (u, v) = (
+            planes.at(&planes.gradient([0.0, 1.0, 0.0]), 5.0, 5.0),
+            planes.at(&planes.gradient([0.0, 0.0, 1.0]), 5.0, 5.0),
+        );
         assert!((u - 0.5).abs() < 1e-5 && (v - 0.5).abs() < 1e-5);
-        assert!((eval(&planes.depth_coefficients(), 5.0, 5.0) - 5.0).abs() < 1e-5);
+        assert!((planes.at(&planes.depth_coefficients(), 5.0, 5.0) - 5.0).abs() < 1e-5);
         let g = planes.gradient([10.0, 20.0, 30.0]);
-        assert!((eval(&g, 1.0, 1.0) - 10.0).abs() < 1e-4);
-        assert!((eval(&g, 9.0, 1.0) - 20.0).abs() < 1e-4);
+        assert!((planes.at(&g, 1.0, 1.0) - 10.0).abs() < 1e-4);
+        assert!((planes.at(&g, 9.0, 1.0) - 20.0).abs() < 1e-4);
         assert!(t.front_faces_dir);
     }
 

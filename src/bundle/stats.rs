@@ -52,6 +52,15 @@ pub struct PassStats {
     pub light_covered_pixels: u64,
     /// Fragments whose UV missed every texel through rounding (they still occlude).
     pub lost_lookups: u64,
+    /// GPU backend: pixels deeper than its resolve can sort (skipped; 0 on every scene we
+    /// bundle), batches redone because a fixed-point sum saturated, and sums that saturated
+    /// even after that.
+    pub unresolved_pixels: u64,
+    pub redone_batches: u64,
+    pub saturated_sums: u64,
+    /// GPU backend: batches it traced on the CPU backend instead (a GPU error, logged; or
+    /// foreign sides, which its resolve cannot read yet).
+    pub cpu_fallback_batches: u64,
 }
 
 impl PassStats {
@@ -89,6 +98,10 @@ impl PassStats {
         self.light_fragments += o.light_fragments;
         self.light_covered_pixels += o.light_covered_pixels;
         self.lost_lookups += o.lost_lookups;
+        self.unresolved_pixels += o.unresolved_pixels;
+        self.redone_batches += o.redone_batches;
+        self.saturated_sums += o.saturated_sums;
+        self.cpu_fallback_batches += o.cpu_fallback_batches;
     }
 
     /// Paper Table 2: fragments a fixed node buffer would have lost / all fragments.

@@ -19,7 +19,7 @@ use super::options::Backend;
 /// for the reference backend (a recognisable preview in tens of seconds, not a converged bake).
 fn default_samples(backend: Backend) -> u32 {
     match backend {
-        Backend::Cpu => 256,
+        Backend::Cpu | Backend::Gpu | Backend::Auto => 256,
         Backend::Reference => 16,
     }
 }

@@ -389,7 +389,9 @@ fn write_curve(dir: &Path, doc: &Value, steps: &[Step], title: &str, until: Opti
 /// converge's own options.
 fn bake_config(options: &SceneOptions, converge: &ConvergeOptions) -> Result<BakeConfig> {
     if options.backend != Backend::Cpu {
-        bail!("converge measures the bundle bake (--backend cpu); the reference tracer is what --reference-spp uses");
+        bail!(
+            "converge measures the CPU bundle bake (--backend cpu); the reference tracer is what --reference-spp uses"
+        );
     }
     if options.lods.is_some_and(|k| k != 1) {
         bail!(

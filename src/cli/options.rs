@@ -13,6 +13,11 @@ use livebake::scene::Rgb;
 pub enum Backend {
     /// Adaptive ray bundles on the CPU (fast; the default).
     Cpu,
+    /// Adaptive ray bundles on the GPU (Vulkan; Mesa's lavapipe where there is no GPU).
+    Gpu,
+    /// The GPU on a hardware adapter; on a software one the faster of cpu and gpu, measured
+    /// once and remembered.
+    Auto,
     /// Per-texel (or per-point) CPU path tracing: the ground truth.
     Reference,
 }
@@ -36,7 +41,7 @@ pub struct SceneOptions {
     /// (default 1); run: the most the runtime refines to (default: enough for ~2 cm texels).
     #[arg(long, value_name = "K")]
     pub lods: Option<u32>,
-    /// Samples: bundle directions for the cpu backend (default 256; converge: the most, default
+    /// Samples: bundle directions for the bundle backends (default 256; converge: the most, default
     /// 2^20, hours); paths per texel (bake, default 16) or per point (probe, default 1024) for the
     /// reference backend.
     #[arg(long, value_name = "N")]
@@ -178,6 +183,8 @@ impl SceneOptions {
             backend: match self.backend {
                 Backend::Reference => BackendKind::Reference,
                 Backend::Cpu => BackendKind::Cpu,
+                Backend::Gpu => BackendKind::Gpu,
+                Backend::Auto => BackendKind::Auto,
             },
             seed: self.seed,
             bundle: BundleConfig {

@@ -20,7 +20,7 @@ use super::progress::Ui;
 /// interior); 256 directions for bundle backends.
 fn default_samples(backend: Backend) -> u32 {
     match backend {
-        Backend::Cpu => 256,
+        Backend::Cpu | Backend::Gpu | Backend::Auto => 256,
         Backend::Reference => 1024,
     }
 }
@@ -30,7 +30,7 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
     let (mut doc, queries) = read_points(points_path)?;
     let (scene, _) = load_scene(scene_path, options)?;
     let results: Vec<Result<Rgb, ProbeError>> = match options.backend {
-        Backend::Cpu => {
+        Backend::Cpu | Backend::Gpu | Backend::Auto => {
             let baked = bake(&scene, &config, ui).with_context(|| format!("cannot bake {}", scene_path.display()))?;
             let geom = SceneGeometry::new(&scene);
             let bvh = Bvh::new(&geom);

@@ -17,6 +17,7 @@ use serde_json::{Value, json};
 
 use livebake::cpu::CpuProvider;
 use livebake::export::{ExportOptions, ExportReport, export_gltf};
+use livebake::gpu::{GpuContext, GpuProvider};
 use livebake::output::{write_json, write_rgb_exr};
 use livebake::probe::{ProbeError, SurfaceLocator};
 use livebake::runtime::shown::ShownLightmap;
@@ -174,7 +175,7 @@ impl CameraPath {
 /// runtime's own defaults where they were not given.
 pub fn runtime_config(options: &SceneOptions, runtime: &RuntimeOptions) -> Result<RuntimeConfig> {
     if options.backend == Backend::Reference {
-        bail!("--backend reference path-traces texels offline; the runtime needs a bundle backend (cpu)");
+        bail!("--backend reference path-traces texels offline; the runtime needs a bundle backend (cpu, gpu or auto)");
     }
     let mut config = RuntimeConfig::default();
     let bake = options.bake_config(|_| config.bundle.directions)?;
@@ -262,7 +263,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     // Ctrl-C ends the run early; the outputs are still written.
     let _ = signal_hook::flag::register(signal_hook::consts::SIGINT, interrupted.clone());
 
-    let mut runtime = Runtime::start(scene.clone(), config, Arc::new(CpuProvider::new()))
+    let mut runtime = start_runtime(scene.clone(), config, options.backend)
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
     if run.watch {
         let watch = WatchConfig { sky: options.sky, ..WatchConfig::default() };
@@ -486,6 +487,22 @@ fn summarise(ui: &Ui, path: &Path, scene: &Scene, stats: &RuntimeStats, written:
         ui.say(format!("  wrote {}", f.display()));
     }
     ui.say(format!("  wrote {} and {}", out.join("cells.json").display(), out.join("report.json").display()));
+}
+
+/// The runtime on the bundle backend `backend` names. `auto` is the GPU backend on a
+/// hardware adapter and the CPU's otherwise: a runtime's cell bakes see surfaces outside
+/// their cell, which the GPU resolve cannot read yet, so on a software adapter only the
+/// first light would run on it, slower than on the CPU.
+pub fn start_runtime(scene: Arc<Scene>, config: RuntimeConfig, backend: Backend) -> Result<Runtime> {
+    let gpu = match backend {
+        Backend::Gpu => Some(GpuContext::headless().context("--backend gpu needs a Vulkan adapter")?),
+        Backend::Auto => GpuContext::headless().ok().filter(|g| !g.is_software()),
+        Backend::Cpu | Backend::Reference => None,
+    };
+    Ok(match gpu {
+        Some(gpu) => Runtime::start(scene, config, Arc::new(GpuProvider::new(gpu)))?,
+        None => Runtime::start(scene, config, Arc::new(CpuProvider::new()))?,
+    })
 }
 
 #[cfg(test)]

@@ -2,15 +2,12 @@
 //! at first light, then the cells in view refined in the background.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 use glam::Vec3;
-use livebake::cpu::CpuProvider;
 use livebake::gpu::layout::ViewMode;
-use livebake::runtime::Runtime;
 use livebake::viewer::camera::parse_pose;
 use livebake::viewer::{DrawSettings, RuntimeLight, ViewerLoop, ViewerOptions, ViewerReport};
 use livebake::watch::WatchConfig;
@@ -139,7 +136,7 @@ pub fn run_on(
         Some(d) => d,
         None => ViewerLoop::open()?,
     };
-    let mut runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new()))
+    let mut runtime = super::run::start_runtime(scene, config, options.backend)
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
     if !view.no_watch {
         let watch = WatchConfig { sky: options.sky, ..WatchConfig::default() };

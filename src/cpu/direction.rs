@@ -4,7 +4,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use glam::{Vec2, Vec3};
+use glam::Vec2;
 
 use super::analysis::Analysis;
 use super::fragments::{ForeignSides, TileFragments};
@@ -16,6 +16,7 @@ use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
 use crate::bundle::target::{BakeTarget, Cancelled, SourceRadiance};
 use crate::bundle::tiles::{Tile, TileParams, TilePlanner, TilingMode, bundle_resolution};
+use crate::bundle::window::{WindowSource, split_overflowed, tile_viewport, unplanned};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
 use crate::scene::Rgb;
 
@@ -32,6 +33,9 @@ pub struct PassContext<'a> {
     /// Light-pass bundle pixel side, metres.
     pub light_pixel: f32,
     pub cancel: &'a AtomicBool,
+    /// Whether to trace the global bundles; `false` traces only the light bundles (the
+    /// GPU backend resolves the global bundles itself and reuses the CPU's light pass).
+    pub global: bool,
 }
 
 /// Per-lane scratch buffers, reused across directions.
@@ -81,13 +85,15 @@ pub fn trace_direction(
     s: &mut Scratch,
     stats: &mut PassStats,
 ) -> Result<(), Cancelled> {
-    trace_global(ctx, job, sums, s, stats)?;
+    if ctx.global {
+        trace_global(ctx, job, sums, s, stats)?;
+        stats.directions += 1;
+    }
     let t = Instant::now();
     for light in &job.lights {
         trace_light(ctx, light, sums, s, stats)?;
     }
     stats.light_seconds += seconds(t);
-    stats.directions += 1;
     Ok(())
 }
 
@@ -95,58 +101,14 @@ fn check(ctx: &PassContext) -> Result<(), Cancelled> {
     if ctx.cancel.load(Ordering::Relaxed) { Err(Cancelled) } else { Ok(()) }
 }
 
-/// The window's square along `frame`: the target's box projected (or the scene's bounding
-/// sphere for a whole-scene target), as (lower corner, side).
-fn window_square(ctx: &PassContext, frame: &BundleFrame) -> (Vec2, f32) {
-    match ctx.target.window {
-        None => {
-            let (r, c) = (ctx.scene.radius, frame.coords(ctx.scene.centre));
-            (Vec2::new(c.x - r, c.y - r), 2.0 * r)
-        }
-        Some((lo, hi)) => {
-            let (mut a, mut b) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
-            for i in 0..8 {
-                let p = Vec3::new(
-                    if i & 1 == 0 { lo.x } else { hi.x },
-                    if i & 2 == 0 { lo.y } else { hi.y },
-                    if i & 4 == 0 { lo.z } else { hi.z },
-                );
-                let c = frame.coords(p);
-                a = a.min(Vec2::new(c.x, c.y));
-                b = b.max(Vec2::new(c.x, c.y));
-            }
-            let side = (b - a).max_element().max(1e-6);
-            let centre = (a + b) * 0.5;
-            (centre - Vec2::splat(side * 0.5), side)
-        }
+/// The window source of this pass's target.
+fn window(ctx: &PassContext) -> WindowSource {
+    WindowSource {
+        target: ctx.target.window,
+        centre: ctx.scene.centre,
+        radius: ctx.scene.radius,
+        bundle_pixel: ctx.light_pixel,
     }
-}
-
-/// The analysis window of a direction: the target's square, R pixels, with one spare pixel
-/// so the per-direction jitter never shifts geometry out of it. A small window (a cell's)
-/// needs fewer analysis pixels: R is cut to the power of two giving about
-/// [`BUNDLE_PIXELS_PER_ANALYSIS_PIXEL`] bundle pixels per analysis pixel at the target's
-/// resolution, at least 8.
-fn analysis_viewport(ctx: &PassContext, frame: &BundleFrame, jitter: Vec2) -> Viewport {
-    let (corner, side) = window_square(ctx, frame);
-    let mut res = ctx.config.analysis_res;
-    if ctx.target.window.is_some() {
-        let bundle_pixel = ctx.light_pixel; // texel size at the target's LOD / oversampling
-        let wanted = (side / bundle_pixel / BUNDLE_PIXELS_PER_ANALYSIS_PIXEL).ceil().max(8.0) as u32;
-        res = res.min(wanted.next_power_of_two());
-    }
-    let pixel = side / (res - 1) as f32;
-    Viewport::square(corner - jitter * pixel, pixel, res)
-}
-
-/// See [`analysis_viewport`].
-const BUNDLE_PIXELS_PER_ANALYSIS_PIXEL: f32 = 8.0;
-
-/// The bundle viewport of planned tile `tile` of the analysis window `global`.
-pub(crate) fn tile_viewport(global: &Viewport, tile: &Tile) -> Viewport {
-    let w = tile.window();
-    let side = w.side as f32 * global.pixel;
-    Viewport::square(global.origin + Vec2::new(w.x as f32, w.y as f32) * global.pixel, side / tile.res as f32, tile.res)
 }
 
 /// The triangles that may touch `vp`, from the analysis bins over `global`.
@@ -187,7 +149,7 @@ fn trace_global(
     let cfg = ctx.config;
     let receiver = |t: u32| ctx.importance[t as usize] > 0.0;
     let frame = BundleFrame::new(job.dir);
-    let global = analysis_viewport(ctx, &frame, job.jitter);
+    let global = window(ctx).analysis_viewport(cfg, &frame, job.jitter);
 
     let t = Instant::now();
     let candidates = match ctx.target.window {
@@ -247,7 +209,7 @@ fn trace_global(
         gather(&mut s.analysis, &global, &vp, &mut s.candidates);
         let t = Instant::now();
         let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None, receiver);
-        if count > cfg.node_capacity && overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
+        if count > cfg.node_capacity && split_overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             stats.build_seconds += seconds(t);
             continue;
         }
@@ -267,32 +229,6 @@ fn trace_global(
     }
     stats.lost_lookups += lost;
     Ok(())
-}
-
-fn unplanned(stats: &mut PassStats, error: &dyn std::fmt::Display) {
-    tracing::error!("bundle direction not planned: {error}");
-    stats.unplanned_directions += 1;
-}
-
-/// A tile counted more fragments than the node buffer holds: record it and queue its parts
-/// (its pixel grid cut in four: the paper's "split and redo", sampling exactly the same
-/// pixels), so no sample is lost. Returns false when the tile is a single pixel deeper than
-/// the whole node buffer (N too small for the scene); the caller then builds it anyway,
-/// exceeding N for that one pixel, rather than drop samples.
-fn overflowed(vp: &Viewport, count: u64, capacity: u64, queue: &mut Vec<Viewport>, stats: &mut PassStats) -> bool {
-    stats.overflowed_tiles += 1;
-    stats.overflow_fragments += count - capacity;
-    match vp.split() {
-        Some(parts) => {
-            stats.resplits += 1;
-            queue.extend(parts.iter().rev());
-            true
-        }
-        None => {
-            stats.unsplittable_tiles += 1;
-            false
-        }
-    }
 }
 
 /// False alarms (paper Table 2): splits for predicted memory overflow where the tile, at the
@@ -363,7 +299,7 @@ fn trace_light(
         hi = hi.max(Vec2::new(f.x, f.y));
     }
     if ctx.target.window.is_some() {
-        let (corner, side) = window_square(ctx, &frame);
+        let (corner, side) = window(ctx).square(&frame);
         lo = lo.max(corner);
         hi = hi.min(corner + Vec2::splat(side));
         if lo.x > hi.x || lo.y > hi.y {
@@ -394,7 +330,7 @@ fn trace_light(
             break;
         }
         let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group), receiver);
-        if count > cfg.node_capacity && overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
+        if count > cfg.node_capacity && split_overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             continue;
         }
         stats.light_tiles += 1;

@@ -324,12 +324,14 @@ impl TileFragments {
                 continue;
             }
             let p = &self.planes[s.tri as usize];
+            // Attributes are evaluated relative to the triangle's anchor (see `Planes`).
+            let (_, dy) = p.planes.local(0.0, cy);
             let span = SpanFill {
                 frags: &mut self.frags,
                 cursors: &mut self.ends[(x0 - lo) as usize + 1..(x1 - lo) as usize + 1],
                 x0,
                 offset: self.offset.0,
-                cy,
+                dy,
                 planes: p,
             };
             // One loop per kind of side pair, so the pixel loop tests none.
@@ -344,15 +346,15 @@ impl TileFragments {
                     SideLookup::Table { uv: b, table: tb, foreign: fb },
                 ) => {
                     let (ta, tb) = (&target.tables[*ta as usize], &target.tables[*tb as usize]);
-                    span.fill(|cx| (texel_at(ta, a, cx, cy, *fa), texel_at(tb, b, cx, cy, *fb)))
+                    span.fill(|dx| (texel_at(ta, a, dx, dy, *fa), texel_at(tb, b, dx, dy, *fb)))
                 }
                 (SideLookup::Table { uv, table, foreign }, other) => {
                     let (t, m) = (&target.tables[*table as usize], code(other));
-                    span.fill(|cx| (texel_at(t, uv, cx, cy, *foreign), m))
+                    span.fill(|dx| (texel_at(t, uv, dx, dy, *foreign), m))
                 }
                 (other, SideLookup::Table { uv, table, foreign }) => {
                     let (t, pl) = (&target.tables[*table as usize], code(other));
-                    span.fill(|cx| (pl, texel_at(t, uv, cx, cy, *foreign)))
+                    span.fill(|dx| (pl, texel_at(t, uv, dx, dy, *foreign)))
                 }
                 (a, b) => {
                     let (a, b) = (code(a), code(b));
@@ -383,12 +385,13 @@ impl ForeignSides<'_> {
     }
 }
 
-/// The code of a side with table `table` and UV function `uv` at pixel centre (cx, cy): its
-/// texel, or `foreign` where the table holds none (a pixel of the chart owned by another
-/// region, or a UV that rounds outside every texel).
+/// The code of a side with table `table` and UV function `uv` at pixel centre (dx, dy)
+/// (relative to the triangle's anchor, see `Planes`): its texel, or `foreign` where the
+/// table holds none (a pixel of the chart owned by another region, or a UV that rounds
+/// outside every texel).
 #[inline]
-fn texel_at(table: &TexelTable, uv: &[Vec2; 3], cx: f32, cy: f32, foreign: u32) -> u32 {
-    let p = uv[0] * cx + uv[1] * cy + uv[2];
+fn texel_at(table: &TexelTable, uv: &[Vec2; 3], dx: f32, dy: f32, foreign: u32) -> u32 {
+    let p = uv[0] * dx + uv[1] * dy + uv[2];
     // ⌊p⌋ as integers; NaN and out-of-range values miss the table.
     if !(p.x >= 0.0 && p.y >= 0.0 && p.x < 1.6e7 && p.y < 1.6e7) {
         return foreign;
@@ -404,23 +407,25 @@ struct SpanFill<'a> {
     frags: &'a mut [Fragment],
     /// Per pixel of the span: its next free slot in `frags`.
     cursors: &'a mut [u32],
-    /// The span's first pixel and the rectangle's offset in its grid, and the row's centre.
+    /// The span's first pixel and the rectangle's offset in its grid, and the row's centre
+    /// relative to the triangle's anchor.
     x0: u32,
     offset: u32,
-    cy: f32,
+    dy: f32,
     planes: &'a FragmentPlanes,
 }
 
 impl SpanFill<'_> {
-    /// Writes each pixel's fragment; `sides(cx)` gives its (plus, minus) texels.
+    /// Writes each pixel's fragment; `sides(dx)` gives its (plus, minus) texels at the
+    /// pixel centre's x relative to the anchor.
     #[inline(always)]
     fn fill(self, mut sides: impl FnMut(f32) -> (u32, u32)) {
         let p = self.planes;
         for (x, cursor) in (self.x0..).zip(self.cursors.iter_mut()) {
-            let cx = grid_centre(self.offset, x);
-            let (plus, minus) = sides(cx);
+            let (dx, _) = p.planes.local(grid_centre(self.offset, x), 0.0);
+            let (plus, minus) = sides(dx);
             self.frags[*cursor as usize] = Fragment {
-                depth: eval(&p.depth, cx, self.cy),
+                depth: eval(&p.depth, dx, self.dy),
                 plus: plus | p.plus_flag,
                 minus: minus | p.minus_flag,
                 normal: p.normal,

@@ -68,6 +68,33 @@ impl BundleBackend for CpuBundleBackend {
         sums: &mut BatchSums,
         cancel: &AtomicBool,
     ) -> Result<PassStats, Cancelled> {
+        self.run(target, batch, source, sums, cancel, true)
+    }
+}
+
+impl CpuBundleBackend {
+    /// [`BundleBackend::trace_batch`] for the light bundles only: `sums.light` gets the
+    /// batch's light pass, `sums.bundle` is zeroed (the GPU backend fills it).
+    pub fn trace_light_batch(
+        &mut self,
+        target: &BakeTarget,
+        batch: &[DirectionJob],
+        source: &SourceRadiance,
+        sums: &mut BatchSums,
+        cancel: &AtomicBool,
+    ) -> Result<PassStats, Cancelled> {
+        self.run(target, batch, source, sums, cancel, false)
+    }
+
+    fn run(
+        &mut self,
+        target: &BakeTarget,
+        batch: &[DirectionJob],
+        source: &SourceRadiance,
+        sums: &mut BatchSums,
+        cancel: &AtomicBool,
+        global: bool,
+    ) -> Result<PassStats, Cancelled> {
         self.set_importance(target, true);
         // Lane 0 accumulates into `sums` itself (the caller is done with the last batch's),
         // the others into their own buffers, zeroed by the previous reduction.
@@ -94,6 +121,7 @@ impl BundleBackend for CpuBundleBackend {
             sky: bundle.scene.sky,
             light_pixel: bundle.light_pixel(target.lod),
             cancel,
+            global,
         };
         let n_lanes = self.lanes.len();
         // Lane l traces directions l, l + n_lanes, ... in order into its own sums; lanes are

@@ -76,11 +76,55 @@ impl GpuTriangles {
 }
 
 /// Which triangles a direction draws.
+#[derive(Clone, Copy)]
 pub enum Drawn<'a> {
     /// Every triangle (a whole-scene window).
     All,
-    /// These triangle ids (a cell window's candidates).
+    /// These triangle ids (a cell window's candidates), uploaded for this pass.
     Some(&'a [u32]),
+    /// Triangle ids uploaded once for several passes (one direction's window).
+    Uploaded(&'a DrawnIds),
+}
+
+/// Triangle ids on the GPU: what a direction's passes draw.
+pub struct DrawnIds {
+    buffer: wgpu::Buffer,
+    count: u32,
+}
+
+impl DrawnIds {
+    pub fn new(gpu: &GpuContext, ids: &[u32]) -> DrawnIds {
+        // Bindings may not be empty.
+        let contents: Vec<u32> = if ids.is_empty() { vec![0] } else { ids.to_vec() };
+        let buffer = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("bundle drawn triangles"),
+            contents: bytemuck::cast_slice(&contents),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        DrawnIds { buffer, count: ids.len() as u32 }
+    }
+}
+
+impl Drawn<'_> {
+    /// The id buffer and count to bind: `owned` keeps a buffer made for [`Drawn::Some`].
+    pub fn binding<'b>(
+        self,
+        gpu: &GpuContext,
+        triangles: &'b GpuTriangles,
+        owned: &'b mut Option<DrawnIds>,
+    ) -> (&'b wgpu::Buffer, u32)
+    where
+        Self: 'b,
+    {
+        match self {
+            Drawn::All => (&triangles.all, triangles.count),
+            Drawn::Some(list) => {
+                let ids = owned.insert(DrawnIds::new(gpu, list));
+                (&ids.buffer, ids.count)
+            }
+            Drawn::Uploaded(ids) => (&ids.buffer, ids.count),
+        }
+    }
 }
 
 /// The analysis raster and its centroid touch.
@@ -140,19 +184,8 @@ impl AnalysisPass {
         let device = &gpu.device;
         let res = maps.side();
         debug_assert_eq!(viewport.width, res);
-        let owned;
-        let (ids, count) = match drawn {
-            Drawn::All => (&triangles.all, triangles.count),
-            Drawn::Some(list) => {
-                let contents: Vec<u32> = if list.is_empty() { vec![0] } else { list.to_vec() };
-                owned = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("bundle drawn triangles"),
-                    contents: bytemuck::cast_slice(&contents),
-                    usage: wgpu::BufferUsages::STORAGE,
-                });
-                (&owned, list.len() as u32)
-            }
-        };
+        let mut owned = None;
+        let (ids, count) = drawn.binding(gpu, triangles, &mut owned);
         let corner = viewport.corner();
         let params = AnalysisParams {
             t: frame.t.to_array(),
@@ -272,7 +305,12 @@ pub(crate) mod tests {
     use crate::scene::SceneGeometry;
 
     pub(crate) fn cornell() -> Arc<CpuScene> {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf");
+        bundled("cornell_box/cornellBox-2.79-Cycles-gltf.gltf")
+    }
+
+    /// A bundled scene (`assets/PATH`) with default atlas and bundle settings.
+    pub(crate) fn bundled(path: &str) -> Arc<CpuScene> {
+        let path = format!("{}/assets/{path}", env!("CARGO_MANIFEST_DIR"));
         let scene = Arc::new(crate::scene::load_gltf(path.as_ref(), &Default::default()).expect("bundled scene"));
         let geom = SceneGeometry::new(&scene);
         let atlas = Atlas::build(&scene, &geom, &AtlasConfig::default()).expect("atlas");

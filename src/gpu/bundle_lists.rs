@@ -11,7 +11,7 @@
 use wgpu::util::DeviceExt;
 
 use super::GpuError;
-use super::bundle_analysis::{GpuTriangles, set_view, view_side};
+use super::bundle_analysis::{Drawn, GpuTriangles, set_view, view_side};
 use super::device::GpuContext;
 use super::layout::ListParams;
 use super::pass::{self, READ, UNIFORM, WRITE};
@@ -146,18 +146,22 @@ impl ListPass {
     }
 
     /// Records the list build of rectangle `vp` (at most W×W pixels) along `frame`, drawing
-    /// every triangle: clears the heads and the counter, rasterises.
+    /// `drawn`: clears the heads and the counter, rasterises.
+    #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
         gpu: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         triangles: &GpuTriangles,
+        drawn: Drawn,
         frame: &BundleFrame,
         vp: &Viewport,
         out: &ListBuffers,
     ) {
         debug_assert!(vp.width <= out.head_side && vp.height <= out.head_side);
         let device = &gpu.device;
+        let mut owned = None;
+        let (ids, count) = drawn.binding(gpu, triangles, &mut owned);
         let params = ListParams {
             t: frame.t.to_array(),
             pixel: vp.pixel,
@@ -169,7 +173,7 @@ impl ListPass {
             offset: [vp.offset.0, vp.offset.1],
             height: vp.height,
             view_side: view_side(gpu),
-            drawn_count: triangles.count,
+            drawn_count: count,
             _pad: 0,
         };
         let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -183,7 +187,7 @@ impl ListPass {
             entries: &[
                 wgpu::BindGroupEntry { binding: 0, resource: params.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 1, resource: triangles.corners.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: triangles.all.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 2, resource: ids.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 3, resource: out.heads.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 4, resource: out.nodes.as_entire_binding() },
                 wgpu::BindGroupEntry { binding: 5, resource: out.links.as_entire_binding() },
@@ -205,12 +209,12 @@ impl ListPass {
             occlusion_query_set: None,
             multiview_mask: None,
         });
-        if triangles.count > 0 && vp.width > 0 && vp.height > 0 {
+        if count > 0 && vp.width > 0 && vp.height > 0 {
             set_view(&mut pass, gpu);
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &group, &[]);
             pass.set_scissor_rect(0, 0, vp.width, vp.height);
-            pass.draw(0..3 * triangles.count, 0..1);
+            pass.draw(0..3 * count, 0..1);
         }
     }
 
@@ -224,12 +228,10 @@ impl ListPass {
         out: &ListBuffers,
     ) -> Result<u64, GpuError> {
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        self.encode(gpu, &mut encoder, triangles, frame, vp, out);
-        encoder.copy_buffer_to_buffer(&out.counter, 0, &out.readback, 0, 4);
+        self.encode(gpu, &mut encoder, triangles, Drawn::All, frame, vp, out);
+        out.encode_count_read(&mut encoder);
         gpu.queue.submit([encoder.finish()]);
-        let bytes = gpu.read_buffer(&out.readback, 4)?;
-        gpu.take_error()?;
-        Ok(u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as u64)
+        out.read_count(gpu)
     }
 
     /// Builds planned tile `vp`, splitting and redoing every rectangle whose count exceeds N
@@ -266,6 +268,19 @@ impl ListPass {
 }
 
 impl ListBuffers {
+    /// Records the copy of the node counter that [`read_count`](Self::read_count) reads.
+    pub fn encode_count_read(&self, encoder: &mut wgpu::CommandEncoder) {
+        encoder.copy_buffer_to_buffer(&self.counter, 0, &self.readback, 0, 4);
+    }
+
+    /// The fragment count of the last build (after a submitted
+    /// [`encode_count_read`](Self::encode_count_read)).
+    pub fn read_count(&self, gpu: &GpuContext) -> Result<u64, GpuError> {
+        let bytes = gpu.read_buffer(&self.readback, 4)?;
+        gpu.take_error()?;
+        Ok(u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]) as u64)
+    }
+
     /// Reads the lists of a built `width`×`height` rectangle: per pixel (row-major), its
     /// (depth, triangle) nodes in list order.
     pub fn read_lists(&self, gpu: &GpuContext, width: u32, height: u32) -> Result<Vec<Vec<(f32, u32)>>, GpuError> {
@@ -308,11 +323,11 @@ pub(crate) mod tests {
     use super::*;
     use crate::bundle::directions::BundleDirections;
     use crate::bundle::mips::MipChain;
-    use crate::bundle::raster::{ScreenTriangle, eval, grid_centre};
+    use crate::bundle::raster::{ScreenTriangle, grid_centre};
     use crate::bundle::tiles::{TileParams, TilePlanner, TilingMode};
+    use crate::bundle::window::tile_viewport;
     use crate::cpu::CpuScene;
     use crate::cpu::analysis::Analysis;
-    use crate::cpu::direction::tile_viewport;
     use crate::cpu::fragments::TileFragments;
     use crate::gpu::bundle_analysis::tests::{cornell, window};
 
@@ -323,10 +338,11 @@ pub(crate) mod tests {
         let mut lists = vec![Vec::new(); (vp.width * vp.height) as usize];
         for t in 0..geom.len() {
             let Some(screen) = ScreenTriangle::setup(frame, vp, &geom.corners[t], geom.normals[t]) else { continue };
-            let depth = screen.planes().depth_coefficients();
+            let planes = screen.planes();
+            let depth = planes.depth_coefficients();
             screen.for_each_span(|y, x0, x1| {
                 for x in x0..x1 {
-                    let d = eval(&depth, grid_centre(vp.offset.0, x), grid_centre(vp.offset.1, y));
+                    let d = planes.at(&depth, grid_centre(vp.offset.0, x), grid_centre(vp.offset.1, y));
                     lists[(y * vp.width + x) as usize].push((d, t as u32));
                 }
             });

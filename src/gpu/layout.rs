@@ -155,6 +155,62 @@ pub struct ListParams {
     pub _pad: u32,
 }
 
+/// `ResolveParams` (bundle_resolve.wgsl): one built rectangle's resolve.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct ResolveParams {
+    pub t: [f32; 3],
+    pub pixel: f32,
+    pub b: [f32; 3],
+    pub pixel_area: f32,
+    pub dir: [f32; 3],
+    pub capacity: u32,
+    pub sky: [f32; 3],
+    pub rounding: f32,
+    pub origin: [f32; 2],
+    pub offset: [u32; 2],
+    pub width: u32,
+    pub height: u32,
+    pub stacked: f32,
+    pub snap: f32,
+    pub lod_scale: f32,
+    pub table_count: u32,
+    pub whole_table: u32,
+    pub texel_count: u32,
+    pub weight_scale: f32,
+    pub radiance_scale: f32,
+    pub opaque_zero: u32,
+    pub _pad: u32,
+}
+
+/// `ResolveTriangle` (bundle_resolve.wgsl): a triangle's normal and faces.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct ResolveTriangle {
+    pub normal: [f32; 3],
+    pub front_chart: u32,
+    /// Per corner: front face UV (x, y), back face UV (z, w), LOD-0 texels.
+    pub corner_uv: [[f32; 4]; 3],
+    pub back_chart: u32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+    pub _pad2: u32,
+}
+
+/// `TableHeader` (bundle_resolve.wgsl): one texel table's rectangle and entries.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq, Eq)]
+pub struct TableHeader {
+    pub chart: u32,
+    pub x0: i32,
+    pub y0: i32,
+    pub x1: i32,
+    pub y1: i32,
+    pub blocks_x: u32,
+    pub first: u32,
+    pub _pad: u32,
+}
+
 /// One corner of a drawn triangle (vertex buffer; `VertexInput` in surface.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
@@ -243,6 +299,47 @@ mod tests {
             ListParams,
             "ListParams",
             [t, pixel, b, capacity, dir, width, origin, offset, height, view_side, drawn_count, _pad]
+        );
+        assert_layout!(
+            "bundle_resolve.wgsl",
+            ResolveParams,
+            "ResolveParams",
+            [
+                t,
+                pixel,
+                b,
+                pixel_area,
+                dir,
+                capacity,
+                sky,
+                rounding,
+                origin,
+                offset,
+                width,
+                height,
+                stacked,
+                snap,
+                lod_scale,
+                table_count,
+                whole_table,
+                texel_count,
+                weight_scale,
+                radiance_scale,
+                opaque_zero,
+                _pad
+            ]
+        );
+        assert_layout!(
+            "bundle_resolve.wgsl",
+            ResolveTriangle,
+            "ResolveTriangle",
+            [normal, front_chart, corner_uv, back_chart, _pad0, _pad1, _pad2]
+        );
+        assert_layout!(
+            "bundle_resolve.wgsl",
+            TableHeader,
+            "TableHeader",
+            [chart, x0, y0, x1, y1, blocks_x, first, _pad]
         );
     }
 

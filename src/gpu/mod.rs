@@ -4,7 +4,10 @@
 //! - [`bundle_analysis`], [`bundle_mips`]: the GPU bundle backend's analysis raster and mip
 //!   passes (twins of `cpu::analysis` and `bundle::mips`); [`bundle_tiles`]: Program 1
 //!   (twin of `bundle::tiles::TilePlanner`); [`bundle_lists`]: per-tile linked lists with
-//!   overflow split-and-redo. The resolve and the backend itself are not built yet.
+//!   overflow split-and-redo; [`bundle_resolve`]: the per-pixel exchange into fixed-point
+//!   texel sums (twin of `cpu::fragments` + `bundle::estimator`); [`bundle_backend`]: the
+//!   backend itself (`BundleBackend`) and its provider.
+//! - [`choice`]: what `--backend auto` picks, measured once per adapter.
 //! - [`pass`]: set-up the bundle passes share (buffer layouts, the attachment-less raster).
 //! - [`device`]: adapter and device selection, shared by everything on the GPU.
 //! - [`shader`]: the WGSL files under `shaders/` and the include preprocessor.
@@ -16,9 +19,12 @@
 //! - [`target`]: render targets and read-back to images.
 
 pub mod bundle_analysis;
+pub mod bundle_backend;
 pub mod bundle_lists;
 pub mod bundle_mips;
+pub mod bundle_resolve;
 pub mod bundle_tiles;
+pub mod choice;
 pub mod device;
 pub mod layout;
 pub mod lightmap;
@@ -29,4 +35,5 @@ pub mod shader;
 pub mod surface;
 pub mod target;
 
+pub use bundle_backend::{GpuBundleBackend, GpuProvider};
 pub use device::{GpuContext, GpuError};

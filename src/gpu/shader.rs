@@ -15,6 +15,7 @@ pub const SOURCES: &[(&str, &str)] = &[
     ("bundle_mips.wgsl", include_str!("../../shaders/bundle_mips.wgsl")),
     ("bundle_tiles.wgsl", include_str!("../../shaders/bundle_tiles.wgsl")),
     ("bundle_lists.wgsl", include_str!("../../shaders/bundle_lists.wgsl")),
+    ("bundle_resolve.wgsl", include_str!("../../shaders/bundle_resolve.wgsl")),
 ];
 
 /// The line of a pass that names its float type for host-precision arithmetic

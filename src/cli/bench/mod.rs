@@ -3,6 +3,7 @@
 
 mod atlas;
 mod convergence;
+mod gpu_backend;
 mod reference;
 mod reload;
 mod runtime;
@@ -32,13 +33,14 @@ pub fn assets() -> PathBuf {
 type Bench = fn(bool, &Ui) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 10] = [
+pub const SECTIONS: [(&str, Bench); 11] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
     ("throughput", throughput::run),
     ("convergence", convergence::run),
     ("tiling", tiling::run),
+    ("gpu_backend", gpu_backend::run),
     ("viewer", viewer::run),
     ("runtime", runtime::run),
     ("runtime_large", runtime_large::run),

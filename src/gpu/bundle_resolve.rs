@@ -1,0 +1,370 @@
+//! The resolve pass of the GPU bundle backend (paper Sect. 4.4): per pixel of a built
+//! rectangle, walk its linked list, rebuild each fragment from its triangle, sort along ω
+//! with the estimator's layer rules and credit every target side what it sees. The twin of
+//! the CPU's `TileFragments::resolve` + `estimator::exchange` (shaders/bundle_resolve.wgsl
+//! says how each step follows the CPU's).
+//!
+//! Per-texel sums are 64-bit fixed point in pairs of u32 (no float atomics): exact, so the
+//! GPU's sums do not depend on the order threads run in. [`FixedPoint`] picks the scales
+//! from a bound on what one batch can add to a texel; an addition that would reach 2^63 is
+//! counted as saturated, and the backend then redoes the batch with smaller scales.
+
+use glam::Vec3;
+use wgpu::util::DeviceExt;
+
+use super::GpuError;
+use super::bundle_analysis::GpuTriangles;
+use super::bundle_lists::ListBuffers;
+use super::device::GpuContext;
+use super::layout::{ResolveParams, ResolveTriangle, TableHeader};
+use super::pass::{self, READ, UNIFORM, WRITE};
+use super::shader;
+use crate::bundle::estimator::Coincidence;
+use crate::bundle::raster::{BundleFrame, Viewport};
+use crate::bundle::target::{BakeTarget, BundleScene};
+use crate::scene::{Rgb, Side};
+
+/// `NO_CHART` in the shader: a side that is not a lit face, or the whole-LOD table.
+const NO_CHART: u32 = u32::MAX;
+/// u32 words per texel: (lo, hi) of r, g, b and the weight.
+const WORDS_PER_TEXEL: u64 = 8;
+/// Status words after the sums (`STATUS_*` in the shader).
+const STATUS_WORDS: u64 = 4;
+
+/// The resolve pipeline: an invocation per pixel of the rectangle.
+pub struct ResolvePass {
+    layout: wgpu::BindGroupLayout,
+    pipeline: wgpu::ComputePipeline,
+}
+
+/// Every triangle's front normal and faces (charts and atlas UVs), uploaded once per scene.
+pub struct SceneSides {
+    pub buffer: wgpu::Buffer,
+}
+
+impl SceneSides {
+    pub fn new(gpu: &GpuContext, scene: &BundleScene) -> SceneSides {
+        let (geom, atlas) = (&scene.geom, &scene.atlas);
+        let mut records: Vec<ResolveTriangle> = (0..geom.len())
+            .map(|t| {
+                let face = |side| atlas.face(t as u32, side).map(|f| &atlas.faces[f as usize]);
+                let (front, back) = (face(Side::Front), face(Side::Back));
+                let uv = |f: Option<&crate::atlas::AtlasFace>, k: usize| f.map_or([0.0; 2], |f| f.uv[k].to_array());
+                ResolveTriangle {
+                    normal: geom.normals[t].to_array(),
+                    front_chart: front.map_or(NO_CHART, |f| f.chart),
+                    corner_uv: std::array::from_fn(|k| {
+                        let (a, b) = (uv(front, k), uv(back, k));
+                        [a[0], a[1], b[0], b[1]]
+                    }),
+                    back_chart: back.map_or(NO_CHART, |f| f.chart),
+                    _pad0: 0,
+                    _pad1: 0,
+                    _pad2: 0,
+                }
+            })
+            .collect();
+        if records.is_empty() {
+            records.push(ResolveTriangle::zeroed());
+        }
+        let buffer = gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("bundle resolve triangles"),
+            contents: bytemuck::cast_slice(&records),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        SceneSides { buffer }
+    }
+}
+
+use bytemuck::Zeroable;
+
+/// Fixed-point scales of one batch: units per m² of weight (`weight`) and per
+/// m²·W/(m²·sr) of weighted radiance (`radiance`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FixedPoint {
+    pub weight: f32,
+    pub radiance: f32,
+}
+
+impl FixedPoint {
+    /// Scales for a batch of `directions` at texel area `texel_area` (m²) whose sources
+    /// are at most `max_radiance`. Per direction a texel's hits add about its projected
+    /// area (≤ its area; gutter pixels and pixel rounding can double it): the scales put
+    /// 64 texel areas per direction at 2^62, 32× the most a texel was seen to get, so no
+    /// addition saturates in practice. Quantisation is then one unit in 2^62 / (64·D) texel
+    /// areas: below 10⁻¹⁰ of a single hit, far below the CPU's own f32 rounding.
+    pub fn for_batch(directions: usize, texel_area: f32, max_radiance: f32) -> FixedPoint {
+        let budget = 64.0 * directions.max(1) as f64 * texel_area.max(f32::MIN_POSITIVE) as f64;
+        let weight = (2f64.powi(62) / budget) as f32;
+        let radiance = (weight as f64 / (max_radiance as f64).max(1e-30)) as f32;
+        FixedPoint { weight, radiance: radiance.min(f32::MAX) }
+    }
+
+    /// These scales divided by 2^`bits` (the retry after a saturation).
+    pub fn reduced(self, bits: i32) -> FixedPoint {
+        let k = 2f32.powi(-bits);
+        FixedPoint { weight: self.weight * k, radiance: self.radiance * k }
+    }
+}
+
+/// What the shader counted over the batch.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ResolveStatus {
+    /// Additions that would have carried a sum to 2^63 (the batch must be redone).
+    pub saturated: u32,
+    /// Foreign sides looked up (black: the GPU resolve has no foreign source).
+    pub lost: u32,
+    /// Pixels with at least one fragment.
+    pub covered: u32,
+    /// Pixels deeper than the resolve's sort holds (skipped).
+    pub deep: u32,
+}
+
+/// One target's texel tables, sources and sums on the GPU.
+pub struct TargetBuffers {
+    texels: u32,
+    table_count: u32,
+    whole_table: bool,
+    lod: u32,
+    tables: wgpu::Buffer,
+    entries: wgpu::Buffer,
+    own: wgpu::Buffer,
+    sums: wgpu::Buffer,
+    staging: wgpu::Buffer,
+}
+
+/// Bytes of storage the target's buffers need (for the memory estimate and limits).
+pub fn target_bytes(target: &BakeTarget) -> u64 {
+    let entries: u64 = target.tables.iter().map(|t| t.entries().len() as u64 * 4).sum();
+    let n = target.len() as u64;
+    entries + n * 12 + 2 * (n * WORDS_PER_TEXEL + STATUS_WORDS) * 4
+}
+
+impl TargetBuffers {
+    /// Uploads `target`'s tables and makes its sums; an error when a buffer exceeds the
+    /// device's binding limit.
+    pub fn new(gpu: &GpuContext, target: &BakeTarget) -> Result<TargetBuffers, GpuError> {
+        let device = &gpu.device;
+        let limit = device.limits().max_storage_buffer_binding_size;
+        let mut headers = Vec::with_capacity(target.tables.len());
+        let mut entries: Vec<u32> = Vec::new();
+        for t in target.tables {
+            let r = t.rect;
+            headers.push(TableHeader {
+                chart: t.chart.unwrap_or(NO_CHART),
+                x0: r.x0 as i32,
+                y0: r.y0 as i32,
+                x1: r.x1 as i32,
+                y1: r.y1 as i32,
+                blocks_x: t.blocks_x() as u32,
+                first: entries.len() as u32,
+                _pad: 0,
+            });
+            entries.extend_from_slice(t.entries());
+        }
+        let whole_table = matches!(target.tables, [t] if t.chart.is_none());
+        let n = target.len() as u64;
+        let sums_bytes = (n * WORDS_PER_TEXEL + STATUS_WORDS) * 4;
+        for (what, bytes) in [("texel tables", entries.len() as u64 * 4), ("texel sums", sums_bytes)] {
+            if bytes > limit {
+                return Err(GpuError::Validation(format!(
+                    "the target's {what} need {bytes} bytes, over the device's storage binding limit of {limit}"
+                )));
+            }
+        }
+        let init = |label, data: &[u8]| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: data,
+                usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            })
+        };
+        if headers.is_empty() {
+            headers.push(TableHeader::zeroed());
+        }
+        if entries.is_empty() {
+            entries.push(u32::MAX);
+        }
+        let tables = init("bundle resolve tables", bytemuck::cast_slice(&headers));
+        let entries = init("bundle resolve table entries", bytemuck::cast_slice(&entries));
+        let own = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bundle resolve sources"),
+            size: (12 * n).max(12),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let sums = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bundle resolve sums"),
+            size: sums_bytes,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let staging = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bundle resolve sums read-back"),
+            size: sums_bytes,
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        Ok(TargetBuffers {
+            texels: n as u32,
+            table_count: target.tables.len() as u32,
+            whole_table,
+            lod: target.lod,
+            tables,
+            entries,
+            own,
+            sums,
+            staging,
+        })
+    }
+
+    /// Uploads the batch's source radiance (per target texel) and zeroes the sums.
+    pub fn start_batch(&self, gpu: &GpuContext, own: &[Rgb]) {
+        debug_assert_eq!(own.len(), self.texels as usize);
+        if !own.is_empty() {
+            let flat: Vec<f32> = own.iter().flat_map(|l| l.to_array()).collect();
+            gpu.queue.write_buffer(&self.own, 0, bytemuck::cast_slice(&flat));
+        }
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        encoder.clear_buffer(&self.sums, 0, None);
+        gpu.queue.submit([encoder.finish()]);
+    }
+
+    /// Reads the batch's sums into `out` (Σ a·L rgb, Σ a per texel, in m² and m²·W/(m²·sr))
+    /// and returns the status words.
+    pub fn read(&self, gpu: &GpuContext, scales: FixedPoint, out: &mut [[f32; 4]]) -> Result<ResolveStatus, GpuError> {
+        let size = self.sums.size();
+        let mut encoder = gpu.device.create_command_encoder(&Default::default());
+        encoder.copy_buffer_to_buffer(&self.sums, 0, &self.staging, 0, size);
+        gpu.queue.submit([encoder.finish()]);
+        let bytes = gpu.read_buffer(&self.staging, size)?;
+        let words: &[u32] = bytemuck::cast_slice(&bytes);
+        let n = self.texels as usize;
+        let (texels, status) = words.split_at(n * WORDS_PER_TEXEL as usize);
+        let inverse = [scales.radiance, scales.radiance, scales.radiance, scales.weight].map(|s| 1.0 / s as f64);
+        for (sum, w) in out.iter_mut().zip(texels.chunks_exact(WORDS_PER_TEXEL as usize)) {
+            for c in 0..4 {
+                let fixed = (w[2 * c + 1] as u64) << 32 | w[2 * c] as u64;
+                sum[c] = (fixed as f64 * inverse[c]) as f32;
+            }
+        }
+        Ok(ResolveStatus { saturated: status[0], lost: status[1], covered: status[2], deep: status[3] })
+    }
+}
+
+/// What one rectangle's resolve needs besides the buffers.
+pub struct Rectangle<'a> {
+    pub frame: &'a BundleFrame,
+    pub viewport: &'a Viewport,
+    pub coincidence: Coincidence,
+    pub sky: Vec3,
+    pub scales: FixedPoint,
+}
+
+impl ResolvePass {
+    pub fn new(gpu: &GpuContext) -> Result<ResolvePass, GpuError> {
+        let device = &gpu.device;
+        let c = wgpu::ShaderStages::COMPUTE;
+        let mut bindings = vec![(c, UNIFORM)];
+        bindings.extend([(c, READ); 9]);
+        bindings.push((c, WRITE));
+        let needed = bindings.len() as u32 - 1;
+        if device.limits().max_storage_buffers_per_shader_stage < needed {
+            return Err(GpuError::Unsupported {
+                adapter: gpu.info.name.clone(),
+                missing: "10 storage buffers per shader stage (the bundle resolve)",
+            });
+        }
+        let layout = pass::buffer_layout(device, "bundle resolve", &bindings);
+        let pipeline_layout = pass::single_group(device, "bundle resolve", &layout);
+        // Exact division and square root through f64 where the device has it (see the shader).
+        let name = "bundle_resolve.wgsl";
+        let text = if gpu.has_f64() { shader::source_f64(name)? } else { shader::source(name)? };
+        let module = shader::module_from(device, name, text);
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("bundle resolve"),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("resolve"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        gpu.take_error()?;
+        Ok(ResolvePass { layout, pipeline })
+    }
+
+    /// Records the resolve of the rectangle last built into `lists` (in the same or an
+    /// earlier submission). It does nothing when the list build overflowed a splittable
+    /// rectangle (the host splits and redoes it).
+    #[allow(clippy::too_many_arguments)]
+    pub fn encode(
+        &self,
+        gpu: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        triangles: &GpuTriangles,
+        sides: &SceneSides,
+        lists: &ListBuffers,
+        target: &TargetBuffers,
+        rect: &Rectangle,
+    ) {
+        let (vp, frame, c) = (rect.viewport, rect.frame, rect.coincidence);
+        let params = ResolveParams {
+            t: frame.t.to_array(),
+            pixel: vp.pixel,
+            b: frame.b.to_array(),
+            pixel_area: vp.pixel_area(),
+            dir: frame.dir.to_array(),
+            capacity: lists.capacity,
+            sky: rect.sky.to_array(),
+            rounding: c.rounding,
+            origin: vp.origin.to_array(),
+            offset: [vp.offset.0, vp.offset.1],
+            width: vp.width,
+            height: vp.height,
+            stacked: c.stacked,
+            snap: c.snap,
+            lod_scale: (1u64 << target.lod) as f32,
+            table_count: target.table_count,
+            whole_table: target.whole_table as u32,
+            texel_count: target.texels,
+            weight_scale: rect.scales.weight,
+            radiance_scale: rect.scales.radiance,
+            opaque_zero: 0,
+            _pad: 0,
+        };
+        let device = &gpu.device;
+        let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("bundle resolve params"),
+            contents: bytemuck::bytes_of(&params),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let buffers = [
+            &params,
+            &triangles.corners,
+            &sides.buffer,
+            &lists.heads,
+            &lists.nodes,
+            &lists.links,
+            &lists.counter,
+            &target.tables,
+            &target.entries,
+            &target.own,
+            &target.sums,
+        ];
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .collect();
+        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("bundle resolve"),
+            layout: &self.layout,
+            entries: &entries,
+        });
+        let mut pass = encoder
+            .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("bundle resolve"), timestamp_writes: None });
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &group, &[]);
+        pass.dispatch_workgroups(vp.width.div_ceil(8), vp.height.div_ceil(8), 1);
+    }
+}
