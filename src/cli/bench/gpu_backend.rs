@@ -64,7 +64,9 @@ fn one(name: &str, scene: Arc<Scene>, directions: u64, runs: usize, gpu: &GpuCon
     let threads = livebake::parallel::available_threads();
     let timed = |backend: &mut dyn BundleBackend| -> Result<(f64, PassStats)> {
         let mut sums = BatchSums::default();
-        let mut last = PassStats::default();
+        // One untimed batch first: lavapipe compiles pipelines on first use, and both
+        // backends size their buffers.
+        let mut last = backend.trace_batch(&target, &batch, &source, &mut sums, &never).map_err(anyhow::Error::from)?;
         let wall = median(runs, || {
             let t = Instant::now();
             last = backend.trace_batch(&target, &batch, &source, &mut sums, &never).map_err(anyhow::Error::from)?;
