@@ -80,6 +80,7 @@ pub struct GpuBundleBackend {
     importance: Vec<f32>,
     sphere_stack: Vec<u32>,
     window_triangles: Vec<u32>,
+    tile_triangles: Vec<u32>,
     /// Waits for each phase so the stats time them apart (benches); otherwise build and
     /// resolve share one submission and `build_seconds` holds both.
     phase_timing: bool,
@@ -140,6 +141,7 @@ impl GpuBundleBackend {
             importance,
             sphere_stack: Vec::new(),
             window_triangles: Vec::new(),
+            tile_triangles: Vec::new(),
             phase_timing,
             warned_foreign: false,
             #[cfg(test)]
@@ -296,7 +298,14 @@ impl GpuBundleBackend {
             }
             let t = Instant::now();
             let mut encoder = gpu.device.create_command_encoder(&Default::default());
-            self.lists.encode(&gpu, &mut encoder, &self.triangles, drawn, &frame, &vp, &self.list_buffers);
+            // The tile draws only the triangles whose bounding spheres meet it (as the CPU
+            // gathers a tile's candidates): a whole-scene window would draw them all.
+            let side = vp.width.max(vp.height) as f32 * vp.pixel;
+            let (stack, out) = (&mut self.sphere_stack, &mut self.tile_triangles);
+            scene.spheres.overlapping(&frame, vp.corner(), side, stack, out);
+            let tile_ids = DrawnIds::new(&gpu, out);
+            let tile_drawn = Drawn::Uploaded(&tile_ids);
+            self.lists.encode(&gpu, &mut encoder, &self.triangles, tile_drawn, &frame, &vp, &self.list_buffers);
             self.list_buffers.encode_count_read(&mut encoder);
             let rect = Rectangle {
                 frame: &frame,
