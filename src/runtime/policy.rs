@@ -114,11 +114,9 @@ pub fn target_lod(camera: &CameraView, view: CellView, texel0: f32, texel_pixels
 
 /// Sort key of a cell waiting for refinement (smaller goes first): cells in view before
 /// others, then the coarsest shown LOD first (everything visible gets sharper together
-/// rather than one cell at a time), at that LOD an unsettled level first (one published
-/// early, still refined in place: every level shown is brought to its error bound or
-/// most directions before any cell moves on to the next), then the nearest.
-pub fn priority(view: CellView, shown: u32, stale: bool, unsettled: bool) -> (bool, bool, u32, bool, u32) {
-    (!stale, !view.in_frustum, shown, !unsettled, view.distance.to_bits())
+/// rather than one cell at a time), then the nearest.
+pub fn priority(view: CellView, shown: u32, stale: bool) -> (bool, bool, u32, u32) {
+    (!stale, !view.in_frustum, shown, view.distance.to_bits())
 }
 
 #[cfg(test)]
@@ -162,20 +160,17 @@ mod tests {
     fn priority_orders_view_then_coarseness_then_distance() {
         let v = |d: f32, f: bool| CellView { distance: d, in_frustum: f };
         let mut keys = [
-            priority(v(1.0, false), 0, false, false),
-            priority(v(9.0, true), 1, false, false),
-            priority(v(2.0, true), 0, false, false),
-            priority(v(8.0, true), 0, false, false),
-            priority(v(50.0, false), 0, true, false),
-            priority(v(12.0, true), 1, false, true),
+            priority(v(1.0, false), 0, false),
+            priority(v(9.0, true), 1, false),
+            priority(v(2.0, true), 0, false),
+            priority(v(8.0, true), 0, false),
+            priority(v(50.0, false), 0, true),
         ];
         keys.sort();
-        assert_eq!(keys[0], priority(v(50.0, false), 0, true, false)); // stale first
-        assert_eq!(keys[1], priority(v(2.0, true), 0, false, false));
-        assert_eq!(keys[2], priority(v(8.0, true), 0, false, false));
-        // At LOD 1, the unsettled level is refined before a nearer cell moves on.
-        assert_eq!(keys[3], priority(v(12.0, true), 1, false, true));
-        assert_eq!(keys[4], priority(v(9.0, true), 1, false, false));
-        assert_eq!(keys[5], priority(v(1.0, false), 0, false, false));
+        assert_eq!(keys[0], priority(v(50.0, false), 0, true)); // stale first
+        assert_eq!(keys[1], priority(v(2.0, true), 0, false));
+        assert_eq!(keys[2], priority(v(8.0, true), 0, false));
+        assert_eq!(keys[3], priority(v(9.0, true), 1, false));
+        assert_eq!(keys[4], priority(v(1.0, false), 0, false));
     }
 }

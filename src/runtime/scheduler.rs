@@ -474,9 +474,13 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
         let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
         // A reload's provisional cells first (the change is shown at full quality soonest),
         // refinement (an unsettled level's included) before refreshing stale light, then the
-        // policy's order.
+        // policy's order. An unsettled level ranks as the settled level it came from: its
+        // early publish changes what is shown, not what is worked on (the bake in progress
+        // stays as urgent as it was, so the cells near the camera are refined as far and as
+        // soon as they were before early publishes, and show it sooner).
         let refines = s.target > s.shown || (s.unsettled && s.target >= s.shown);
-        (!s.provisional, !refines, priority(view, s.shown, false, s.unsettled), c)
+        let settled_lod = s.shown - u32::from(s.unsettled && s.shown > 0);
+        (!s.provisional, !refines, priority(view, settled_lod, false), c)
     };
     let leader_of = |st: &State, c: CellId| st.cells[c as usize].member_of.unwrap_or(c);
     let c = world
