@@ -42,13 +42,14 @@ pub struct RuntimeOptions {
     /// (default: a quarter of the machine's memory, at most 4G).
     #[arg(long, value_name = "BYTES", value_parser = livebake::bake::memory::parse_bytes)]
     pub memory_budget: Option<u64>,
-    /// Directions a cell needs at least before it may swap to the next LOD.
+    /// Directions a cell needs at least before it may swap to the next LOD (it swaps early,
+    /// before its error is below --error-bound, once it also has its shown LOD's directions).
     #[arg(long, value_name = "N")]
     pub min_directions: Option<u32>,
-    /// Directions after which a cell swaps whatever its error.
+    /// Directions after which a cell's LOD is settled whatever its error (and it moves on).
     #[arg(long, value_name = "N")]
     pub max_directions: Option<u32>,
-    /// Estimated relative error at which a cell swaps.
+    /// Estimated relative error at which a cell's LOD is settled (and it moves on).
     #[arg(long, value_name = "E")]
     pub error_bound: Option<f32>,
     /// Directions of LOD 0 after which it is first shown (then again at twice as many, until
@@ -368,6 +369,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
             "target_lod": c.target_lod,
             "directions": c.directions,
             "error": if c.error.is_finite() { json!(c.error) } else { Value::Null },
+            "settled": c.settled,
             "texels_lod0": c.texels,
         })).collect::<Vec<_>>(),
     });

@@ -8,8 +8,11 @@
 //!   light), then becomes one of the workers;
 //! * worker threads (one per core) each own a bundle backend; they take the most urgent
 //!   cell ([`policy::priority`]), trace one unit of its bake (a few directions, cancellable
-//!   between tiles) and put it back; a bake that has converged is filtered and published
-//!   whole (copy-on-write pages: readers see the cell before or after, never half);
+//!   between tiles) and put it back; a bake that meets the swap rule is filtered and
+//!   published whole (copy-on-write pages: readers see the cell before or after, never
+//!   half): early, once a finer level has the directions of the shown one (it then goes on
+//!   at that level and is published again as its directions double), or settled, once its
+//!   error is below the bound or it has the most directions;
 //! * a clock thread emits a stats event once a second.
 //!
 //! Shared state is one mutex (the cell table, the camera, memory accounting) and one
@@ -38,7 +41,7 @@ use crate::bundle::{BackendProvider, BundleBackend, BundleConfig, BundleConfigEr
 use crate::grid::{CellId, GridError};
 use crate::scene::{Scene, SceneGeometry};
 use crate::watch::{WatchConfig, WatchError};
-use scheduler::{Shared, State, clock_thread, current_stats, first_light, update_views, worker};
+use scheduler::{Shared, State, clock_thread, current_stats, first_light, next_lod, update_views, worker};
 use shown::ShownLightmap;
 use world::World;
 
@@ -69,8 +72,12 @@ pub struct RuntimeConfig {
     /// Bytes the shown pages and the bakes in progress may hold; the finest pages of the
     /// cells farthest from the camera are evicted beyond it.
     pub memory_budget: u64,
-    /// A cell swaps to the next LOD when it has at least `min_directions` and its estimated
-    /// relative error is at most `error_bound`, or when it has `max_directions`.
+    /// A cell's bake at a finer LOD is published (settled) when it has at least
+    /// `min_directions` and its estimated relative error is at most `error_bound`, or when it
+    /// has `max_directions`; then the cell moves on to the next LOD. Before that it is
+    /// published early, once it has at least `min_directions` and the directions of the level
+    /// the cell shows (no noisier, and sharper), and again each time its directions double,
+    /// the bake going on at that LOD meanwhile.
     pub min_directions: u32,
     pub max_directions: u32,
     pub error_bound: f32,
@@ -226,14 +233,18 @@ pub enum RuntimeEvent {
     Lod0Published {
         directions: u64,
     },
-    /// A cell swapped to a finer LOD (or was refreshed at its LOD). Cells baked together are
-    /// published at once, one event each; `group` lists them, its leader first (`[cell]`
-    /// for a bake of one cell).
+    /// A cell swapped to a finer LOD, or was published again at its LOD (an unsettled level
+    /// with twice the directions, or a refresh). Cells baked together are published at once,
+    /// one event each; `group` lists them, its leader first (`[cell]` for a bake of one
+    /// cell). `settled`: the bake met the error bound or `max_directions` and is done; false
+    /// for an early publish, whose bake goes on at this LOD (the cell will be published
+    /// again at it before moving on to a finer one).
     CellPublished {
         cell: CellId,
         lod: u32,
         directions: u64,
         error: f32,
+        settled: bool,
         group: Vec<CellId>,
     },
     /// A cell's finest LOD was dropped to stay within the memory budget.
@@ -361,6 +372,9 @@ pub struct CellInfo {
     /// Directions and estimated error of the shown LOD.
     pub directions: u64,
     pub error: f32,
+    /// The shown LOD's bake met the error bound or `max_directions` (false: it was published
+    /// early and is still being refined at that LOD).
+    pub settled: bool,
     /// LOD-0 texels (0: an empty cell).
     pub texels: u32,
     pub target_lod: u32,
@@ -560,13 +574,14 @@ fn cell_table(st: &State) -> Vec<CellInfo> {
                     .as_ref()
                     .or_else(|| s.member_of.and_then(|l| st.cells[l as usize].bake.as_ref()))
                     .map(|b| b.lod)
-                    .or(if s.busy { Some(s.shown + 1) } else { None }),
+                    .or(if s.busy { next_lod(s) } else { None }),
                 baking_directions: s.baking_directions,
                 working: s.busy,
                 stale: s.stale,
                 provisional: s.provisional,
                 directions,
                 error,
+                settled: !s.unsettled,
                 texels: world.lod0_texels[c as usize],
                 target_lod: s.target,
             }

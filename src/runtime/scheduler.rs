@@ -50,6 +50,12 @@ pub(super) struct CellState {
     /// Its LOD 0 is a hot reload's quick re-bake (fewer directions than first light): re-bake
     /// LOD 0 with first light's directions before anything else.
     pub provisional: bool,
+    /// Its shown level was published early (see [`publish_due`]): the bake that published it
+    /// has not met the error bound nor `max_directions` yet and goes on at that LOD (parked
+    /// as between any two units), republished as its directions double, before the cell
+    /// moves on to a finer one. Only ever the finest shown level: a cell swaps to the next
+    /// LOD only from a settled one.
+    pub unsettled: bool,
     /// Directions and error of each shown level (index = LOD).
     pub history: Vec<(u64, f32)>,
     /// Pixels written at each LOD (index = LOD), to withdraw or replace them.
@@ -173,7 +179,7 @@ pub(super) fn current_stats(shared: &Shared, st: &mut State) -> RuntimeStats {
     for c in world.non_empty_cells() {
         let cell = &st.cells[c as usize];
         s.cells_per_lod[(cell.shown as usize).min(world.lods as usize - 1)] += 1;
-        s.queue += usize::from(cell.target > cell.shown || cell.stale || cell.provisional);
+        s.queue += usize::from(next_lod(cell).is_some());
         s.baking += usize::from(cell.bake.is_some() || cell.busy);
     }
     s.page_bytes = shown.page_bytes() as u64;
@@ -366,17 +372,93 @@ struct Job {
 }
 
 /// The LOD a cell's next bake is at: LOD 0 again for a provisional cell (its quick re-bake
-/// is replaced before it is refined on), the next finer one below its target, else (a
-/// stale cell at its target) its shown LOD again, to refresh it.
-fn next_lod(s: &CellState) -> Option<u32> {
+/// is replaced before it is refined on), its shown LOD for an unsettled cell still wanted at
+/// least that fine (its level is finished before the next, see [`CellState::unsettled`]),
+/// the next finer one below its target, else (a stale cell at its target) its shown LOD
+/// again, to refresh it.
+pub(super) fn next_lod(s: &CellState) -> Option<u32> {
     if s.provisional {
         Some(0)
+    } else if s.unsettled && s.target >= s.shown {
+        Some(s.shown)
     } else if s.target > s.shown {
         Some(s.shown + 1)
     } else if s.stale {
         Some(s.shown)
     } else {
         None
+    }
+}
+
+/// What a bake's cells show, as the swap rule reads it.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct ShownNow {
+    /// Their shown LOD (a group's cells share it: they are gathered from one shown LOD and
+    /// are neither evicted nor re-baked apart while the group is).
+    pub lod: u32,
+    /// The most directions any of them shows that level with.
+    pub directions: u64,
+    /// Every one of them shows an early publish still being refined ([`CellState::unsettled`]).
+    pub unsettled: bool,
+    /// One of them is stale (hot reload): its refresh publishes only settled, as before.
+    pub stale: bool,
+    /// One of them is provisional and the bake is at LOD 0: it replaces a reload's quick LOD 0.
+    pub provisional: bool,
+}
+
+/// Whether a bake may be published after its latest unit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Due {
+    /// Not yet.
+    Wait,
+    /// Published, and the bake goes on at this LOD into the same sums (no restart).
+    Early,
+    /// Published, and the bake is done: its error is below the bound or it has the most
+    /// directions it may have.
+    Settled,
+}
+
+/// The swap rule for a bake at `lod` with `directions` traced and an estimated `error`:
+/// * settled when it has `min_directions` and its error is at most `error_bound`, or
+///   `max_directions` (a reload's LOD-0 replacement: first light's directions);
+/// * early, at a finer LOD than shown, once it has at least the directions of the shown level
+///   (and `min_directions`): per-texel noise at equal directions is about the same at every
+///   LOD (each texel gets ~oversampling² bundle lines per direction), so the finer level is
+///   no noisier and is sharper. The error estimate is an upper bound (1.9–3.2× the measured
+///   error, `tests/runtime.rs`), so waiting for it would keep most cells at the coarser
+///   level until `max_directions`;
+/// * early again, at the LOD an unsettled cell shows, each time its directions double (a
+///   refresh of stale cells waits until settled, as it always has).
+pub(super) fn publish_due(config: &RuntimeConfig, lod: u32, shown: ShownNow, directions: u64, error: f32) -> Due {
+    let d = directions;
+    let min = config.min_directions as u64;
+    if shown.provisional {
+        // Replacing a reload's quick LOD 0: with first light's directions, as LOD 0 is
+        // everywhere else.
+        return if d >= config.bundle.directions as u64 { Due::Settled } else { Due::Wait };
+    }
+    if d >= config.max_directions as u64 || (d >= min && error <= config.error_bound) {
+        return Due::Settled;
+    }
+    let early = if lod > shown.lod {
+        d >= min.max(shown.directions)
+    } else {
+        lod == shown.lod && shown.unsettled && !shown.stale && d >= min.max(2 * shown.directions)
+    };
+    if early { Due::Early } else { Due::Wait }
+}
+
+/// What the cells of `bake` show now (see [`ShownNow`]).
+fn shown_now(st: &State, bake: &CellBake) -> ShownNow {
+    let leader = &st.cells[bake.leader() as usize];
+    let lod = leader.shown;
+    let cells = || bake.cells.iter().map(|&m| &st.cells[m as usize]);
+    ShownNow {
+        lod,
+        directions: cells().map(|s| s.history.get(lod as usize).map_or(0, |h| h.0)).max().unwrap_or(0),
+        unsettled: cells().all(|s| s.unsettled && s.shown == lod),
+        stale: cells().any(|s| s.stale),
+        provisional: bake.lod == 0 && cells().any(|s| s.provisional),
     }
 }
 
@@ -391,8 +473,14 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
         let s = &st.cells[c as usize];
         let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
         // A reload's provisional cells first (the change is shown at full quality soonest),
-        // refinement before refreshing stale light, then the policy's order.
-        (!s.provisional, s.target <= s.shown, priority(view, s.shown, false), c)
+        // refinement (an unsettled level's included) before refreshing stale light, then the
+        // policy's order. An unsettled level ranks as the settled level it came from: its
+        // early publish changes what is shown, not what is worked on (the bake in progress
+        // stays as urgent as it was, so the cells near the camera are refined as far and as
+        // soon as they were before early publishes, and show it sooner).
+        let refines = s.target > s.shown || (s.unsettled && s.target >= s.shown);
+        let settled_lod = s.shown - u32::from(s.unsettled && s.shown > 0);
+        (!s.provisional, !refines, priority(view, settled_lod, false), c)
     };
     let leader_of = |st: &State, c: CellId| st.cells[c as usize].member_of.unwrap_or(c);
     let c = world
@@ -431,7 +519,8 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
 
 /// The cells a new bake of `leader` at `lod` takes: the leader, then its nearest neighbours
 /// (within [`GROUP_REACH`] cells on each axis) that also want `lod` next from the same shown
-/// LOD (and are as provisional, see [`CellState::provisional`]) and are free (no bake of
+/// LOD (and are as provisional and as unsettled, see [`CellState::provisional`] and
+/// [`CellState::unsettled`]: a group follows one swap rule) and are free (no bake of
 /// their own, not in a group), until the group has `config.group_texels` texels at `lod` (estimated from LOD 0's); never more than twice that,
 /// nor more than the memory budget has free.
 fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<CellId> {
@@ -445,7 +534,8 @@ fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<Ce
     }
     let free = shared.config.memory_budget.saturating_sub(budgeted_bytes(shared, st));
     let mut bytes = bake_estimate(world, leader, lod);
-    let (shown, provisional) = (st.cells[leader as usize].shown, st.cells[leader as usize].provisional);
+    let l = &st.cells[leader as usize];
+    let (shown, provisional, unsettled) = (l.shown, l.provisional, l.unsettled);
     let [x, y, z] = world.grid.coords(leader);
     let dims = world.grid.dims;
     let range = |v: u32, n: u32| v.saturating_sub(GROUP_REACH)..=(v + GROUP_REACH).min(n - 1);
@@ -461,6 +551,7 @@ fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<Ce
                     && free
                     && s.shown == shown
                     && s.provisional == provisional
+                    && s.unsettled == unsettled
                     && next_lod(s) == Some(lod)
                 {
                     let d = i.abs_diff(x).max(j.abs_diff(y)).max(k.abs_diff(z));
@@ -565,6 +656,9 @@ fn evict(shared: &Shared, st: &mut State, cell: CellId) {
     }
     let pixels = std::mem::take(&mut s.published[lod as usize]);
     s.shown = lod - 1;
+    // Only the finest shown level may be unsettled: the coarser one was settled before the
+    // cell swapped on from it.
+    s.unsettled = false;
     s.history.truncate(lod as usize);
     let mut map = (*shared.shown()).clone();
     let mut writer = PageWriter::new(&mut map);
@@ -650,37 +744,41 @@ pub(super) fn worker(shared: &Shared) {
         let c = &shared.config;
         let error = bake.error();
         let d = bake.directions();
-        let ready = if bake.lod == 0 && bake.cells.iter().any(|&m| st.cells[m as usize].provisional) {
-            // Replacing a reload's quick LOD 0: with first light's directions, as LOD 0 is
-            // everywhere else.
-            d >= c.bundle.directions as u64
+        let due = publish_due(c, bake.lod, shown_now(&st, &bake), d, error);
+        if due == Due::Wait {
+            park(&mut st, bake);
         } else {
-            d >= c.max_directions as u64 || (d >= c.min_directions as u64 && error <= c.error_bound)
-        };
-        if ready {
-            st.bake_bytes -= bake.bytes() as u64;
-            let refined = publish(shared, &mut st, &bake, error);
-            for &m in &bake.cells {
-                let s = &mut st.cells[m as usize];
-                s.busy = false;
-                s.member_of = None;
-                s.baking_directions = 0;
+            let settled = due == Due::Settled;
+            let refined = publish(shared, &mut st, &bake, error, settled);
+            let (cells, lod) = (bake.cells.clone(), bake.lod);
+            if settled {
+                st.bake_bytes -= bake.bytes() as u64;
+                for &m in &bake.cells {
+                    let s = &mut st.cells[m as usize];
+                    s.busy = false;
+                    s.member_of = None;
+                    s.baking_directions = 0;
+                }
+            } else {
+                // Published early: the bake goes on at this LOD into the same sums, parked as
+                // between any two units (its memory stays reserved: the budget counted its
+                // pages and its bake together).
+                park(&mut st, bake);
             }
             drop(st);
-            for &cell in &bake.cells {
+            for &cell in &cells {
                 shared.emit(RuntimeEvent::CellPublished {
                     cell,
-                    lod: bake.lod,
+                    lod,
                     directions: d,
                     error,
-                    group: bake.cells.clone(),
+                    settled,
+                    group: cells.clone(),
                 });
             }
             if let Some(ms) = refined {
                 shared.emit(RuntimeEvent::ReloadRefined { ms, directions: c.bundle.directions });
             }
-        } else {
-            park(&mut st, bake);
         }
         shared.wake.notify_all();
     }
@@ -698,7 +796,7 @@ fn park(st: &mut State, bake: Box<CellBake>) {
     st.cells[leader as usize].bake = Some(bake);
 }
 
-/// Writes a converged bake's texels and gutter pixels (`values` per texel) into `map` at
+/// Writes a bake's texels and gutter pixels (`values` per texel) into `map` at
 /// its LOD and swaps its cells to it. Returns the pixels written per cell of the bake.
 pub fn publish_bake(map: &mut ShownLightmap, bake: &CellBake, values: &[Rgb]) -> Vec<Vec<[u32; 2]>> {
     publish_texels(map, bake, values, &[])
@@ -730,10 +828,11 @@ fn publish_texels(
     bake.pixels_per_cell()
 }
 
-/// Publishes a converged bake in one new snapshot (every cell of a group at once). Returns
-/// the milliseconds since the change was seen when this published the last provisional cell
-/// of a reload (`reload_refined`).
-fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32) -> Option<f64> {
+/// Publishes a bake in one new snapshot (every cell of a group at once); `settled`: by the
+/// error bound or the most directions, else early (the bake goes on, [`publish_due`]).
+/// Returns the milliseconds since the change was seen when this published the last
+/// provisional cell of a reload (`reload_refined`).
+fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32, settled: bool) -> Option<f64> {
     let values = bake.result();
     let lod = bake.lod as usize;
     let replaced: Vec<Vec<[u32; 2]>> = bake
@@ -749,6 +848,7 @@ fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32) -> Opti
         let cell = &mut st.cells[c as usize];
         cell.shown = bake.lod;
         cell.stale = false;
+        cell.unsettled = !settled;
         // (A provisional cell's next bake is at LOD 0: `next_lod`.)
         if cell.provisional && bake.lod == 0 {
             cell.provisional = false;
@@ -800,5 +900,75 @@ pub(super) fn clock_thread(shared: &Shared) {
         let stats = current_stats(shared, &mut st);
         drop(st);
         shared.emit(RuntimeEvent::Stats(stats));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn config() -> RuntimeConfig {
+        RuntimeConfig { min_directions: 32, max_directions: 512, error_bound: 0.03, ..RuntimeConfig::default() }
+    }
+
+    fn shown(lod: u32, directions: u64) -> ShownNow {
+        ShownNow { lod, directions, unsettled: false, stale: false, provisional: false }
+    }
+
+    /// A finer level is published early at exactly the shown level's directions, whatever
+    /// its error; the error bound still settles it sooner, never before the minimum.
+    #[test]
+    fn a_finer_level_swaps_at_the_shown_levels_directions() {
+        let c = config();
+        let from = shown(0, 128);
+        assert_eq!(publish_due(&c, 1, from, 124, 0.2), Due::Wait);
+        assert_eq!(publish_due(&c, 1, from, 128, 0.2), Due::Early);
+        assert_eq!(publish_due(&c, 1, from, 32, 0.02), Due::Settled);
+        assert_eq!(publish_due(&c, 1, from, 28, 0.0), Due::Wait, "below the minimum");
+        // A shown level with fewer directions than the minimum: the minimum holds.
+        assert_eq!(publish_due(&c, 1, shown(0, 16), 28, 0.2), Due::Wait);
+        assert_eq!(publish_due(&c, 1, shown(0, 16), 32, 0.2), Due::Early);
+        // More than the maximum shown: the maximum settles first.
+        assert_eq!(publish_due(&c, 2, shown(1, 1024), 512, 0.2), Due::Settled);
+    }
+
+    /// An unsettled level is published again each time its directions double and settled by
+    /// the bound or the maximum; a settled level (a stale refresh) or a stale unsettled one
+    /// only when settled.
+    #[test]
+    fn an_unsettled_level_is_republished_as_its_directions_double() {
+        let c = config();
+        let unsettled = ShownNow { unsettled: true, ..shown(1, 128) };
+        assert_eq!(publish_due(&c, 1, unsettled, 252, 0.2), Due::Wait);
+        assert_eq!(publish_due(&c, 1, unsettled, 256, 0.2), Due::Early);
+        assert_eq!(publish_due(&c, 1, unsettled, 140, 0.02), Due::Settled);
+        assert_eq!(publish_due(&c, 1, ShownNow { unsettled: true, ..shown(1, 256) }, 512, 0.2), Due::Settled);
+        assert_eq!(publish_due(&c, 1, shown(1, 128), 256, 0.2), Due::Wait, "a refresh of a settled level");
+        let stale = ShownNow { stale: true, ..unsettled };
+        assert_eq!(publish_due(&c, 1, stale, 256, 0.2), Due::Wait, "a stale level");
+        assert_eq!(publish_due(&c, 1, stale, 512, 0.2), Due::Settled);
+    }
+
+    /// Replacing a reload's quick LOD 0 takes first light's directions, as before: no early
+    /// publish and no error bound.
+    #[test]
+    fn a_provisional_lod0_waits_for_first_lights_directions() {
+        let c = config();
+        let provisional = ShownNow { provisional: true, ..shown(0, 32) };
+        let full = c.bundle.directions as u64;
+        assert_eq!(publish_due(&c, 0, provisional, full - 4, 0.0), Due::Wait);
+        assert_eq!(publish_due(&c, 0, provisional, full, 0.5), Due::Settled);
+    }
+
+    /// The LOD a cell bakes next: an unsettled level is finished before the next, unless the
+    /// cell is now wanted coarser.
+    #[test]
+    fn an_unsettled_cell_bakes_its_shown_lod_next() {
+        let cell = |shown, target, unsettled| CellState { shown, target, unsettled, ..CellState::default() };
+        assert_eq!(next_lod(&cell(1, 3, true)), Some(1));
+        assert_eq!(next_lod(&cell(1, 1, true)), Some(1));
+        assert_eq!(next_lod(&cell(1, 0, true)), None);
+        assert_eq!(next_lod(&cell(1, 3, false)), Some(2));
+        assert_eq!(next_lod(&cell(1, 1, false)), None);
     }
 }

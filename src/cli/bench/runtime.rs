@@ -5,8 +5,9 @@
 //!   scene load is not) to the `first_light` event, median over a few starts, and the cells
 //!   and texels it lit;
 //! * refinement for a fixed wall time with a fixed camera inside the room: cells per shown
-//!   LOD, swaps (`cell_published`) and their times, throughput, the memory it reports, the
-//!   time of one unit of work;
+//!   LOD, swaps (a `cell_published` that raises the cell's LOD) and their times, republishes
+//!   (one at the cell's LOD: an unsettled level with more directions), throughput, the
+//!   memory it reports, the time of one unit of work;
 //! * the error of the shown light map near the camera (the nearer half of the surface points
 //!   hit by a grid of rays through the view) against the in-crate reference path tracer,
 //!   side by side with whole-scene progressive bakes given the same wall time: at the
@@ -17,6 +18,7 @@
 //!
 //! Both clocks start before the atlas is built (the scene is loaded before either).
 
+use std::collections::HashMap;
 use std::ops::ControlFlow;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -32,6 +34,7 @@ use livebake::bake::memory::{self, resident_bytes};
 use livebake::bake::{BakeConfig, check_lod_sizes, check_node_capacity};
 use livebake::bundle::{BackendProvider, BundleScene};
 use livebake::cpu::CpuProvider;
+use livebake::grid::CellId;
 use livebake::probe::{LightmapLookup, SurfaceLocator};
 use livebake::progress::NoProgress;
 use livebake::reference::{Bvh, ReferenceTracer};
@@ -73,6 +76,27 @@ pub fn next_event(runtime: &Runtime, timeout: Duration) -> Result<Option<TimedEv
         },
         Err(crossbeam_channel::RecvTimeoutError::Timeout) => Ok(None),
         Err(crossbeam_channel::RecvTimeoutError::Disconnected) => bail!("the runtime's event channel closed"),
+    }
+}
+
+/// Each cell's shown LOD as the events tell it (LOD 0 until published): a `cell_published`
+/// that raises it is a swap, one at the same LOD a republish (an unsettled level with more
+/// directions, or a refresh).
+#[derive(Default)]
+pub(super) struct ShownLods(HashMap<CellId, u32>);
+
+impl ShownLods {
+    /// Notes a publish of `cell` at `lod`; returns whether it swapped the cell to a finer LOD.
+    pub fn published(&mut self, cell: CellId, lod: u32) -> bool {
+        let shown = self.0.entry(cell).or_insert(0);
+        let swap = lod > *shown;
+        *shown = lod;
+        swap
+    }
+
+    /// Notes that `cell`'s `lod` was evicted (it shows the next coarser).
+    pub fn evicted(&mut self, cell: CellId, lod: u32) {
+        self.0.insert(cell, lod.saturating_sub(1));
     }
 }
 
@@ -374,8 +398,10 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
         bail!("only {} surface points in view", points.len());
     }
     let reader = ShownReader::new(&world, &points)?;
-    // (time, LOD, directions, estimated error) of each swap.
-    let mut swaps: Vec<(f64, u32, u64, f32)> = Vec::new();
+    // (time, LOD, directions, estimated error, settled) of each swap, and of each republish.
+    let mut swaps: Vec<(f64, u32, u64, f32, bool)> = Vec::new();
+    let mut republishes: Vec<(f64, u32, u64, f32, bool)> = Vec::new();
+    let mut lods = ShownLods::default();
     let mut stats: Vec<(f64, RuntimeStats)> = Vec::new();
     let mut evictions = 0;
     // LOD 0 with all its directions (first light shows the first few of them).
@@ -395,8 +421,14 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
         let wait = Duration::from_secs_f64((end.min(next_snapshot) - now).clamp(0.001, 0.1));
         if let Some(e) = next_event(&runtime, wait)? {
             match e.event {
-                RuntimeEvent::CellPublished { lod, directions, error, .. } => swaps.push((e.t, lod, directions, error)),
-                RuntimeEvent::CellEvicted { .. } => evictions += 1,
+                RuntimeEvent::CellPublished { cell, lod, directions, error, settled, .. } => {
+                    let p = (e.t, lod, directions, error, settled);
+                    if lods.published(cell, lod) { swaps.push(p) } else { republishes.push(p) }
+                }
+                RuntimeEvent::CellEvicted { cell, lod } => {
+                    lods.evicted(cell, lod);
+                    evictions += 1;
+                }
                 RuntimeEvent::Stats(s) => stats.push((e.t, s)),
                 RuntimeEvent::Lod0Published { directions } if directions >= config.bundle.directions as u64 => {
                     lod0_complete = Some((e.t, runtime.shown()));
@@ -442,8 +474,12 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
     let swap_directions: Vec<f64> = swaps.iter().map(|s| s.2 as f64).collect();
     let swap_errors: Vec<f64> = swaps.iter().map(|s| s.3 as f64).collect();
     let at_max = swaps.iter().filter(|s| s.2 >= config.max_directions as u64).count();
+    let publishes = || swaps.iter().chain(&republishes);
+    let settled = publishes().filter(|s| s.4).count();
+    let settled_at_max = publishes().filter(|s| s.4 && s.2 >= config.max_directions as u64).count();
+    let republish_directions: Vec<f64> = republishes.iter().map(|s| s.2 as f64).collect();
     let mut swaps_per_lod = vec![0usize; world.lods as usize];
-    for &(_, lod, _, _) in &swaps {
+    for &(_, lod, _, _, _) in &swaps {
         swaps_per_lod[lod as usize] += 1;
     }
     let refine_stats: Vec<&RuntimeStats> = stats.iter().filter(|(t, _)| *t > t_light + 1.0).map(|(_, s)| s).collect();
@@ -492,6 +528,11 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
             "directions_per_swap": { "median": quantile(&swap_directions, 0.5), "p90": quantile(&swap_directions, 0.9) },
             "estimated_error_per_swap": { "median": quantile(&swap_errors, 0.5), "p90": quantile(&swap_errors, 0.9) },
             "swaps_at_max_directions": at_max,
+            "swaps_settled": swaps.iter().filter(|s| s.4).count(),
+            "republishes": republishes.len(),
+            "directions_per_republish": { "median": quantile(&republish_directions, 0.5), "p90": quantile(&republish_directions, 0.9) },
+            "settled_publishes": settled,
+            "settled_at_max_directions": settled_at_max,
             "swap_rule": { "min_directions": config.min_directions, "max_directions": config.max_directions, "error_bound": config.error_bound },
             "swap_seconds_from_start": { "median": quantile(&swap_times, 0.5), "p90": quantile(&swap_times, 0.9), "first": swap_times.first(), "last": swap_times.last() },
             "evictions": evictions,

@@ -40,7 +40,8 @@ use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, Runtim
 use livebake::scene::SceneGeometry;
 
 use super::runtime::{
-    ShownReader, median_point_error, next_event, quantile, reference_at, view_hits, wait_first_light, whole_bake,
+    ShownLods, ShownReader, median_point_error, next_event, quantile, reference_at, view_hits, wait_first_light,
+    whole_bake,
 };
 use crate::cli::points::Query;
 use crate::cli::progress::Ui;
@@ -117,7 +118,9 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     let mut values_goal = (first.1 <= GOAL).then_some(first_values);
     let mut curve: Vec<(f64, f64, f64)> = vec![first];
     let mut stats: Vec<(f64, RuntimeStats)> = Vec::new();
-    let mut swaps = 0usize;
+    // Swaps raise a cell's LOD; republishes are at its LOD (an unsettled level, refined).
+    let (mut swaps, mut republishes) = (0usize, 0usize);
+    let mut lods = ShownLods::default();
     let mut next = t_light + 1.0;
     while runtime.elapsed() < t_light + horizon {
         let now = runtime.elapsed();
@@ -131,7 +134,14 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
         }
         if let Some(e) = next_event(&runtime, Duration::from_secs_f64((next - now).clamp(0.001, 0.1)))? {
             match e.event {
-                RuntimeEvent::CellPublished { .. } => swaps += 1,
+                RuntimeEvent::CellPublished { cell, lod, .. } => {
+                    if lods.published(cell, lod) {
+                        swaps += 1
+                    } else {
+                        republishes += 1
+                    }
+                }
+                RuntimeEvent::CellEvicted { cell, lod } => lods.evicted(cell, lod),
                 RuntimeEvent::Stats(s) => stats.push((e.t, s)),
                 _ => {}
             }
@@ -258,6 +268,7 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
             "median_lod_at_points_at_goal": lod_goal,
             "runtime_curve": curve.iter().map(|&(t, e, l)| json!({"seconds": t, "error": e, "median_lod_at_points": l})).collect::<Vec<_>>(),
             "swaps": swaps,
+            "republishes": republishes,
             "runtime_peak_resident_bytes": runtime_peak,
             "runtime_peak_accounted_bytes": accounted_peak,
             "median_texel_samples_per_second": quantile(&steady_rates, 0.5),
