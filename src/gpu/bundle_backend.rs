@@ -56,6 +56,36 @@ impl From<Cancelled> for BatchError {
     }
 }
 
+/// What identifies a target's GPU buffers: its LOD, texel count and a hash of its tables
+/// (charts, rectangles and every entry: a few ms for a whole LOD, against seconds a batch).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct TargetKey {
+    lod: u32,
+    texels: usize,
+    tables: u64,
+}
+
+impl TargetKey {
+    fn of(target: &BakeTarget) -> TargetKey {
+        // FNV-1a over the tables' words.
+        let mut h = 0xcbf2_9ce4_8422_2325u64;
+        let mut add = |w: u64| {
+            h ^= w;
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        };
+        for t in target.tables {
+            add(t.chart.map_or(u64::MAX, u64::from));
+            for v in [t.rect.x0, t.rect.y0, t.rect.x1, t.rect.y1] {
+                add(v as u64);
+            }
+            for &e in t.entries() {
+                add(e as u64);
+            }
+        }
+        TargetKey { lod: target.lod, texels: target.len(), tables: h }
+    }
+}
+
 /// Analysis maps and plan buffers of one analysis resolution.
 struct PlanBuffers {
     res: u32,
@@ -77,6 +107,8 @@ pub struct GpuBundleBackend {
     resolve: ResolvePass,
     list_buffers: ListBuffers,
     plans: Vec<PlanBuffers>,
+    /// The last target's buffers (see [`TargetKey`]).
+    target_buffers: Option<(TargetKey, TargetBuffers)>,
     importance: Vec<f32>,
     sphere_stack: Vec<u32>,
     window_triangles: Vec<u32>,
@@ -138,6 +170,7 @@ impl GpuBundleBackend {
             resolve,
             list_buffers,
             plans: Vec::new(),
+            target_buffers: None,
             importance,
             sphere_stack: Vec::new(),
             window_triangles: Vec::new(),
@@ -180,7 +213,31 @@ impl GpuBundleBackend {
         cancel: &AtomicBool,
     ) -> Result<PassStats, BatchError> {
         self.set_importance(target);
-        let buffers = TargetBuffers::new(&self.gpu, target)?;
+        // A bake's batches share one target: its tables are uploaded once, and its buffers
+        // reused (made anew per batch, lavapipe's host memory grew by ~40 MB a batch before
+        // wgpu reclaimed them).
+        if self.resolve.worn() {
+            self.resolve = ResolvePass::new(&self.gpu)?;
+        }
+        let key = TargetKey::of(target);
+        let buffers = match self.target_buffers.take() {
+            Some((k, b)) if k == key => b,
+            _ => TargetBuffers::new(&self.gpu, target)?,
+        };
+        let result = self.trace_global_into(target, batch, source, sums, cancel, &buffers);
+        self.target_buffers = Some((key, buffers));
+        result
+    }
+
+    fn trace_global_into(
+        &mut self,
+        target: &BakeTarget,
+        batch: &[DirectionJob],
+        source: &SourceRadiance,
+        sums: &mut BatchSums,
+        cancel: &AtomicBool,
+        buffers: &TargetBuffers,
+    ) -> Result<PassStats, BatchError> {
         let bundle = &self.scene.bundle;
         let texel = bundle.atlas.texel_size / (1u64 << target.lod) as f32;
         let sky = bundle.scene.sky;
@@ -196,7 +253,7 @@ impl GpuBundleBackend {
             buffers.start_batch(&self.gpu, source.own);
             let mut stats = PassStats::default();
             for job in batch {
-                self.trace_direction(target, job, &buffers, scales, &mut stats, cancel)?;
+                self.trace_direction(target, job, buffers, scales, &mut stats, cancel)?;
             }
             let status: ResolveStatus = buffers.read(&self.gpu, scales, &mut sums.bundle)?;
             self.gpu.take_error()?;

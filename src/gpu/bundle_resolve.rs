@@ -35,7 +35,20 @@ const STATUS_WORDS: u64 = 4;
 pub struct ResolvePass {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
+    /// The rectangle's `ResolveParams`, rewritten for each (one rectangle per submission).
+    params: wgpu::Buffer,
+    /// Dispatches recorded (see [`RENEW_AFTER_DISPATCHES`]).
+    dispatches: std::cell::Cell<u32>,
 }
+
+/// On lavapipe the resolve pipeline holds on to about 1 MB per dispatch (measured on the
+/// Cornell box: +170 MB per batch of 8 directions, none when the dispatch is skipped, the
+/// same with its parameters and buffers reused; freed with the pipeline). The backend makes
+/// the pipeline anew after this many dispatches, at the next batch, which bounds it.
+pub const RENEW_AFTER_DISPATCHES: u32 = 256;
+
+/// Bytes the pipeline may hold on to before it is renewed (for the memory estimate).
+pub const PIPELINE_GROWTH_BYTES: u64 = (RENEW_AFTER_DISPATCHES as u64 + 256) << 20;
 
 /// Every triangle's front normal and faces (charts and atlas UVs), uploaded once per scene.
 pub struct SceneSides {
@@ -289,13 +302,25 @@ impl ResolvePass {
             compilation_options: Default::default(),
             cache: None,
         });
+        let params = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("bundle resolve params"),
+            size: size_of::<ResolveParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         gpu.take_error()?;
-        Ok(ResolvePass { layout, pipeline })
+        Ok(ResolvePass { layout, pipeline, params, dispatches: std::cell::Cell::new(0) })
+    }
+
+    /// Whether the pipeline should be made anew (see [`RENEW_AFTER_DISPATCHES`]).
+    pub fn worn(&self) -> bool {
+        self.dispatches.get() >= RENEW_AFTER_DISPATCHES
     }
 
     /// Records the resolve of the rectangle last built into `lists` (in the same or an
     /// earlier submission). It does nothing when the list build overflowed a splittable
-    /// rectangle (the host splits and redoes it).
+    /// rectangle (the host splits and redoes it). Its parameters are written through the
+    /// queue: one resolve per submission.
     #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
@@ -333,13 +358,9 @@ impl ResolvePass {
             _pad: 0,
         };
         let device = &gpu.device;
-        let params = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("bundle resolve params"),
-            contents: bytemuck::bytes_of(&params),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
+        gpu.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
         let buffers = [
-            &params,
+            &self.params,
             &triangles.corners,
             &sides.buffer,
             &lists.heads,
@@ -366,5 +387,6 @@ impl ResolvePass {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &group, &[]);
         pass.dispatch_workgroups(vp.width.div_ceil(8), vp.height.div_ceil(8), 1);
+        self.dispatches.set(self.dispatches.get() + 1);
     }
 }
