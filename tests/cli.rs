@@ -464,9 +464,12 @@ fn run_streams_events_and_writes_what_it_showed() {
     for c in list {
         assert!(c["bounds"]["min"].as_array().unwrap().len() == 3 && c["shown_lod"].as_u64().is_some(), "{c}");
     }
-    let published = events.iter().filter(|e| e["event"] == "cell_published").count();
+    // Cells published (a cell may be published more than once: early at a finer level, then
+    // again as that level refines in place, see README "Refinement near the camera").
+    let published: std::collections::BTreeSet<u64> =
+        events.iter().filter(|e| e["event"] == "cell_published").map(|e| e["cell"].as_u64().unwrap()).collect();
     let refined = list.iter().filter(|c| c["shown_lod"].as_u64().unwrap() > 0).count();
-    assert_eq!(refined, published, "every publish shows in the cell table (no eviction at this size)");
+    assert_eq!(refined, published.len(), "every published cell shows in the cell table (no eviction at this size)");
     let report = read_json(&out.join("report.json"));
     assert!(
         report["first_light_seconds"].as_f64().unwrap() > 0.0
