@@ -960,6 +960,11 @@ fn run_exports_the_light_map_it_showed() {
         "16",
         "--max-directions",
         "64",
+        // More levels than the room's default two, so that the run ends with cells at
+        // several LODs (with early swaps every cell reaches LOD 1 within the seconds):
+        // points in cells at the exported LOD and points elsewhere are both compared.
+        "--lods",
+        "4",
         "--camera",
         "0.3,1,1.7,1.7,0.6,0.3",
         "--out",
