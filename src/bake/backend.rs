@@ -7,12 +7,9 @@ use std::time::Instant;
 use super::BackendKind;
 use super::BakeError;
 use crate::atlas::TexelMap;
-use crate::atlas::lookup::TexelTable;
 use crate::bundle::progressive::BatchSums;
-use crate::bundle::target::target_triangles;
-use crate::bundle::{
-    BackendProvider, BakeTarget, BundleBackend, BundleScene, DirectionJob, JobSequence, SourceRadiance,
-};
+use crate::bundle::target::WholeLod;
+use crate::bundle::{BackendProvider, BundleBackend, BundleScene, DirectionJob, JobSequence, SourceRadiance};
 use crate::cpu::CpuProvider;
 use crate::gpu::choice::{self, Chosen};
 use crate::gpu::{GpuContext, GpuProvider};
@@ -83,16 +80,8 @@ pub(super) fn bundle_backend(
 /// Seconds `backend` takes for one batch of four directions over the scene's LOD 0.
 fn trial(bundle: &BundleScene, backend: &mut dyn BundleBackend) -> f64 {
     let texels = TexelMap::build(&bundle.scene, &bundle.geom, &bundle.atlas, 0);
-    let tables = [TexelTable::of_map(&texels)];
-    let triangles = target_triangles(&bundle.atlas, &texels.face);
-    let target = BakeTarget {
-        lod: 0,
-        face: &texels.face,
-        emission: &texels.emission,
-        tables: &tables,
-        window: None,
-        triangles: &triangles,
-    };
+    let whole = WholeLod::new(&bundle.atlas, &texels);
+    let target = whole.target(&texels);
     let own = vec![Rgb::ZERO; texels.len()];
     let source = SourceRadiance { own: &own, foreign: None };
     let jobs = JobSequence::new(bundle.config.seed, bundle.emitters.small.len(), bundle.config.light_directions);

@@ -16,7 +16,7 @@ use super::progressive::BatchSums;
 use super::stats::PassStats;
 use super::{BundleConfig, DirectionJob};
 use crate::atlas::lookup::TexelTable;
-use crate::atlas::{Atlas, FaceId};
+use crate::atlas::{Atlas, FaceId, TexelMap};
 use crate::scene::{Rgb, Scene, SceneGeometry, Side};
 
 /// Marks a triangle that belongs to no light-pass emitter group.
@@ -88,6 +88,31 @@ impl BakeTarget<'_> {
         match self.tables {
             [t] if t.chart.is_none() => Some(0),
             tables => tables.binary_search_by_key(&Some(chart), |t| t.chart).ok(),
+        }
+    }
+}
+
+/// What a target made of every texel of a whole-LOD texel map needs besides the map: its
+/// one whole-LOD lookup table and the triangles holding texels.
+pub struct WholeLod {
+    tables: [TexelTable; 1],
+    triangles: Vec<u32>,
+}
+
+impl WholeLod {
+    pub fn new(atlas: &Atlas, texels: &TexelMap) -> WholeLod {
+        WholeLod { tables: [TexelTable::of_map(texels)], triangles: target_triangles(atlas, &texels.face) }
+    }
+
+    /// The target: every texel of `texels` (the map this was made from), whole-scene window.
+    pub fn target<'a>(&'a self, texels: &'a TexelMap) -> BakeTarget<'a> {
+        BakeTarget {
+            lod: texels.lod,
+            face: &texels.face,
+            emission: &texels.emission,
+            tables: &self.tables,
+            window: None,
+            triangles: &self.triangles,
         }
     }
 }

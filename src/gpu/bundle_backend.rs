@@ -501,10 +501,9 @@ impl BackendProvider for GpuProvider {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::atlas::lookup::TexelTable;
     use crate::atlas::texels::TexelMap;
     use crate::bundle::JobSequence;
-    use crate::bundle::target::target_triangles;
+    use crate::bundle::target::WholeLod;
     use crate::gpu::bundle_analysis::tests::cornell;
     use crate::scene::Rgb;
 
@@ -519,16 +518,8 @@ mod tests {
     ) -> (TexelMap, BatchSums, BatchSums, PassStats) {
         let bundle = &scene.bundle;
         let texels = TexelMap::build(&bundle.scene, &bundle.geom, &bundle.atlas, lod);
-        let tables = [TexelTable::of_map(&texels)];
-        let triangles = target_triangles(&bundle.atlas, &texels.face);
-        let target = BakeTarget {
-            lod,
-            face: &texels.face,
-            emission: &texels.emission,
-            tables: &tables,
-            window: None,
-            triangles: &triangles,
-        };
+        let whole = WholeLod::new(&bundle.atlas, &texels);
+        let target = whole.target(&texels);
         let own: Vec<Rgb> = (0..texels.len())
             .map(|i| {
                 let h = crate::sampling::mix64(i as u64);
@@ -636,16 +627,8 @@ mod tests {
         let scene = cornell();
         let bundle = &scene.bundle;
         let texels = TexelMap::build(&bundle.scene, &bundle.geom, &bundle.atlas, 0);
-        let tables = [TexelTable::of_map(&texels)];
-        let triangles = target_triangles(&bundle.atlas, &texels.face);
-        let target = BakeTarget {
-            lod: 0,
-            face: &texels.face,
-            emission: &texels.emission,
-            tables: &tables,
-            window: None,
-            triangles: &triangles,
-        };
+        let whole = WholeLod::new(&bundle.atlas, &texels);
+        let target = whole.target(&texels);
         let own = vec![Rgb::ONE; texels.len()];
         let source = SourceRadiance { own: &own, foreign: None };
         let jobs = JobSequence::new(1, 0, 0);

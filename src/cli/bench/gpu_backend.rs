@@ -11,13 +11,12 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 
-use livebake::atlas::lookup::TexelTable;
 use livebake::atlas::{Atlas, AtlasConfig, TexelMap};
 use livebake::bundle::progressive::BatchSums;
 use livebake::bundle::stats::PassStats;
-use livebake::bundle::target::target_triangles;
+use livebake::bundle::target::WholeLod;
 use livebake::bundle::{
-    BackendProvider, BakeTarget, BundleBackend, BundleConfig, BundleScene, DirectionJob, JobSequence, SourceRadiance,
+    BackendProvider, BundleBackend, BundleConfig, BundleScene, DirectionJob, JobSequence, SourceRadiance,
 };
 use livebake::cpu::CpuProvider;
 use livebake::gpu::{GpuContext, GpuProvider};
@@ -45,16 +44,8 @@ fn one(name: &str, scene: Arc<Scene>, directions: u64, runs: usize, gpu: &GpuCon
     let atlas = Arc::new(Atlas::build(&scene, &geom, &AtlasConfig::default())?);
     let bundle = Arc::new(BundleScene::new(scene.clone(), geom.clone(), atlas.clone(), BundleConfig::default()));
     let texels = TexelMap::build(&scene, &geom, &atlas, 0);
-    let tables = [TexelTable::of_map(&texels)];
-    let triangles = target_triangles(&atlas, &texels.face);
-    let target = BakeTarget {
-        lod: 0,
-        face: &texels.face,
-        emission: &texels.emission,
-        tables: &tables,
-        window: None,
-        triangles: &triangles,
-    };
+    let whole = WholeLod::new(&atlas, &texels);
+    let target = whole.target(&texels);
     // A source as a bake's first batch has it: each texel's emission.
     let own: Vec<Rgb> = texels.emission.clone();
     let source = SourceRadiance { own: &own, foreign: None };
