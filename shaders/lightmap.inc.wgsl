@@ -1,6 +1,7 @@
 // The shown light map on the GPU (gpu::lightmap): pages of 64×64 pixels in a pool texture,
-// a page table per LOD, one shown LOD per world cell. `shown_irradiance` is the WGSL twin of
-// the CPU's ShownLightmap::irradiance (a test holds them equal).
+// a page table per layer and LOD, one shown LOD per layer and world cell. The layers (0: the
+// bundles' light, 1: punctual lights' direct light) add up. `shown_irradiance` is the WGSL
+// twin of the CPU's ShownLightmap::irradiance (a test holds them equal).
 
 const PAGE_SIDE: i32 = 64;
 const NO_PAGE: u32 = 0xffffffffu;
@@ -25,7 +26,15 @@ struct LightmapParams {
     blend_band: f32,
     // Pages per row of the pool texture.
     pool_columns: u32,
-    levels: array<LodLevel, 8>,
+    // Layers to sample: 1 (the bundles' light) or 2 (and the punctual layer, once it has
+    // anything published).
+    layer_count: u32,
+    // Cells of the grid: layer l's cell LODs start at l · cell_count in `cell_lod`.
+    cell_count: u32,
+    _pad0: u32,
+    _pad1: u32,
+    // Per layer, per LOD (layer · MAX_LODS + LOD).
+    levels: array<LodLevel, 16>,
 }
 
 @group(1) @binding(0) var<uniform> lm: LightmapParams;
@@ -33,14 +42,14 @@ struct LightmapParams {
 @group(1) @binding(2) var<storage, read> page_table: array<u32>;
 @group(1) @binding(3) var lm_pool: texture_2d<f32>;
 
-// One pixel of LOD k: (E, 1) when published, 0 outside the page table, in a missing page
-// or where nothing was published.
-fn lm_tap(k: u32, px: vec2<i32>) -> vec4<f32> {
+// One pixel of LOD k of a layer: (E, 1) when published, 0 outside the page table, in a
+// missing page or where nothing was published.
+fn lm_tap(layer: u32, k: u32, px: vec2<i32>) -> vec4<f32> {
     if any(px < vec2<i32>(0)) {
         return vec4<f32>(0.0);
     }
     let page = px / PAGE_SIDE;
-    let level = lm.levels[k];
+    let level = lm.levels[layer * MAX_LODS + k];
     if u32(page.x) >= level.pages_x || u32(page.y) >= level.pages_y {
         return vec4<f32>(0.0);
     }
@@ -56,8 +65,9 @@ fn lm_tap(k: u32, px: vec2<i32>) -> vec4<f32> {
     return vec4<f32>(0.0);
 }
 
-// Bilinear at uv·2^k − 0.5 over the valid taps; where none is valid, the next coarser LOD.
-fn lm_value(lod: u32, uv: vec2<f32>) -> vec3<f32> {
+// Bilinear at uv·2^k − 0.5 over a layer's valid taps; where none is valid, the next coarser
+// LOD.
+fn lm_value(layer: u32, lod: u32, uv: vec2<f32>) -> vec3<f32> {
     var k = i32(min(lod, lm.lod_count - 1u));
     loop {
         if k < 0 {
@@ -67,10 +77,10 @@ fn lm_value(lod: u32, uv: vec2<f32>) -> vec3<f32> {
         let p0 = floor(p);
         let f = p - p0;
         let i0 = vec2<i32>(p0);
-        let t00 = lm_tap(u32(k), i0);
-        let t10 = lm_tap(u32(k), i0 + vec2<i32>(1, 0));
-        let t01 = lm_tap(u32(k), i0 + vec2<i32>(0, 1));
-        let t11 = lm_tap(u32(k), i0 + vec2<i32>(1, 1));
+        let t00 = lm_tap(layer, u32(k), i0);
+        let t10 = lm_tap(layer, u32(k), i0 + vec2<i32>(1, 0));
+        let t01 = lm_tap(layer, u32(k), i0 + vec2<i32>(0, 1));
+        let t11 = lm_tap(layer, u32(k), i0 + vec2<i32>(1, 1));
         let w00 = (1.0 - f.x) * (1.0 - f.y) * t00.a;
         let w10 = f.x * (1.0 - f.y) * t10.a;
         let w01 = (1.0 - f.x) * f.y * t01.a;
@@ -93,17 +103,17 @@ fn lm_cell_index(c: vec3<u32>) -> u32 {
     return c.x + lm.grid_dims.x * (c.y + lm.grid_dims.y * c.z);
 }
 
-// Shown LOD of the cell holding p.
+// Shown LOD of the cell holding p (the bundles' layer).
 fn lm_shown_lod(p: vec3<f32>) -> u32 {
     return cell_lod[lm_cell_index(lm_cell_coords(p))];
 }
 
-// Irradiance (W/m²) shown at world position p with LOD-0 atlas UV uv: the cell's LOD,
-// blended near faces shared with coarser neighbours.
-fn shown_irradiance(p: vec3<f32>, uv: vec2<f32>) -> vec3<f32> {
-    let c = lm_cell_coords(p);
-    let k = cell_lod[lm_cell_index(c)];
-    let base = lm_value(k, uv);
+// One layer's irradiance at world position p with LOD-0 atlas UV uv, in cell c: the cell's
+// LOD in that layer, blended near faces shared with coarser neighbours (in that layer).
+fn lm_layer_irradiance(layer: u32, c: vec3<u32>, p: vec3<f32>, uv: vec2<f32>) -> vec3<f32> {
+    let lods = layer * lm.cell_count;
+    let k = cell_lod[lods + lm_cell_index(c)];
+    let base = lm_value(layer, k, uv);
     let lo = lm.grid_origin + vec3<f32>(c) * lm.cell_size;
     if k == 0u || lm.blend_band <= 0.0 {
         return base;
@@ -131,7 +141,7 @@ fn shown_irradiance(p: vec3<f32>, uv: vec2<f32>) -> vec3<f32> {
             if d >= lm.blend_band {
                 continue;
             }
-            let kn = cell_lod[lm_cell_index(n)];
+            let kn = cell_lod[lods + lm_cell_index(n)];
             if kn >= k {
                 continue;
             }
@@ -141,7 +151,17 @@ fn shown_irradiance(p: vec3<f32>, uv: vec2<f32>) -> vec3<f32> {
         }
     }
     if near_coarser {
-        return base * (1.0 - w) + lm_value(k_low, uv) * w;
+        return base * (1.0 - w) + lm_value(layer, k_low, uv) * w;
     }
     return base;
+}
+
+// Irradiance (W/m²) shown at world position p with LOD-0 atlas UV uv: the layers summed.
+fn shown_irradiance(p: vec3<f32>, uv: vec2<f32>) -> vec3<f32> {
+    let c = lm_cell_coords(p);
+    var e = lm_layer_irradiance(0u, c, p, uv);
+    if lm.layer_count > 1u {
+        e += lm_layer_irradiance(1u, c, p, uv);
+    }
+    return e;
 }

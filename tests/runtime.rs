@@ -16,7 +16,7 @@ use livebake::probe::SurfaceLocator;
 use livebake::reference::RelativeRmsError;
 use livebake::runtime::cell_bake::CellBake;
 use livebake::runtime::policy::cell_view;
-use livebake::runtime::shown::ShownLightmap;
+use livebake::runtime::shown::{Layer, ShownLightmap};
 use livebake::runtime::world::World;
 use livebake::runtime::{
     CameraView, Runtime, RuntimeConfig, RuntimeEvent, TimedEvent, bake_first_light, empty_shown, publish_bake,
@@ -53,7 +53,7 @@ fn luminance(c: Rgb) -> f64 {
 /// Bakes `cell` at `lod` offline, in units of `unit` directions, until `directions`.
 fn bake_cell(world: &World, shown: &Arc<ShownLightmap>, cell: u32, lod: u32, seed: u64, directions: u32) -> CellBake {
     let mut backend = CpuProvider::new().backend(&world.bundle, 1).expect("backend");
-    let mut bake = CellBake::new(world, &[cell], lod, shown.clone(), seed, 2);
+    let mut bake = CellBake::new(world, &[cell], lod, shown.clone(), seed);
     let never = AtomicBool::new(false);
     while bake.directions() < directions as u64 {
         bake.step(world, &mut backend, 4, &never).expect("not cancelled");
@@ -132,7 +132,7 @@ fn corner_camera() -> CameraView {
 }
 
 /// With one worker the runtime refines cells strictly in priority order: visible before
-/// hidden, coarsest first, then nearest. Every cell starts at LOD 0 and wants LOD 1 here, so
+/// hidden, the largest LOD deficit first, then nearest. Every cell starts at LOD 0 and wants LOD 1 here, so
 /// the first cells published are the visible ones in order of distance from the camera.
 /// (One cell a bake here: groups publish their leader's neighbours with it, see
 /// `a_group_bakes_exactly_its_cells_texels`.)
@@ -199,7 +199,7 @@ fn a_cell_publishes_at_its_threshold_what_an_offline_bake_gives() {
 
     // Replay offline, unit by unit.
     let mut backend = CpuProvider::new().backend(&world.bundle, 1).expect("backend");
-    let mut bake = CellBake::new(&world, &group, lod, first.clone(), config.bundle.seed, 1);
+    let mut bake = CellBake::new(&world, &group, lod, first.clone(), config.bundle.seed);
     let never = AtomicBool::new(false);
     let (min, shown_directions) = (config.min_directions as u64, config.bundle.directions as u64);
     let ready = |b: &CellBake| {
@@ -215,11 +215,12 @@ fn a_cell_publishes_at_its_threshold_what_an_offline_bake_gives() {
     assert_eq!(bake.error(), error);
     let values = bake.result();
     for (i, p) in bake.texels.pixel.iter().enumerate() {
-        let published = shown.levels[lod as usize].texel(p[0] as i64, p[1] as i64).expect("published texel");
+        let published =
+            shown.layer(Layer::Bundles).levels[lod as usize].texel(p[0] as i64, p[1] as i64).expect("published texel");
         assert_eq!(published.to_array(), values[i].to_array(), "texel {i} at {p:?}");
     }
     for &cell in &group {
-        assert_eq!(shown.cell_lod[cell as usize] as u32, lod);
+        assert_eq!(shown.cell_lod(Layer::Bundles, cell), lod);
     }
 }
 
@@ -292,7 +293,7 @@ fn a_finer_level_is_published_at_the_shown_directions_then_refined_in_place() {
     // with the error within the bound or at `max_directions`; before that, the first publish
     // once it has the shown level's directions (and the minimum), then each time they double.
     let mut backend = CpuProvider::new().backend(&world.bundle, 1).expect("backend");
-    let mut bake = CellBake::new(&world, &group, 1, first.clone(), config.bundle.seed, 1);
+    let mut bake = CellBake::new(&world, &group, 1, first.clone(), config.bundle.seed);
     let never = AtomicBool::new(false);
     let (min, max) = (config.min_directions as u64, config.max_directions as u64);
     let mut expected: Vec<(Published, Vec<Rgb>)> = Vec::new();
@@ -320,11 +321,12 @@ fn a_finer_level_is_published_at_the_shown_directions_then_refined_in_place() {
     for ((_, d, _, _), values) in &expected {
         let map = maps.get(d).unwrap_or_else(|| panic!("no snapshot showed the publish at {d} directions"));
         for (i, p) in bake.texels.pixel.iter().enumerate() {
-            let published = map.levels[1].texel(p[0] as i64, p[1] as i64).expect("published texel");
+            let published =
+                map.layer(Layer::Bundles).levels[1].texel(p[0] as i64, p[1] as i64).expect("published texel");
             assert_eq!(published.to_array(), values[i].to_array(), "{d} directions: texel {i} at {p:?}");
         }
         for &cell in &group {
-            assert_eq!(map.cell_lod[cell as usize] as u32, 1, "cell {cell} at {d} directions");
+            assert_eq!(map.cell_lod(Layer::Bundles, cell), 1, "cell {cell} at {d} directions");
         }
     }
 }
@@ -338,9 +340,9 @@ fn a_group_bakes_exactly_its_cells_texels() {
     let world = world(load(ROOM), &config);
     let shown = first_light(&world);
     let cells: Vec<u32> = largest_cells(&world).into_iter().take(5).collect();
-    let group = CellBake::new(&world, &cells, 1, shown.clone(), 1, 2);
+    let group = CellBake::new(&world, &cells, 1, shown.clone(), 1);
     for &c in &cells {
-        let alone = CellBake::new(&world, &[c], 1, shown.clone(), 1, 2);
+        let alone = CellBake::new(&world, &[c], 1, shown.clone(), 1);
         let mut expected = alone.texels.pixel.clone();
         let mut got: Vec<[u32; 2]> = (0..group.texels.len())
             .filter(|&i| world.grid.cell_of(group.texels.position[i]) == c)
@@ -549,7 +551,7 @@ fn multi_bounce_with_mixed_lods_matches_the_independent_reference() {
         let (want, err) = (v3(&p["E"]), v3(&p["E_stderr"]));
         let got = shown.irradiance(q, uv).as_dvec3();
         all.add(got, want, err);
-        if shown.cell_lod[world.grid.cell_of(q) as usize] > 0 {
+        if shown.cell_lod(Layer::Bundles, world.grid.cell_of(q)) > 0 {
             refined_now.add(got, want, err);
             refined_before.add(first.irradiance(q, uv).as_dvec3(), want, err);
         }

@@ -11,7 +11,7 @@ use livebake::gpu::GpuContext;
 use livebake::gpu::lightmap::{self, LightmapGpu};
 use livebake::gpu::probe::IrradianceProbe;
 use livebake::grid::Grid;
-use livebake::runtime::shown::{PAGE_SIDE, PageWriter, ShownLightmap};
+use livebake::runtime::shown::{Layer, PAGE_SIDE, PageWriter, ShownLightmap};
 use livebake::viewer::render::DrawSettings;
 use livebake::viewer::{Camera, Renderer, SceneState};
 use viewer_support::*;
@@ -28,42 +28,44 @@ impl Rng {
     }
 }
 
-/// A 4×3×2-cell map with three LODs, cells at mixed LODs, pages missing at random and
-/// unpublished pixels inside pages: every branch of the sampling rule (missing page,
-/// unpublished tap, fallback to a coarser LOD, border blending, UVs outside the atlas) is
-/// exercised.
+/// A 4×3×2-cell map with three LODs in both layers, cells at mixed LODs (each layer its
+/// own), pages missing at random and unpublished pixels inside pages: every branch of the
+/// sampling rule (missing page, unpublished tap, fallback to a coarser LOD, border blending
+/// in each layer, UVs outside the atlas, the layers' sum) is exercised.
 fn synthetic_map(rng: &mut Rng) -> ShownLightmap {
     let (atlas_width, atlas_height) = (100u32, 70u32);
     let grid = Grid { origin: Vec3::new(-1.0, 0.5, 2.0), cell_size: 1.0, dims: [4, 3, 2] };
     let mut map = ShownLightmap::new(grid, atlas_width, atlas_height, 3, 0.3);
     let mut w = PageWriter::new(&mut map);
-    for k in 0..3u32 {
-        let (width, height) = (atlas_width << k, atlas_height << k);
-        for py in 0..height.div_ceil(PAGE_SIDE) {
-            for px in 0..width.div_ceil(PAGE_SIDE) {
-                if rng.next() < 0.2 {
-                    continue;
-                }
-                for y in py * PAGE_SIDE..((py + 1) * PAGE_SIDE).min(height) {
-                    for x in px * PAGE_SIDE..((px + 1) * PAGE_SIDE).min(width) {
-                        if rng.next() < 0.85 {
-                            let e = Vec3::new(rng.next(), rng.next(), rng.next()) * 10.0;
-                            w.write(k, x, y, e);
+    for layer in Layer::ALL {
+        for k in 0..3u32 {
+            let (width, height) = (atlas_width << k, atlas_height << k);
+            for py in 0..height.div_ceil(PAGE_SIDE) {
+                for px in 0..width.div_ceil(PAGE_SIDE) {
+                    if rng.next() < 0.2 {
+                        continue;
+                    }
+                    for y in py * PAGE_SIDE..((py + 1) * PAGE_SIDE).min(height) {
+                        for x in px * PAGE_SIDE..((px + 1) * PAGE_SIDE).min(width) {
+                            if rng.next() < 0.85 {
+                                let e = Vec3::new(rng.next(), rng.next(), rng.next()) * 10.0;
+                                w.write(layer, k, x, y, e);
+                            }
                         }
                     }
                 }
             }
         }
-    }
-    for cell in 0..grid.len() as u32 {
-        w.set_cell_lod(cell, (rng.next() * 3.0) as u32);
+        for cell in 0..grid.len() as u32 {
+            w.set_cell_lod(layer, cell, (rng.next() * 3.0) as u32);
+        }
     }
     w.finish();
     map
 }
 
-/// The WGSL `shown_irradiance` equals the CPU's `ShownLightmap::irradiance` at 20 000 random
-/// points. Points within 1e-3 m of a cell face are left out: there the cell index is a
+/// The WGSL `shown_irradiance` equals the CPU's `ShownLightmap::irradiance` (both layers)
+/// at 20 000 random points. Points within 1e-3 m of a cell face are left out: there the cell index is a
 /// discontinuous function of a rounded division and CPU and GPU may round to different cells
 /// (both right). Tolerance: each result is a handful of f32 products and sums plus one
 /// division (WGSL allows 2.5 ulp); 2e-5 relative to (1 + |E|) is ~100 ulp of E ≤ 10 W/m²,
@@ -95,13 +97,16 @@ fn gpu_sampling_twins_the_cpu_function() {
         let err = (*got - want).abs().max_element() / (1.0 + want.abs().max_element());
         worst = worst.max(err);
         assert!(err < 2e-5, "at p {p} uv {uv}: GPU {got} CPU {want}");
-        // A blend happens where a face shared with a coarser neighbour is within the band.
+        // A blend happens where a face shared with a coarser neighbour (in a layer) is
+        // within the band.
         let cell = g.cell_of(p);
-        let k = shown.cell_lod[cell as usize];
         let (lo, hi) = g.bounds(cell);
-        let near_coarser = (0..3).any(|axis| {
-            [(-1, p[axis] - lo[axis]), (1, hi[axis] - p[axis])].iter().any(|&(step, d)| {
-                d < shown.blend_band && g.neighbour(cell, axis, step).is_some_and(|n| shown.cell_lod[n as usize] < k)
+        let near_coarser = Layer::ALL.iter().any(|&layer| {
+            let k = shown.cell_lod(layer, cell);
+            (0..3).any(|axis| {
+                [(-1, p[axis] - lo[axis]), (1, hi[axis] - p[axis])].iter().any(|&(step, d)| {
+                    d < shown.blend_band && g.neighbour(cell, axis, step).is_some_and(|n| shown.cell_lod(layer, n) < k)
+                })
             })
         });
         blended += near_coarser as usize;
@@ -196,7 +201,7 @@ fn mirror_grows_its_pool_and_frees_removed_pages() {
     let grid = Grid { origin: Vec3::ZERO, cell_size: 1.0, dims: [1, 1, 1] };
     let mut map = ShownLightmap::new(grid, 1024, 640, 1, 0.0);
     let mut w = PageWriter::new(&mut map);
-    w.write(0, 5, 5, Vec3::splat(1.0));
+    w.write(Layer::Bundles, 0, 5, 5, Vec3::splat(1.0));
     w.finish();
     let gpu = GpuContext::headless().unwrap();
     let layout = lightmap::bind_group_layout(&gpu.device);
@@ -207,7 +212,7 @@ fn mirror_grows_its_pool_and_frees_removed_pages() {
     let mut w = PageWriter::new(&mut grown);
     for py in 0..10 {
         for px in 0..16 {
-            w.write(0, px * PAGE_SIDE + 7, py * PAGE_SIDE + 9, Vec3::new(px as f32, py as f32, 1.0));
+            w.write(Layer::Bundles, 0, px * PAGE_SIDE + 7, py * PAGE_SIDE + 9, Vec3::new(px as f32, py as f32, 1.0));
         }
     }
     w.finish();
@@ -219,18 +224,22 @@ fn mirror_grows_its_pool_and_frees_removed_pages() {
     let mut shrunk = grown.clone();
     let mut w = PageWriter::new(&mut shrunk);
     for px in 1..16 {
-        w.clear(0, px * PAGE_SIDE + 7, 9);
+        w.clear(Layer::Bundles, 0, px * PAGE_SIDE + 7, 9);
     }
     w.finish();
     let sync = mirror.sync(&gpu, &layout, &shrunk).unwrap();
     assert_eq!((sync.pages_uploaded, sync.table_entries_uploaded, sync.bytes_uploaded), (0, 15, 15 * 4));
     let probe = IrradianceProbe::new(&gpu, &layout).unwrap();
-    let level = &shrunk.levels[0];
+    let level = &shrunk.layer(Layer::Bundles).levels[0];
     let mut points = Vec::new();
     for py in 0..10 {
         for px in 0..16u32 {
             let want = level.page(px, py).map(|p| p.texels.to_vec());
-            assert_eq!(mirror.read_page(&gpu, 0, (py * 16 + px) as usize).unwrap(), want, "page ({px}, {py})");
+            assert_eq!(
+                mirror.read_page(&gpu, Layer::Bundles, 0, (py * 16 + px) as usize).unwrap(),
+                want,
+                "page ({px}, {py})"
+            );
             points.push((
                 Vec3::splat(0.5),
                 Vec2::new((px * PAGE_SIDE + 7) as f32 + 0.5, (py * PAGE_SIDE + 9) as f32 + 0.5),

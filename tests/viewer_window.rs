@@ -11,7 +11,7 @@ use glam::Vec3;
 use livebake::atlas::texels::NO_TEXEL;
 use livebake::bake::BakeOutput;
 use livebake::gpu::lightmap::SyncReport;
-use livebake::runtime::shown::{PAGE_SIDE, Page, PageWriter, ShownLightmap};
+use livebake::runtime::shown::{Layer, PAGE_SIDE, Page, PageWriter, ShownLightmap};
 use livebake::scene::Scene;
 use livebake::viewer::camera::Camera;
 use livebake::viewer::{FrameContext, LightSource, SceneState, SourceStatus, ViewerError, ViewerOptions};
@@ -50,7 +50,7 @@ fn publish_cell(old: &ShownLightmap, baked: &BakeOutput, cell: u32) -> (ShownLig
     let in_cell: Vec<bool> = t.position.iter().map(|p| old.grid.cell_of(*p) == cell).collect();
     let mut put = |p: u32, i: usize| {
         let (x, y) = (p % t.width, p / t.width);
-        w.write(0, x, y, baked.lods[0].irradiance[i] * 2.0 + Vec3::new(3.0, 0.0, 1.0));
+        w.write(Layer::Bundles, 0, x, y, baked.lods[0].irradiance[i] * 2.0 + Vec3::new(3.0, 0.0, 1.0));
         written.insert((x, y));
     };
     for (i, &p) in t.pixel.iter().enumerate() {
@@ -69,9 +69,9 @@ fn publish_cell(old: &ShownLightmap, baked: &BakeOutput, cell: u32) -> (ShownLig
 
 /// All of LOD 0's pages as the GPU holds them, by page position.
 fn gpu_pages(ctx: &FrameContext, shown: &ShownLightmap) -> Vec<Option<Vec<[f32; 4]>>> {
-    let level = &shown.levels[0];
+    let level = &shown.layer(Layer::Bundles).levels[0];
     (0..level.pages_x * level.pages_y)
-        .map(|i| ctx.renderer.lightmap.read_page(&ctx.renderer.gpu, 0, i as usize).unwrap())
+        .map(|i| ctx.renderer.lightmap.read_page(&ctx.renderer.gpu, Layer::Bundles, 0, i as usize).unwrap())
         .collect()
 }
 
@@ -101,7 +101,8 @@ fn window_shows_the_room_and_a_publish_uploads_only_its_cell() {
     let (published, written) = publish_cell(&shown, &baked, cell);
     let published = Arc::new(published);
     let changed_pages: HashSet<(u32, u32)> = written.iter().map(|&(x, y)| (x / PAGE_SIDE, y / PAGE_SIDE)).collect();
-    assert!(!written.is_empty() && changed_pages.len() < (shown.levels[0].pages_x * shown.levels[0].pages_y) as usize);
+    let level0 = &shown.layer(Layer::Bundles).levels[0];
+    assert!(!written.is_empty() && changed_pages.len() < (level0.pages_x * level0.pages_y) as usize);
 
     let mut before: Vec<Option<Vec<[f32; 4]>>> = Vec::new();
     let mut checked = (false, false);
@@ -129,7 +130,7 @@ fn window_shows_the_room_and_a_publish_uploads_only_its_cell() {
                 assert_eq!(sync.cells_uploaded, 0);
                 assert_eq!(sync.bytes_uploaded, changed_pages.len() as u64 * Page::BYTES as u64);
                 let after = gpu_pages(ctx, &published);
-                let level = &published.levels[0];
+                let level = &published.layer(Layer::Bundles).levels[0];
                 let mut differing = HashSet::new();
                 for (i, (a, b)) in before.iter().zip(&after).enumerate() {
                     let (px, py) = (i as u32 % level.pages_x, i as u32 / level.pages_x);

@@ -366,6 +366,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
             "cell": c.cell,
             "bounds": {"min": c.min, "max": c.max},
             "shown_lod": c.shown_lod,
+            "punctual_lod": c.punctual_lod,
             "target_lod": c.target_lod,
             "directions": c.directions,
             "error": if c.error.is_finite() { json!(c.error) } else { Value::Null },
@@ -405,7 +406,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         })).collect::<Vec<_>>(),
         "export": export.as_ref().map(|e| json!({
             "gltf": e.gltf, "lod": e.lod, "width": e.width, "height": e.height,
-            "finest_shown_lod": shown.cell_lod.iter().copied().max().unwrap_or(0),
+            "finest_shown_lod": shown.finest_lod(),
             "png_intensity": e.png_intensity,
         })),
     });
@@ -436,7 +437,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
 /// LOD any cell shows, capped at [`resample::MAX_EXPORT_PIXELS`] (`runtime::resample`).
 fn export_shown(world: &World, shown: &ShownLightmap, out: &Path) -> Result<ExportReport> {
     let lod = resample::export_lod(shown, resample::MAX_EXPORT_PIXELS);
-    let finest = shown.cell_lod.iter().copied().max().unwrap_or(0) as u32;
+    let finest = shown.finest_lod();
     if lod < finest {
         tracing::warn!(
             "the export holds LOD {lod}: LOD {finest}, the finest shown, would exceed {} pixels; cells shown finer lose detail",

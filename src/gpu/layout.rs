@@ -73,7 +73,12 @@ pub struct LightmapParams {
     pub atlas_size: [u32; 2],
     pub blend_band: f32,
     pub pool_columns: u32,
-    pub levels: [LodLevel; MAX_LODS],
+    pub layer_count: u32,
+    pub cell_count: u32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+    /// Per layer, per LOD (`layer · MAX_LODS + lod`).
+    pub levels: [LodLevel; 2 * MAX_LODS],
 }
 
 /// `MaterialUniforms` (surface.wgsl).
@@ -282,7 +287,20 @@ mod tests {
             "surface.wgsl",
             LightmapParams,
             "LightmapParams",
-            [grid_origin, cell_size, grid_dims, lod_count, atlas_size, blend_band, pool_columns, levels]
+            [
+                grid_origin,
+                cell_size,
+                grid_dims,
+                lod_count,
+                atlas_size,
+                blend_band,
+                pool_columns,
+                layer_count,
+                cell_count,
+                _pad0,
+                _pad1,
+                levels
+            ]
         );
         assert_layout!("irradiance_probe.wgsl", ProbePoint, "ProbePoint", [position, _pad0, uv, _pad1]);
         assert_layout!(

@@ -1,8 +1,8 @@
 //! The shown light map's GPU mirror: pages in a pool texture, page tables, cell LODs.
 //!
-//! A page holds 64×64 pixels of one LOD (rgba32float: E and validity). Each page-table entry
-//! (one per page position of each LOD) names the pool slot holding that page, or
-//! `NO_PAGE`. [`LightmapGpu::sync`] compares a new snapshot with the pages it holds by page
+//! A page holds 64×64 pixels of one LOD of one layer (rgba32float: E and validity). Each
+//! page-table entry (one per page position of each layer's LODs, layer by layer) names the
+//! pool slot holding that page, or `NO_PAGE`; the cell LODs are one array per layer. [`LightmapGpu::sync`] compares a new snapshot with the pages it holds by page
 //! id: a page whose id changed is written over its own slot, a new page takes a free slot,
 //! a vanished one frees its slot; only those pages, the changed table entries and the
 //! changed cell LODs are uploaded, never the whole map. The pool grows by doubling, copying
@@ -15,7 +15,7 @@ use bytemuck::cast_slice;
 use super::GpuError;
 use super::device::GpuContext;
 use super::layout::{LightmapParams, LodLevel, MAX_LODS};
-use crate::runtime::shown::{PAGE_SIDE, Page, ShownLightmap};
+use crate::runtime::shown::{Layer, PAGE_SIDE, Page, ShownLightmap};
 
 /// Page-table entry of a page position that holds no page.
 pub const NO_PAGE: u32 = u32::MAX;
@@ -100,7 +100,7 @@ impl Shape {
         Shape {
             grid: shown.grid,
             atlas: (shown.atlas_width, shown.atlas_height),
-            levels: shown.levels.iter().map(|l| (l.pages_x, l.pages_y)).collect(),
+            levels: shown.layers[0].levels.iter().map(|l| (l.pages_x, l.pages_y)).collect(),
         }
     }
 }
@@ -131,20 +131,22 @@ impl LightmapGpu {
         layout: &wgpu::BindGroupLayout,
         shown: &ShownLightmap,
     ) -> Result<LightmapGpu, GpuError> {
-        if shown.levels.len() > MAX_LODS || shown.levels.is_empty() {
-            return Err(GpuError::Lightmap(format!(
-                "{} LODs (the GPU mirror holds 1 to {MAX_LODS})",
-                shown.levels.len()
-            )));
+        let lods = shown.lods() as usize;
+        if lods > MAX_LODS || lods == 0 {
+            return Err(GpuError::Lightmap(format!("{lods} LODs (the GPU mirror holds 1 to {MAX_LODS})")));
         }
         let device = &gpu.device;
         let shape = Shape::of(shown);
-        let mut levels = [LodLevel::default(); MAX_LODS];
+        let mut levels = [LodLevel::default(); 2 * MAX_LODS];
         let mut offset = 0u32;
-        for (level, l) in levels.iter_mut().zip(&shown.levels) {
-            *level = LodLevel { pages_x: l.pages_x, pages_y: l.pages_y, table_offset: offset, _pad: 0 };
-            offset += l.pages_x * l.pages_y;
+        for (layer, pages) in shown.layers.iter().enumerate() {
+            for (k, l) in pages.levels.iter().enumerate() {
+                levels[layer * MAX_LODS + k] =
+                    LodLevel { pages_x: l.pages_x, pages_y: l.pages_y, table_offset: offset, _pad: 0 };
+                offset += l.pages_x * l.pages_y;
+            }
         }
+        let cells = shown.grid.len();
         let table_len = offset as usize;
         let max_side = device.limits().max_texture_dimension_2d;
         let pool_columns = (max_side / PAGE_SIDE).clamp(1, 64);
@@ -152,10 +154,14 @@ impl LightmapGpu {
             grid_origin: shown.grid.origin.to_array(),
             cell_size: shown.grid.cell_size,
             grid_dims: shown.grid.dims,
-            lod_count: shown.levels.len() as u32,
+            lod_count: lods as u32,
             atlas_size: [shown.atlas_width, shown.atlas_height],
             blend_band: shown.blend_band,
             pool_columns,
+            layer_count: 1,
+            cell_count: cells as u32,
+            _pad0: 0,
+            _pad1: 0,
             levels,
         };
         let buffer = |label, size: u64, usage| {
@@ -167,9 +173,9 @@ impl LightmapGpu {
             })
         };
         let params_buffer = buffer("lightmap params", size_of::<LightmapParams>() as u64, wgpu::BufferUsages::UNIFORM);
-        let cell_lod_buffer = buffer("cell lods", 4 * shown.cell_lod.len() as u64, wgpu::BufferUsages::STORAGE);
+        let cell_lod_buffer = buffer("cell lods", 4 * 2 * cells as u64, wgpu::BufferUsages::STORAGE);
         let page_table_buffer = buffer("page table", 4 * table_len as u64, wgpu::BufferUsages::STORAGE);
-        let pages = shown.levels.iter().map(|l| l.live_pages()).sum::<usize>() as u32;
+        let pages = shown.layers.iter().map(|l| l.live_pages()).sum::<usize>() as u32;
         let pool_rows = pages.div_ceil(pool_columns).max(1).next_power_of_two();
         let pool = create_pool(device, pool_columns, pool_rows)?;
         let bind_group = create_bind_group(device, layout, &params_buffer, &cell_lod_buffer, &page_table_buffer, &pool);
@@ -184,7 +190,7 @@ impl LightmapGpu {
             pool_rows,
             bind_group,
             resident: vec![None; table_len],
-            cell_lod: vec![u8::MAX; shown.cell_lod.len()],
+            cell_lod: vec![u8::MAX; 2 * cells],
             free_slots: Vec::new(),
             slots_used: 0,
             total: SyncReport::default(),
@@ -232,7 +238,7 @@ impl LightmapGpu {
         let mut changed_entries = Vec::new();
         let mut uploads: Vec<(u32, Arc<Page>)> = Vec::new();
         let mut entry = 0usize;
-        for level in &shown.levels {
+        for level in shown.layers.iter().flat_map(|l| l.levels.iter()) {
             for page in level.rows.iter().flat_map(|row| row.iter()) {
                 let held = self.resident[entry];
                 match (held, page) {
@@ -290,11 +296,19 @@ impl LightmapGpu {
             resident[i].map_or(NO_PAGE, |(_, slot)| slot)
         });
         report.table_entries_uploaded = changed_entries.len() as u64;
-        let changed_cells: Vec<usize> =
-            (0..shown.cell_lod.len()).filter(|&c| self.cell_lod[c] != shown.cell_lod[c]).collect();
-        report.bytes_uploaded += write_runs(gpu, &self.cell_lod_buffer, &changed_cells, |c| shown.cell_lod[c] as u32);
+        // Cell LODs, layer after layer.
+        let lods: Vec<u8> = shown.layers.iter().flat_map(|l| l.cell_lod.iter().copied()).collect();
+        let changed_cells: Vec<usize> = (0..lods.len()).filter(|&c| self.cell_lod[c] != lods[c]).collect();
+        report.bytes_uploaded += write_runs(gpu, &self.cell_lod_buffer, &changed_cells, |c| lods[c] as u32);
         report.cells_uploaded = changed_cells.len() as u64;
-        self.cell_lod.copy_from_slice(&shown.cell_lod);
+        self.cell_lod.copy_from_slice(&lods);
+        // The punctual layer is sampled once something is published in it.
+        let layer_count = if shown.layers[1].used { 2 } else { 1 };
+        if layer_count != self.params.layer_count {
+            self.params.layer_count = layer_count;
+            gpu.queue.write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&self.params));
+            report.bytes_uploaded += size_of::<LightmapParams>() as u64;
+        }
         Ok(report)
     }
 
@@ -351,10 +365,16 @@ impl LightmapGpu {
         self.pool_columns * self.pool_rows
     }
 
-    /// Reads back the pixels the GPU holds for page `index` of LOD `lod` (`None`: no page
-    /// there). For tests and debugging.
-    pub fn read_page(&self, gpu: &GpuContext, lod: usize, index: usize) -> Result<Option<Vec<[f32; 4]>>, GpuError> {
-        let entry = self.params.levels[lod].table_offset as usize + index;
+    /// Reads back the pixels the GPU holds for page `index` of LOD `lod` of `layer` (`None`:
+    /// no page there). For tests and debugging.
+    pub fn read_page(
+        &self,
+        gpu: &GpuContext,
+        layer: Layer,
+        lod: usize,
+        index: usize,
+    ) -> Result<Option<Vec<[f32; 4]>>, GpuError> {
+        let entry = self.params.levels[layer as usize * MAX_LODS + lod].table_offset as usize + index;
         let Some((_, slot)) = self.resident[entry] else { return Ok(None) };
         let size = PAGE_BYTES;
         let buffer = gpu.device.create_buffer(&wgpu::BufferDescriptor {

@@ -267,11 +267,36 @@ fn temple_columns(b: &mut SceneBuilder, m: MaterialId, d: MaterialId, tiles_y: f
 /// without loss), the tiles raised 5 cm onto a low stage rather than coplanar with the
 /// ground. 312k triangles, about 31 000 m² of lit surface.
 pub fn temple_courtyard() -> Scene {
+    courtyard(false)
+}
+
+/// [`temple_courtyard`] on a clear day: the same sky and a sun ([`TEMPLE_SUN`]) 40° above
+/// the horizon, across the column rows (azimuth 30° from +x), so that every column casts a
+/// sharp shadow several metres long over the floor and its neighbours. Open ground receives
+/// 20·sin 40° ≈ 12.9 W/m² from the sun beside the sky's π: about the 4:1 of direct to
+/// diffuse light of a clear day. Sharp shadows are what need fine texels near the viewer,
+/// the case the runtime's LOD hierarchy is for.
+pub fn temple_courtyard_sunlit() -> Scene {
+    courtyard(true)
+}
+
+/// The sky radiance of [`temple_courtyard`], W/(sr·m²).
+pub const TEMPLE_SKY: Rgb = Vec3::new(1.0, 1.0, 1.0);
+
+/// The sun's irradiance on a surface facing it in [`temple_courtyard_sunlit`], W/m².
+pub const TEMPLE_SUN: Rgb = Vec3::new(20.0, 20.0, 20.0);
+
+fn courtyard(sun: bool) -> Scene {
     let mut b = SceneBuilder::new();
     let ground = b.material(diffuse(Vec3::splat(0.6), Vec3::ZERO, false));
     let stone = b.material(diffuse(Vec3::splat(0.7), Vec3::ZERO, false));
     let tiles = b.material(diffuse(Vec3::splat(0.7), Vec3::ZERO, true));
     b.sky(TEMPLE_SKY);
+    if sun {
+        let (elevation, azimuth) = (40f32.to_radians(), 30f32.to_radians());
+        let towards_sun = Vec3::new(elevation.cos() * azimuth.cos(), elevation.sin(), elevation.cos() * azimuth.sin());
+        b.directional_light(-towards_sun, TEMPLE_SUN);
+    }
     let (lo, hi) = (Vec3::new(-60.0, 0.0, -60.0), Vec3::new(60.0, 15.0, 60.0));
     let p = |x: f32, y: f32, z: f32| Vec3::new(x, y, z);
     b.floor("court floor", p(0.0, 0.0, 0.0), hi.x - lo.x, ground);
@@ -283,9 +308,6 @@ pub fn temple_courtyard() -> Scene {
     temple_columns(&mut b, stone, tiles, 0.05);
     b.build()
 }
-
-/// The sky radiance of [`temple_courtyard`], W/(sr·m²).
-pub const TEMPLE_SKY: Rgb = Vec3::new(1.0, 1.0, 1.0);
 
 /// `scene` as exporters without shared vertices write it (game assets, BIM exports): every
 /// triangle has its own three vertices with its face normal as shading normal, each vertex

@@ -1,6 +1,7 @@
 //! A group of neighbouring cells refined to one LOD together: their texels (made for these
-//! cells only), the punctual pass, and a resumable accumulation of bundle batches with a
-//! per-texel variance estimate. One bundle direction costs about the same for a few texels
+//! cells only) and a resumable accumulation of bundle batches with a per-texel variance
+//! estimate. It computes the shown map's bundle layer; punctual lights are the other layer
+//! (`runtime::punctual`). One bundle direction costs about the same for a few texels
 //! as for thousands (the window's occluders are rasterised either way), so the scheduler
 //! bakes small cells in groups (see `RuntimeConfig::group_texels`); a group of one is a
 //! cell bake.
@@ -26,7 +27,6 @@ use crate::bundle::stats::PassStats;
 use crate::bundle::target::target_triangles;
 use crate::bundle::{BakeTarget, BundleBackend, Cancelled, JobSequence, SourceRadiance};
 use crate::grid::CellId;
-use crate::reference::punctual::punctual_irradiance;
 use crate::sampling::mix64;
 use crate::scene::Rgb;
 
@@ -56,6 +56,9 @@ pub struct CellBake {
     /// What the bundles see: the shown map at the bake's start, and its texels' radiance.
     source: ShownSource,
     own_source: Vec<Rgb>,
+    /// Mean luminance of the texels' punctual light (the shown map's other layer, at the
+    /// bake's start): the error is relative to all the light a texel shows.
+    punctual_mean: f64,
 }
 
 /// Most cells one bake may group (their index per texel is a `u16`; groups stay far smaller).
@@ -75,38 +78,17 @@ pub fn cell_seed(seed: u64, cell: CellId, lod: u32) -> u64 {
 }
 
 impl CellBake {
-    /// Makes the texels of `cells` (the first leads; at most [`MAX_GROUP`] cells) at `lod`
-    /// and lights them by the punctual lights; the bundles will see `shown`.
-    pub fn new(
-        world: &World,
-        cells: &[CellId],
-        lod: u32,
-        shown: Arc<ShownLightmap>,
-        seed: u64,
-        threads: usize,
-    ) -> CellBake {
+    /// Makes the texels of `cells` (the first leads; at most [`MAX_GROUP`] cells) at `lod`;
+    /// the bundles will see `shown`.
+    pub fn new(world: &World, cells: &[CellId], lod: u32, shown: Arc<ShownLightmap>, seed: u64) -> CellBake {
         assert!(!cells.is_empty() && cells.len() <= MAX_GROUP, "a bake of {} cells", cells.len());
-        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-        for &c in cells {
-            let (a, b) = world.cell_box(c);
-            lo = lo.min(a);
-            hi = hi.max(b);
-        }
-        let mut core: Vec<u32> = cells.iter().flat_map(|&c| world.cell_triangles.of(c).iter().copied()).collect();
-        if cells.len() > 1 {
-            core.sort_unstable();
-            core.dedup();
-        }
+        let (texels, (lo, hi)) = world.cells_texels(cells, lod);
         let grid = world.grid;
-        let index_of = |p: Vec3| {
-            let c = grid.cell_of(p);
-            cells.iter().position(|&m| m == c)
-        };
-        let texels =
-            SparseTexels::build(&world.scene, &world.geom, &world.atlas, lod, &core, lo, hi, |p| index_of(p).is_some());
-        let owner = texels.position.iter().map(|&p| index_of(p).unwrap_or(0) as u16).collect();
-        let punctual =
-            punctual_irradiance(&world.scene, &world.bvh, &texels.position, &texels.normal, world.epsilon, threads);
+        let owner = texels
+            .position
+            .iter()
+            .map(|&p| cells.iter().position(|&m| m == grid.cell_of(p)).unwrap_or(0) as u16)
+            .collect();
         // The window holds every texel's footprint: a texel's square reaches half a diagonal
         // beyond its surface point, which is in one of the cells.
         let reach = Vec3::splat(world.texel_size(lod) * 1.5);
@@ -121,7 +103,9 @@ impl CellBake {
             triangles: target_triangles(&world.atlas, &texels.face),
             window: (lo - reach, hi + reach),
             carried,
-            estimate: ProgressiveEstimate::new(SourceKind::Converged, punctual, texels.area.clone()),
+            // Punctual lights are the shown map's other layer (`runtime::punctual`): the bake
+            // holds the bundles' part of the light only.
+            estimate: ProgressiveEstimate::new(SourceKind::Converged, vec![Rgb::ZERO; n], texels.area.clone()),
             moments: vec![BatchMoments::default(); n],
             jobs: JobSequence::new(
                 cell_seed(seed, cells[0], lod),
@@ -132,6 +116,7 @@ impl CellBake {
             sums: BatchSums::new(n),
             source,
             own_source: Vec::new(),
+            punctual_mean: 0.0,
             texels,
         }
     }
@@ -178,6 +163,7 @@ impl CellBake {
         }
         if self.own_source.is_empty() {
             self.own_source = self.source.own(&self.texels, &self.carried);
+            self.punctual_mean = self.source.punctual_mean(&self.texels);
         }
         let batch: Vec<_> = (self.directions..self.directions + count as u64).map(|i| self.jobs.job(i)).collect();
         let target = BakeTarget {
@@ -237,7 +223,8 @@ impl CellBake {
 
     /// Estimated relative error of the cell's published irradiance: the RMS over texels of
     /// each texel's standard error (from its filtered batch residuals: variance of the
-    /// mean ≈ Σr²/(n(n−1))), over the cell's mean irradiance. Infinite before two batches.
+    /// mean ≈ Σr²/(n(n−1))), over the cell's mean irradiance (the bundles' and the punctual
+    /// layer's: what the cell shows). Infinite before two batches.
     pub fn error(&self) -> f32 {
         let n = self.estimate.batches() as f64;
         if self.texels.is_empty() {
@@ -248,25 +235,20 @@ impl CellBake {
         }
         let var: f64 = self.moments.iter().map(|m| m.sum2 / (n * (n - 1.0))).sum::<f64>() / self.moments.len() as f64;
         let mean_e: f64 = (0..self.texels.len()).map(|i| luminance(self.estimate.irradiance_of(i)) as f64).sum::<f64>()
-            / self.texels.len() as f64;
+            / self.texels.len() as f64
+            + self.punctual_mean;
         if mean_e <= 0.0 {
             return 0.0;
         }
         (var.sqrt() / mean_e) as f32
     }
 
-    /// The irradiance to publish: the bundle and light-pass parts lightly filtered within
-    /// charts ([`filter_within_charts`]), plus the exact punctual part.
+    /// The irradiance to publish in the shown map's bundle layer: the bundle and light-pass
+    /// parts, lightly filtered within charts ([`filter_within_charts`]).
     pub fn result(&self) -> Vec<Rgb> {
         let total: Vec<Rgb> = (0..self.texels.len()).map(|i| self.estimate.irradiance_of(i)).collect();
-        let punctual = self.estimate.punctual();
-        let noisy: Vec<Rgb> = total.iter().zip(punctual).map(|(t, p)| *t - *p).collect();
         let t = &self.texels;
-        filter_within_charts(&t.pixel, |i| t.table_of(i), &noisy)
-            .into_iter()
-            .zip(punctual)
-            .map(|(n, p)| n + *p)
-            .collect()
+        filter_within_charts(&t.pixel, |i| t.table_of(i), &total)
     }
 
     /// Bytes held by the bake.
@@ -276,7 +258,7 @@ impl CellBake {
     }
 }
 
-fn luminance(c: Rgb) -> f32 {
+pub(super) fn luminance(c: Rgb) -> f32 {
     0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
 }
 

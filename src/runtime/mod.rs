@@ -15,11 +15,17 @@
 //!   error is below the bound or it has the most directions;
 //! * a clock thread emits a stats event once a second.
 //!
+//! The shown map has two layers ([`shown::Layer`]): the bundles' light (above) and the
+//! direct light of punctual lights, exact per texel, which the workers bake first, straight
+//! at each cell's target LOD ([`punctual`]): sharp shadows near the camera within a fraction
+//! of a second, the smoother rest refined by bundles behind them.
+//!
 //! Shared state is one mutex (the cell table, the camera, memory accounting) and one
 //! snapshot pointer (the shown light map), never held during tracing.
 
 pub mod cell_bake;
 pub mod policy;
+pub mod punctual;
 mod reload;
 pub mod resample;
 mod scheduler;
@@ -247,10 +253,19 @@ pub enum RuntimeEvent {
         settled: bool,
         group: Vec<CellId>,
     },
-    /// A cell's finest LOD was dropped to stay within the memory budget.
+    /// A cell's punctual layer (the direct light of punctual lights, exact, see
+    /// [`shown::Layer`]) is shown at `lod`, baked in `ms` (`texels` at that LOD).
+    PunctualPublished {
+        cell: CellId,
+        lod: u32,
+        texels: usize,
+        ms: f64,
+    },
+    /// A cell's finest LOD in `layer` was dropped to stay within the memory budget.
     CellEvicted {
         cell: CellId,
         lod: u32,
+        layer: shown::Layer,
     },
     Stats(RuntimeStats),
     /// The runtime stopped working (first light failed, or a worker could not start).
@@ -324,8 +339,11 @@ pub struct TimedEvent {
 
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct RuntimeStats {
-    /// Non-empty cells shown at each LOD.
+    /// Non-empty cells shown at each LOD (the bundle layer: the light bundles converge).
     pub cells_per_lod: Vec<usize>,
+    /// Non-empty cells showing their punctual layer at each LOD (empty without punctual
+    /// lights).
+    pub punctual_cells_per_lod: Vec<usize>,
     /// Non-empty cells with work waiting: below their target LOD, stale or provisional.
     pub queue: usize,
     /// Cells with a bake in progress.
@@ -358,7 +376,10 @@ pub struct CellInfo {
     pub cell: CellId,
     pub min: [f32; 3],
     pub max: [f32; 3],
+    /// LOD shown in the bundle layer (the light bundles converge: sky, emitters, bounces).
     pub shown_lod: u32,
+    /// LOD shown in the punctual layer (punctual lights' direct light); 0 without them.
+    pub punctual_lod: u32,
     /// LOD being baked, if any, and the directions it has so far.
     pub baking_lod: Option<u32>,
     pub baking_directions: u64,
@@ -569,6 +590,7 @@ fn cell_table(st: &State) -> Vec<CellInfo> {
                 min: lo.to_array(),
                 max: hi.to_array(),
                 shown_lod: s.shown,
+                punctual_lod: s.punctual.shown,
                 baking_lod: s
                     .bake
                     .as_ref()

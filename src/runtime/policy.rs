@@ -113,10 +113,11 @@ pub fn target_lod(camera: &CameraView, view: CellView, texel0: f32, texel_pixels
 }
 
 /// Sort key of a cell waiting for refinement (smaller goes first): cells in view before
-/// others, then the coarsest shown LOD first (everything visible gets sharper together
-/// rather than one cell at a time), then the nearest.
-pub fn priority(view: CellView, shown: u32, stale: bool) -> (bool, bool, u32, u32) {
-    (!stale, !view.in_frustum, shown, view.distance.to_bits())
+/// others, then the largest LOD deficit (target − shown: a deficit of d shows texels 2^d
+/// times too coarse for the screen, so this goes for the blurriest light on screen first,
+/// which is the nearest surfaces'), then the nearest.
+pub fn priority(view: CellView, deficit: u32, stale: bool) -> (bool, bool, std::cmp::Reverse<u32>, u32) {
+    (!stale, !view.in_frustum, std::cmp::Reverse(deficit), view.distance.to_bits())
 }
 
 #[cfg(test)]
@@ -157,20 +158,20 @@ mod tests {
     }
 
     #[test]
-    fn priority_orders_view_then_coarseness_then_distance() {
+    fn priority_orders_view_then_deficit_then_distance() {
         let v = |d: f32, f: bool| CellView { distance: d, in_frustum: f };
         let mut keys = [
-            priority(v(1.0, false), 0, false),
+            priority(v(1.0, false), 3, false),
             priority(v(9.0, true), 1, false),
-            priority(v(2.0, true), 0, false),
-            priority(v(8.0, true), 0, false),
+            priority(v(2.0, true), 2, false),
+            priority(v(8.0, true), 2, false),
             priority(v(50.0, false), 0, true),
         ];
         keys.sort();
         assert_eq!(keys[0], priority(v(50.0, false), 0, true)); // stale first
-        assert_eq!(keys[1], priority(v(2.0, true), 0, false));
-        assert_eq!(keys[2], priority(v(8.0, true), 0, false));
+        assert_eq!(keys[1], priority(v(2.0, true), 2, false));
+        assert_eq!(keys[2], priority(v(8.0, true), 2, false));
         assert_eq!(keys[3], priority(v(9.0, true), 1, false));
-        assert_eq!(keys[4], priority(v(1.0, false), 0, false));
+        assert_eq!(keys[4], priority(v(1.0, false), 3, false));
     }
 }

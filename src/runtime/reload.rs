@@ -30,7 +30,7 @@ use glam::Vec3;
 
 use super::cell_bake::filter_within_charts;
 use super::scheduler::{CellState, Refining, Shared, bake_first_light, empty_shown, update_views};
-use super::shown::{PageWriter, ShownLightmap};
+use super::shown::{Layer, PageWriter, ShownLightmap};
 use super::source::ShownSource;
 use super::world::World;
 use super::{ReloadSteps, RuntimeError, RuntimeEvent};
@@ -202,15 +202,23 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
         s.baking_directions = 0;
     }
     st.bake_bytes = 0;
+    let lights = !world.scene.lights.is_empty();
     for c in 0..grid.len() as u32 {
         let s = &mut st.cells[c as usize];
         if full || invalid.contains(&c) {
-            let busy = s.busy;
+            let (busy, punctual_busy) = (s.busy, s.punctual.busy);
             *s = CellState { busy, provisional, ..CellState::default() };
+            s.punctual.busy = punctual_busy;
             s.history = vec![(directions as u64, f32::NAN)];
             s.published = vec![owned[c as usize].clone()];
+            if lights {
+                s.punctual.published = vec![owned[c as usize].clone()];
+            }
         } else if world.lod0_texels[c as usize] > 0 {
             s.stale = true;
+            // Its shadows may have changed too (a long shadow reaches past the margin): the
+            // punctual layer is re-baked, LOD 0 and the LOD wanted (cheap and exact).
+            s.punctual.stale = lights;
         }
     }
     // Provisional cells an earlier reload left (not invalidated this time) are still so.
@@ -268,12 +276,15 @@ fn relight(
         let st = shared.lock();
         let mut writer = PageWriter::new(&mut map);
         for &c in invalid {
-            for (lod, pixels) in st.cells[c as usize].published.iter().enumerate() {
-                for p in pixels {
-                    writer.clear(lod as u32, p[0], p[1]);
+            let s = &st.cells[c as usize];
+            for (layer, published) in [(Layer::Bundles, &s.published), (Layer::Punctual, &s.punctual.published)] {
+                for (lod, pixels) in published.iter().enumerate() {
+                    for p in pixels {
+                        writer.clear(layer, lod as u32, p[0], p[1]);
+                    }
                 }
+                writer.set_cell_lod(layer, c, 0);
             }
-            writer.set_cell_lod(c, 0);
         }
         writer.finish();
     }
@@ -306,21 +317,27 @@ fn relight(
     let baked = bake_region(bundle, &world.bvh, backend, &region, None, threads, &NoProgress, &shared.shutdown)
         .map_err(|e| e.to_string())?;
     lap(&mut steps.bake);
+    // The bundles' part filtered within charts in the bundle layer, the exact punctual part
+    // in the punctual layer (as first light publishes them).
     let noisy: Vec<Rgb> = baked.irradiance.iter().zip(&baked.punctual).map(|(e, d)| *e - *d).collect();
-    let values: Vec<Rgb> = filter_within_charts(&texels.pixel, |i| texels.table_of(i), &noisy)
-        .into_iter()
-        .zip(&baked.punctual)
-        .map(|(n, d)| n + *d)
-        .collect();
+    let filtered = filter_within_charts(&texels.pixel, |i| texels.table_of(i), &noisy);
+    let layers = [(Layer::Bundles, &filtered), (Layer::Punctual, &baked.punctual)];
+    let lights = !world.scene.lights.is_empty();
     let mut owned = vec![Vec::new(); grid.len()];
-    let mut writer = PageWriter::new(&mut map);
     for (i, p) in texels.pixel.iter().enumerate() {
-        writer.write(0, p[0], p[1], values[i]);
         owned[grid.cell_of(texels.position[i]) as usize].push(*p);
     }
     for &(g, t) in &texels.gutter {
-        writer.write(0, g[0], g[1], values[t as usize]);
         owned[grid.cell_of(texels.position[t as usize]) as usize].push(g);
+    }
+    let mut writer = PageWriter::new(&mut map);
+    for (layer, values) in layers.iter().take(if lights { 2 } else { 1 }) {
+        for (i, p) in texels.pixel.iter().enumerate() {
+            writer.write(*layer, 0, p[0], p[1], values[i]);
+        }
+        for &(g, t) in &texels.gutter {
+            writer.write(*layer, 0, g[0], g[1], values[t as usize]);
+        }
     }
     writer.finish();
     Ok((map, owned))

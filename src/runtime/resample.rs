@@ -1,16 +1,17 @@
 //! The shown light map as one image over the atlas at one LOD: what `run --export-gltf`
 //! hands to the glTF export (which takes a whole-LOD map, as a bake gives).
 //!
-//! The shown map is sparse and mixed: every cell shows its own LOD, with blends at borders
-//! with coarser cells. The export gets one level, [`export_lod`]: the finest LOD any cell
-//! shows, so refined cells keep their detail, unless the atlas at that LOD would exceed
-//! [`MAX_EXPORT_PIXELS`]; then the finest LOD within it (the cells shown finer lose detail,
-//! said in a warning). Every texel of that level (and each gutter pixel, copying its texel)
-//! takes the value of the one sampling function, [`ShownLightmap::irradiance`], at the
-//! texel's surface point and its pixel centre. An engine's bilinear filter over that image
-//! then reproduces the shown map: exactly where a cell shows the export LOD (a pixel centre
-//! reads its own pixel), and to within the bilinear interpolation of the shown values at the
-//! export resolution elsewhere (tests/export.rs states the bound).
+//! The shown map is sparse and mixed: every cell shows its own LOD in each layer, with blends
+//! at borders with coarser cells. The export gets one level, [`export_lod`]: the finest LOD
+//! any cell shows in either layer, so refined cells keep their detail, unless the atlas at
+//! that LOD would exceed [`MAX_EXPORT_PIXELS`]; then the finest LOD within it (the cells
+//! shown finer lose detail, said in a warning). Every texel of that level (and each gutter
+//! pixel, copying its texel) takes the value of the one sampling function,
+//! [`ShownLightmap::irradiance`], at the texel's surface point and its pixel centre. An
+//! engine's bilinear filter over that image then reproduces the shown map: exactly where a
+//! cell shows the export LOD in both layers (a pixel centre reads its own pixel), and to
+//! within the bilinear interpolation of the shown values at the export resolution elsewhere
+//! (tests/export.rs states the bound).
 
 use glam::Vec2;
 use image::Rgb32FImage;
@@ -25,10 +26,10 @@ use crate::scene::Rgb;
 /// 60 bytes a texel on top.
 pub const MAX_EXPORT_PIXELS: u64 = 1 << 22;
 
-/// The LOD to export `shown` at: the finest any cell shows, lowered until its atlas at that
-/// LOD has at most `max_pixels` pixels (LOD 0 whatever its size).
+/// The LOD to export `shown` at: the finest any cell shows (in either layer), lowered until
+/// its atlas at that LOD has at most `max_pixels` pixels (LOD 0 whatever its size).
 pub fn export_lod(shown: &ShownLightmap, max_pixels: u64) -> u32 {
-    let finest = shown.cell_lod.iter().copied().max().unwrap_or(0) as u32;
+    let finest = shown.finest_lod();
     let pixels = |k: u32| ((shown.atlas_width as u64) << k) * ((shown.atlas_height as u64) << k);
     (0..=finest).rev().find(|&k| pixels(k) <= max_pixels).unwrap_or(0)
 }
@@ -54,7 +55,7 @@ pub fn shown_image(world: &World, shown: &ShownLightmap, lod: u32) -> Rgb32FImag
 mod tests {
     use super::*;
     use crate::grid::Grid;
-    use crate::runtime::shown::PageWriter;
+    use crate::runtime::shown::{Layer, PageWriter};
 
     #[test]
     fn export_lod_is_the_finest_shown_within_the_pixel_cap() {
@@ -62,7 +63,7 @@ mod tests {
         let mut shown = ShownLightmap::new(grid, 100, 50, 4, 0.0);
         assert_eq!(export_lod(&shown, MAX_EXPORT_PIXELS), 0);
         let mut w = PageWriter::new(&mut shown);
-        w.set_cell_lod(1, 3);
+        w.set_cell_lod(Layer::Bundles, 1, 3);
         w.finish();
         // LOD 3: 800 × 400 = 320 000 pixels.
         assert_eq!(export_lod(&shown, 320_000), 3);

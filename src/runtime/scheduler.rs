@@ -14,7 +14,8 @@ use crossbeam_channel::Sender;
 
 use super::cell_bake::{CellBake, filter_within_charts};
 use super::policy::{CameraView, CellView, cell_view, priority, target_lod};
-use super::shown::{PageWriter, ShownLightmap};
+use super::punctual::{PunctualBake, punctual_bake_bytes};
+use super::shown::{Layer, PageWriter, ShownLightmap};
 use super::world::World;
 use super::{RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
 use crate::atlas::lookup::TexelTable;
@@ -58,8 +59,43 @@ pub(super) struct CellState {
     pub unsettled: bool,
     /// Directions and error of each shown level (index = LOD).
     pub history: Vec<(u64, f32)>,
-    /// Pixels written at each LOD (index = LOD), to withdraw or replace them.
+    /// Pixels written at each LOD of the bundle layer (index = LOD), to withdraw or replace
+    /// them.
     pub published: Vec<Vec<[u32; 2]>>,
+    /// The cell's punctual layer (scenes with punctual lights).
+    pub punctual: PunctualState,
+}
+
+/// A cell's punctual layer ([`super::punctual`]): baked straight at the cell's target LOD
+/// (LOD 0 comes with first light and stays, the fallback of bilinear lookups and border
+/// blends); levels in between are skipped.
+#[derive(Default)]
+pub(super) struct PunctualState {
+    /// The LOD shown.
+    pub shown: u32,
+    /// Pixels written at each LOD (index = LOD; empty where skipped).
+    pub published: Vec<Vec<[u32; 2]>>,
+    /// A worker is baking it.
+    pub busy: bool,
+    /// A hot reload changed the scene after it was baked: re-bake it (LOD 0 and the LOD
+    /// wanted), whatever the LOD.
+    pub stale: bool,
+}
+
+impl PunctualState {
+    /// The LODs its next bake makes, if it has one to make: the target when finer than shown,
+    /// and LOD 0 besides when stale.
+    pub fn next_levels(&self, target: u32) -> Option<Vec<u32>> {
+        if self.busy {
+            return None;
+        }
+        match (self.stale, target > self.shown) {
+            (true, _) if target > 0 => Some(vec![0, target]),
+            (true, _) => Some(vec![0]),
+            (false, true) => Some(vec![target]),
+            (false, false) => None,
+        }
+    }
 }
 
 pub(super) struct State {
@@ -176,11 +212,15 @@ pub(super) fn current_stats(shared: &Shared, st: &mut State) -> RuntimeStats {
     s.cells_per_lod = vec![0; world.lods as usize];
     s.queue = 0;
     s.baking = 0;
+    s.punctual_cells_per_lod = vec![0; if world.scene.lights.is_empty() { 0 } else { world.lods as usize }];
     for c in world.non_empty_cells() {
         let cell = &st.cells[c as usize];
         s.cells_per_lod[(cell.shown as usize).min(world.lods as usize - 1)] += 1;
-        s.queue += usize::from(next_lod(cell).is_some());
-        s.baking += usize::from(cell.bake.is_some() || cell.busy);
+        if let Some(n) = s.punctual_cells_per_lod.get_mut(cell.punctual.shown as usize) {
+            *n += 1;
+        }
+        s.queue += usize::from(next_lod(cell).is_some() || punctual_work(world, cell).is_some());
+        s.baking += usize::from(cell.bake.is_some() || cell.busy || cell.punctual.busy);
     }
     s.page_bytes = shown.page_bytes() as u64;
     s.bake_bytes = st.bake_bytes;
@@ -243,18 +283,21 @@ pub fn bake_first_light_observed(
     for &(g, t) in &lod0.gutter {
         owned[cell_of[t as usize] as usize].push([g % w, g / w]);
     }
-    // The published values: the noisy part (bundles, light pass) filtered within charts, plus
-    // the exact punctual part.
+    // The published values: the noisy part (bundles, light pass) filtered within charts in
+    // the bundle layer, the exact punctual part in the punctual layer.
+    let lights = !world.scene.lights.is_empty();
     let publish = |mut map: ShownLightmap, irradiance: &dyn Fn(usize) -> Rgb, direct: &[Rgb]| {
         let noisy: Vec<Rgb> = (0..pixels.len()).map(|i| irradiance(i) - direct[i]).collect();
-        let values: Vec<Rgb> =
-            filter_within_charts(&pixels, |_| &table, &noisy).into_iter().zip(direct).map(|(n, d)| n + *d).collect();
+        let layers =
+            [(Layer::Bundles, filter_within_charts(&pixels, |_| &table, &noisy)), (Layer::Punctual, direct.to_vec())];
         let mut writer = PageWriter::new(&mut map);
-        for (i, p) in pixels.iter().enumerate() {
-            writer.write(0, p[0], p[1], values[i]);
-        }
-        for &(g, t) in &lod0.gutter {
-            writer.write(0, g % w, g / w, values[t as usize]);
+        for (layer, values) in layers.iter().take(if lights { 2 } else { 1 }) {
+            for (i, p) in pixels.iter().enumerate() {
+                writer.write(*layer, 0, p[0], p[1], values[i]);
+            }
+            for &(g, t) in &lod0.gutter {
+                writer.write(*layer, 0, g % w, g / w, values[t as usize]);
+            }
         }
         writer.finish();
         map
@@ -308,11 +351,15 @@ pub(super) fn first_light(shared: &Shared) {
         }
         shared.set_shown(map);
         let first = !st.first_light;
+        let lights = !world.scene.lights.is_empty();
         for (c, pixels) in owned.iter().enumerate() {
             let cell = &mut st.cells[c];
             cell.history = vec![(directions, f32::NAN)];
             if first {
                 cell.published = vec![pixels.clone()];
+                if lights {
+                    cell.punctual.published = vec![pixels.clone()];
+                }
             }
         }
         st.lod0_directions = directions;
@@ -361,14 +408,22 @@ pub(super) fn first_light(shared: &Shared) {
     shared.wake.notify_all();
 }
 
-/// What a worker takes: cells (the first leads), the LOD to bake them at, and their bake if
-/// one is parked.
-struct Job {
-    world: Arc<World>,
-    generation: u64,
-    cells: Vec<CellId>,
-    lod: u32,
-    bake: Option<Box<CellBake>>,
+/// What a worker takes.
+enum Job {
+    /// Bundles: cells (the first leads), the LOD to bake them at, and their bake if one is
+    /// parked.
+    Bundles { world: Arc<World>, generation: u64, cells: Vec<CellId>, lod: u32, bake: Option<Box<CellBake>> },
+    /// A cell's punctual layer at these LODs (ascending; the last is shown).
+    Punctual { world: Arc<World>, generation: u64, cell: CellId, levels: Vec<u32> },
+}
+
+/// The LODs a cell's punctual layer is to be baked at next, if the scene has punctual lights
+/// and the cell has such work waiting (see [`PunctualState::next_levels`]).
+pub(super) fn punctual_work(world: &World, s: &CellState) -> Option<Vec<u32>> {
+    if world.scene.lights.is_empty() || s.view.is_none() {
+        return None;
+    }
+    s.punctual.next_levels(s.target)
 }
 
 /// The LOD a cell's next bake is at: LOD 0 again for a provisional cell (its quick re-bake
@@ -462,12 +517,47 @@ fn shown_now(st: &State, bake: &CellBake) -> ShownNow {
     }
 }
 
-/// The next job: the most urgent cell below its target (or stale), not being worked on, with
-/// room for its bake within the memory budget (made by evicting what matters less,
-/// [`make_room`]); `None` when nothing is to be done or nothing fits. A cell whose group bake
-/// is parked (it is a member) brings its leader's bake back; a new bake gathers neighbours
-/// that want the same LOD ([`gather_group`]).
+/// The next job: first a reload's provisional cells, then the punctual layer of the most
+/// urgent cell whose layer is below its target (or stale) — one cheap bake per cell, exact,
+/// and what sharpens the view most — then the bundles of the most urgent cell below its
+/// target (or stale), not being worked on; each with room within the memory budget (made by
+/// evicting what matters less, [`make_room`]); `None` when nothing is to be done or nothing
+/// fits. A cell whose group bake is parked (it is a member) brings its leader's bake back; a
+/// new bake gathers neighbours that want the same LOD ([`gather_group`]).
 fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
+    let provisional_waiting = st.world.non_empty_cells().any(|c| st.cells[c as usize].provisional);
+    if !provisional_waiting && let Some(job) = pick_punctual(shared, st) {
+        return Some(job);
+    }
+    pick_bundles(shared, st)
+}
+
+/// The punctual bake [`pick`] takes, if any: cells in view first, then the largest LOD
+/// deficit, fresh work before refreshing stale light, then the nearest.
+fn pick_punctual(shared: &Shared, st: &mut State) -> Option<Job> {
+    let world = st.world.clone();
+    let key = |st: &State, c: CellId| {
+        let s = &st.cells[c as usize];
+        let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
+        let deficit = s.target.saturating_sub(s.punctual.shown);
+        (!view.in_frustum, std::cmp::Reverse(deficit), s.punctual.stale, view.distance.to_bits(), c)
+    };
+    let c = world
+        .non_empty_cells()
+        .filter(|&c| punctual_work(&world, &st.cells[c as usize]).is_some())
+        .min_by_key(|&c| key(st, c))?;
+    let levels = punctual_work(&world, &st.cells[c as usize])?;
+    let need: u64 = levels.iter().map(|&k| punctual_bake_bytes(lod_texels(&world, c, k))).sum();
+    if !make_room(shared, st, &[c], need) {
+        return None;
+    }
+    st.cells[c as usize].punctual.busy = true;
+    st.bake_bytes += need;
+    Some(Job::Punctual { world, generation: st.generation, cell: c, levels })
+}
+
+/// The bundle bake [`pick`] takes, if any.
+fn pick_bundles(shared: &Shared, st: &mut State) -> Option<Job> {
     let world = st.world.clone();
     let key = |st: &State, c: CellId| {
         let s = &st.cells[c as usize];
@@ -480,7 +570,7 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
         // soon as they were before early publishes, and show it sooner).
         let refines = s.target > s.shown || (s.unsettled && s.target >= s.shown);
         let settled_lod = s.shown - u32::from(s.unsettled && s.shown > 0);
-        (!s.provisional, !refines, priority(view, settled_lod, false), c)
+        (!s.provisional, !refines, priority(view, s.target.saturating_sub(settled_lod), false), c)
     };
     let leader_of = |st: &State, c: CellId| st.cells[c as usize].member_of.unwrap_or(c);
     let c = world
@@ -500,7 +590,7 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
             for &m in &cells {
                 st.cells[m as usize].busy = true;
             }
-            return Some(Job { world, generation: st.generation, cells, lod, bake: Some(bake) });
+            return Some(Job::Bundles { world, generation: st.generation, cells, lod, bake: Some(bake) });
         }
         st.bake_bytes -= bake.bytes() as u64;
         st.cells[leader as usize].baking_directions = 0;
@@ -514,7 +604,7 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
     for &m in &cells {
         st.cells[m as usize].busy = true;
     }
-    Some(Job { world, generation: st.generation, cells, lod, bake: None })
+    Some(Job::Bundles { world, generation: st.generation, cells, lod, bake: None })
 }
 
 /// The cells a new bake of `leader` at `lod` takes: the leader, then its nearest neighbours
@@ -581,11 +671,15 @@ fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<Ce
 /// How far (cells, per axis) a group reaches from its leader.
 const GROUP_REACH: u32 = 3;
 
+/// Texels of `cell` at `lod`, estimated from its LOD-0 count (4^lod times as many).
+fn lod_texels(world: &World, cell: CellId, lod: u32) -> u64 {
+    world.lod0_texels[cell as usize] as u64 * (1u64 << (2 * lod))
+}
+
 /// Bytes a bake of `cell` at `lod` will hold while it runs and its pages once published, from
 /// the cell's LOD-0 texel count (4^lod times as many texels at LOD `lod`).
 fn bake_estimate(world: &World, cell: CellId, lod: u32) -> u64 {
-    let texels = world.lod0_texels[cell as usize] as u64 * (1u64 << (2 * lod));
-    texels * (BAKE_BYTES_PER_TEXEL + PAGE_BYTES_PER_TEXEL)
+    lod_texels(world, cell, lod) * (BAKE_BYTES_PER_TEXEL + PAGE_BYTES_PER_TEXEL)
 }
 
 /// A cell bake holds its texels (~68 B), sums per lane (28 B × lanes, 2 by default, plus the
@@ -600,38 +694,45 @@ fn budgeted_bytes(shared: &Shared, st: &State) -> u64 {
 }
 
 /// Frees memory until `need` more bytes fit the budget, taking from what matters less than
-/// the bake of `for_cells` (its leader first): first parked bakes and finest levels of cells
-/// shown finer than they need, then those of cells farther from the camera than the leader,
-/// farthest first. Cells in a parked group bake are let alone (the group's leader stands
-/// for them: its bake goes first). Returns whether it fits.
+/// the work on `for_cells` (its leader first): first parked bakes and finest levels (of
+/// either layer) of cells shown finer than they need, then those of cells farther from the
+/// camera than the leader, farthest first (at equal distance a punctual level, the cheaper
+/// to make again). Cells in a parked group bake are let alone (the group's leader stands for
+/// them: its bake goes first). Returns whether it fits.
 fn make_room(shared: &Shared, st: &mut State, for_cells: &[CellId], need: u64) -> bool {
     let budget = shared.config.memory_budget;
     let world = st.world.clone();
     let distance = |st: &State, c: CellId| st.cells[c as usize].view.map_or(f32::MAX, |v| v.distance);
     let mine = distance(st, for_cells[0]);
     while budgeted_bytes(shared, st) + need > budget {
-        // The cell whose memory matters least: beyond its target first, then farthest.
-        let victim = world
-            .non_empty_cells()
-            .filter(|&c| {
-                let s = &st.cells[c as usize];
-                !for_cells.contains(&c)
-                    && !s.busy
-                    && s.member_of.is_none()
-                    && (s.shown > 0 || s.bake.is_some())
-                    && (s.shown > s.target || distance(st, c) > mine)
-            })
-            .max_by(|&a, &b| {
-                let over = |c: CellId| st.cells[c as usize].shown > st.cells[c as usize].target;
-                (over(a), distance(st, a)).partial_cmp(&(over(b), distance(st, b))).unwrap_or(std::cmp::Ordering::Equal)
-            });
-        let Some(victim) = victim else { return false };
-        if st.cells[victim as usize].bake.is_some() {
-            // A parked bake's work is lost; it would be the first thing rebuilt if needed.
-            drop_parked(st, victim);
-            continue;
+        // What matters least: beyond its cell's target first, then farthest.
+        let mut victim: Option<((bool, f32, bool), CellId, Layer)> = None;
+        for c in world.non_empty_cells().filter(|c| !for_cells.contains(c)) {
+            let s = &st.cells[c as usize];
+            let d = distance(st, c);
+            let mut consider = |over: bool, layer: Layer| {
+                if !(over || d > mine) {
+                    return;
+                }
+                let key = (over, d, layer == Layer::Punctual);
+                if victim.as_ref().is_none_or(|(k, _, _)| key.partial_cmp(k) == Some(std::cmp::Ordering::Greater)) {
+                    victim = Some((key, c, layer));
+                }
+            };
+            if !s.busy && s.member_of.is_none() && (s.shown > 0 || s.bake.is_some()) {
+                consider(s.shown > s.target, Layer::Bundles);
+            }
+            if !s.punctual.busy && s.punctual.shown > 0 {
+                consider(s.punctual.shown > s.target, Layer::Punctual);
+            }
         }
-        evict(shared, st, victim);
+        let Some((_, victim, layer)) = victim else { return false };
+        match layer {
+            // A parked bake's work is lost; it would be the first thing rebuilt if needed.
+            Layer::Bundles if st.cells[victim as usize].bake.is_some() => drop_parked(st, victim),
+            Layer::Bundles => evict(shared, st, victim),
+            Layer::Punctual => evict_punctual(shared, st, victim),
+        }
     }
     true
 }
@@ -647,7 +748,8 @@ fn drop_parked(st: &mut State, leader: CellId) {
     }
 }
 
-/// Withdraws a cell's finest shown level (its pixels at that LOD) and shows the next coarser.
+/// Withdraws a cell's finest shown level of the bundle layer (its pixels at that LOD) and
+/// shows the next coarser.
 fn evict(shared: &Shared, st: &mut State, cell: CellId) {
     let s = &mut st.cells[cell as usize];
     let lod = s.shown;
@@ -660,16 +762,38 @@ fn evict(shared: &Shared, st: &mut State, cell: CellId) {
     // cell swapped on from it.
     s.unsettled = false;
     s.history.truncate(lod as usize);
+    withdraw(shared, Layer::Bundles, cell, lod, &pixels, lod - 1);
+    st.stats.evictions += 1;
+    shared.emit(RuntimeEvent::CellEvicted { cell, lod, layer: Layer::Bundles });
+}
+
+/// Withdraws a cell's finest punctual level and shows the next coarser one it has (LOD 0 at
+/// least: levels in between are skipped, [`PunctualState`]).
+fn evict_punctual(shared: &Shared, st: &mut State, cell: CellId) {
+    let p = &mut st.cells[cell as usize].punctual;
+    let lod = p.shown;
+    if lod == 0 {
+        return;
+    }
+    let pixels = p.published.get_mut(lod as usize).map(std::mem::take).unwrap_or_default();
+    let below = (0..lod).rev().find(|&k| p.published.get(k as usize).is_some_and(|v| !v.is_empty())).unwrap_or(0);
+    p.shown = below;
+    withdraw(shared, Layer::Punctual, cell, lod, &pixels, below);
+    st.stats.evictions += 1;
+    shared.emit(RuntimeEvent::CellEvicted { cell, lod, layer: Layer::Punctual });
+}
+
+/// Clears `pixels` of `layer` at `lod` and shows `cell` at `shown` in that layer, in a new
+/// snapshot.
+fn withdraw(shared: &Shared, layer: Layer, cell: CellId, lod: u32, pixels: &[[u32; 2]], shown: u32) {
     let mut map = (*shared.shown()).clone();
     let mut writer = PageWriter::new(&mut map);
-    for p in &pixels {
-        writer.clear(lod, p[0], p[1]);
+    for p in pixels {
+        writer.clear(layer, lod, p[0], p[1]);
     }
-    writer.set_cell_lod(cell, lod - 1);
+    writer.set_cell_lod(layer, cell, shown);
     writer.finish();
     shared.set_shown(map);
-    st.stats.evictions += 1;
-    shared.emit(RuntimeEvent::CellEvicted { cell, lod });
 }
 
 pub(super) fn worker(shared: &Shared) {
@@ -691,7 +815,13 @@ pub(super) fn worker(shared: &Shared) {
                 st = shared.wake.wait_timeout(st, Duration::from_millis(200)).unwrap_or_else(|e| e.into_inner()).0;
             }
         };
-        let Job { world, generation, cells, lod, bake } = job;
+        let (world, generation, cells, lod, bake) = match job {
+            Job::Bundles { world, generation, cells, lod, bake } => (world, generation, cells, lod, bake),
+            Job::Punctual { world, generation, cell, levels } => {
+                bake_punctual(shared, &world, generation, cell, &levels);
+                continue;
+            }
+        };
         if backend.as_ref().is_none_or(|(g, _)| *g != generation) {
             match (shared.make_backend)(&world.bundle, 1) {
                 Ok(b) => backend = Some((generation, b)),
@@ -710,7 +840,7 @@ pub(super) fn worker(shared: &Shared) {
             Some(b) => b,
             None => {
                 let t = Instant::now();
-                let b = Box::new(CellBake::new(&world, &cells, lod, shared.shown(), shared.seed(), 1));
+                let b = Box::new(CellBake::new(&world, &cells, lod, shared.shown(), shared.seed()));
                 let mut st = shared.lock();
                 st.bake_bytes += b.bytes() as u64;
                 st.stats.cell_setup_seconds += t.elapsed().as_secs_f64();
@@ -784,6 +914,54 @@ pub(super) fn worker(shared: &Shared) {
     }
 }
 
+/// Bakes `cell`'s punctual layer at `levels` and publishes it (the last level shown): each
+/// level's earlier pixels are replaced, and a stale cell's other levels withdrawn (their
+/// shadows predate the change).
+fn bake_punctual(shared: &Shared, world: &World, generation: u64, cell: CellId, levels: &[u32]) {
+    let t = Instant::now();
+    let bakes: Vec<PunctualBake> = levels.iter().map(|&k| PunctualBake::new(world, cell, k)).collect();
+    let mut st = shared.lock();
+    let need: u64 = levels.iter().map(|&k| punctual_bake_bytes(lod_texels(world, cell, k))).sum();
+    st.bake_bytes = st.bake_bytes.saturating_sub(need);
+    st.stats.cell_setup_seconds += t.elapsed().as_secs_f64();
+    if st.generation != generation {
+        // A hot reload replaced the world (and reset what it invalidated).
+        st.cells[cell as usize].punctual.busy = false;
+        return;
+    }
+    let Some(&shown) = levels.last() else { return };
+    let p = &mut st.cells[cell as usize].punctual;
+    p.busy = false;
+    let stale = std::mem::take(&mut p.stale);
+    let mut map = (*shared.shown()).clone();
+    let mut writer = PageWriter::new(&mut map);
+    p.published.resize(p.published.len().max(shown as usize + 1), Vec::new());
+    for (k, pixels) in p.published.iter_mut().enumerate() {
+        if levels.contains(&(k as u32)) || stale {
+            for q in pixels.drain(..) {
+                writer.clear(Layer::Punctual, k as u32, q[0], q[1]);
+            }
+        }
+    }
+    let mut texels = 0;
+    for bake in &bakes {
+        let pixels = &mut p.published[bake.lod as usize];
+        for (q, e) in bake.pixels() {
+            writer.write(Layer::Punctual, bake.lod, q[0], q[1], e);
+            pixels.push(q);
+        }
+        texels = bake.texels.len();
+    }
+    writer.set_cell_lod(Layer::Punctual, cell, shown);
+    writer.finish();
+    p.shown = shown;
+    shared.set_shown(map);
+    st.stats.publishes += 1;
+    drop(st);
+    shared.emit(RuntimeEvent::PunctualPublished { cell, lod: shown, texels, ms: t.elapsed().as_secs_f64() * 1e3 });
+    shared.wake.notify_all();
+}
+
 /// Puts a bake back between units: in its leader's slot, its cells free for the next unit.
 fn park(st: &mut State, bake: Box<CellBake>) {
     let leader = bake.leader();
@@ -796,8 +974,8 @@ fn park(st: &mut State, bake: Box<CellBake>) {
     st.cells[leader as usize].bake = Some(bake);
 }
 
-/// Writes a bake's texels and gutter pixels (`values` per texel) into `map` at
-/// its LOD and swaps its cells to it. Returns the pixels written per cell of the bake.
+/// Writes a bake's texels and gutter pixels (`values` per texel) into `map`'s bundle layer
+/// at its LOD and swaps its cells to it. Returns the pixels written per cell of the bake.
 pub fn publish_bake(map: &mut ShownLightmap, bake: &CellBake, values: &[Rgb]) -> Vec<Vec<[u32; 2]>> {
     publish_texels(map, bake, values, &[])
 }
@@ -813,16 +991,16 @@ fn publish_texels(
     let t = &bake.texels;
     let mut writer = PageWriter::new(map);
     for p in replaced.iter().flatten() {
-        writer.clear(bake.lod, p[0], p[1]);
+        writer.clear(Layer::Bundles, bake.lod, p[0], p[1]);
     }
     for (i, p) in t.pixel.iter().enumerate() {
-        writer.write(bake.lod, p[0], p[1], values[i]);
+        writer.write(Layer::Bundles, bake.lod, p[0], p[1], values[i]);
     }
     for &(g, i) in &t.gutter {
-        writer.write(bake.lod, g[0], g[1], values[i as usize]);
+        writer.write(Layer::Bundles, bake.lod, g[0], g[1], values[i as usize]);
     }
     for &c in &bake.cells {
-        writer.set_cell_lod(c, bake.lod);
+        writer.set_cell_lod(Layer::Bundles, c, bake.lod);
     }
     writer.finish();
     bake.pixels_per_cell()

@@ -14,11 +14,22 @@
 //! where LOD k has no texel yet (next to a coarser neighbour), and blends toward the coarser
 //! neighbour across [`ShownLightmap::blend_band`] metres of a border between cells of
 //! different LOD, so the border shows no step beyond the noise.
+//!
+//! The map has two [`Layer`]s, summed by the sampling function, each with its own pages and
+//! its own LOD per cell: the light the bundles carry (sky, emitters, every bounce: noisy, so
+//! a finer LOD is shown once its bake has converged far enough) and the direct light of
+//! punctual lights (exact per texel, one shadow ray per light: no noise, so it is baked
+//! straight at the LOD the screen wants). Sharp sun shadows need fine texels, the smoother
+//! rest far fewer (the split of direct and indirect light real-time light maps make): near
+//! the camera the punctual layer runs ahead of the bundle layer. Bilinear interpolation is
+//! linear, so where both layers are at one LOD their sum is the bilinear of the summed
+//! texels.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use glam::{Vec2, Vec3};
+use serde::Serialize;
 
 use crate::grid::{CellId, Grid};
 use crate::scene::Rgb;
@@ -92,77 +103,48 @@ impl LodPages {
     }
 }
 
-/// An immutable snapshot of the shown light map.
-#[derive(Clone, Debug)]
-pub struct ShownLightmap {
-    pub grid: Grid,
-    /// Shown LOD of each cell (every cell starts at 0 once LOD 0 is published).
-    pub cell_lod: Arc<Vec<u8>>,
-    /// LOD-0 atlas size in texels; LOD k is `2^k` times larger.
-    pub atlas_width: u32,
-    pub atlas_height: u32,
-    /// Width (metres) of the band along a border with a coarser cell over which the finer
-    /// cell blends into the coarser LOD.
-    pub blend_band: f32,
-    pub levels: Vec<LodPages>,
-    /// Incremented by every publish or eviction.
-    pub version: u64,
+/// Which part of the light a layer of the shown map holds (module docs); the irradiance is
+/// their sum.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Layer {
+    /// What the bundles compute: the sky, emissive surfaces and every bounce, filtered within
+    /// charts; a finer LOD is shown once its bake has converged far enough.
+    Bundles = 0,
+    /// The direct light of punctual lights (shadow rays): exact, baked at the LOD wanted.
+    Punctual = 1,
 }
 
-impl ShownLightmap {
-    /// An empty map (nothing published: every sample is 0) for `levels` LODs.
-    pub fn new(grid: Grid, atlas_width: u32, atlas_height: u32, levels: u32, blend_band: f32) -> Self {
-        let levels =
-            (0..levels.max(1)).map(|k| LodPages::new((atlas_width as u64) << k, (atlas_height as u64) << k)).collect();
-        ShownLightmap {
-            cell_lod: Arc::new(vec![0; grid.len()]),
-            grid,
-            atlas_width,
-            atlas_height,
-            blend_band,
-            levels,
-            version: 0,
-        }
-    }
+impl Layer {
+    pub const ALL: [Layer; 2] = [Layer::Bundles, Layer::Punctual];
+}
 
-    pub fn lods(&self) -> u32 {
-        self.levels.len() as u32
-    }
+/// One layer's sparse pyramid and each cell's LOD in it.
+#[derive(Clone, Debug)]
+pub struct LayerPages {
+    /// Shown LOD of each cell (every cell starts at 0).
+    pub cell_lod: Arc<Vec<u8>>,
+    pub levels: Vec<LodPages>,
+    /// Something was published in this layer (an unused layer adds nothing to a sample and
+    /// is skipped: scenes without punctual lights pay nothing for it).
+    pub used: bool,
+}
 
-    /// Follows an atlas that grew taller (hot reload: nothing moved, rows were added below):
-    /// every level gets page rows for the new height. A change of width (every pixel index
-    /// moves) needs a new map instead, and is ignored here.
-    pub fn resize(&mut self, atlas_width: u32, atlas_height: u32) {
-        if atlas_width != self.atlas_width || atlas_height <= self.atlas_height {
-            return;
-        }
-        for (k, level) in self.levels.iter_mut().enumerate() {
-            let rows = ((atlas_height as u64) << k).div_ceil(PAGE_SIDE as u64) as u32;
-            let row = Arc::new(vec![None; level.pages_x as usize]);
-            level.rows.resize(rows as usize, row);
-            level.pages_y = rows;
-        }
-        self.atlas_height = atlas_height;
-    }
-
-    /// Irradiance (W/m²) of the surface point at world `position` whose light-map UV (of the
-    /// side being looked at, LOD-0 texel units) is `uv_lod0`: the cell of the point, its
-    /// shown LOD, bilinear within the chart there, blended toward a coarser face-neighbour
-    /// near their shared border (module docs).
-    pub fn irradiance(&self, position: Vec3, uv_lod0: Vec2) -> Rgb {
-        let cell = self.grid.cell_of(position);
-        let k = self.cell_lod[cell as usize] as u32;
-        let fine = self.bilinear(k, uv_lod0);
-        match self.border_blend(cell, k, position) {
-            Some((w, k_low)) => fine * (1.0 - w) + self.bilinear(k_low, uv_lod0) * w,
-            None => fine,
+impl LayerPages {
+    fn new(cells: usize, atlas_width: u32, atlas_height: u32, levels: u32) -> LayerPages {
+        LayerPages {
+            cell_lod: Arc::new(vec![0; cells]),
+            levels: (0..levels.max(1))
+                .map(|k| LodPages::new((atlas_width as u64) << k, (atlas_height as u64) << k))
+                .collect(),
+            used: false,
         }
     }
 
     /// Bilinear at LOD `k` over published pixels only (missing taps weigh 0, the rest are
     /// renormalised); where LOD `k` has none of the four, the next coarser level.
     pub fn bilinear(&self, k: u32, uv_lod0: Vec2) -> Rgb {
-        let mut k = k.min(self.lods() - 1) as i64;
+        let mut k = k.min(self.levels.len() as u32 - 1) as i64;
         while k >= 0 {
             let q = uv_lod0 * (1u64 << k) as f32 - Vec2::splat(0.5);
             let base = q.floor();
@@ -190,9 +172,104 @@ impl ShownLightmap {
         Rgb::ZERO
     }
 
-    /// Near a face shared with a coarser neighbour: the blend weight toward it (1 on the
-    /// face, 0 at `blend_band` inside) and the coarsest such neighbour's LOD.
-    fn border_blend(&self, cell: CellId, k: u32, p: Vec3) -> Option<(f32, u32)> {
+    /// Pages allocated, over every LOD.
+    pub fn live_pages(&self) -> usize {
+        self.levels.iter().map(|l| l.live_pages()).sum()
+    }
+}
+
+/// An immutable snapshot of the shown light map.
+#[derive(Clone, Debug)]
+pub struct ShownLightmap {
+    pub grid: Grid,
+    /// LOD-0 atlas size in texels; LOD k is `2^k` times larger.
+    pub atlas_width: u32,
+    pub atlas_height: u32,
+    /// Width (metres) of the band along a border with a coarser cell over which the finer
+    /// cell blends into the coarser LOD.
+    pub blend_band: f32,
+    /// Indexed by [`Layer`].
+    pub layers: [LayerPages; 2],
+    /// Incremented by every publish or eviction.
+    pub version: u64,
+}
+
+impl ShownLightmap {
+    /// An empty map (nothing published: every sample is 0) for `levels` LODs.
+    pub fn new(grid: Grid, atlas_width: u32, atlas_height: u32, levels: u32, blend_band: f32) -> Self {
+        let layer = || LayerPages::new(grid.len(), atlas_width, atlas_height, levels);
+        ShownLightmap { grid, atlas_width, atlas_height, blend_band, layers: [layer(), layer()], version: 0 }
+    }
+
+    pub fn lods(&self) -> u32 {
+        self.layers[0].levels.len() as u32
+    }
+
+    pub fn layer(&self, layer: Layer) -> &LayerPages {
+        &self.layers[layer as usize]
+    }
+
+    /// The LOD `cell` shows in `layer`.
+    pub fn cell_lod(&self, layer: Layer, cell: CellId) -> u32 {
+        self.layers[layer as usize].cell_lod[cell as usize] as u32
+    }
+
+    /// The finest LOD any cell shows in any layer.
+    pub fn finest_lod(&self) -> u32 {
+        self.layers.iter().flat_map(|l| l.cell_lod.iter()).copied().max().unwrap_or(0) as u32
+    }
+
+    /// Follows an atlas that grew taller (hot reload: nothing moved, rows were added below):
+    /// every level gets page rows for the new height. A change of width (every pixel index
+    /// moves) needs a new map instead, and is ignored here.
+    pub fn resize(&mut self, atlas_width: u32, atlas_height: u32) {
+        if atlas_width != self.atlas_width || atlas_height <= self.atlas_height {
+            return;
+        }
+        for layer in self.layers.iter_mut() {
+            for (k, level) in layer.levels.iter_mut().enumerate() {
+                let rows = ((atlas_height as u64) << k).div_ceil(PAGE_SIDE as u64) as u32;
+                let row = Arc::new(vec![None; level.pages_x as usize]);
+                level.rows.resize(rows as usize, row);
+                level.pages_y = rows;
+            }
+        }
+        self.atlas_height = atlas_height;
+    }
+
+    /// Irradiance (W/m²) of the surface point at world `position` whose light-map UV (of the
+    /// side being looked at, LOD-0 texel units) is `uv_lod0`: per layer, the cell of the
+    /// point, its LOD in that layer, bilinear within the chart there, blended toward a
+    /// coarser face-neighbour near their shared border (module docs); the layers summed.
+    pub fn irradiance(&self, position: Vec3, uv_lod0: Vec2) -> Rgb {
+        let cell = self.grid.cell_of(position);
+        let mut e = self.layer_irradiance(Layer::Bundles, cell, position, uv_lod0);
+        if self.layers[Layer::Punctual as usize].used {
+            e += self.layer_irradiance(Layer::Punctual, cell, position, uv_lod0);
+        }
+        e
+    }
+
+    /// One layer's part of [`ShownLightmap::irradiance`].
+    pub fn layer_irradiance(&self, layer: Layer, cell: CellId, position: Vec3, uv_lod0: Vec2) -> Rgb {
+        let pages = &self.layers[layer as usize];
+        let k = pages.cell_lod[cell as usize] as u32;
+        let fine = pages.bilinear(k, uv_lod0);
+        match self.border_blend(&pages.cell_lod, cell, k, position) {
+            Some((w, k_low)) => fine * (1.0 - w) + pages.bilinear(k_low, uv_lod0) * w,
+            None => fine,
+        }
+    }
+
+    /// Both layers' [`LayerPages::bilinear`] at LOD `k`, summed.
+    pub fn bilinear(&self, k: u32, uv_lod0: Vec2) -> Rgb {
+        self.layers.iter().filter(|l| l.used).map(|l| l.bilinear(k, uv_lod0)).fold(Rgb::ZERO, |a, b| a + b)
+    }
+
+    /// Near a face shared with a coarser neighbour (LODs `cell_lod` of one layer): the blend
+    /// weight toward it (1 on the face, 0 at `blend_band` inside) and the coarsest such
+    /// neighbour's LOD.
+    fn border_blend(&self, cell_lod: &[u8], cell: CellId, k: u32, p: Vec3) -> Option<(f32, u32)> {
         if k == 0 || self.blend_band <= 0.0 {
             return None;
         }
@@ -204,7 +281,7 @@ impl ShownLightmap {
                     continue;
                 }
                 let Some(n) = self.grid.neighbour(cell, axis, step) else { continue };
-                let kn = self.cell_lod[n as usize] as u32;
+                let kn = cell_lod[n as usize] as u32;
                 if kn >= k {
                     continue;
                 }
@@ -218,15 +295,18 @@ impl ShownLightmap {
         best
     }
 
-    /// The pixel rectangle `(x0, y0, x1, y1)` of LOD `lod` covered by allocated pages, if any.
+    /// The pixel rectangle `(x0, y0, x1, y1)` of LOD `lod` covered by allocated pages of
+    /// either layer, if any.
     pub fn published_rect(&self, lod: u32) -> Option<(u64, u64, u64, u64)> {
-        let level = self.levels.get(lod as usize)?;
         let (mut a, mut b) = ((u64::MAX, u64::MAX), (0u64, 0u64));
-        for (py, row) in level.rows.iter().enumerate() {
-            for (px, page) in row.iter().enumerate() {
-                if page.is_some() {
-                    a = (a.0.min(px as u64), a.1.min(py as u64));
-                    b = (b.0.max(px as u64 + 1), b.1.max(py as u64 + 1));
+        for layer in &self.layers {
+            let Some(level) = layer.levels.get(lod as usize) else { continue };
+            for (py, row) in level.rows.iter().enumerate() {
+                for (px, page) in row.iter().enumerate() {
+                    if page.is_some() {
+                        a = (a.0.min(px as u64), a.1.min(py as u64));
+                        b = (b.0.max(px as u64 + 1), b.1.max(py as u64 + 1));
+                    }
                 }
             }
         }
@@ -235,29 +315,49 @@ impl ShownLightmap {
         (a.0 != u64::MAX).then(|| (a.0 * side, a.1 * side, (b.0 * side).min(w), (b.1 * side).min(h)))
     }
 
-    /// Irradiance of LOD `lod`'s pixels in the rectangle `(x0, y0, x1, y1)`, row-major;
-    /// pixels with nothing published are 0.
+    /// Irradiance of LOD `lod`'s pixels in the rectangle `(x0, y0, x1, y1)`, row-major: where
+    /// either layer published the pixel, both layers' values there (a layer without it at
+    /// this LOD read at its centre through [`LayerPages::bilinear`], from a coarser level);
+    /// 0 elsewhere.
     pub fn level_pixels(&self, lod: u32, rect: (u64, u64, u64, u64)) -> Vec<Rgb> {
-        let level = &self.levels[lod as usize];
         let (x0, y0, x1, y1) = rect;
+        let scale = 1.0 / (1u64 << lod) as f32;
         let mut out = Vec::with_capacity(((x1 - x0) * (y1 - y0)) as usize);
         for y in y0..y1 {
             for x in x0..x1 {
-                out.push(level.texel(x as i64, y as i64).unwrap_or(Rgb::ZERO));
+                let own: Vec<Option<Rgb>> = self
+                    .layers
+                    .iter()
+                    .map(|l| l.levels.get(lod as usize).and_then(|level| level.texel(x as i64, y as i64)))
+                    .collect();
+                if own.iter().all(Option::is_none) {
+                    out.push(Rgb::ZERO);
+                    continue;
+                }
+                let centre = Vec2::new(x as f32 + 0.5, y as f32 + 0.5) * scale;
+                let e = self
+                    .layers
+                    .iter()
+                    .zip(&own)
+                    .filter(|(l, _)| l.used)
+                    .map(|(l, t)| t.unwrap_or_else(|| l.bilinear(lod, centre)))
+                    .fold(Rgb::ZERO, |a, b| a + b);
+                out.push(e);
             }
         }
         out
     }
 
-    /// Bytes of the pages held.
+    /// Bytes of the pages held (both layers).
     pub fn page_bytes(&self) -> usize {
-        self.levels.iter().map(|l| l.live_pages()).sum::<usize>() * Page::BYTES
+        self.layers.iter().map(|l| l.live_pages()).sum::<usize>() * Page::BYTES
     }
 
-    /// Cells shown at each LOD.
-    pub fn cells_per_lod(&self) -> Vec<usize> {
-        let mut counts = vec![0; self.levels.len()];
-        for &k in self.cell_lod.iter() {
+    /// Cells shown at each LOD in `layer`.
+    pub fn cells_per_lod(&self, layer: Layer) -> Vec<usize> {
+        let l = &self.layers[layer as usize];
+        let mut counts = vec![0; l.levels.len()];
+        for &k in l.cell_lod.iter() {
             counts[k as usize] += 1;
         }
         counts
@@ -277,8 +377,8 @@ impl<'a> PageWriter<'a> {
         PageWriter { map, fresh: Default::default() }
     }
 
-    fn page_mut(&mut self, lod: u32, px: u32, py: u32, create: bool) -> Option<&mut Page> {
-        let level = &mut self.map.levels[lod as usize];
+    fn page_mut(&mut self, layer: Layer, lod: u32, px: u32, py: u32, create: bool) -> Option<&mut Page> {
+        let level = &mut self.map.layers[layer as usize].levels[lod as usize];
         let row = Arc::make_mut(level.rows.get_mut(py as usize)?);
         let slot = row.get_mut(px as usize)?;
         match slot {
@@ -299,10 +399,11 @@ impl<'a> PageWriter<'a> {
         slot.as_mut().and_then(Arc::get_mut)
     }
 
-    /// Publishes `e` at LOD pixel (x, y).
-    pub fn write(&mut self, lod: u32, x: u32, y: u32, e: Rgb) {
+    /// Publishes `e` at LOD pixel (x, y) of `layer`.
+    pub fn write(&mut self, layer: Layer, lod: u32, x: u32, y: u32, e: Rgb) {
         let (px, py) = (x / PAGE_SIDE, y / PAGE_SIDE);
-        if let Some(page) = self.page_mut(lod, px, py, true) {
+        self.map.layers[layer as usize].used = true;
+        if let Some(page) = self.page_mut(layer, lod, px, py, true) {
             let t = &mut page.texels[((y % PAGE_SIDE) * PAGE_SIDE + x % PAGE_SIDE) as usize];
             if t[3] == 0.0 {
                 page.valid += 1;
@@ -311,11 +412,11 @@ impl<'a> PageWriter<'a> {
         }
     }
 
-    /// Withdraws LOD pixel (x, y); a page left with no valid pixel is freed.
-    pub fn clear(&mut self, lod: u32, x: u32, y: u32) {
+    /// Withdraws LOD pixel (x, y) of `layer`; a page left with no valid pixel is freed.
+    pub fn clear(&mut self, layer: Layer, lod: u32, x: u32, y: u32) {
         let (px, py) = (x / PAGE_SIDE, y / PAGE_SIDE);
         let mut empty = false;
-        if let Some(page) = self.page_mut(lod, px, py, false) {
+        if let Some(page) = self.page_mut(layer, lod, px, py, false) {
             let t = &mut page.texels[((y % PAGE_SIDE) * PAGE_SIDE + x % PAGE_SIDE) as usize];
             if t[3] != 0.0 {
                 *t = [0.0; 4];
@@ -324,13 +425,14 @@ impl<'a> PageWriter<'a> {
             empty = page.valid == 0;
         }
         if empty {
-            let level = &mut self.map.levels[lod as usize];
+            let level = &mut self.map.layers[layer as usize].levels[lod as usize];
             Arc::make_mut(&mut level.rows[py as usize])[px as usize] = None;
         }
     }
 
-    pub fn set_cell_lod(&mut self, cell: CellId, lod: u32) {
-        Arc::make_mut(&mut self.map.cell_lod)[cell as usize] = lod as u8;
+    /// Shows `cell` at `lod` in `layer`.
+    pub fn set_cell_lod(&mut self, layer: Layer, cell: CellId, lod: u32) {
+        Arc::make_mut(&mut self.map.layers[layer as usize].cell_lod)[cell as usize] = lod as u8;
     }
 
     /// Ends the edit: the snapshot gets a new version.
@@ -353,8 +455,8 @@ mod tests {
     fn bilinear_uses_published_texels_and_falls_back_to_coarser_levels() {
         let mut map = ShownLightmap::new(grid(), 8, 8, 2, 0.0);
         let mut w = PageWriter::new(&mut map);
-        w.write(0, 2, 2, Rgb::splat(1.0));
-        w.write(0, 3, 2, Rgb::splat(3.0));
+        w.write(Layer::Bundles, 0, 2, 2, Rgb::splat(1.0));
+        w.write(Layer::Bundles, 0, 3, 2, Rgb::splat(3.0));
         w.finish();
         // Midway between the two pixel centres of LOD 0: their mean.
         assert_eq!(map.bilinear(0, Vec2::new(3.0, 2.5)), Rgb::splat(2.0));
@@ -363,7 +465,7 @@ mod tests {
         // LOD 1 has nothing there: LOD 0 answers.
         assert_eq!(map.bilinear(1, Vec2::new(3.0, 2.5)), Rgb::splat(2.0));
         let mut w = PageWriter::new(&mut map);
-        w.write(1, 5, 4, Rgb::splat(7.0));
+        w.write(Layer::Bundles, 1, 5, 4, Rgb::splat(7.0));
         w.finish();
         assert_eq!(map.bilinear(1, Vec2::new(2.75, 2.25)), Rgb::splat(7.0));
         assert_eq!(map.bilinear(0, Vec2::new(100.0, 100.0)), Rgb::ZERO);
@@ -375,26 +477,26 @@ mod tests {
     fn publishing_copies_only_what_it_writes() {
         let mut a = ShownLightmap::new(grid(), 256, 128, 1, 0.0);
         let mut w = PageWriter::new(&mut a);
-        w.write(0, 1, 1, Rgb::ONE);
-        w.write(0, 130, 1, Rgb::ONE);
+        w.write(Layer::Bundles, 0, 1, 1, Rgb::ONE);
+        w.write(Layer::Bundles, 0, 130, 1, Rgb::ONE);
         w.finish();
         let mut b = a.clone();
         let mut w = PageWriter::new(&mut b);
-        w.write(0, 2, 1, Rgb::splat(2.0));
-        w.write(0, 3, 1, Rgb::splat(2.0));
-        w.set_cell_lod(1, 0);
+        w.write(Layer::Bundles, 0, 2, 1, Rgb::splat(2.0));
+        w.write(Layer::Bundles, 0, 3, 1, Rgb::splat(2.0));
+        w.set_cell_lod(Layer::Bundles, 1, 0);
         w.finish();
-        let (pa, pb) = (a.levels[0].page(0, 0).unwrap(), b.levels[0].page(0, 0).unwrap());
+        let (pa, pb) = (a.layers[0].levels[0].page(0, 0).unwrap(), b.layers[0].levels[0].page(0, 0).unwrap());
         assert_ne!(pa.id, pb.id);
         assert_eq!((pa.valid, pb.valid), (1, 3));
-        assert_eq!(a.levels[0].texel(2, 1), None);
-        assert!(Arc::ptr_eq(a.levels[0].page(2, 0).unwrap(), b.levels[0].page(2, 0).unwrap()));
+        assert_eq!(a.layers[0].levels[0].texel(2, 1), None);
+        assert!(Arc::ptr_eq(a.layers[0].levels[0].page(2, 0).unwrap(), b.layers[0].levels[0].page(2, 0).unwrap()));
         assert_eq!(b.version, a.version + 1);
         let mut c = b.clone();
         let mut w = PageWriter::new(&mut c);
-        w.clear(0, 130, 1);
+        w.clear(Layer::Bundles, 0, 130, 1);
         w.finish();
-        assert!(c.levels[0].page(2, 0).is_none());
+        assert!(c.layers[0].levels[0].page(2, 0).is_none());
         assert_eq!(c.page_bytes(), Page::BYTES);
     }
 
@@ -406,15 +508,15 @@ mod tests {
         let mut w = PageWriter::new(&mut map);
         for y in 0..4 {
             for x in 0..4 {
-                w.write(0, x, y, Rgb::splat(1.0));
+                w.write(Layer::Bundles, 0, x, y, Rgb::splat(1.0));
             }
         }
         for y in 0..8 {
             for x in 0..8 {
-                w.write(1, x, y, Rgb::splat(2.0));
+                w.write(Layer::Bundles, 1, x, y, Rgb::splat(2.0));
             }
         }
-        w.set_cell_lod(0, 1); // cell 0 (x < 1 m) at LOD 1, cell 1 at LOD 0
+        w.set_cell_lod(Layer::Bundles, 0, 1); // cell 0 (x < 1 m) at LOD 1, cell 1 at LOD 0
         w.finish();
         let uv = Vec2::new(2.0, 2.0);
         let at = |x: f32| map.irradiance(Vec3::new(x, 0.5, 0.5), uv).x;
@@ -422,5 +524,50 @@ mod tests {
         assert!((at(0.999_99) - 1.0).abs() < 1e-3, "{}", at(0.999_99));
         assert_eq!(at(1.0001), 1.0);
         assert!((at(0.875) - 1.5).abs() < 1e-5, "{}", at(0.875));
+    }
+
+    /// The two layers add up, each at its own LOD per cell, each blending at borders by its
+    /// own LODs; an unused layer adds nothing, and the pixels written out per LOD hold both.
+    #[test]
+    fn layers_add_up_each_at_its_own_lod() {
+        let mut map = ShownLightmap::new(grid(), 4, 4, 3, 0.25);
+        let mut w = PageWriter::new(&mut map);
+        for y in 0..4 {
+            for x in 0..4 {
+                w.write(Layer::Bundles, 0, x, y, Rgb::splat(1.0));
+            }
+        }
+        w.finish();
+        let uv = Vec2::new(2.0, 2.0);
+        let at = |map: &ShownLightmap, x: f32| map.irradiance(Vec3::new(x, 0.5, 0.5), uv).x;
+        assert_eq!(at(&map, 0.5), 1.0);
+        assert!(!map.layer(Layer::Punctual).used);
+        let mut w = PageWriter::new(&mut map);
+        for y in 0..4 {
+            for x in 0..4 {
+                w.write(Layer::Punctual, 0, x, y, Rgb::splat(10.0));
+            }
+        }
+        for y in 0..16 {
+            for x in 0..16 {
+                w.write(Layer::Punctual, 2, x, y, Rgb::splat(20.0));
+            }
+        }
+        // Cell 0 shows the punctual layer at LOD 2, cell 1 at LOD 0; the bundles at 0 in both.
+        w.set_cell_lod(Layer::Punctual, 0, 2);
+        w.finish();
+        assert_eq!(at(&map, 0.5), 21.0);
+        assert_eq!(at(&map, 1.5), 11.0);
+        // The punctual layer blends toward cell 1's LOD 0 at their border; the bundles do not.
+        assert!((at(&map, 0.999_99) - 11.0).abs() < 1e-3, "{}", at(&map, 0.999_99));
+        assert!((at(&map, 0.875) - 16.0).abs() < 1e-4, "{}", at(&map, 0.875));
+        assert_eq!(map.finest_lod(), 2);
+        assert_eq!(map.cells_per_lod(Layer::Punctual), vec![map.grid.len() - 1, 0, 1]);
+        // LOD 2's pixels: the punctual texel there plus the bundles read from their LOD 0.
+        let rect = map.published_rect(2).unwrap();
+        assert_eq!(rect, (0, 0, 16, 16));
+        assert!(map.level_pixels(2, rect).iter().all(|e| *e == Rgb::splat(21.0)));
+        // LOD 1: nothing published in either layer.
+        assert!(map.published_rect(1).is_none());
     }
 }

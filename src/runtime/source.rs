@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use glam::Vec2;
 
-use super::shown::ShownLightmap;
+use super::shown::{Layer, ShownLightmap};
 use crate::atlas::sparse::SparseTexels;
 use crate::bundle::{BundleScene, SurfaceRadiance};
 use crate::scene::{Rgb, Side};
@@ -31,6 +31,24 @@ impl ShownSource {
                 if carried[i] { reflected + texels.emission[i] } else { reflected }
             })
             .collect()
+    }
+
+    /// Mean luminance of the punctual layer over `texels` (0 when it is unused).
+    pub fn punctual_mean(&self, texels: &SparseTexels) -> f64 {
+        if !self.shown.layer(Layer::Punctual).used || texels.is_empty() {
+            return 0.0;
+        }
+        let scale = 1.0 / (1u64 << texels.lod) as f32;
+        let sum: f64 = (0..texels.len())
+            .map(|i| {
+                let [x, y] = texels.pixel[i];
+                let uv = Vec2::new(x as f32 + 0.5, y as f32 + 0.5) * scale;
+                let p = texels.position[i];
+                let e = self.shown.layer_irradiance(Layer::Punctual, self.shown.grid.cell_of(p), p, uv);
+                super::cell_bake::luminance(e) as f64
+            })
+            .sum();
+        sum / texels.len() as f64
     }
 }
 

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use glam::Vec3;
 
 use super::RuntimeConfig;
+use crate::atlas::sparse::SparseTexels;
 use crate::atlas::{Atlas, TexelMap};
 use crate::bundle::BundleScene;
 use crate::grid::{CellId, CellTriangles, Grid};
@@ -100,5 +101,26 @@ impl World {
         let (lo, hi) = self.grid.bounds(cell);
         let m = Vec3::splat(World::cell_margin(&self.grid));
         (lo - m, hi + m)
+    }
+
+    /// The texels of LOD `lod` whose surface points lie in `cells` (made for them alone), and
+    /// the box holding those cells (see [`World::cell_box`]).
+    pub fn cells_texels(&self, cells: &[CellId], lod: u32) -> (SparseTexels, (Vec3, Vec3)) {
+        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+        for &c in cells {
+            let (a, b) = self.cell_box(c);
+            lo = lo.min(a);
+            hi = hi.max(b);
+        }
+        let mut core: Vec<u32> = cells.iter().flat_map(|&c| self.cell_triangles.of(c).iter().copied()).collect();
+        if cells.len() > 1 {
+            core.sort_unstable();
+            core.dedup();
+        }
+        let grid = self.grid;
+        let texels = SparseTexels::build(&self.scene, &self.geom, &self.atlas, lod, &core, lo, hi, |p| {
+            cells.contains(&grid.cell_of(p))
+        });
+        (texels, (lo, hi))
     }
 }

@@ -22,6 +22,7 @@ use super::source::LightSource;
 use crate::gpu::layout::ViewMode;
 use crate::gpu::target::{depth_texture, read_texture};
 use crate::gpu::{GpuContext, GpuError};
+use crate::runtime::shown::Layer;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ViewerError {
@@ -460,7 +461,7 @@ impl App<'_, '_> {
         let mut t = format!("livebake | {} | {fps:.0} fps {:.1} ms", status.state, 1e3 * mean);
         if let Some(shown) = self.state.as_ref().and_then(|s| s.renderer.shown.as_ref()) {
             let mut counts = [0usize; 256];
-            for &k in shown.cell_lod.iter() {
+            for &k in shown.layer(Layer::Bundles).cell_lod.iter() {
                 counts[k as usize] += 1;
             }
             let per_lod: Vec<String> =

@@ -33,17 +33,18 @@ impl Default for DrawSettings {
 }
 
 /// An exposure that shows `shown` well: 1.5 over the 99th-percentile of E/π (the radiance
-/// of a white surface) over LOD 0's published pixels, as the light-map previews do.
+/// of a white surface) over LOD 0's published pixels (both layers), as the light-map
+/// previews do.
 pub fn auto_exposure(shown: &ShownLightmap) -> f32 {
-    let mut lum: Vec<f32> = shown.levels[0]
-        .rows
-        .iter()
-        .flat_map(|row| row.iter().flatten())
-        .flat_map(|page| page.texels.iter())
-        .filter(|t| t[3] > 0.0)
-        .map(|t| (0.2126 * t[0] + 0.7152 * t[1] + 0.0722 * t[2]) * std::f32::consts::FRAC_1_PI)
-        .filter(|l| l.is_finite())
-        .collect();
+    let mut lum: Vec<f32> = match shown.published_rect(0) {
+        Some(rect) => shown.level_pixels(0, rect),
+        None => Vec::new(),
+    }
+    .into_iter()
+    .filter(|e| e.max_element() > 0.0)
+    .map(|e| (0.2126 * e.x + 0.7152 * e.y + 0.0722 * e.z) * std::f32::consts::FRAC_1_PI)
+    .filter(|l| l.is_finite())
+    .collect();
     if lum.is_empty() {
         return 1.0;
     }

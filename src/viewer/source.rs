@@ -13,7 +13,7 @@ use crate::atlas::Atlas;
 use crate::atlas::texels::NO_TEXEL;
 use crate::bake::BakeOutput;
 use crate::grid::{Grid, GridError};
-use crate::runtime::shown::{PageWriter, ShownLightmap};
+use crate::runtime::shown::{Layer, PageWriter, ShownLightmap};
 use crate::runtime::{CameraView, Runtime, RuntimeEvent, TimedEvent};
 use crate::scene::Scene;
 
@@ -62,18 +62,18 @@ pub fn shown_from_bake(baked: &BakeOutput, grid: Grid, blend_band: f32) -> Shown
         let pixel = |p: u32| (p % t.width, p / t.width);
         for (i, &p) in t.pixel.iter().enumerate() {
             let (x, y) = pixel(p);
-            writer.write(k as u32, x, y, lod.irradiance[i]);
+            writer.write(Layer::Bundles, k as u32, x, y, lod.irradiance[i]);
         }
         for &(p, i) in &t.gutter {
             if i != NO_TEXEL {
                 let (x, y) = pixel(p);
-                writer.write(k as u32, x, y, lod.irradiance[i as usize]);
+                writer.write(Layer::Bundles, k as u32, x, y, lod.irradiance[i as usize]);
             }
         }
     }
     let top = baked.lods.len().saturating_sub(1) as u32;
     for cell in 0..grid.len() as u32 {
-        writer.set_cell_lod(cell, top);
+        writer.set_cell_lod(Layer::Bundles, cell, top);
     }
     writer.finish();
     shown

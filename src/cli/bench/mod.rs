@@ -33,7 +33,7 @@ pub fn assets() -> PathBuf {
 type Bench = fn(bool, &Ui) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 11] = [
+pub const SECTIONS: [(&str, Bench); 12] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -44,6 +44,7 @@ pub const SECTIONS: [(&str, Bench); 11] = [
     ("viewer", viewer::run),
     ("runtime", runtime::run),
     ("runtime_large", runtime_large::run),
+    ("runtime_large_overcast", runtime_large::run_overcast),
     ("reload", reload::run),
 ];
 

@@ -245,14 +245,17 @@ fn invalidated(c: &CellInfo) -> bool {
     !c.stale && c.shown_lod == 0 && c.error.is_nan()
 }
 
-/// Per cell, LOD-0 pixels (texels and gutters) whose value differs between the snapshots.
+/// Per cell, LOD-0 pixels (texels and gutters) whose value differs between the snapshots (in
+/// either layer).
 fn changed_lod0(world: &World, before: &ShownLightmap, after: &ShownLightmap) -> Vec<u32> {
     let lod0 = &world.lod0;
     let w = lod0.width;
     let mut changed = vec![0u32; world.grid.len()];
     let differs = |p: u32| {
         let (x, y) = ((p % w) as i64, (p / w) as i64);
-        before.levels[0].texel(x, y).map(|e| e.to_array()) != after.levels[0].texel(x, y).map(|e| e.to_array())
+        before.layers.iter().zip(&after.layers).any(|(b, a)| {
+            b.levels[0].texel(x, y).map(|e| e.to_array()) != a.levels[0].texel(x, y).map(|e| e.to_array())
+        })
     };
     for (i, &p) in lod0.pixel.iter().enumerate() {
         if differs(p) {

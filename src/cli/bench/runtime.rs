@@ -38,7 +38,7 @@ use livebake::grid::CellId;
 use livebake::probe::{LightmapLookup, SurfaceLocator};
 use livebake::progress::NoProgress;
 use livebake::reference::{Bvh, ReferenceTracer};
-use livebake::runtime::shown::ShownLightmap;
+use livebake::runtime::shown::{Layer, ShownLightmap};
 use livebake::runtime::world::World;
 use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
 use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
@@ -232,9 +232,17 @@ fn worst_points(reference: &ReferencePoints, got: &[DVec3], n: usize) -> Vec<Val
         .collect()
 }
 
-/// Texels published in a snapshot (pixels with a value, gutters included) at every LOD.
+/// Texels published in a snapshot (pixels with a value, gutters included) at every LOD of
+/// both layers.
 fn published_pixels(shown: &ShownLightmap) -> u64 {
-    shown.levels.iter().flat_map(|l| l.rows.iter()).flat_map(|row| row.iter().flatten()).map(|p| p.valid as u64).sum()
+    shown
+        .layers
+        .iter()
+        .flat_map(|l| l.levels.iter())
+        .flat_map(|l| l.rows.iter())
+        .flat_map(|row| row.iter().flatten())
+        .map(|p| p.valid as u64)
+        .sum()
 }
 
 pub(super) fn quantile(v: &[f64], q: f64) -> Option<f64> {
@@ -425,8 +433,10 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
                     let p = (e.t, lod, directions, error, settled);
                     if lods.published(cell, lod) { swaps.push(p) } else { republishes.push(p) }
                 }
-                RuntimeEvent::CellEvicted { cell, lod } => {
-                    lods.evicted(cell, lod);
+                RuntimeEvent::CellEvicted { cell, lod, layer } => {
+                    if layer == Layer::Bundles {
+                        lods.evicted(cell, lod);
+                    }
                     evictions += 1;
                 }
                 RuntimeEvent::Stats(s) => stats.push((e.t, s)),
@@ -453,7 +463,7 @@ fn room(name: &str, quick: bool, ui: &Ui) -> Result<Value> {
         .collect();
     // The LOD shown where the points are, at the end.
     let point_lods: Vec<f64> =
-        reader.at.iter().map(|&(p, _)| shown.cell_lod[world.grid.cell_of(p) as usize] as f64).collect();
+        reader.at.iter().map(|&(p, _)| shown.cell_lod(Layer::Bundles, world.grid.cell_of(p)) as f64).collect();
     let finest_near = point_lods.iter().fold(0.0f64, |a, &b| a.max(b)) as u32;
 
     ui.say(format!("  {name}: whole-scene bakes for {t_end:.1} s each ..."));
