@@ -22,7 +22,7 @@ struct LightmapParams {
     lod_count: u32,
     // LOD-0 atlas size in pixels.
     atlas_size: vec2<u32>,
-    // Metres over which a cell blends towards a coarser neighbour.
+    // Metres over which a cell blends towards a neighbour at LOD 0 (toward LOD k: over 2^k).
     blend_band: f32,
     // Pages per row of the pool texture.
     pool_columns: u32,
@@ -142,10 +142,12 @@ fn lm_layer_irradiance(layer: u32, c: vec3<u32>, p: vec3<f32>, uv: vec2<f32>) ->
                 continue;
             }
             let kn = cell_lod[lods + lm_cell_index(n)];
-            if kn >= k {
+            // A couple of the coarser side's texels wide (ShownLightmap::band_toward).
+            let band = lm.blend_band / f32(1u << kn);
+            if kn >= k || d >= band {
                 continue;
             }
-            w = max(w, clamp(1.0 - max(d, 0.0) / lm.blend_band, 0.0, 1.0));
+            w = max(w, clamp(1.0 - max(d, 0.0) / band, 0.0, 1.0));
             k_low = min(k_low, kn);
             near_coarser = true;
         }

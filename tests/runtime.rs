@@ -21,7 +21,8 @@ use livebake::runtime::world::World;
 use livebake::runtime::{
     CameraView, Runtime, RuntimeConfig, RuntimeEvent, TimedEvent, bake_first_light, empty_shown, publish_bake,
 };
-use livebake::scene::{LoadOptions, Rgb, Scene, SceneGeometry, load_gltf};
+use livebake::scene::builder::diffuse;
+use livebake::scene::{LoadOptions, Rgb, Scene, SceneBuilder, SceneGeometry, load_gltf};
 use serde_json::Value;
 
 const ROOM: &str = "cornell_2m/cornell_2m.gltf";
@@ -418,10 +419,16 @@ fn camera_away_and_back_keeps_accumulated_work() {
 }
 
 /// Many camera moves a second and a shutdown in the middle of units: no panic, no direction
-/// lost or counted twice, memory within the budget (with a budget small enough to evict).
+/// lost or counted twice, memory within the budget (with a budget small enough to evict, in
+/// both layers).
 #[test]
 fn stress_camera_moves_and_shutdown_mid_pass() {
-    let scene = load(ROOM);
+    // With a lamp, so that punctual bakes and their evictions are in the mix.
+    let mut lit = (*load(ROOM)).clone();
+    let mut b = SceneBuilder::new();
+    b.point_light(Vec3::new(1.0, 1.6, 1.0), Vec3::splat(2.0));
+    lit.lights.extend(b.build().lights);
+    let scene = Arc::new(lit);
     let world_probe = world(scene.clone(), &room_config(2));
     // Room for LOD 0's pages and a little more: refinement must evict to go on.
     let lod0_pages = first_light(&world_probe).page_bytes() as u64;
@@ -564,4 +571,118 @@ fn multi_bounce_with_mixed_lods_matches_the_independent_reference() {
     );
     assert!(all.value() < 0.05, "relative RMS error {}", all.value());
     assert!(refined_now.value() <= refined_before.value() * 1.05 + 0.002, "refinement made it worse");
+}
+
+/// A 1 m block on an 8 m floor under a sun (no sky): the punctual layer's exact answer is
+/// `I·cos θ` where the sun sees the floor and 0 in the block's shadow.
+fn sunlit_block() -> (Arc<Scene>, Vec3, f32) {
+    let mut b = SceneBuilder::new();
+    let grey = b.material(diffuse(Vec3::splat(0.5), Vec3::ZERO, false));
+    b.floor("floor", Vec3::ZERO, 8.0, grey);
+    b.cuboid("block", Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5), false, grey);
+    let travel = Vec3::new(-1.0, -1.2, -0.6).normalize();
+    b.directional_light(travel, Vec3::splat(4.0));
+    (Arc::new(b.build()), travel, 4.0)
+}
+
+/// Whether the ray from `p` toward the sun (against `travel`) meets the block (slab test).
+fn block_shadows(p: Vec3, travel: Vec3) -> bool {
+    let (lo, hi) = (Vec3::new(-0.5, 0.0, -0.5), Vec3::new(0.5, 1.0, 0.5));
+    let d = -travel;
+    let (t1, t2) = ((lo - p) / d, (hi - p) / d);
+    let (near, far) = (t1.min(t2).max_element(), t1.max(t2).min_element());
+    far > near.max(0.0)
+}
+
+/// The punctual layer is baked straight at the LOD each cell wants and the one below
+/// (levels in between skipped), one bake per cell, and it is exact: on the floor, away from
+/// the shadow's edge (the bilinear mixes lit and shadowed texels within a texel of it, and a
+/// border blend reads the coarser neighbour's texels: 2 of those), the layer reads `I·cos θ`
+/// or 0 as a slab test against the block says, to f32 rounding (renormalised bilinear weights
+/// and blends of equal values: a few ulps). The bundle layer (black but for the floor's
+/// bounce off the block: no sky, no emitter) is left to its bakes.
+#[test]
+fn the_punctual_layer_is_exact_at_the_lod_the_camera_wants() {
+    let (scene, travel, sun) = sunlit_block();
+    let config = RuntimeConfig {
+        atlas: livebake::atlas::AtlasConfig { texel_budget: 2000, ..RuntimeConfig::default().atlas },
+        threads: Some(2),
+        ..RuntimeConfig::default()
+    };
+    let runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new())).expect("start");
+    runtime.set_camera(CameraView::looking_at(Vec3::new(1.6, 1.4, 1.8), Vec3::new(0.0, 0.0, 0.0)));
+    let world = runtime.world();
+    let finest = world.lods - 1;
+    assert!(finest >= 3, "{} LODs", world.lods);
+    // Until every cell's punctual bake at its target has been announced (a bake's event
+    // follows its publish).
+    let mut bakes: HashMap<u32, Vec<u32>> = HashMap::new();
+    wait_for(&runtime, Duration::from_secs(120), "every cell's punctual layer at its target", |e| {
+        if let RuntimeEvent::PunctualPublished { cell, lod, .. } = e.event {
+            bakes.entry(cell).or_default().push(lod);
+        }
+        runtime
+            .cells()
+            .iter()
+            .all(|c| c.target_lod == 0 || bakes.get(&c.cell).is_some_and(|b| b.iter().any(|&k| k >= c.target_lod)))
+    });
+    let (shown, cells) = runtime.snapshot();
+    runtime.shutdown().expect("clean shutdown");
+    for c in &cells {
+        if c.target_lod > 0 {
+            assert_eq!(bakes.get(&c.cell).map(Vec::as_slice), Some(&[c.punctual_lod][..]), "cell {}", c.cell);
+        }
+    }
+    assert!(cells.iter().any(|c| c.punctual_lod == finest), "no cell at LOD {finest}");
+
+    let locator = SurfaceLocator::new(&world.geom, &world.bvh);
+    let punctual = shown.layer(Layer::Punctual);
+    let lit = sun * Vec3::Y.dot(-travel);
+    let (mut in_light, mut in_shadow, mut at_finest) = (0, 0, 0);
+    let steps = 160;
+    for i in 0..steps {
+        for j in 0..steps {
+            let p = Vec3::new(-3.9 + 7.8 * i as f32 / steps as f32, 0.0, -3.9 + 7.8 * j as f32 / steps as f32);
+            let cell = world.grid.cell_of(p);
+            let k = shown.cell_lod(Layer::Punctual, cell);
+            let coarse = world.texel_size(k.saturating_sub(1));
+            if p.x.abs().max(p.z.abs()) < 0.5 + 2.0 * coarse || p.x.abs().max(p.z.abs()) > 4.0 - 2.0 * coarse {
+                continue; // under or beside the block, or at the floor's edge
+            }
+            // Away from the shadow's edge: the same answer on a circle of 2 coarse texels.
+            let shadowed = block_shadows(p, travel);
+            let ring = (0..16).map(|a| {
+                let a = a as f32 * std::f32::consts::TAU / 16.0;
+                p + Vec3::new(a.cos(), 0.0, a.sin()) * 2.0 * coarse
+            });
+            if ring.map(|q| block_shadows(q, travel)).any(|s| s != shadowed) {
+                continue;
+            }
+            let at = locator.locate(p, Vec3::Y).expect("floor");
+            let face = world.atlas.face(at.tri, at.side).expect("lit side");
+            let uv = world.atlas.faces[face as usize].uv_at(at.u, at.v);
+            let got = shown.layer_irradiance(Layer::Punctual, cell, world.geom.point(at.tri, at.u, at.v), uv);
+            let want = if shadowed { 0.0 } else { lit };
+            assert!((got - Vec3::splat(want)).abs().max_element() <= 1e-5 * lit, "at {p}: {got} for {want}");
+            if shadowed {
+                in_shadow += 1
+            } else {
+                in_light += 1
+            }
+            // Its cell's levels: LOD 0, the shown one and the one below, nothing in between
+            // (looked up well inside the cell, where the pixels are the cell's own).
+            let (lo, hi) = world.grid.bounds(cell);
+            let inside = (p - lo).min(hi - p);
+            if k == finest && inside.x.min(inside.z) > 2.0 * world.texel_size(0) {
+                at_finest += 1;
+                for j in 1..=k {
+                    let px = (uv * (1u32 << j) as f32).floor();
+                    let has = punctual.levels[j as usize].texel(px.x as i64, px.y as i64).is_some();
+                    assert_eq!(has, j + 1 >= k, "LOD {j} at {p}");
+                }
+            }
+        }
+    }
+    eprintln!("{in_light} lit and {in_shadow} shadowed floor points exact, {at_finest} at LOD {finest}");
+    assert!(in_light > 1000 && in_shadow > 100 && at_finest > 100, "{in_light} lit, {in_shadow} shadowed, {at_finest}");
 }

@@ -470,7 +470,9 @@ mod tests {
 }
 
 /// Area of triangle `t` inside the unit pixel square with corner (x, y), in pixel units
-/// (Sutherland–Hodgman clip against the four sides, then the shoelace formula).
+/// (Sutherland–Hodgman clip against the four sides, then the shoelace formula; a square
+/// inside the triangle, as most are, is 1 without clipping). No allocation: it runs for
+/// every pixel a face touches.
 pub fn clipped_area(t: &[DVec2; 3], x: i64, y: i64) -> f64 {
     let (x0, y0) = (x as f64, y as f64);
     let (x1, y1) = (x0 + 1.0, y0 + 1.0);
@@ -479,34 +481,58 @@ pub fn clipped_area(t: &[DVec2; 3], x: i64, y: i64) -> f64 {
     if lo.x >= x0 && hi.x <= x1 && lo.y >= y0 && hi.y <= y1 {
         return 0.5 * area2(t).abs();
     }
-    let mut poly: Vec<DVec2> = t.to_vec();
-    let mut next = Vec::with_capacity(8);
+    if square_inside(t, x0, y0) {
+        return 1.0;
+    }
+    // A triangle clipped by four half-planes has at most 7 corners.
+    let mut poly = [DVec2::ZERO; 8];
+    let mut next = [DVec2::ZERO; 8];
+    poly[..3].copy_from_slice(t);
+    let mut n = 3;
     // Each plane keeps points p with sign·(p[axis] − bound) ≥ 0.
     for (axis, bound, sign) in [(0, x0, 1.0), (0, x1, -1.0), (1, y0, 1.0), (1, y1, -1.0)] {
-        next.clear();
         let inside = |p: DVec2| sign * (p[axis] - bound) >= 0.0;
-        for i in 0..poly.len() {
-            let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+        let mut m = 0;
+        for i in 0..n {
+            let (a, b) = (poly[i], poly[(i + 1) % n]);
             let (ia, ib) = (inside(a), inside(b));
             if ia {
-                next.push(a);
+                next[m] = a;
+                m += 1;
             }
             if ia != ib {
                 let s = (bound - a[axis]) / (b[axis] - a[axis]);
-                next.push(a + (b - a) * s);
+                next[m] = a + (b - a) * s;
+                m += 1;
             }
         }
         std::mem::swap(&mut poly, &mut next);
-        if poly.len() < 3 {
+        n = m;
+        if n < 3 {
             return 0.0;
         }
     }
     let mut twice = 0.0;
-    for i in 0..poly.len() {
-        let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+    for i in 0..n {
+        let (a, b) = (poly[i], poly[(i + 1) % n]);
         twice += a.x * b.y - b.x * a.y;
     }
     0.5 * twice.abs()
+}
+
+/// Whether the unit square with corner (x0, y0) lies inside triangle `t` (all four corners
+/// on the inner side of every edge, or on it).
+fn square_inside(t: &[DVec2; 3], x0: f64, y0: f64) -> bool {
+    let orient = area2(t);
+    if orient == 0.0 {
+        return false;
+    }
+    (0..3).all(|i| {
+        let (a, b) = (t[i], t[(i + 1) % 3]);
+        [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+            .into_iter()
+            .all(|(dx, dy)| (b - a).perp_dot(DVec2::new(x0 + dx, y0 + dy) - a) * orient >= 0.0)
+    })
 }
 
 #[cfg(test)]
@@ -523,9 +549,14 @@ mod clip_tests {
             }
         }
         assert!((sum - 0.5 * area2(&t).abs()).abs() < 1e-9, "{sum}");
-        // A triangle covering the whole pixel contributes exactly 1.
+        // A triangle covering the whole pixel contributes exactly 1, either way round.
         let big = [DVec2::new(-10.0, -10.0), DVec2::new(20.0, -10.0), DVec2::new(-10.0, 20.0)];
-        assert!((clipped_area(&big, 2, 2) - 1.0).abs() < 1e-12);
+        assert_eq!(clipped_area(&big, 2, 2), 1.0);
+        assert_eq!(clipped_area(&[big[0], big[2], big[1]], 2, 2), 1.0);
         assert_eq!(clipped_area(&t, 20, 20), 0.0);
+        // A pixel the triangle's edge crosses: less than 1, the clip's area.
+        let edge = clipped_area(&big, 4, 5);
+        assert!(edge > 0.0 && edge < 1.0, "{edge}");
+        assert!((edge - 0.5).abs() < 1e-12, "{edge}");
     }
 }

@@ -57,14 +57,12 @@ pub struct SparseTexels {
     pub tables: Vec<TexelTable>,
 }
 
-/// A pixel's candidate from one face: its key orders by pixel, then face.
-#[derive(Clone, Copy)]
+/// A pixel's candidate from one face.
+#[derive(Clone, Copy, Default)]
 struct Touch {
-    /// Row-major pixel index over the LOD (u64: fine LODs exceed u32).
-    pixel: u64,
+    /// Row-major pixel index within the chart's window.
+    pixel: u32,
     face: FaceId,
-    /// Squared UV distance from the pixel centre to the face (0 inside) as f32 bits.
-    d2: u32,
     area: f64,
 }
 
@@ -83,7 +81,6 @@ impl SparseTexels {
         hi: Vec3,
         inside: impl Fn(Vec3) -> bool,
     ) -> SparseTexels {
-        let width = (atlas.width as u64) << lod;
         // Per chart: the window of pixels that matter.
         let mut windows: BTreeMap<u32, PixelRect> = BTreeMap::new();
         for &t in core {
@@ -109,8 +106,9 @@ impl SparseTexels {
         }
 
         let mut out = SparseTexels { lod, ..SparseTexels::default() };
-        let mut touches: Vec<Touch> = Vec::new();
-        let mut texels: Vec<(u64, [u32; 2], FaceId, f32)> = Vec::new(); // (block key, pixel, face, area)
+        let (mut touches, mut sorted, mut starts): (Vec<Touch>, Vec<Touch>, Vec<u32>) = Default::default();
+        // (block key, pixel, face, area, attributes)
+        let mut texels: Vec<(u64, [u32; 2], FaceId, f32, TexelAttributes)> = Vec::new();
         let mut gutters: Vec<([u32; 2], [u32; 2], u32)> = Vec::new(); // (gutter pixel, copied pixel, chart)
         for (&chart_id, &window) in &windows {
             let chart = &atlas.charts[chart_id as usize];
@@ -130,43 +128,67 @@ impl SparseTexels {
                 }
                 let ratio = world_per_pixel(geom, atlas, f, &uv);
                 raster::conservative_in(&uv, interior, window, |x, y| {
-                    let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
-                    let (_, _, d2) = raster::closest_barycentric(&uv, c);
                     touches.push(Touch {
-                        pixel: y as u64 * width + x as u64,
+                        pixel: ((y - window.y0) * window.width() + (x - window.x0)) as u32,
                         face: f,
-                        d2: (d2 as f32).to_bits(),
                         area: raster::clipped_area(&uv, x, y) * ratio,
                     });
                 });
             }
-            // Faces of a chart are in ascending id order, so a stable sort by pixel keeps
-            // each pixel's touches in face order: areas add up as the whole-LOD raster's do.
-            touches.sort_by_key(|t| t.pixel);
-            // Per pixel of the window: empty, covered by another region's texel, or ours.
+            // Faces of a chart are in ascending id order, so a stable (counting) sort by
+            // pixel keeps each pixel's touches in face order: areas add up as the whole-LOD
+            // raster's do.
             let (ww, wh) = (window.width(), window.height());
+            starts.clear();
+            starts.resize((ww * wh) as usize + 1, 0);
+            for t in &touches {
+                starts[t.pixel as usize + 1] += 1;
+            }
+            for i in 1..starts.len() {
+                starts[i] += starts[i - 1];
+            }
+            sorted.clear();
+            sorted.resize(touches.len(), Touch::default());
+            {
+                let mut fill = starts.clone();
+                for t in &touches {
+                    let slot = &mut fill[t.pixel as usize];
+                    sorted[*slot as usize] = *t;
+                    *slot += 1;
+                }
+            }
+            // Per pixel of the window: empty, covered by another region's texel, or ours.
             let mut state = vec![EMPTY; (ww * wh) as usize];
             let at = |x: i64, y: i64| ((y - window.y0) * ww + (x - window.x0)) as usize;
-            let mut i = 0;
-            while i < touches.len() {
-                let p = touches[i].pixel;
-                let (mut best, mut area) = (u64::MAX, 0f64);
-                while i < touches.len() && touches[i].pixel == p {
-                    let t = &touches[i];
-                    area += t.area;
-                    best = best.min((t.d2 as u64) << 32 | t.face as u64);
-                    i += 1;
+            for w in 0..(ww * wh) as usize {
+                let group = &sorted[starts[w] as usize..starts[w + 1] as usize];
+                if group.is_empty() {
+                    continue;
                 }
-                let (x, y) = ((p % width) as i64, (p / width) as i64);
-                let face = best as u32;
+                let (x, y) = (window.x0 + w as i64 % ww, window.y0 + w as i64 / ww);
+                let area: f64 = group.iter().map(|t| t.area).sum();
+                // The face holding the pixel centre, else the nearest, ties to the lower id:
+                // (squared distance as f32 bits, face) packed, the smallest wins. A pixel
+                // touched by one face (most are) needs no distance.
+                let face = if let [only] = group {
+                    only.face
+                } else {
+                    let c = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+                    let key = |t: &Touch| {
+                        let (_, _, d2) = raster::closest_barycentric(&atlas.faces[t.face as usize].uv_lod(lod), c);
+                        ((d2 as f32).to_bits() as u64) << 32 | t.face as u64
+                    };
+                    group.iter().map(key).min().unwrap_or(u64::MAX) as u32
+                };
                 let uv = atlas.faces[face as usize].uv_lod(lod);
                 let attributes = TexelAttributes::at(scene, geom, atlas, face, &uv, x, y);
                 let ours = inside(attributes.position);
                 state[at(x, y)] = if ours { OURS } else { OTHERS };
                 if ours {
-                    texels.push((block_key(x as u32, y as u32), [x as u32, y as u32], face, area as f32));
+                    texels.push((block_key(x as u32, y as u32), [x as u32, y as u32], face, area as f32, attributes));
                 }
             }
+            touches.clear();
             // Gutters: empty pixels next to one of our texels whose rule copies one of ours.
             let get = |x: i64, y: i64| if window.contains(x, y) { state[at(x, y)] } else { EMPTY };
             for y in window.y0..window.y1 {
@@ -184,13 +206,15 @@ impl SparseTexels {
 
         // Texels in block order, then the lookup tables (per chart, over its texels and
         // gutter pixels), through which gutter pixels find the texel they copy.
-        texels.sort_unstable_by_key(|t| t.0);
+        // (Sorted through their keys: the texels themselves are large to move.)
+        let mut order: Vec<(u64, u32)> = texels.iter().enumerate().map(|(i, t)| (t.0, i as u32)).collect();
+        order.sort_unstable();
         let mut rects: BTreeMap<u32, PixelRect> = BTreeMap::new();
         let mut grow = |chart: u32, p: [u32; 2]| {
             let r = PixelRect::new(p[0] as i64, p[1] as i64, p[0] as i64 + 1, p[1] as i64 + 1);
             rects.entry(chart).and_modify(|w| *w = union(*w, r)).or_insert(r);
         };
-        for &(_, pixel, face, _) in &texels {
+        for &(_, pixel, face, _, _) in &texels {
             grow(atlas.faces[face as usize].chart, pixel);
         }
         for &(g, _, chart) in &gutters {
@@ -198,9 +222,16 @@ impl SparseTexels {
         }
         let mut tables: BTreeMap<u32, TexelTable> =
             rects.into_iter().map(|(c, r)| (c, TexelTable::new(Some(c), r))).collect();
-        for (k, &(_, pixel, face, area)) in texels.iter().enumerate() {
-            let uv = atlas.faces[face as usize].uv_lod(lod);
-            let a = TexelAttributes::at(scene, geom, atlas, face, &uv, pixel[0] as i64, pixel[1] as i64);
+        let n = order.len();
+        out.pixel.reserve_exact(n);
+        out.face.reserve_exact(n);
+        out.position.reserve_exact(n);
+        out.normal.reserve_exact(n);
+        out.albedo.reserve_exact(n);
+        out.emission.reserve_exact(n);
+        out.area.reserve_exact(n);
+        for (k, &(_, i)) in order.iter().enumerate() {
+            let (_, pixel, face, area, ref a) = texels[i as usize];
             out.pixel.push(pixel);
             out.face.push(face);
             out.position.push(a.position);

@@ -66,35 +66,41 @@ pub(super) struct CellState {
     pub punctual: PunctualState,
 }
 
-/// A cell's punctual layer ([`super::punctual`]): baked straight at the cell's target LOD
-/// (LOD 0 comes with first light and stays, the fallback of bilinear lookups and border
-/// blends); levels in between are skipped.
+/// A cell's punctual layer ([`super::punctual`]): baked straight at its target LOD and the
+/// one below (toward which it blends at borders with a coarser neighbour: neighbours'
+/// targets are at most one apart, [`update_views`]); LOD 0 comes with first light and
+/// stays; levels in between are skipped.
 #[derive(Default)]
 pub(super) struct PunctualState {
     /// The LOD shown.
     pub shown: u32,
+    /// The LOD wanted: the cell's target, raised to within one of its neighbours'.
+    pub target: u32,
     /// Pixels written at each LOD (index = LOD; empty where skipped).
     pub published: Vec<Vec<[u32; 2]>>,
     /// A worker is baking it.
     pub busy: bool,
-    /// A hot reload changed the scene after it was baked: re-bake it (LOD 0 and the LOD
+    /// A hot reload changed the scene after it was baked: re-bake it (LOD 0 and the LODs
     /// wanted), whatever the LOD.
     pub stale: bool,
 }
 
 impl PunctualState {
-    /// The LODs its next bake makes, if it has one to make: the target when finer than shown,
-    /// and LOD 0 besides when stale.
-    pub fn next_levels(&self, target: u32) -> Option<Vec<u32>> {
-        if self.busy {
+    /// The LODs its next bake makes (ascending), if it has one to make: when the target is
+    /// finer than shown, the target and the LOD below, those not published yet; when stale,
+    /// LOD 0 besides and all of them again.
+    pub fn next_levels(&self) -> Option<Vec<u32>> {
+        if self.busy || !(self.stale || self.target > self.shown) {
             return None;
         }
-        match (self.stale, target > self.shown) {
-            (true, _) if target > 0 => Some(vec![0, target]),
-            (true, _) => Some(vec![0]),
-            (false, true) => Some(vec![target]),
-            (false, false) => None,
+        let mut levels = vec![self.target.saturating_sub(1), self.target];
+        if self.stale {
+            levels.insert(0, 0);
+        } else {
+            levels.retain(|&k| k > 0 && self.published.get(k as usize).is_none_or(|p| p.is_empty()));
         }
+        levels.dedup();
+        (!levels.is_empty()).then_some(levels)
     }
 }
 
@@ -193,7 +199,8 @@ impl Shared {
     }
 }
 
-/// Recomputes every non-empty cell's view and target LOD for the current camera.
+/// Recomputes every non-empty cell's view and target LOD for the current camera, and the
+/// punctual layer's targets ([`PunctualState::target`]).
 pub(super) fn update_views(shared: &Shared, st: &mut State) {
     let Some(camera) = st.camera else { return };
     let world = st.world.clone();
@@ -202,6 +209,32 @@ pub(super) fn update_views(shared: &Shared, st: &mut State) {
         let cell = &mut st.cells[c as usize];
         cell.view = Some(view);
         cell.target = target_lod(&camera, view, world.atlas.texel_size, shared.config.texel_pixels, world.lods);
+        cell.punctual.target = cell.target;
+    }
+    // Face-neighbours' punctual targets at most one LOD apart (raised, never lowered): a cell
+    // blends toward a coarser neighbour's LOD from its own pixels at that LOD, and a
+    // punctual bake makes its target and the LOD below ([`PunctualState::next_levels`]). A
+    // few passes settle it (targets fall by at most one a pass).
+    let grid = world.grid;
+    for _ in 0..world.lods {
+        let mut raised = false;
+        for c in world.non_empty_cells() {
+            let mut t = st.cells[c as usize].punctual.target;
+            for axis in 0..3 {
+                for step in [-1, 1] {
+                    if let Some(n) = grid.neighbour(c, axis, step) {
+                        t = t.max(st.cells[n as usize].punctual.target.saturating_sub(1));
+                    }
+                }
+            }
+            if t > st.cells[c as usize].punctual.target {
+                st.cells[c as usize].punctual.target = t;
+                raised = true;
+            }
+        }
+        if !raised {
+            break;
+        }
     }
 }
 
@@ -349,7 +382,10 @@ pub(super) fn first_light(shared: &Shared) {
             // A hot reload replaced the world meanwhile: it published its own light.
             return;
         }
-        shared.set_shown(map);
+        // LOD 0 only: punctual bakes may have published finer levels meanwhile.
+        let mut shown = (*shared.shown()).clone();
+        shown.adopt_level(&map, 0);
+        shared.set_shown(shown);
         let first = !st.first_light;
         let lights = !world.scene.lights.is_empty();
         for (c, pixels) in owned.iter().enumerate() {
@@ -423,7 +459,7 @@ pub(super) fn punctual_work(world: &World, s: &CellState) -> Option<Vec<u32>> {
     if world.scene.lights.is_empty() || s.view.is_none() {
         return None;
     }
-    s.punctual.next_levels(s.target)
+    s.punctual.next_levels()
 }
 
 /// The LOD a cell's next bake is at: LOD 0 again for a provisional cell (its quick re-bake
@@ -517,7 +553,8 @@ fn shown_now(st: &State, bake: &CellBake) -> ShownNow {
     }
 }
 
-/// The next job: first a reload's provisional cells, then the punctual layer of the most
+/// The next job (from first light on: punctual bakes; once LOD 0 has all its directions,
+/// bundle bakes too): first a reload's provisional cells, then the punctual layer of the most
 /// urgent cell whose layer is below its target (or stale) — one cheap bake per cell, exact,
 /// and what sharpens the view most — then the bundles of the most urgent cell below its
 /// target (or stale), not being worked on; each with room within the memory budget (made by
@@ -529,6 +566,11 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
     if !provisional_waiting && let Some(job) = pick_punctual(shared, st) {
         return Some(job);
     }
+    // Bundle bakes see the shown map as converged light: they wait for all of LOD 0's
+    // directions (punctual bakes, exact, need not).
+    if !st.lod0_done {
+        return None;
+    }
     pick_bundles(shared, st)
 }
 
@@ -539,7 +581,7 @@ fn pick_punctual(shared: &Shared, st: &mut State) -> Option<Job> {
     let key = |st: &State, c: CellId| {
         let s = &st.cells[c as usize];
         let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
-        let deficit = s.target.saturating_sub(s.punctual.shown);
+        let deficit = s.punctual.target.saturating_sub(s.punctual.shown);
         (!view.in_frustum, std::cmp::Reverse(deficit), s.punctual.stale, view.distance.to_bits(), c)
     };
     let c = world
@@ -723,7 +765,7 @@ fn make_room(shared: &Shared, st: &mut State, for_cells: &[CellId], need: u64) -
                 consider(s.shown > s.target, Layer::Bundles);
             }
             if !s.punctual.busy && s.punctual.shown > 0 {
-                consider(s.punctual.shown > s.target, Layer::Punctual);
+                consider(s.punctual.shown > s.punctual.target, Layer::Punctual);
             }
         }
         let Some((_, victim, layer)) = victim else { return false };
@@ -807,7 +849,7 @@ pub(super) fn worker(shared: &Shared) {
                 if shared.shutdown.load(Ordering::SeqCst) {
                     return;
                 }
-                if st.lod0_done && !st.paused && !st.relighting && st.failed.is_none() {
+                if st.first_light && !st.paused && !st.relighting && st.failed.is_none() {
                     if let Some(job) = pick(shared, &mut st) {
                         break job;
                     }
@@ -914,9 +956,9 @@ pub(super) fn worker(shared: &Shared) {
     }
 }
 
-/// Bakes `cell`'s punctual layer at `levels` and publishes it (the last level shown): each
-/// level's earlier pixels are replaced, and a stale cell's other levels withdrawn (their
-/// shadows predate the change).
+/// Bakes `cell`'s punctual layer at `levels` and publishes it (the finest level it then has
+/// shown): each level's earlier pixels are replaced, and a stale cell's other levels
+/// withdrawn (their shadows predate the change).
 fn bake_punctual(shared: &Shared, world: &World, generation: u64, cell: CellId, levels: &[u32]) {
     let t = Instant::now();
     let bakes: Vec<PunctualBake> = levels.iter().map(|&k| PunctualBake::new(world, cell, k)).collect();
@@ -929,13 +971,13 @@ fn bake_punctual(shared: &Shared, world: &World, generation: u64, cell: CellId, 
         st.cells[cell as usize].punctual.busy = false;
         return;
     }
-    let Some(&shown) = levels.last() else { return };
     let p = &mut st.cells[cell as usize].punctual;
     p.busy = false;
     let stale = std::mem::take(&mut p.stale);
     let mut map = (*shared.shown()).clone();
     let mut writer = PageWriter::new(&mut map);
-    p.published.resize(p.published.len().max(shown as usize + 1), Vec::new());
+    let top = levels.iter().copied().max().unwrap_or(0);
+    p.published.resize(p.published.len().max(top as usize + 1), Vec::new());
     for (k, pixels) in p.published.iter_mut().enumerate() {
         if levels.contains(&(k as u32)) || stale {
             for q in pixels.drain(..) {
@@ -952,6 +994,8 @@ fn bake_punctual(shared: &Shared, world: &World, generation: u64, cell: CellId, 
         }
         texels = bake.texels.len();
     }
+    // The finest level it has now (a level below the target may have been all it lacked).
+    let shown = p.published.iter().rposition(|v| !v.is_empty()).unwrap_or(0) as u32;
     writer.set_cell_lod(Layer::Punctual, cell, shown);
     writer.finish();
     p.shown = shown;
@@ -1136,6 +1180,30 @@ mod tests {
         let full = c.bundle.directions as u64;
         assert_eq!(publish_due(&c, 0, provisional, full - 4, 0.0), Due::Wait);
         assert_eq!(publish_due(&c, 0, provisional, full, 0.5), Due::Settled);
+    }
+
+    /// A punctual bake makes the target and the LOD below, those not published yet; a stale
+    /// layer is made again from LOD 0; nothing while one is in flight or when shown at its
+    /// target.
+    #[test]
+    fn a_punctual_bake_makes_the_target_and_the_lod_below() {
+        let state = |shown, target, published: &[u32], stale| {
+            let mut p = PunctualState { shown, target, stale, ..PunctualState::default() };
+            for &k in published {
+                p.published.resize(p.published.len().max(k as usize + 1), Vec::new());
+                p.published[k as usize] = vec![[0, 0]];
+            }
+            p
+        };
+        assert_eq!(state(0, 5, &[0], false).next_levels(), Some(vec![4, 5]));
+        assert_eq!(state(5, 6, &[0, 4, 5], false).next_levels(), Some(vec![6]));
+        assert_eq!(state(0, 1, &[0], false).next_levels(), Some(vec![1]));
+        assert_eq!(state(5, 5, &[0, 4, 5], true).next_levels(), Some(vec![0, 4, 5]));
+        assert_eq!(state(0, 0, &[0], true).next_levels(), Some(vec![0]));
+        assert_eq!(state(5, 5, &[0, 4, 5], false).next_levels(), None);
+        assert_eq!(state(6, 5, &[0, 5, 6], false).next_levels(), None);
+        let busy = PunctualState { busy: true, ..state(0, 5, &[0], false) };
+        assert_eq!(busy.next_levels(), None);
     }
 
     /// The LOD a cell bakes next: an unsettled level is finished before the next, unless the

@@ -10,10 +10,11 @@
 //! gets a new id), so a reader sees a cell before or after its publish, never half of it, and
 //! a GPU mirror uploads exactly the pages whose id changed.
 //!
-//! A cell shown at LOD k keeps its pages at every coarser level: sampling falls back to them
+//! A cell shown at LOD k keeps its pages at coarser levels: sampling falls back to them
 //! where LOD k has no texel yet (next to a coarser neighbour), and blends toward the coarser
-//! neighbour across [`ShownLightmap::blend_band`] metres of a border between cells of
-//! different LOD, so the border shows no step beyond the noise.
+//! neighbour's LOD j across a band of a couple of LOD-j texels along a border between cells
+//! of different LOD ([`ShownLightmap::band_toward`]), so the border shows no step beyond the
+//! noise.
 //!
 //! The map has two [`Layer`]s, summed by the sampling function, each with its own pages and
 //! its own LOD per cell: the light the bundles carry (sky, emitters, every bounce: noisy, so
@@ -185,8 +186,8 @@ pub struct ShownLightmap {
     /// LOD-0 atlas size in texels; LOD k is `2^k` times larger.
     pub atlas_width: u32,
     pub atlas_height: u32,
-    /// Width (metres) of the band along a border with a coarser cell over which the finer
-    /// cell blends into the coarser LOD.
+    /// Width (metres) of the band along a border with a cell shown at LOD 0 over which the
+    /// finer cell blends into it (toward LOD k: this over 2^k, [`ShownLightmap::band_toward`]).
     pub blend_band: f32,
     /// Indexed by [`Layer`].
     pub layers: [LayerPages; 2],
@@ -237,6 +238,19 @@ impl ShownLightmap {
         self.atlas_height = atlas_height;
     }
 
+    /// Takes LOD `lod` of both layers from `other` (a map of the same shape), keeping every
+    /// other level and the cells' LODs: first light's successive showings of LOD 0 replace
+    /// only LOD 0, whatever finer punctual levels were published meanwhile.
+    pub fn adopt_level(&mut self, other: &ShownLightmap, lod: u32) {
+        for (mine, theirs) in self.layers.iter_mut().zip(&other.layers) {
+            if let (Some(a), Some(b)) = (mine.levels.get_mut(lod as usize), theirs.levels.get(lod as usize)) {
+                *a = b.clone();
+            }
+            mine.used |= theirs.used;
+        }
+        self.version = self.version.max(other.version) + 1;
+    }
+
     /// Irradiance (W/m²) of the surface point at world `position` whose light-map UV (of the
     /// side being looked at, LOD-0 texel units) is `uv_lod0`: per layer, the cell of the
     /// point, its LOD in that layer, bilinear within the chart there, blended toward a
@@ -266,9 +280,17 @@ impl ShownLightmap {
         self.layers.iter().filter(|l| l.used).map(|l| l.bilinear(k, uv_lod0)).fold(Rgb::ZERO, |a, b| a + b)
     }
 
+    /// Width (metres) of the band in which a cell blends toward a face-neighbour shown at
+    /// LOD `k_low`: [`ShownLightmap::blend_band`] halved per level, so the band is a couple of
+    /// the coarser side's texels wide (what its values differ by) and a cell at a fine LOD
+    /// blends only near its border, whatever it borders.
+    pub fn band_toward(&self, k_low: u32) -> f32 {
+        self.blend_band / (1u64 << k_low) as f32
+    }
+
     /// Near a face shared with a coarser neighbour (LODs `cell_lod` of one layer): the blend
-    /// weight toward it (1 on the face, 0 at `blend_band` inside) and the coarsest such
-    /// neighbour's LOD.
+    /// weight toward it (1 on the face, 0 at [`ShownLightmap::band_toward`] its LOD inside)
+    /// and the coarsest such neighbour's LOD.
     fn border_blend(&self, cell_lod: &[u8], cell: CellId, k: u32, p: Vec3) -> Option<(f32, u32)> {
         if k == 0 || self.blend_band <= 0.0 {
             return None;
@@ -282,10 +304,11 @@ impl ShownLightmap {
                 }
                 let Some(n) = self.grid.neighbour(cell, axis, step) else { continue };
                 let kn = cell_lod[n as usize] as u32;
-                if kn >= k {
+                let band = self.band_toward(kn);
+                if kn >= k || d >= band {
                     continue;
                 }
-                let w = (1.0 - d.max(0.0) / self.blend_band).clamp(0.0, 1.0);
+                let w = (1.0 - d.max(0.0) / band).clamp(0.0, 1.0);
                 best = Some(match best {
                     Some((bw, bk)) => (bw.max(w), bk.min(kn)),
                     None => (w, kn),
