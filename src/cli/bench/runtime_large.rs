@@ -196,7 +196,8 @@ fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &Ui) -> Result<Value
         let (lo, hi) = (Vec3::from(c.min), Vec3::from(c.max));
         (jumped.eye.clamp(lo, hi) - jumped.eye).length() <= 2.0
     };
-    let mut swap_latency = None;
+    // Per layer: the seconds until every cell within 2 m shows it at its target.
+    let (mut swap_latency, mut punctual_latency) = (None, None);
     let mut near_cells = Vec::new();
     while runtime.elapsed() < jump_at + swap_patience {
         while let Ok(e) = runtime.events().try_recv() {
@@ -205,7 +206,13 @@ fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &Ui) -> Result<Value
             }
         }
         near_cells = runtime.cells().into_iter().filter(|c| near_jump(c)).collect();
-        if !near_cells.is_empty() && near_cells.iter().all(|c| c.shown_lod >= c.target_lod) {
+        let at_target = |lod: fn(&livebake::runtime::CellInfo) -> u32| {
+            !near_cells.is_empty() && near_cells.iter().all(|c| lod(c) >= c.target_lod)
+        };
+        if punctual_latency.is_none() && !scene.lights.is_empty() && at_target(|c| c.punctual_lod) {
+            punctual_latency = Some(runtime.elapsed() - jump_at);
+        }
+        if at_target(|c| c.shown_lod) {
             swap_latency = Some(runtime.elapsed() - jump_at);
             break;
         }
@@ -213,7 +220,10 @@ fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &Ui) -> Result<Value
     }
     let near_json: Vec<Value> = near_cells
         .iter()
-        .map(|c| json!({"cell": c.cell, "shown_lod": c.shown_lod, "target_lod": c.target_lod, "texels_lod0": c.texels}))
+        .map(|c| {
+            json!({"cell": c.cell, "shown_lod": c.shown_lod, "punctual_lod": c.punctual_lod, "target_lod": c.target_lod,
+                "texels_lod0": c.texels})
+        })
         .collect();
 
     // 11 ms ticks: the front end walks on at 1 m/s, sets the camera and reads a snapshot.
@@ -341,6 +351,7 @@ fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &Ui) -> Result<Value
         "swap_latency": {
             "jump_m": [-JUMP, 0.0, -JUMP],
             "seconds": swap_latency,
+            "punctual_layer_seconds": punctual_latency,
             "patience_seconds": swap_patience,
             "cells_within_2m": near_json,
         },
