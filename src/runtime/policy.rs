@@ -112,12 +112,26 @@ pub fn target_lod(camera: &CameraView, view: CellView, texel0: f32, texel_pixels
     k.min(levels.saturating_sub(1))
 }
 
-/// Sort key of a cell waiting for refinement (smaller goes first): cells in view before
-/// others, then the largest LOD deficit (target − shown: a deficit of d shows texels 2^d
-/// times too coarse for the screen, so this goes for the blurriest light on screen first,
-/// which is the nearest surfaces'), then the nearest.
-pub fn priority(view: CellView, deficit: u32, stale: bool) -> (bool, bool, std::cmp::Reverse<u32>, u32) {
-    (!stale, !view.in_frustum, std::cmp::Reverse(deficit), view.distance.to_bits())
+/// Which layer a job makes; at equal urgency the punctual layer goes first (one cheap
+/// exact bake a cell, where the bundles take many units).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Work {
+    Punctual,
+    Bundles,
+}
+
+/// Sort key of a job on a cell (smaller goes first): refinement before refreshing stale
+/// light (`refresh`), cells in view before others, then the largest LOD deficit (target −
+/// shown in the layer the job makes: a deficit of d shows texels 2^d times too coarse for
+/// the screen, so this goes for the blurriest light on screen first, which is the nearest
+/// surfaces'), the punctual layer before the bundles, then the nearest.
+pub fn priority(
+    view: CellView,
+    deficit: u32,
+    refresh: bool,
+    work: Work,
+) -> (bool, bool, std::cmp::Reverse<u32>, Work, u32) {
+    (refresh, !view.in_frustum, std::cmp::Reverse(deficit), work, view.distance.to_bits())
 }
 
 #[cfg(test)]
@@ -158,20 +172,23 @@ mod tests {
     }
 
     #[test]
-    fn priority_orders_view_then_deficit_then_distance() {
+    fn priority_orders_view_then_deficit_then_layer_then_distance() {
         let v = |d: f32, f: bool| CellView { distance: d, in_frustum: f };
+        let b = Work::Bundles;
         let mut keys = [
-            priority(v(1.0, false), 3, false),
-            priority(v(9.0, true), 1, false),
-            priority(v(2.0, true), 2, false),
-            priority(v(8.0, true), 2, false),
-            priority(v(50.0, false), 0, true),
+            priority(v(1.0, false), 3, false, b),
+            priority(v(9.0, true), 1, false, b),
+            priority(v(2.0, true), 2, false, b),
+            priority(v(8.0, true), 2, false, b),
+            priority(v(50.0, true), 2, false, Work::Punctual),
+            priority(v(0.5, true), 6, true, b),
         ];
         keys.sort();
-        assert_eq!(keys[0], priority(v(50.0, false), 0, true)); // stale first
-        assert_eq!(keys[1], priority(v(2.0, true), 2, false));
-        assert_eq!(keys[2], priority(v(8.0, true), 2, false));
-        assert_eq!(keys[3], priority(v(9.0, true), 1, false));
-        assert_eq!(keys[4], priority(v(1.0, false), 3, false));
+        assert_eq!(keys[0], priority(v(50.0, true), 2, false, Work::Punctual));
+        assert_eq!(keys[1], priority(v(2.0, true), 2, false, b));
+        assert_eq!(keys[2], priority(v(8.0, true), 2, false, b));
+        assert_eq!(keys[3], priority(v(9.0, true), 1, false, b));
+        assert_eq!(keys[4], priority(v(1.0, false), 3, false, b));
+        assert_eq!(keys[5], priority(v(0.5, true), 6, true, b), "refreshes last");
     }
 }

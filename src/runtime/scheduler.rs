@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::Sender;
 
 use super::cell_bake::{CellBake, filter_within_charts};
-use super::policy::{CameraView, CellView, cell_view, priority, target_lod};
+use super::policy::{CameraView, CellView, Work, cell_view, priority, target_lod};
 use super::punctual::{PunctualBake, punctual_bake_bytes};
 use super::shown::{Layer, PageWriter, ShownLightmap};
 use super::world::World;
@@ -554,40 +554,49 @@ fn shown_now(st: &State, bake: &CellBake) -> ShownNow {
 }
 
 /// The next job (from first light on: punctual bakes; once LOD 0 has all its directions,
-/// bundle bakes too): first a reload's provisional cells, then the punctual layer of the most
-/// urgent cell whose layer is below its target (or stale) — one cheap bake per cell, exact,
-/// and what sharpens the view most — then the bundles of the most urgent cell below its
-/// target (or stale), not being worked on; each with room within the memory budget (made by
-/// evicting what matters less, [`make_room`]); `None` when nothing is to be done or nothing
-/// fits. A cell whose group bake is parked (it is a member) brings its leader's bake back; a
-/// new bake gathers neighbours that want the same LOD ([`gather_group`]).
+/// bundle bakes too), the most urgent of both layers' work ([`priority`]: a reload's
+/// provisional cells first, then cells in view, the largest deficit in the layer the job
+/// makes, the punctual layer first at equal deficit — one cheap exact bake a cell — then
+/// the nearest), not being worked on, with room within the memory budget (made by evicting
+/// what matters less, [`make_room`]); `None` when nothing is to be done or nothing fits. A
+/// cell whose group bake is parked (it is a member) brings its leader's bake back; a new
+/// bake gathers neighbours that want the same LOD ([`gather_group`]).
 fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
-    let provisional_waiting = st.world.non_empty_cells().any(|c| st.cells[c as usize].provisional);
-    if !provisional_waiting && let Some(job) = pick_punctual(shared, st) {
-        return Some(job);
-    }
+    let punctual = best_punctual(st);
     // Bundle bakes see the shown map as converged light: they wait for all of LOD 0's
     // directions (punctual bakes, exact, need not).
-    if !st.lod0_done {
-        return None;
+    let bundles = if st.lod0_done { best_bundles(st) } else { None };
+    // The more urgent first; when it does not fit the memory budget, the other.
+    match (punctual, bundles) {
+        (Some(p), Some(b)) if b.0 < p.0 => take_bundles(shared, st, b.1).or_else(|| take_punctual(shared, st, p.1)),
+        (Some(p), b) => take_punctual(shared, st, p.1).or_else(|| b.and_then(|b| take_bundles(shared, st, b.1))),
+        (None, Some((_, c))) => take_bundles(shared, st, c),
+        (None, None) => None,
     }
-    pick_bundles(shared, st)
 }
 
-/// The punctual bake [`pick`] takes, if any: cells in view first, then the largest LOD
-/// deficit, fresh work before refreshing stale light, then the nearest.
-fn pick_punctual(shared: &Shared, st: &mut State) -> Option<Job> {
-    let world = st.world.clone();
-    let key = |st: &State, c: CellId| {
-        let s = &st.cells[c as usize];
-        let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
-        let deficit = s.punctual.target.saturating_sub(s.punctual.shown);
-        (!view.in_frustum, std::cmp::Reverse(deficit), s.punctual.stale, view.distance.to_bits(), c)
-    };
-    let c = world
+/// A job's place in the order of work ([`priority`]), a reload's provisional cells first.
+type JobKey = (bool, (bool, bool, std::cmp::Reverse<u32>, Work, u32), CellId);
+
+/// The cell whose punctual layer is most urgent, if any has work waiting.
+fn best_punctual(st: &State) -> Option<(JobKey, CellId)> {
+    let world = &st.world;
+    world
         .non_empty_cells()
-        .filter(|&c| punctual_work(&world, &st.cells[c as usize]).is_some())
-        .min_by_key(|&c| key(st, c))?;
+        .filter(|&c| punctual_work(world, &st.cells[c as usize]).is_some())
+        .map(|c| {
+            let s = &st.cells[c as usize];
+            let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
+            let p = &s.punctual;
+            let deficit = p.target.saturating_sub(p.shown);
+            ((true, priority(view, deficit, deficit == 0, Work::Punctual), c), c)
+        })
+        .min()
+}
+
+/// Takes the punctual bake of `c` (see [`pick`]).
+fn take_punctual(shared: &Shared, st: &mut State, c: CellId) -> Option<Job> {
+    let world = st.world.clone();
     let levels = punctual_work(&world, &st.cells[c as usize])?;
     let need: u64 = levels.iter().map(|&k| punctual_bake_bytes(lod_texels(&world, c, k))).sum();
     if !make_room(shared, st, &[c], need) {
@@ -598,31 +607,36 @@ fn pick_punctual(shared: &Shared, st: &mut State) -> Option<Job> {
     Some(Job::Punctual { world, generation: st.generation, cell: c, levels })
 }
 
-/// The bundle bake [`pick`] takes, if any.
-fn pick_bundles(shared: &Shared, st: &mut State) -> Option<Job> {
-    let world = st.world.clone();
-    let key = |st: &State, c: CellId| {
-        let s = &st.cells[c as usize];
-        let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
-        // A reload's provisional cells first (the change is shown at full quality soonest),
-        // refinement (an unsettled level's included) before refreshing stale light, then the
-        // policy's order. An unsettled level ranks as the settled level it came from: its
-        // early publish changes what is shown, not what is worked on (the bake in progress
-        // stays as urgent as it was, so the cells near the camera are refined as far and as
-        // soon as they were before early publishes, and show it sooner).
-        let refines = s.target > s.shown || (s.unsettled && s.target >= s.shown);
-        let settled_lod = s.shown - u32::from(s.unsettled && s.shown > 0);
-        (!s.provisional, !refines, priority(view, s.target.saturating_sub(settled_lod), false), c)
-    };
-    let leader_of = |st: &State, c: CellId| st.cells[c as usize].member_of.unwrap_or(c);
-    let c = world
+/// The cell whose bundle layer is most urgent, if any has work waiting: a reload's
+/// provisional cells first (the change is shown at full quality soonest), refinement (an
+/// unsettled level's included) before refreshing stale light, then the policy's order. An
+/// unsettled level ranks as the settled level it came from: its early publish changes what
+/// is shown, not what is worked on (the bake in progress stays as urgent as it was, so the
+/// cells near the camera are refined as far and as soon as they were before early
+/// publishes, and show it sooner).
+fn best_bundles(st: &State) -> Option<(JobKey, CellId)> {
+    let leader_of = |c: CellId| st.cells[c as usize].member_of.unwrap_or(c);
+    st.world
         .non_empty_cells()
         .filter(|&c| {
             let s = &st.cells[c as usize];
-            !st.cells[leader_of(st, c) as usize].busy && s.view.is_some() && next_lod(s).is_some()
+            !st.cells[leader_of(c) as usize].busy && s.view.is_some() && next_lod(s).is_some()
         })
-        .min_by_key(|&c| key(st, c))?;
-    let leader = leader_of(st, c);
+        .map(|c| {
+            let s = &st.cells[c as usize];
+            let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
+            let refines = s.target > s.shown || (s.unsettled && s.target >= s.shown);
+            let settled_lod = s.shown - u32::from(s.unsettled && s.shown > 0);
+            let deficit = s.target.saturating_sub(settled_lod);
+            ((!s.provisional, priority(view, deficit, !refines, Work::Bundles), c), c)
+        })
+        .min()
+}
+
+/// Takes the bundle bake of `c` (see [`pick`]): its group's parked bake, or a new one.
+fn take_bundles(shared: &Shared, st: &mut State, c: CellId) -> Option<Job> {
+    let world = st.world.clone();
+    let leader = st.cells[c as usize].member_of.unwrap_or(c);
     if let Some(bake) = st.cells[leader as usize].bake.take() {
         // Resume the parked bake, unless it is of another level than its leader's next (the
         // cell was evicted or refreshed meanwhile): then it is dropped and made anew.
@@ -737,23 +751,31 @@ fn budgeted_bytes(shared: &Shared, st: &State) -> u64 {
 
 /// Frees memory until `need` more bytes fit the budget, taking from what matters less than
 /// the work on `for_cells` (its leader first): first parked bakes and finest levels (of
-/// either layer) of cells shown finer than they need, then those of cells farther from the
-/// camera than the leader, farthest first (at equal distance a punctual level, the cheaper
-/// to make again). Cells in a parked group bake are let alone (the group's leader stands for
-/// them: its bake goes first). Returns whether it fits.
+/// either layer) of cells shown finer than they need, then bundle levels of cells farther
+/// from the camera than the leader and punctual levels of cells out of view (when the
+/// leader is in view, or farther), farthest first (at equal distance a punctual level, the
+/// cheaper to make again). A punctual bake takes milliseconds: letting it evict in-view
+/// cells' punctual levels by distance alone made cells in view evict each other as fast as
+/// a turning camera reorders them, and no bundle work got through. Cells in a parked group
+/// bake are let alone (the group's leader stands for them: its bake goes first). Returns
+/// whether it fits.
 fn make_room(shared: &Shared, st: &mut State, for_cells: &[CellId], need: u64) -> bool {
     let budget = shared.config.memory_budget;
     let world = st.world.clone();
-    let distance = |st: &State, c: CellId| st.cells[c as usize].view.map_or(f32::MAX, |v| v.distance);
-    let mine = distance(st, for_cells[0]);
+    let view = |st: &State, c: CellId| st.cells[c as usize].view;
+    let distance = |st: &State, c: CellId| view(st, c).map_or(f32::MAX, |v| v.distance);
+    let in_view = |st: &State, c: CellId| view(st, c).is_some_and(|v| v.in_frustum);
+    let (mine, mine_in_view) = (distance(st, for_cells[0]), in_view(st, for_cells[0]));
     while budgeted_bytes(shared, st) + need > budget {
         // What matters least: beyond its cell's target first, then farthest.
         let mut victim: Option<((bool, f32, bool), CellId, Layer)> = None;
         for c in world.non_empty_cells().filter(|c| !for_cells.contains(c)) {
             let s = &st.cells[c as usize];
             let d = distance(st, c);
+            let out_of_view = !in_view(st, c) && (mine_in_view || d > mine);
             let mut consider = |over: bool, layer: Layer| {
-                if !(over || d > mine) {
+                let less_urgent = if layer == Layer::Bundles { d > mine } else { out_of_view };
+                if !(over || less_urgent) {
                     return;
                 }
                 let key = (over, d, layer == Layer::Punctual);
