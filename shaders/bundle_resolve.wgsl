@@ -122,7 +122,13 @@ struct Fragment {
     normal: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: ResolveParams;
+// The rectangle's parameters come from a storage buffer, not a uniform block: lavapipe
+// compiles a variant of a shader for every set of values of the uniforms its branches and
+// loops test (inlined uniforms), which here meant one compile per tile (~1.5 s each where
+// Mesa's shader cache did not have it). They are copied once into `params` at the start:
+// llvmpipe loads storage lane by lane, so a load at each use would be a loop each time.
+@group(0) @binding(0) var<storage, read> rectangle: ResolveParams;
+var<private> params: ResolveParams;
 @group(0) @binding(1) var<storage, read> corners: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> triangles: array<ResolveTriangle>;
 @group(0) @binding(3) var<storage, read> heads: array<u32>;
@@ -491,6 +497,7 @@ fn exchange(n: u32) {
 
 @compute @workgroup_size(8, 8)
 fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
+    params = rectangle;
     if id.x >= params.width || id.y >= params.height {
         return;
     }

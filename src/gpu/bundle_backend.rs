@@ -216,9 +216,6 @@ impl GpuBundleBackend {
         // A bake's batches share one target: its tables are uploaded once, and its buffers
         // reused (made anew per batch, lavapipe's host memory grew by ~40 MB a batch before
         // wgpu reclaimed them).
-        if self.resolve.worn() {
-            self.resolve = ResolvePass::new(&self.gpu)?;
-        }
         let key = TargetKey::of(target);
         let buffers = match self.target_buffers.take() {
             Some((k, b)) if k == key => b,

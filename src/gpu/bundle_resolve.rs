@@ -17,7 +17,7 @@ use super::bundle_analysis::GpuTriangles;
 use super::bundle_lists::ListBuffers;
 use super::device::GpuContext;
 use super::layout::{ResolveParams, ResolveTriangle, TableHeader};
-use super::pass::{self, READ, UNIFORM, WRITE};
+use super::pass::{self, READ, WRITE};
 use super::shader;
 use crate::bundle::estimator::Coincidence;
 use crate::bundle::raster::{BundleFrame, Viewport};
@@ -36,19 +36,10 @@ pub struct ResolvePass {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
     /// The rectangle's `ResolveParams`, rewritten for each (one rectangle per submission).
+    /// A storage buffer, not a uniform one: lavapipe compiles a shader variant for each set
+    /// of the uniform values that branches test (see the shader).
     params: wgpu::Buffer,
-    /// Dispatches recorded (see [`RENEW_AFTER_DISPATCHES`]).
-    dispatches: std::cell::Cell<u32>,
 }
-
-/// On lavapipe the resolve pipeline holds on to about 1 MB per dispatch (measured on the
-/// Cornell box: +170 MB per batch of 8 directions, none when the dispatch is skipped, the
-/// same with its parameters and buffers reused; freed with the pipeline). The backend makes
-/// the pipeline anew after this many dispatches, at the next batch, which bounds it.
-pub const RENEW_AFTER_DISPATCHES: u32 = 256;
-
-/// Bytes the pipeline may hold on to before it is renewed (for the memory estimate).
-pub const PIPELINE_GROWTH_BYTES: u64 = (RENEW_AFTER_DISPATCHES as u64 + 256) << 20;
 
 /// Every triangle's front normal and faces (charts and atlas UVs), uploaded once per scene.
 pub struct SceneSides {
@@ -278,14 +269,13 @@ impl ResolvePass {
     pub fn new(gpu: &GpuContext) -> Result<ResolvePass, GpuError> {
         let device = &gpu.device;
         let c = wgpu::ShaderStages::COMPUTE;
-        let mut bindings = vec![(c, UNIFORM)];
-        bindings.extend([(c, READ); 9]);
+        let mut bindings = vec![(c, READ); 10];
         bindings.push((c, WRITE));
-        let needed = bindings.len() as u32 - 1;
+        let needed = bindings.len() as u32;
         if device.limits().max_storage_buffers_per_shader_stage < needed {
             return Err(GpuError::Unsupported {
                 adapter: gpu.info.name.clone(),
-                missing: "10 storage buffers per shader stage (the bundle resolve)",
+                missing: "11 storage buffers per shader stage (the bundle resolve)",
             });
         }
         let layout = pass::buffer_layout(device, "bundle resolve", &bindings);
@@ -305,16 +295,11 @@ impl ResolvePass {
         let params = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("bundle resolve params"),
             size: size_of::<ResolveParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         gpu.take_error()?;
-        Ok(ResolvePass { layout, pipeline, params, dispatches: std::cell::Cell::new(0) })
-    }
-
-    /// Whether the pipeline should be made anew (see [`RENEW_AFTER_DISPATCHES`]).
-    pub fn worn(&self) -> bool {
-        self.dispatches.get() >= RENEW_AFTER_DISPATCHES
+        Ok(ResolvePass { layout, pipeline, params })
     }
 
     /// Records the resolve of the rectangle last built into `lists` (in the same or an
@@ -387,6 +372,5 @@ impl ResolvePass {
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &group, &[]);
         pass.dispatch_workgroups(vp.width.div_ceil(8), vp.height.div_ceil(8), 1);
-        self.dispatches.set(self.dispatches.get() + 1);
     }
 }
