@@ -1,7 +1,8 @@
 // Resolve of one bundle rectangle's per-pixel linked lists (global bundles): the GPU twin
 // of `cpu::fragments::TileFragments::resolve` followed by `bundle::estimator::exchange`.
-// One invocation per pixel of the rectangle walks its list, rebuilds each node's fragment
-// (depth, side codes, packed normal) from its triangle exactly as the CPU sets it up,
+// One invocation per pixel of the rectangle's groups of 8 pixels that have fragments
+// walks the pixel's list, rebuilds each node's fragment (depth, side codes, packed normal)
+// from its triangle exactly as the CPU sets it up,
 // sorts the fragments along ω with the estimator's layer rules (`Coincidence`), and credits
 // every target side the radiance of what it sees.
 //
@@ -122,7 +123,13 @@ struct Fragment {
     normal: u32,
 }
 
-@group(0) @binding(0) var<uniform> params: ResolveParams;
+// The rectangle's parameters come from a storage buffer, not a uniform block: lavapipe
+// compiles a variant of a shader for every set of values of the uniforms its branches and
+// loops test (inlined uniforms), which here meant one compile per tile (~1.5 s each where
+// Mesa's shader cache did not have it). They are copied once into `params` at the start:
+// llvmpipe loads storage lane by lane, so a load at each use would be a loop each time.
+@group(0) @binding(0) var<storage, read> rectangle: ResolveParams;
+var<private> params: ResolveParams;
 @group(0) @binding(1) var<storage, read> corners: array<vec4<f32>>;
 @group(0) @binding(2) var<storage, read> triangles: array<ResolveTriangle>;
 @group(0) @binding(3) var<storage, read> heads: array<u32>;
@@ -135,6 +142,9 @@ struct Fragment {
 @group(0) @binding(9) var<storage, read> own: array<f32>;
 // Per texel: (lo, hi) of r, g, b, weight; then the status words.
 @group(0) @binding(10) var<storage, read_write> sums: array<atomic<u32>>;
+// The groups of 8 pixels (a row's, from a multiple of 8) that have fragments, as
+// bundle_groups.wgsl lists them: 1 + the group's index, 0 past the last.
+@group(0) @binding(11) var<storage, read> groups: array<u32>;
 
 // ---- fragment set-up (cpu::fragments, bundle::raster) ----
 
@@ -489,9 +499,19 @@ fn exchange(n: u32) {
     }
 }
 
-@compute @workgroup_size(8, 8)
+// Eight invocations per listed group of pixels (llvmpipe's SIMD group: see
+// bundle_groups.wgsl), dispatched indirectly.
+@compute @workgroup_size(64)
 fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
-    if id.x >= params.width || id.y >= params.height {
+    params = rectangle;
+    let group = groups[id.x / 8u];
+    if group == 0u {
+        return;
+    }
+    let per_row = (params.width + 7u) / 8u;
+    let px = ((group - 1u) % per_row) * 8u + id.x % 8u;
+    let py = (group - 1u) / per_row;
+    if px >= params.width {
         return;
     }
     // An overflowed rectangle is split and redone by the host; a single pixel deeper than
@@ -500,9 +520,9 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
     if count > params.capacity && (params.width > 1u || params.height > 1u) {
         return;
     }
-    let pixel = id.y * params.width + id.x;
-    let cx = f32(id.x + params.offset.x) + 0.5;
-    let cy = f32(id.y + params.offset.y) + 0.5;
+    let pixel = py * params.width + px;
+    let cx = f32(px + params.offset.x) + 0.5;
+    let cy = f32(py + params.offset.y) + 0.5;
     var n = 0u;
     var next = heads[pixel];
     var steps = 0u;

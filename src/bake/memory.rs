@@ -140,11 +140,10 @@ pub fn estimate_from_lod0(
             let b = &config.bundle;
             let per_lane = b.node_capacity.saturating_mul(24) + b.head_side as u64 * 8;
             let cpu = per_lane.saturating_mul(b.lanes.max(1) as u64);
-            // GPU: nodes (8 B) and links (4 B), heads (W² × 4 B), and what lavapipe's
-            // resolve pipeline holds on to before it is renewed.
+            // GPU: nodes (8 B) and links (4 B), heads (W² × 4 B), the resolve's group list.
             let gpu = b.node_capacity.saturating_mul(12)
                 + (b.head_side as u64).pow(2) * 4
-                + crate::gpu::bundle_resolve::PIPELINE_GROWTH_BYTES;
+                + crate::gpu::bundle_resolve::groups_bytes(b.head_side);
             if config.backend == BackendKind::Cpu { cpu } else { cpu.saturating_add(gpu) }
         }
     };

@@ -144,7 +144,7 @@ impl GpuBundleBackend {
         let mips = MipPass::new(&gpu).map_err(unavailable)?;
         let planner = TilePass::new(&gpu).map_err(unavailable)?;
         let lists = ListPass::new(&gpu).map_err(unavailable)?;
-        let resolve = ResolvePass::new(&gpu).map_err(unavailable)?;
+        let resolve = ResolvePass::new(&gpu, config.head_side).map_err(unavailable)?;
         let list_buffers = lists.buffers(&gpu, config.head_side, config.node_capacity).map_err(|e| match e {
             ListError::Capacity(n) => BackendError::Unavailable(format!(
                 "--nodes {n} is more than this GPU's storage bindings hold ({} bytes); use a smaller --nodes",
@@ -216,9 +216,6 @@ impl GpuBundleBackend {
         // A bake's batches share one target: its tables are uploaded once, and its buffers
         // reused (made anew per batch, lavapipe's host memory grew by ~40 MB a batch before
         // wgpu reclaimed them).
-        if self.resolve.worn() {
-            self.resolve = ResolvePass::new(&self.gpu)?;
-        }
         let key = TargetKey::of(target);
         let buffers = match self.target_buffers.take() {
             Some((k, b)) if k == key => b,
@@ -515,7 +512,7 @@ mod tests {
         lod: u32,
         first: u64,
         directions: u64,
-    ) -> (TexelMap, BatchSums, BatchSums, PassStats) {
+    ) -> (TexelMap, BatchSums, BatchSums, PassStats, PassStats) {
         let bundle = &scene.bundle;
         let texels = TexelMap::build(&bundle.scene, &bundle.geom, &bundle.atlas, lod);
         let whole = WholeLod::new(&bundle.atlas, &texels);
@@ -533,7 +530,7 @@ mod tests {
         let mut cpu = CpuBundleBackend::new(scene.clone(), 2);
         let mut cpu_sums = BatchSums::default();
         let t = Instant::now();
-        cpu.trace_batch(&target, &batch, &source, &mut cpu_sums, &never).unwrap();
+        let cpu_stats = cpu.trace_batch(&target, &batch, &source, &mut cpu_sums, &never).unwrap();
         let cpu_seconds = t.elapsed().as_secs_f64();
         let gpu_context = GpuContext::headless().expect("a Vulkan adapter (lavapipe: mesa-vulkan-drivers)");
         let mut gpu = GpuBundleBackend::new(gpu_context, scene.clone(), 2, false).unwrap();
@@ -542,7 +539,7 @@ mod tests {
         let stats = gpu.trace_batch(&target, &batch, &source, &mut gpu_sums, &never).unwrap();
         // For the record (timings are the bench's business, never asserted here).
         eprintln!("batch of {directions}: CPU {cpu_seconds:.2} s, GPU {:.2} s", t.elapsed().as_secs_f64());
-        (texels, cpu_sums, gpu_sums, stats)
+        (texels, cpu_sums, gpu_sums, stats, cpu_stats)
     }
 
     /// Largest relative difference of any channel of any texel, and how many texels
@@ -589,11 +586,14 @@ mod tests {
     #[test]
     fn gpu_sums_equal_the_cpu_backends_on_the_cornell_box() {
         let scene = cornell();
-        let (texels, cpu, gpu, stats) = both(&scene, 0, 0, 8);
+        let (texels, cpu, gpu, stats, cpu_stats) = both(&scene, 0, 0, 8);
         assert_eq!(
             (stats.cpu_fallback_batches, stats.unresolved_pixels, stats.saturated_sums, stats.unplanned_directions),
             (0, 0, 0, 0)
         );
+        // Every pixel with a fragment was resolved (the resolve visits only the listed groups
+        // of 8 pixels with fragments).
+        assert_eq!(stats.covered_pixels, cpu_stats.covered_pixels);
         let bound = summation_bound(&scene, 8);
         let (worst, beyond) = compare(&cpu, &gpu, bound);
         eprintln!("Cornell box: {} texels, worst relative difference {worst:e} (bound {bound:e})", texels.len());
@@ -607,11 +607,12 @@ mod tests {
     #[test]
     fn gpu_sums_equal_the_cpu_backends_on_the_van_gogh_room() {
         let scene = crate::gpu::bundle_analysis::tests::bundled("van_gogh_room/van_gogh_room_lit.gltf");
-        let (texels, cpu, gpu, stats) = both(&scene, 1, 3, 4);
+        let (texels, cpu, gpu, stats, cpu_stats) = both(&scene, 1, 3, 4);
         assert_eq!(
             (stats.cpu_fallback_batches, stats.unresolved_pixels, stats.saturated_sums, stats.unplanned_directions),
             (0, 0, 0, 0)
         );
+        assert_eq!(stats.covered_pixels, cpu_stats.covered_pixels);
         let bound = summation_bound(&scene, 4);
         let (worst, beyond) = compare(&cpu, &gpu, bound);
         eprintln!("Van Gogh room: {} texels, worst relative difference {worst:e} (bound {bound:e})", texels.len());

@@ -17,7 +17,7 @@ use super::bundle_analysis::GpuTriangles;
 use super::bundle_lists::ListBuffers;
 use super::device::GpuContext;
 use super::layout::{ResolveParams, ResolveTriangle, TableHeader};
-use super::pass::{self, READ, UNIFORM, WRITE};
+use super::pass::{self, READ, WRITE};
 use super::shader;
 use crate::bundle::estimator::Coincidence;
 use crate::bundle::raster::{BundleFrame, Viewport};
@@ -31,24 +31,25 @@ const WORDS_PER_TEXEL: u64 = 8;
 /// Status words after the sums (`STATUS_*` in the shader).
 const STATUS_WORDS: u64 = 4;
 
-/// The resolve pipeline: an invocation per pixel of the rectangle.
+/// The resolve pipelines: the groups of 8 pixels with fragments are listed
+/// (bundle_groups.wgsl), then resolved, an invocation per pixel of a listed group.
 pub struct ResolvePass {
     layout: wgpu::BindGroupLayout,
     pipeline: wgpu::ComputePipeline,
+    groups_layout: wgpu::BindGroupLayout,
+    groups_pipeline: wgpu::ComputePipeline,
+    /// The rectangle's width and height, for the group listing.
+    size: wgpu::Buffer,
+    /// 1 + each listed group's index (room for every group of a W×W rectangle, and a
+    /// workgroup's worth past it).
+    groups: wgpu::Buffer,
+    /// The resolve's indirect dispatch (x, y, z) and the count of listed groups.
+    dispatch: wgpu::Buffer,
     /// The rectangle's `ResolveParams`, rewritten for each (one rectangle per submission).
+    /// A storage buffer, not a uniform one: lavapipe compiles a shader variant for each set
+    /// of the uniform values that branches test (see the shader).
     params: wgpu::Buffer,
-    /// Dispatches recorded (see [`RENEW_AFTER_DISPATCHES`]).
-    dispatches: std::cell::Cell<u32>,
 }
-
-/// On lavapipe the resolve pipeline holds on to about 1 MB per dispatch (measured on the
-/// Cornell box: +170 MB per batch of 8 directions, none when the dispatch is skipped, the
-/// same with its parameters and buffers reused; freed with the pipeline). The backend makes
-/// the pipeline anew after this many dispatches, at the next batch, which bounds it.
-pub const RENEW_AFTER_DISPATCHES: u32 = 256;
-
-/// Bytes the pipeline may hold on to before it is renewed (for the memory estimate).
-pub const PIPELINE_GROWTH_BYTES: u64 = (RENEW_AFTER_DISPATCHES as u64 + 256) << 20;
 
 /// Every triangle's front normal and faces (charts and atlas UVs), uploaded once per scene.
 pub struct SceneSides {
@@ -274,18 +275,23 @@ pub struct Rectangle<'a> {
     pub scales: FixedPoint,
 }
 
+/// Bytes of the group list for rectangles of at most `head_side`² pixels.
+pub fn groups_bytes(head_side: u32) -> u64 {
+    4 * (head_side.div_ceil(8) as u64 * head_side as u64 + 8)
+}
+
 impl ResolvePass {
-    pub fn new(gpu: &GpuContext) -> Result<ResolvePass, GpuError> {
+    /// The pipelines, for rectangles of at most `head_side`² pixels.
+    pub fn new(gpu: &GpuContext, head_side: u32) -> Result<ResolvePass, GpuError> {
         let device = &gpu.device;
         let c = wgpu::ShaderStages::COMPUTE;
-        let mut bindings = vec![(c, UNIFORM)];
-        bindings.extend([(c, READ); 9]);
-        bindings.push((c, WRITE));
-        let needed = bindings.len() as u32 - 1;
+        let mut bindings = vec![(c, READ); 10];
+        bindings.extend([(c, WRITE), (c, READ)]);
+        let needed = bindings.len() as u32;
         if device.limits().max_storage_buffers_per_shader_stage < needed {
             return Err(GpuError::Unsupported {
                 adapter: gpu.info.name.clone(),
-                missing: "10 storage buffers per shader stage (the bundle resolve)",
+                missing: "12 storage buffers per shader stage (the bundle resolve)",
             });
         }
         let layout = pass::buffer_layout(device, "bundle resolve", &bindings);
@@ -302,19 +308,26 @@ impl ResolvePass {
             compilation_options: Default::default(),
             cache: None,
         });
-        let params = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("bundle resolve params"),
-            size: size_of::<ResolveParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
+        let groups_layout =
+            pass::buffer_layout(device, "bundle resolve groups", &[(c, READ), (c, READ), (c, WRITE), (c, WRITE)]);
+        let groups_pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("bundle resolve groups"),
+            layout: Some(&pass::single_group(device, "bundle resolve groups", &groups_layout)),
+            module: &shader::module(device, "bundle_groups.wgsl")?,
+            entry_point: Some("list_groups"),
+            compilation_options: Default::default(),
+            cache: None,
         });
+        let buffer = |label, size, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: false })
+        };
+        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
+        let params = buffer("bundle resolve params", size_of::<ResolveParams>() as u64, storage);
+        let size = buffer("bundle resolve size", 8, storage);
+        let groups = buffer("bundle resolve groups", groups_bytes(head_side), storage);
+        let dispatch = buffer("bundle resolve dispatch", 16, storage | wgpu::BufferUsages::INDIRECT);
         gpu.take_error()?;
-        Ok(ResolvePass { layout, pipeline, params, dispatches: std::cell::Cell::new(0) })
-    }
-
-    /// Whether the pipeline should be made anew (see [`RENEW_AFTER_DISPATCHES`]).
-    pub fn worn(&self) -> bool {
-        self.dispatches.get() >= RENEW_AFTER_DISPATCHES
+        Ok(ResolvePass { layout, pipeline, groups_layout, groups_pipeline, size, groups, dispatch, params })
     }
 
     /// Records the resolve of the rectangle last built into `lists` (in the same or an
@@ -359,6 +372,32 @@ impl ResolvePass {
         };
         let device = &gpu.device;
         gpu.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
+        gpu.queue.write_buffer(&self.size, 0, bytemuck::cast_slice(&[vp.width, vp.height]));
+        gpu.queue.write_buffer(&self.dispatch, 0, bytemuck::cast_slice(&[0u32, 1, 1, 0]));
+        let group_count = vp.width.div_ceil(8) as u64 * vp.height as u64;
+        encoder.clear_buffer(&self.groups, 0, Some(4 * (group_count + 8)));
+        let bind = |layout, buffers: &[&wgpu::Buffer]| {
+            let entries: Vec<wgpu::BindGroupEntry> = buffers
+                .iter()
+                .enumerate()
+                .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+                .collect();
+            device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("bundle resolve"),
+                layout,
+                entries: &entries,
+            })
+        };
+        let listing = bind(&self.groups_layout, &[&self.size, &lists.heads, &self.groups, &self.dispatch]);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("bundle resolve groups"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.groups_pipeline);
+            pass.set_bind_group(0, &listing, &[]);
+            pass.dispatch_workgroups(group_count.div_ceil(64) as u32, 1, 1);
+        }
         let buffers = [
             &self.params,
             &triangles.corners,
@@ -371,22 +410,13 @@ impl ResolvePass {
             &target.entries,
             &target.own,
             &target.sums,
+            &self.groups,
         ];
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
-            .collect();
-        let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("bundle resolve"),
-            layout: &self.layout,
-            entries: &entries,
-        });
+        let group = bind(&self.layout, &buffers);
         let mut pass = encoder
             .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("bundle resolve"), timestamp_writes: None });
         pass.set_pipeline(&self.pipeline);
         pass.set_bind_group(0, &group, &[]);
-        pass.dispatch_workgroups(vp.width.div_ceil(8), vp.height.div_ceil(8), 1);
-        self.dispatches.set(self.dispatches.get() + 1);
+        pass.dispatch_workgroups_indirect(&self.dispatch, 0);
     }
 }

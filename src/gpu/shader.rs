@@ -16,6 +16,7 @@ pub const SOURCES: &[(&str, &str)] = &[
     ("bundle_tiles.wgsl", include_str!("../../shaders/bundle_tiles.wgsl")),
     ("bundle_lists.wgsl", include_str!("../../shaders/bundle_lists.wgsl")),
     ("bundle_resolve.wgsl", include_str!("../../shaders/bundle_resolve.wgsl")),
+    ("bundle_groups.wgsl", include_str!("../../shaders/bundle_groups.wgsl")),
 ];
 
 /// The line of a pass that names its float type for host-precision arithmetic
