@@ -449,7 +449,7 @@ enum Job {
     /// Bundles: cells (the first leads), the LOD to bake them at, and their bake if one is
     /// parked.
     Bundles { world: Arc<World>, generation: u64, cells: Vec<CellId>, lod: u32, bake: Option<Box<CellBake>> },
-    /// A cell's punctual layer at these LODs (ascending; the last is shown).
+    /// A cell's punctual layer at these LODs (ascending; the finest the cell then has is shown).
     Punctual { world: Arc<World>, generation: u64, cell: CellId, levels: Vec<u32> },
 }
 
