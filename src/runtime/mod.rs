@@ -47,7 +47,7 @@ use crate::bundle::{BackendProvider, BundleBackend, BundleConfig, BundleConfigEr
 use crate::grid::{CellId, GridError};
 use crate::scene::{Scene, SceneGeometry};
 use crate::watch::{WatchConfig, WatchError};
-use scheduler::{Shared, State, clock_thread, current_stats, first_light, next_lod, update_views, worker};
+use scheduler::{Shared, State, clock_thread, current_stats, first_light, next_lod, sync_camera, worker};
 use shown::ShownLightmap;
 use world::World;
 
@@ -442,6 +442,7 @@ impl Runtime {
             shutdown: AtomicBool::new(false),
             started,
             make_backend,
+            camera: Mutex::new((0, None)),
         });
         let mut runtime = Runtime { shared: shared.clone(), events: rx, threads: Vec::new() };
         for w in 0..shared.config.threads() {
@@ -481,10 +482,13 @@ impl Runtime {
             tracing::warn!("ignoring an invalid camera: {camera:?}");
             return;
         }
-        let mut st = self.shared.lock();
-        st.camera = Some(camera);
-        update_views(&self.shared, &mut st);
-        drop(st);
+        // Never waits for the state mutex (a front end's frame must not stall behind a
+        // publish): the workers apply it before they choose their next job.
+        {
+            let mut c = self.shared.camera.lock().unwrap_or_else(|e| e.into_inner());
+            c.0 += 1;
+            c.1 = Some(camera);
+        }
         self.shared.wake.notify_all();
     }
 
@@ -543,18 +547,22 @@ impl Runtime {
 
     /// The cell table (non-empty cells).
     pub fn cells(&self) -> Vec<CellInfo> {
-        cell_table(&self.shared.lock())
+        let mut st = self.shared.lock();
+        sync_camera(&self.shared, &mut st);
+        cell_table(&st)
     }
 
     /// The shown light map and the cell table as of one moment (every publish swaps the map
     /// under the state lock, which this holds while it reads both).
     pub fn snapshot(&self) -> (Arc<ShownLightmap>, Vec<CellInfo>) {
-        let st = self.shared.lock();
+        let mut st = self.shared.lock();
+        sync_camera(&self.shared, &mut st);
         (self.shared.shown(), cell_table(&st))
     }
 
     pub fn stats(&self) -> RuntimeStats {
         let mut st = self.shared.lock();
+        sync_camera(&self.shared, &mut st);
         current_stats(&self.shared, &mut st)
     }
 
