@@ -29,7 +29,7 @@ use std::time::Instant;
 use glam::Vec3;
 
 use super::cell_bake::filter_within_charts;
-use super::scheduler::{CellState, Refining, Shared, bake_first_light, empty_shown, sync_camera, update_views};
+use super::scheduler::{CellState, Refining, Shared, bake_first_light, empty_shown, take_camera, update_views};
 use super::shown::{Layer, PageWriter, ShownLightmap};
 use super::source::ShownSource;
 use super::world::World;
@@ -224,7 +224,7 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
     // Provisional cells an earlier reload left (not invalidated this time) are still so.
     let left = world.non_empty_cells().filter(|&c| st.cells[c as usize].provisional).count();
     st.refining = (left > 0).then_some(Refining { seen_at, left });
-    sync_camera(shared, &mut st);
+    take_camera(shared, &mut st);
     update_views(shared, &mut st);
     shared.set_shown(map);
     drop(st);

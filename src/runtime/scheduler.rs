@@ -217,12 +217,19 @@ impl Shared {
 
 /// Applies the camera the front end set last, if it is not applied yet.
 pub(super) fn sync_camera(shared: &Shared, st: &mut State) {
-    let (version, camera) = *shared.camera.lock().unwrap_or_else(|e| e.into_inner());
-    if version != st.camera_version {
-        st.camera_version = version;
-        st.camera = camera;
+    if take_camera(shared, st) {
         update_views(shared, st);
     }
+}
+
+/// Takes the camera the front end set last into `st` without recomputing the views (for
+/// callers that recompute them anyway); returns whether it changed.
+pub(super) fn take_camera(shared: &Shared, st: &mut State) -> bool {
+    let (version, camera) = *shared.camera.lock().unwrap_or_else(|e| e.into_inner());
+    let changed = version != st.camera_version;
+    st.camera_version = version;
+    st.camera = camera;
+    changed
 }
 
 /// Recomputes every non-empty cell's view and target LOD for the current camera, and the
@@ -428,7 +435,7 @@ pub(super) fn first_light(shared: &Shared) {
         if first {
             st.first_light = true;
             st.stats.first_light_seconds = Some(shared.started.elapsed().as_secs_f64());
-            sync_camera(shared, &mut st);
+            take_camera(shared, &mut st);
             update_views(shared, &mut st);
         }
         drop(st);
