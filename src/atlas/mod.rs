@@ -193,6 +193,9 @@ pub struct AtlasStats {
     /// LOD-0 texels covered by some face / texels in the atlas.
     pub fill_ratio: f64,
     pub covered_texels_lod0: u64,
+    /// The texel budget the texel size was solved for: `texel_budget`, or more where the
+    /// charts need [`MIN_TEXELS_PER_CHART`] texels each; `None` with a given texel size.
+    pub budget_used: Option<u64>,
     pub unwrap_seconds: f64,
     pub pack_seconds: f64,
 }
@@ -408,6 +411,11 @@ impl MeshCharts {
         (ChartSource::Unwrapped, Cow::Borrowed(unwrapped.as_slice()), 1.0 / texel, rejected)
     }
 
+    /// Charts [`Self::at`] makes at `texel` (both sides).
+    fn chart_count(&self, scene: &Scene, geom: &SceneGeometry, texel: f64, config: &AtlasConfig) -> u64 {
+        (self.local_at(scene, geom, texel, config).1.len() * self.sides().len()) as u64
+    }
+
     fn sides(&self) -> &'static [Side] {
         if self.back { &Side::BOTH } else { &[Side::Front] }
     }
@@ -458,6 +466,9 @@ impl MeshCharts {
         Ok(total * self.sides().len() as u64)
     }
 }
+
+/// Texels a chart is given at least: the budget is raised to this many a chart.
+pub const MIN_TEXELS_PER_CHART: u64 = 4;
 
 /// Most texel sizes tried to land the covered texels on the budget.
 const BUDGET_STEPS: usize = 4;
@@ -555,16 +566,34 @@ impl Atlas {
                 .into_iter()
                 .collect()
         };
+        // A chart covers at least one texel however large the texels: below a few texels a
+        // chart, a budget only makes the texels huge (every chart one texel of 13 m on 90
+        // instanced rooms at 40 000 texels) without covering fewer, so it is raised.
+        let charts_at_t0: u64 = meshes.iter().map(|m| m.chart_count(scene, geom, t0, config)).sum();
+        let floor = MIN_TEXELS_PER_CHART * charts_at_t0;
+        let budget = if config.texel_size.is_none() && floor > config.texel_budget {
+            let most = config.max_size as u64 * config.max_size as u64;
+            let raised = floor.min(most);
+            tracing::warn!(
+                "--texel-budget {} is below {MIN_TEXELS_PER_CHART} texels for each of the scene's {charts_at_t0} \
+                 charts: using {raised}",
+                config.texel_budget
+            );
+            raised
+        } else {
+            config.texel_budget
+        };
         let texel = match config.texel_size {
             Some(_) => t0,
-            None => solve_texel_size(config.texel_budget, t0, |t| {
+            None => solve_texel_size(budget, t0, |t| {
                 crate::parallel::par_map(meshes.iter().collect(), threads, |m| m.coverage_at(scene, geom, t, config))
                     .into_iter()
                     .sum()
             })?,
         };
         let laid = layout(texel)?;
-        let mut stats = AtlasStats { faces: faces.len(), lit_area, ..AtlasStats::default() };
+        let budget_used = config.texel_size.is_none().then_some(budget);
+        let mut stats = AtlasStats { faces: faces.len(), lit_area, budget_used, ..AtlasStats::default() };
         let mut charts = Vec::new();
         for m in laid {
             match m.source {

@@ -446,6 +446,41 @@ fn budget_holds_on_small_objects() {
     check(&s, &a, 0, false);
 }
 
+/// A budget below [`MIN_TEXELS_PER_CHART`] texels a chart is raised to that (and said so in
+/// the stats): 3 000 separate small triangles (one chart each: nothing to grow or merge
+/// across) at a budget of 1 000 texels would otherwise get texels larger than the scene,
+/// one each, covering 3× the budget anyway. Raised, the covered texels land within ±20 % of
+/// the raised budget and the texels stay smaller than the triangles' spacing.
+#[test]
+fn a_budget_below_the_charts_is_raised() {
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    let (mut pos, mut tris) = (Vec::new(), Vec::new());
+    // Sizes vary (0.1–0.4 m): identical charts would all cover the same count, a step
+    // function of the texel size no search can land within 20 % of an arbitrary budget.
+    let mut r = crate::sampling::Rng::new(5, 0);
+    for i in 0..3000u32 {
+        let o = Vec3::new((i % 60) as f32, (i / 60) as f32, 0.0);
+        let (u, v) = (0.1 + 0.3 * r.next_f32(), 0.1 + 0.3 * r.next_f32());
+        pos.extend([o, o + Vec3::new(u, 0.0, 0.0), o + Vec3::new(0.0, v, 0.0)]);
+        tris.push([3 * i, 3 * i + 1, 3 * i + 2]);
+    }
+    b.mesh("scattered", pos, tris, m);
+    let s = b.build();
+    let a = build(&s, &AtlasConfig { texel_budget: 1_000, ..AtlasConfig::default() });
+    assert_eq!(a.stats.charts, 3000);
+    let raised = super::MIN_TEXELS_PER_CHART * 3000;
+    assert_eq!(a.stats.budget_used, Some(raised));
+    let ratio = a.stats.covered_texels_lod0 as f64 / raised as f64;
+    assert!((ratio - 1.0).abs() <= 0.2, "covered {} for a raised budget of {raised}", a.stats.covered_texels_lod0);
+    assert!(a.texel_size < 1.0, "texel {} m", a.texel_size);
+    check(&s, &a, 0, false);
+    // A budget the charts allow is kept.
+    let a = build(&s, &AtlasConfig { texel_budget: 50_000, ..AtlasConfig::default() });
+    assert_eq!(a.stats.budget_used, Some(50_000));
+    assert_eq!(build(&s, &config(0.05)).stats.budget_used, None);
+}
+
 /// `--texel-budget` on the bundled scenes: covered LOD-0 texels within ±20 % of the budget
 /// (the bound) at the default budget and at a tenth of it.
 #[test]

@@ -189,11 +189,39 @@ impl Bvh {
 
     /// Whether anything (not cut out) lies on the ray `origin + t·dir` with `0 < t < tmax`.
     pub fn occluded(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
+        self.occluder(origin, dir, tmax).is_some()
+    }
+
+    /// A triangle's slot in this tree found on the ray as [`Self::occluded`] finds it, or
+    /// `None`: what a shadow cache keeps.
+    pub fn occluder(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<u32> {
         match triangle::dominant_axis(dir.into()) {
             0 => self.any::<0>(&Ray::new::<0>(origin, dir), tmax),
             1 => self.any::<1>(&Ray::new::<1>(origin, dir), tmax),
             _ => self.any::<2>(&Ray::new::<2>(origin, dir), tmax),
         }
+    }
+
+    /// Whether the triangle in slot `slot` (from [`Self::occluder`]) lies on the ray, by the
+    /// test [`Self::occluded`] applies to it: `true` means occluded, `false` only that this
+    /// triangle does not occlude.
+    pub fn occluded_by(&self, slot: u32, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
+        let i = slot as usize;
+        if i >= self.tris.len() {
+            return false;
+        }
+        match triangle::dominant_axis(dir.into()) {
+            0 => self.slot_any::<0>(&Ray::new::<0>(origin, dir), i, tmax),
+            1 => self.slot_any::<1>(&Ray::new::<1>(origin, dir), i, tmax),
+            _ => self.slot_any::<2>(&Ray::new::<2>(origin, dir), i, tmax),
+        }
+    }
+
+    /// [`Self::leaf_any`]'s test of slot `i` (`opaque_at` is true for unmasked triangles).
+    #[inline(always)]
+    fn slot_any<const KZ: usize>(&self, r: &Ray, i: usize, tmax: f32) -> bool {
+        triangle::intersect::<KZ>(r.o, &r.shear, &self.tris[i], 0.0, tmax)
+            .is_some_and(|(_, u, v)| self.alpha.opaque_at(self.ids[i], u, v))
     }
 
     /// Closest hit among the triangles of one leaf, shrinking `tmax`.
@@ -272,27 +300,29 @@ impl Bvh {
     }
 
     #[inline(always)]
-    fn leaf_any<const KZ: usize>(&self, r: &Ray, e: Entry, tmax: f32) -> bool {
+    fn leaf_any<const KZ: usize>(&self, r: &Ray, e: Entry, tmax: f32) -> Option<u32> {
         let first = e.child as usize;
         let count = (e.meta & COUNT_MASK) as usize;
         let masked = e.meta & MASKED != 0;
-        (first..first + count).any(|i| {
-            triangle::intersect::<KZ>(r.o, &r.shear, &self.tris[i], 0.0, tmax)
-                .is_some_and(|(_, u, v)| !masked || self.alpha.opaque_at(self.ids[i], u, v))
-        })
+        (first..first + count)
+            .find(|&i| {
+                triangle::intersect::<KZ>(r.o, &r.shear, &self.tris[i], 0.0, tmax)
+                    .is_some_and(|(_, u, v)| !masked || self.alpha.opaque_at(self.ids[i], u, v))
+            })
+            .map(|i| i as u32)
     }
 
-    fn any<const KZ: usize>(&self, r: &Ray, tmax: f32) -> bool {
+    fn any<const KZ: usize>(&self, r: &Ray, tmax: f32) -> Option<u32> {
         if self.nodes.is_empty() {
-            return false;
+            return None;
         }
         let mut stack = [Entry::default(); STACK];
         let mut sp = 0usize;
         let mut cur = Entry { child: 0, meta: 0, near: 0.0 };
         loop {
             if cur.meta & LEAF != 0 {
-                if self.leaf_any::<KZ>(r, cur, tmax) {
-                    return true;
+                if let Some(slot) = self.leaf_any::<KZ>(r, cur, tmax) {
+                    return Some(slot);
                 }
             } else {
                 let n = &self.nodes[cur.child as usize];
@@ -318,7 +348,7 @@ impl Bvh {
                 }
             }
             if sp == 0 {
-                return false;
+                return None;
             }
             sp -= 1;
             cur = stack[sp];

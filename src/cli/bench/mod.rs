@@ -4,6 +4,7 @@
 mod atlas;
 mod convergence;
 mod gpu_backend;
+mod instanced;
 mod reference;
 mod reload;
 mod runtime;
@@ -33,7 +34,7 @@ pub fn assets() -> PathBuf {
 type Bench = fn(bool, &Ui) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 12] = [
+pub const SECTIONS: [(&str, Bench); 13] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -45,6 +46,7 @@ pub const SECTIONS: [(&str, Bench); 12] = [
     ("runtime", runtime::run),
     ("runtime_large", runtime_large::run),
     ("runtime_large_overcast", runtime_large::run_overcast),
+    ("instanced_1m", instanced::run),
     ("reload", reload::run),
 ];
 

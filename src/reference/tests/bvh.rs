@@ -122,6 +122,42 @@ fn occluded_agrees_with_intersect() {
     assert!(blocked > 2_000 && blocked < 18_000, "{blocked}");
 }
 
+/// The shadow cache's queries: `occluder` finds a slot exactly when `occluded` is true, that
+/// slot occludes the same ray, and a slot that does not lie on a ray says so (a cache miss
+/// then falls back to the traversal).
+#[test]
+fn occluder_slots_occlude_their_rays() {
+    let g = soup(400, 4);
+    let bvh = Bvh::new(&g);
+    let mut r = Rng::new(7, 0);
+    let (mut found, mut other_hits, mut other_misses) = (0, 0, 0);
+    let mut last = None;
+    for _ in 0..20_000 {
+        let o = rand_vec(&mut r, -0.2, 1.2);
+        let d = uniform_sphere(r.next_vec2());
+        let tmax = 2.0 * r.next_f32();
+        let slot = bvh.occluder(o, d, tmax);
+        assert_eq!(slot.is_some(), bvh.occluded(o, d, tmax));
+        if let Some(s) = slot {
+            assert!(bvh.occluded_by(s, o, d, tmax));
+            found += 1;
+        }
+        // Another ray's occluder: occluding this ray only where the traversal agrees.
+        if let Some(prev) = last {
+            if bvh.occluded_by(prev, o, d, tmax) {
+                assert!(bvh.occluded(o, d, tmax));
+                other_hits += 1;
+            } else {
+                other_misses += 1;
+            }
+        }
+        last = slot.or(last);
+    }
+    assert!(!bvh.occluded_by(u32::MAX, Vec3::ZERO, Vec3::X, 1.0));
+    assert!(found > 2_000 && other_misses > 1_000, "{found} {other_misses}");
+    assert!(other_hits > 0, "no ray met another ray's occluder: the check tests nothing");
+}
+
 /// A closed box of side 2 centred at the origin, each face an n × n grid, then rotated by
 /// `rot`. Vertices shared between faces are bitwise equal before the rotation (the grids
 /// interpolate exact axis-aligned corners) and so after it: rotating the corners first and

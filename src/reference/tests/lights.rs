@@ -153,3 +153,49 @@ fn many_lights_are_sampled_without_bias() {
     let est = estimate(&t, p, Vec3::Y, 4096);
     super::assert_estimate(&est, want, 0.01, 1e-5, "12 point lights");
 }
+
+/// `punctual_irradiance` (one shadow ray per light and texel, with its shadow cache) in a
+/// 3 × 3 block of closed rooms, a point light in each: a floor point sees its own room's
+/// light, I·cos θ / d², and none of the eight others (walls between). The points run room
+/// after room, more than a worker's chunk, so the cache is reused across rooms, where the
+/// last wall found is no longer between. Exact up to rounding (no sampling).
+#[test]
+fn rooms_see_their_own_light_only() {
+    use crate::reference::Bvh;
+    use crate::reference::punctual::punctual_irradiance;
+    use crate::scene::SceneGeometry;
+    let mut b = SceneBuilder::new();
+    let wall = b.material(diffuse(Vec3::splat(0.5), Vec3::ZERO, false));
+    let (size, height, gap) = (4.0f32, 3.0f32, 0.5f32);
+    let intensity = Rgb::new(2.0, 1.0, 0.5);
+    let mut rooms = Vec::new();
+    for k in 0..9 {
+        let lo = Vec3::new((k % 3) as f32 * (size + gap), 0.0, (k / 3) as f32 * (size + gap));
+        b.cuboid("room", lo, lo + Vec3::new(size, height, size), true, wall);
+        let light = lo + Vec3::new(0.3 * size, 0.8 * height, 0.6 * size);
+        b.light(self::light(LightKind::Point, intensity, light, Vec3::NEG_Y, None));
+        rooms.push((lo, light));
+    }
+    let scene = b.build();
+    let geom = SceneGeometry::new(&scene);
+    let bvh = Bvh::new(&geom);
+    let (mut positions, mut want) = (Vec::new(), Vec::new());
+    for &(lo, light) in &rooms {
+        for i in 0..20 {
+            for j in 0..20 {
+                let p = lo + Vec3::new((i as f32 + 0.5) / 20.0 * size, 0.0, (j as f32 + 0.5) / 20.0 * size);
+                let d = light - p;
+                let cos = d.y / d.length();
+                positions.push(p);
+                want.push(intensity * (cos / d.length_squared()));
+            }
+        }
+    }
+    let normals = vec![Vec3::Y; positions.len()];
+    for threads in [1, 2] {
+        let got = punctual_irradiance(&scene, &bvh, &positions, &normals, 1e-4, threads);
+        for (i, (g, w)) in got.iter().zip(&want).enumerate() {
+            close(*g, *w, &format!("floor point {i} ({threads} threads)"));
+        }
+    }
+}
