@@ -35,6 +35,7 @@ pub mod uv1;
 mod tests;
 
 use std::borrow::Cow;
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{DVec2, Vec2};
@@ -336,11 +337,117 @@ struct MeshCharts {
     /// Whether the mesh's triangles have back faces (a double-sided material).
     back: bool,
     tris: Vec<TriangleId>,
-    /// The unwrapped charts, made on first use.
-    unwrapped: std::sync::OnceLock<Vec<charts::LocalChart>>,
+    /// The unwrapped charts, made on first use; a rigid copy shares its original's.
+    unwrapped: Arc<std::sync::OnceLock<Vec<charts::LocalChart>>>,
     /// Texel size the unwrapper was told to expect.
     hint: f64,
     try_uv1: bool,
+    /// Set when the mesh is a rigid copy of an earlier one ([`link_copies`]).
+    copy_of: Option<CopyOf>,
+}
+
+/// What a rigid copy of a mesh (an instancing node: the loader gives each its own
+/// world-space mesh) takes from its original: the original's charts, unwrapped once, with
+/// triangle ids shifted and UVs (metres) scaled.
+struct CopyOf {
+    mesh: u32,
+    /// The original's lit triangles (what its charts are made from).
+    tris: Vec<TriangleId>,
+    /// This mesh's triangle id minus the original's, triangle for triangle.
+    offset: i64,
+    /// This mesh's lengths over the original's.
+    scale: f64,
+}
+
+/// Relative tolerance of the copy test on lengths and volumes (f32 positions moved by a
+/// node transform agree to ~10⁻⁶).
+const COPY_TOLERANCE: f64 = 1e-4;
+
+/// Marks each mesh that is a rigid copy (rotation, translation, uniform scale, no mirror) of
+/// an earlier one, with the same triangles and material, as such: its charts are the
+/// original's. Each candidate pair is verified triangle by triangle (every edge's length,
+/// and the signed volume with the next triangle's first corner), never assumed from a name.
+fn link_copies(scene: &Scene, geom: &SceneGeometry, meshes: &mut [MeshCharts]) {
+    use std::collections::HashMap;
+    use std::hash::{Hash, Hasher};
+    let mut originals: HashMap<u64, Vec<usize>> = HashMap::new();
+    for i in 0..meshes.len() {
+        if meshes[i].try_uv1 {
+            continue;
+        }
+        let mesh = &scene.meshes[meshes[i].mesh as usize];
+        let first = geom.mesh_offsets[meshes[i].mesh as usize] as i64;
+        let mut h = charts::FxHasher::default();
+        (mesh.material, mesh.positions.len(), meshes[i].back).hash(&mut h);
+        mesh.triangles.hash(&mut h);
+        for &t in &meshes[i].tris {
+            (t as i64 - first).hash(&mut h);
+        }
+        let key = h.finish();
+        let found = originals.get(&key).and_then(|list| {
+            list.iter().find_map(|&o| rigid_copy(scene, geom, &meshes[o], &meshes[i]).map(|c| (o, c)))
+        });
+        match found {
+            Some((o, copy)) => {
+                meshes[i].unwrapped = meshes[o].unwrapped.clone();
+                meshes[i].hint = meshes[o].hint;
+                meshes[i].copy_of = Some(copy);
+            }
+            None => originals.entry(key).or_default().push(i),
+        }
+    }
+}
+
+/// `copy` as a rigid copy of `original`, if it is one.
+fn rigid_copy(scene: &Scene, geom: &SceneGeometry, original: &MeshCharts, copy: &MeshCharts) -> Option<CopyOf> {
+    let (a, b) = (&scene.meshes[original.mesh as usize], &scene.meshes[copy.mesh as usize]);
+    if a.material != b.material
+        || a.triangles != b.triangles
+        || a.positions.len() != b.positions.len()
+        || original.tris.len() != copy.tris.len()
+        || original.back != copy.back
+    {
+        return None;
+    }
+    let offset = geom.mesh_offsets[copy.mesh as usize] as i64 - geom.mesh_offsets[original.mesh as usize] as i64;
+    if original.tris.iter().zip(&copy.tris).any(|(&s, &t)| t as i64 - s as i64 != offset) {
+        return None;
+    }
+    let pa = |i: u32| a.positions[i as usize].as_dvec3();
+    let pb = |i: u32| b.positions[i as usize].as_dvec3();
+    let far = (0..a.positions.len() as u32)
+        .max_by(|&i, &j| (pa(i) - pa(0)).length_squared().total_cmp(&(pa(j) - pa(0)).length_squared()))?;
+    let mut scale = None;
+    for tri in &a.triangles {
+        for e in 0..3 {
+            let (i, j) = (tri[e], tri[(e + 1) % 3]);
+            let (la, lb) = ((pa(j) - pa(i)).length(), (pb(j) - pb(i)).length());
+            let s = *scale.get_or_insert(if la > 0.0 { lb / la } else { 1.0 });
+            if (lb - s * la).abs() > COPY_TOLERANCE * (s * la).max(1e-9) {
+                return None;
+            }
+        }
+        // A mirror keeps every length: the signed volume with a far vertex tells it (zero
+        // for a planar mesh, whose mirror image is a turned copy).
+        let vol = |p: &dyn Fn(u32) -> glam::DVec3| {
+            let o = p(tri[0]);
+            (p(tri[1]) - o).cross(p(tri[2]) - o).dot(p(far) - o)
+        };
+        let (va, vb) = (vol(&pa), vol(&pb));
+        let s3 = scale.unwrap_or(1.0).powi(3);
+        let size =
+            (pa(tri[1]) - pa(tri[0])).length() * (pa(tri[2]) - pa(tri[0])).length() * (pa(far) - pa(tri[0])).length();
+        if (vb - s3 * va).abs() > COPY_TOLERANCE * s3 * size.max(1e-12) {
+            return None;
+        }
+    }
+    let scale = scale?;
+    (scale.is_finite() && scale > 0.0).then(|| CopyOf {
+        mesh: original.mesh,
+        tris: original.tris.clone(),
+        offset,
+        scale,
+    })
 }
 
 /// A local chart's extent at `scale` (LOD-0 texels per unit of its UVs) and its placement.
@@ -381,9 +488,10 @@ impl MeshCharts {
             mesh: mi as u32,
             back: double_sided(scene, geom, first as usize),
             tris,
-            unwrapped: std::sync::OnceLock::new(),
+            unwrapped: Arc::new(std::sync::OnceLock::new()),
             hint,
             try_uv1: config.use_uv1 && scene.meshes[mi].uv1.is_some(),
+            copy_of: None,
         })
     }
 
@@ -405,10 +513,26 @@ impl MeshCharts {
                 Err(reason) => rejected = Some(reason),
             }
         }
+        let Some(copy) = &self.copy_of else {
+            let unwrapped = self
+                .unwrapped
+                .get_or_init(|| charts::unwrap_mesh(mesh, geom, &self.tris, self.hint, config.chart_max_angle));
+            return (ChartSource::Unwrapped, Cow::Borrowed(unwrapped.as_slice()), 1.0 / texel, rejected);
+        };
+        let original = &scene.meshes[copy.mesh as usize];
         let unwrapped = self
             .unwrapped
-            .get_or_init(|| charts::unwrap_mesh(mesh, geom, &self.tris, self.hint, config.chart_max_angle));
-        (ChartSource::Unwrapped, Cow::Borrowed(unwrapped.as_slice()), 1.0 / texel, rejected)
+            .get_or_init(|| charts::unwrap_mesh(original, geom, &copy.tris, self.hint, config.chart_max_angle));
+        let moved = unwrapped
+            .iter()
+            .map(|c| charts::LocalChart {
+                tris: c.tris.iter().map(|&t| (t as i64 + copy.offset) as TriangleId).collect(),
+                uv: c.uv.iter().map(|t| t.map(|q| q * copy.scale)).collect(),
+                extent: c.extent * copy.scale,
+                fixed_interior: None,
+            })
+            .collect();
+        (ChartSource::Unwrapped, Cow::Owned(moved), 1.0 / texel, rejected)
     }
 
     /// Charts [`Self::at`] makes at `texel` (both sides).
@@ -558,8 +682,9 @@ impl Atlas {
         }
         check_lower_bound(lit_area, t0, config)?;
 
-        let meshes: Vec<MeshCharts> =
+        let mut meshes: Vec<MeshCharts> =
             (0..scene.meshes.len()).filter_map(|mi| MeshCharts::new(scene, geom, &face_of, mi, t0, config)).collect();
+        link_copies(scene, geom, &mut meshes);
         let threads = crate::parallel::available_threads();
         let layout = |texel: f64| -> Result<Vec<MeshAtTexel>, AtlasError> {
             crate::parallel::par_map(meshes.iter().collect(), threads, |m| m.at(scene, geom, texel, config))

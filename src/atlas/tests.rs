@@ -636,3 +636,42 @@ fn degenerate_triangles_get_no_face() {
     assert_eq!(a.face_of[1], [NO_FACE, NO_FACE]);
     assert_eq!(a.faces.len(), 1);
 }
+
+/// Rigid copies of a mesh (instancing nodes) share its unwrap: a torus, a copy turned and
+/// moved, one also scaled 2×, are copies (with their scale); a mirrored copy, whose edge
+/// lengths all agree, and a copy with one vertex moved by 1 mm are not. The atlas gives each
+/// copy the original's number of charts, and its texels check out on every copy.
+#[test]
+fn rigid_copies_share_their_original_charts() {
+    use glam::Quat;
+    let mut b = SceneBuilder::new();
+    let m = b.material(white());
+    let (p, f) = torus(Vec3::ZERO, 1.0, 0.35, 24, 12);
+    let turn = Quat::from_rotation_y(0.7) * Quat::from_rotation_x(0.3);
+    let moved: Vec<Vec3> = p.iter().map(|&q| turn * q + Vec3::new(5.0, 1.0, -2.0)).collect();
+    let scaled: Vec<Vec3> = p.iter().map(|&q| turn * q * 2.0 + Vec3::new(-6.0, 0.0, 0.0)).collect();
+    let mirrored: Vec<Vec3> = p.iter().map(|&q| Vec3::new(-q.x, q.y, q.z) + Vec3::new(0.0, 0.0, 6.0)).collect();
+    let mut nudged = moved.clone();
+    nudged[7] += Vec3::new(0.001, 0.0, 0.0);
+    let nudged: Vec<Vec3> = nudged.iter().map(|&q| q + Vec3::new(0.0, 5.0, 0.0)).collect();
+    for (name, pos) in [("torus", p), ("moved", moved), ("scaled", scaled), ("mirrored", mirrored), ("nudged", nudged)]
+    {
+        b.mesh(name, pos, f.clone(), m);
+    }
+    let s = b.build();
+    let g = SceneGeometry::new(&s);
+    let cfg = AtlasConfig { texel_budget: 40_000, ..AtlasConfig::default() };
+    let SceneFaces { face_of, .. } = SceneFaces::new(&s, &g);
+    let meshes: Vec<MeshCharts> = (0..5).filter_map(|mi| MeshCharts::new(&s, &g, &face_of, mi, 0.05, &cfg)).collect();
+    let scale = |k: usize| rigid_copy(&s, &g, &meshes[0], &meshes[k]).map(|c| c.scale);
+    assert!((scale(1).expect("a turned and moved copy") - 1.0).abs() < 1e-5);
+    assert!((scale(2).expect("a scaled copy") - 2.0).abs() < 1e-5);
+    assert!(scale(3).is_none(), "a mirror image is not a rigid copy");
+    assert!(scale(4).is_none(), "a vertex moved by 1 mm is not a copy");
+
+    let a = build(&s, &cfg);
+    let per_mesh = |mi: u32| a.charts.iter().filter(|c| c.mesh == mi).count();
+    assert_eq!(per_mesh(1), per_mesh(0));
+    assert_eq!(per_mesh(2), per_mesh(0));
+    check(&s, &a, 1, false);
+}

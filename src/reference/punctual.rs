@@ -88,7 +88,7 @@ fn point_irradiance(scene: &Scene, bvh: &Bvh, p: Vec3, n: Vec3, epsilon: f32, ca
             continue;
         }
         let tmax = if dist.is_finite() { dist - 2.0 * epsilon } else { f32::INFINITY };
-        if !(tmax > 0.0) {
+        if tmax.is_nan() || tmax <= 0.0 {
             continue;
         }
         if *cached != NO_OCCLUDER && bvh.occluded_by(*cached, origin, wi, tmax) {
