@@ -64,12 +64,20 @@ impl World {
     ) -> Result<World, super::RuntimeError> {
         let lods = config.levels_for(atlas.texel_size);
         let t = std::time::Instant::now();
-        let bvh = Arc::new(Bvh::for_scene(&scene, &geom));
-        let t_bvh = t.elapsed();
-        let cell_triangles = CellTriangles::build(&grid, &geom, World::cell_margin(&grid));
-        let t_cells = t.elapsed();
-        let lod0 = TexelMap::build(&scene, &geom, &atlas, 0);
-        let t_lod0 = t.elapsed();
+        // The BVH's build is one thread's work: it runs beside the cells' triangles and the
+        // LOD-0 texel map (1.4 s and 0.9 s on a million triangles).
+        let (bvh, t_bvh, cell_triangles, t_cells, lod0, t_lod0) = std::thread::scope(|threads| {
+            let bvh = threads.spawn(|| (Bvh::for_scene(&scene, &geom), t.elapsed()));
+            let cell_triangles = CellTriangles::build(&grid, &geom, World::cell_margin(&grid));
+            let t_cells = t.elapsed();
+            let lod0 = TexelMap::build(&scene, &geom, &atlas, 0);
+            let t_lod0 = t.elapsed();
+            let (bvh, t_bvh) = match bvh.join() {
+                Ok(done) => done,
+                Err(panic) => std::panic::resume_unwind(panic),
+            };
+            (Arc::new(bvh), t_bvh, cell_triangles, t_cells, lod0, t_lod0)
+        });
         let mut lod0_texels = vec![0u32; grid.len()];
         for p in &lod0.position {
             lod0_texels[grid.cell_of(*p) as usize] += 1;
@@ -77,11 +85,11 @@ impl World {
         let bundle = Arc::new(BundleScene::new(scene.clone(), geom.clone(), atlas.clone(), config.bundle.clone()));
         let epsilon = ray_epsilon(&scene);
         tracing::debug!(
-            "world: BVH {:.1} ms, cell triangles {:.1} ms, LOD-0 texels {:.1} ms, bundle scene {:.1} ms",
+            "world: BVH {:.1} ms beside cell triangles {:.1} ms and LOD-0 texels {:.1} ms, bundle scene {:.1} ms",
             t_bvh.as_secs_f64() * 1e3,
-            (t_cells - t_bvh).as_secs_f64() * 1e3,
+            t_cells.as_secs_f64() * 1e3,
             (t_lod0 - t_cells).as_secs_f64() * 1e3,
-            (t.elapsed() - t_lod0).as_secs_f64() * 1e3
+            (t.elapsed() - t_lod0.max(t_bvh)).as_secs_f64() * 1e3
         );
         Ok(World { scene, geom, atlas, bvh, bundle, grid, cell_triangles, lod0, lod0_texels, lods, epsilon })
     }
