@@ -210,18 +210,19 @@ impl Bvh {
         if i >= self.tris.len() {
             return false;
         }
+        // Masked: `opaque_at` is true for unmasked triangles, so this is the leaf's test.
         match triangle::dominant_axis(dir.into()) {
-            0 => self.slot_any::<0>(&Ray::new::<0>(origin, dir), i, tmax),
-            1 => self.slot_any::<1>(&Ray::new::<1>(origin, dir), i, tmax),
-            _ => self.slot_any::<2>(&Ray::new::<2>(origin, dir), i, tmax),
+            0 => self.slot_any::<0>(&Ray::new::<0>(origin, dir), i, tmax, true),
+            1 => self.slot_any::<1>(&Ray::new::<1>(origin, dir), i, tmax, true),
+            _ => self.slot_any::<2>(&Ray::new::<2>(origin, dir), i, tmax, true),
         }
     }
 
-    /// [`Self::leaf_any`]'s test of slot `i` (`opaque_at` is true for unmasked triangles).
+    /// Whether the triangle in slot `i` lies on the ray (where not cut out, when `masked`).
     #[inline(always)]
-    fn slot_any<const KZ: usize>(&self, r: &Ray, i: usize, tmax: f32) -> bool {
+    fn slot_any<const KZ: usize>(&self, r: &Ray, i: usize, tmax: f32, masked: bool) -> bool {
         triangle::intersect::<KZ>(r.o, &r.shear, &self.tris[i], 0.0, tmax)
-            .is_some_and(|(_, u, v)| self.alpha.opaque_at(self.ids[i], u, v))
+            .is_some_and(|(_, u, v)| !masked || self.alpha.opaque_at(self.ids[i], u, v))
     }
 
     /// Closest hit among the triangles of one leaf, shrinking `tmax`.
@@ -304,12 +305,7 @@ impl Bvh {
         let first = e.child as usize;
         let count = (e.meta & COUNT_MASK) as usize;
         let masked = e.meta & MASKED != 0;
-        (first..first + count)
-            .find(|&i| {
-                triangle::intersect::<KZ>(r.o, &r.shear, &self.tris[i], 0.0, tmax)
-                    .is_some_and(|(_, u, v)| !masked || self.alpha.opaque_at(self.ids[i], u, v))
-            })
-            .map(|i| i as u32)
+        (first..first + count).find(|&i| self.slot_any::<KZ>(r, i, tmax, masked)).map(|i| i as u32)
     }
 
     fn any<const KZ: usize>(&self, r: &Ray, tmax: f32) -> Option<u32> {
