@@ -910,7 +910,7 @@ fn engines_bevy_snippet_matches_the_files() {
 /// E_exp is bilinear interpolation of S at the export's resolution:
 /// * **Cells shown at the export LOD L**, farther than the blend band plus 3 LOD-L texels from
 ///   any face shared with a coarser cell (so no tap is blended, and every tap's texel lies in
-///   a cell at LOD L): S at a pixel centre is that published pixel itself (the bilinear
+///   a cell at LOD L; checked as every cell within that distance being at LOD L): S at a pixel centre is that published pixel itself (the bilinear
 ///   weight there is 1), so both sides interpolate the same four values with the same
 ///   weights; only the position differs, as in [`round_trip`]: 2·δ × the 4×4 range, plus f32
 ///   rounding (1e-6 of the values).
@@ -1008,18 +1008,16 @@ fn run_exports_the_light_map_it_showed() {
     let texel_l = texel0 / (1u32 << lod) as f32;
     // As the runtime sets it (runtime::scheduler::empty_shown).
     let blend_band = (2.0 * texel0).min(grid.cell_size * 0.25);
+    // Every cell coming within the band plus 3 LOD-L texels of the point is at LOD L: then
+    // the point is that far from any face shared with a coarser cell, its own cell's or
+    // those of the cells its taps lie in (a tap in a neighbouring cell is blended when that
+    // cell has a coarser neighbour within the band, diagonal to the point's own cell).
+    let reach = blend_band + 3.0 * texel_l;
     let exact_class = |p: Vec3| {
-        let cell = grid.cell_of(p);
-        if cell_lod[cell as usize] != lod {
-            return false;
-        }
-        let (lo, hi) = grid.bounds(cell);
-        (0..3).all(|axis| {
-            [(-1, p[axis] - lo[axis]), (1, hi[axis] - p[axis])].iter().all(|&(step, d)| {
-                d >= blend_band + 3.0 * texel_l
-                    || grid.neighbour(cell, axis, step).is_none_or(|n| cell_lod[n as usize] >= lod)
-            })
-        })
+        let lo = grid.coords_of(p - Vec3::splat(reach));
+        let hi = grid.coords_of(p + Vec3::splat(reach));
+        (lo[2]..=hi[2])
+            .all(|z| (lo[1]..=hi[1]).all(|y| (lo[0]..=hi[0]).all(|x| cell_lod[grid.index([x, y, z]) as usize] >= lod)))
     };
 
     let scene = load(&room);
