@@ -7,6 +7,7 @@ use std::time::Instant;
 use glam::Vec2;
 
 use super::analysis::Analysis;
+use super::emitter_rows::EmitterRows;
 use super::fragments::{ForeignSides, TileFragments};
 use super::scene::CpuScene;
 use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own};
@@ -44,11 +45,13 @@ pub struct Scratch {
     analysis: Analysis,
     fragments: TileFragments,
     candidates: Vec<u32>,
-    /// Traversal stack of the triangles' sphere tree.
-    spheres: Vec<u32>,
+    /// Traversal stack of the triangles' bounds tree.
+    bounds_stack: Vec<u32>,
     /// Triangles whose projection may meet the current window.
     window_triangles: Vec<u32>,
     queue: Vec<Viewport>,
+    /// The current light bundle's emitter silhouette.
+    emitter_rows: EmitterRows,
 }
 
 struct BundleHits<'a>(&'a mut [[f32; 4]]);
@@ -156,7 +159,15 @@ fn trace_global(
         None => None,
         Some(_) => {
             let side = global.pixel * global.width as f32;
-            ctx.scene.spheres.overlapping(&frame, global.origin, side, &mut s.spheres, &mut s.window_triangles);
+            let corners = &ctx.scene.bundle.geom.corners;
+            ctx.scene.bounds.overlapping(
+                corners,
+                &frame,
+                global.origin,
+                side,
+                &mut s.bounds_stack,
+                &mut s.window_triangles,
+            );
             Some(&s.window_triangles[..])
         }
     };
@@ -312,8 +323,12 @@ fn trace_light(
     let res = (extent / pixel).ceil().max(1.0) as u32;
     let per_side = res.div_ceil(cfg.head_side);
     let tile_res = res.div_ceil(per_side);
-    let side = tile_res as f32 * per_side as f32 * pixel;
-    ctx.scene.spheres.overlapping(&frame, origin, side, &mut s.spheres, &mut s.candidates);
+    // Only triangles reaching a pixel between the group's emitter spans can take part.
+    let grid = Viewport::square(origin, pixel, tile_res * per_side);
+    s.emitter_rows.fill(&ctx.scene.bundle.geom, &group.triangles, &frame, &grid);
+    let rows = &s.emitter_rows;
+    let corners = &ctx.scene.bundle.geom.corners;
+    ctx.scene.bounds.select(corners, &frame, |lo, hi| rows.reaches(lo, hi), &mut s.bounds_stack, &mut s.candidates);
     let candidates = std::mem::take(&mut s.candidates);
     s.queue.clear();
     for ty in (0..per_side).rev() {

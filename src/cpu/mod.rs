@@ -6,10 +6,11 @@
 //! therefore do not depend on how many threads ran the lanes.
 
 pub(crate) mod analysis;
+mod bounds_tree;
 pub(crate) mod direction;
+mod emitter_rows;
 pub(crate) mod fragments;
 pub mod scene;
-mod spheres;
 
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex, Weak};

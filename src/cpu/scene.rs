@@ -1,12 +1,12 @@
 //! Per-scene data the CPU bundle passes read for every direction, built once per scene and
-//! shared (`Arc`) by every worker: texel densities, the triangles' bounding-sphere tree, the
+//! shared (`Arc`) by every worker: texel densities, the triangles' bounding-box tree, the
 //! scene's bounding sphere and when fragments are one layer.
 
 use std::sync::Arc;
 
 use glam::Vec3;
 
-use super::spheres::SphereTree;
+use super::bounds_tree::BoundsTree;
 use crate::bundle::BundleScene;
 use crate::bundle::estimator::Coincidence;
 use crate::bundle::raster::snapped_depth_slack;
@@ -18,9 +18,9 @@ pub struct CpuScene {
     /// Per triangle: LOD-0 light-map texels per m² (the larger of its two faces; 0 without
     /// faces). At LOD k it is 4^k times this: the importance of Sect. 3, in rays per m².
     pub density: Vec<f32>,
-    /// Bounding spheres of the triangles, for culling against bundle windows along any
+    /// Bounding boxes of the triangles, for culling against bundle windows along any
     /// direction.
-    pub spheres: SphereTree,
+    pub bounds: BoundsTree,
     /// Centre and radius of the scene's bounding sphere.
     pub centre: Vec3,
     pub radius: f32,
@@ -55,18 +55,10 @@ impl CpuScene {
             .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
         let centre = (lo + hi) * 0.5;
         let radius = geom.corners.iter().flatten().map(|p| (*p - centre).length()).fold(0.0f32, f32::max).max(1e-6);
-        let spheres = geom
-            .corners
-            .iter()
-            .map(|c| {
-                let m = (c[0].min(c[1]).min(c[2]) + c[0].max(c[1]).max(c[2])) * 0.5;
-                (m, c.iter().map(|p| (*p - m).length()).fold(0.0f32, f32::max))
-            })
-            .collect();
-        let spheres = SphereTree::new(spheres);
+        let bounds = BoundsTree::new(&geom.corners);
         let rounding = 1e-6 * (radius + centre.abs().max_element());
         // `snap` depends on each tile's pixel size: set per tile.
         let coincidence = Coincidence { rounding, stacked: ray_epsilon(&bundle.scene).max(rounding), snap: 0.0 };
-        CpuScene { bundle, density, spheres, centre, radius, coincidence }
+        CpuScene { bundle, density, bounds, centre, radius, coincidence }
     }
 }

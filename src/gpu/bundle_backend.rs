@@ -18,7 +18,7 @@
 //! target) need the shown light map's sampling function in the resolve, which the GPU
 //! resolve does not have yet: such batches run on the CPU backend (logged once).
 //!
-//! Window culling (which triangles a cell's window draws) uses the CPU's sphere tree, as
+//! Window culling (which triangles a cell's window draws) uses the CPU's bounds tree, as
 //! the CPU backend does; a whole-scene window draws every triangle.
 
 use std::sync::Arc;
@@ -110,7 +110,7 @@ pub struct GpuBundleBackend {
     /// The last target's buffers (see [`TargetKey`]).
     target_buffers: Option<(TargetKey, TargetBuffers)>,
     importance: Vec<f32>,
-    sphere_stack: Vec<u32>,
+    bounds_stack: Vec<u32>,
     window_triangles: Vec<u32>,
     tile_triangles: Vec<u32>,
     /// Waits for each phase so the stats time them apart (benches); otherwise build and
@@ -172,7 +172,7 @@ impl GpuBundleBackend {
             plans: Vec::new(),
             target_buffers: None,
             importance,
-            sphere_stack: Vec::new(),
+            bounds_stack: Vec::new(),
             window_triangles: Vec::new(),
             tile_triangles: Vec::new(),
             phase_timing,
@@ -298,8 +298,8 @@ impl GpuBundleBackend {
             None => None,
             Some(_) => {
                 let side = global.pixel * global.width as f32;
-                let (stack, out) = (&mut self.sphere_stack, &mut self.window_triangles);
-                scene.spheres.overlapping(&frame, global.origin, side, stack, out);
+                let (stack, out) = (&mut self.bounds_stack, &mut self.window_triangles);
+                scene.bounds.overlapping(&scene.bundle.geom.corners, &frame, global.origin, side, stack, out);
                 Some(DrawnIds::new(&gpu, out))
             }
         };
@@ -352,11 +352,11 @@ impl GpuBundleBackend {
             }
             let t = Instant::now();
             let mut encoder = gpu.device.create_command_encoder(&Default::default());
-            // The tile draws only the triangles whose bounding spheres meet it (as the CPU
+            // The tile draws only the triangles whose projected bounds meet it (as the CPU
             // gathers a tile's candidates): a whole-scene window would draw them all.
             let side = vp.width.max(vp.height) as f32 * vp.pixel;
-            let (stack, out) = (&mut self.sphere_stack, &mut self.tile_triangles);
-            scene.spheres.overlapping(&frame, vp.corner(), side, stack, out);
+            let (stack, out) = (&mut self.bounds_stack, &mut self.tile_triangles);
+            scene.bounds.overlapping(&scene.bundle.geom.corners, &frame, vp.corner(), side, stack, out);
             let tile_ids = DrawnIds::new(&gpu, out);
             let tile_drawn = Drawn::Uploaded(&tile_ids);
             self.lists.encode(&gpu, &mut encoder, &self.triangles, tile_drawn, &frame, &vp, &self.list_buffers);

@@ -468,12 +468,17 @@ pub(super) fn first_light(shared: &Shared) {
             return;
         }
     };
+    // The pass's counters before the map is shown: whoever wakes on the first-light event
+    // reads them.
+    {
+        let mut st = shared.lock();
+        st.stats.directions_traced += stats.directions;
+        st.stats.first_light_pass = stats.pass.clone();
+    }
     show(map, &owned, stats.directions);
     let mut st = shared.lock();
     st.lod0_done = true;
     st.first_light = true;
-    st.stats.directions_traced += stats.directions;
-    st.stats.first_light_pass = stats.pass.clone();
     drop(st);
     shared.wake.notify_all();
 }
