@@ -360,7 +360,7 @@ struct CopyOf {
 }
 
 /// Relative tolerance of the copy test on lengths and volumes (f32 positions moved by a
-/// node transform agree to ~10⁻⁶).
+/// node transform agree to ~10⁻⁶), beside the rounding of the positions' magnitudes.
 const COPY_TOLERANCE: f64 = 1e-4;
 
 /// Marks each mesh that is a rigid copy (rotation, translation, uniform scale, no mirror) of
@@ -417,13 +417,23 @@ fn rigid_copy(scene: &Scene, geom: &SceneGeometry, original: &MeshCharts, copy: 
     let pb = |i: u32| b.positions[i as usize].as_dvec3();
     let far = (0..a.positions.len() as u32)
         .max_by(|&i, &j| (pa(i) - pa(0)).length_squared().total_cmp(&(pa(j) - pa(0)).length_squared()))?;
+    // How far f32 rounding may have moved a position, in the copy's units: a copy placed
+    // far from the origin rounds its small triangles by more than the relative tolerance
+    // (0.1 m from the origin of a 140 m scene, a 5 cm edge is 3·10⁻⁴ off).
+    let reach = |m: &crate::scene::Mesh| m.positions.iter().fold(0.0f64, |r, p| r.max(p.abs().max_element() as f64));
+    let (reach_a, reach_b) = (reach(a), reach(b));
     let mut scale = None;
+    let mut rounding = 0.0;
     for tri in &a.triangles {
         for e in 0..3 {
             let (i, j) = (tri[e], tri[(e + 1) % 3]);
             let (la, lb) = ((pa(j) - pa(i)).length(), (pb(j) - pb(i)).length());
-            let s = *scale.get_or_insert(if la > 0.0 { lb / la } else { 1.0 });
-            if (lb - s * la).abs() > COPY_TOLERANCE * (s * la).max(1e-9) {
+            let s = *scale.get_or_insert_with(|| {
+                let s = if la > 0.0 { lb / la } else { 1.0 };
+                rounding = 8.0 * f32::EPSILON as f64 * (s * reach_a + reach_b);
+                s
+            });
+            if (lb - s * la).abs() > COPY_TOLERANCE * (s * la).max(1e-9) + 2.0 * rounding {
                 return None;
             }
         }
@@ -435,9 +445,15 @@ fn rigid_copy(scene: &Scene, geom: &SceneGeometry, original: &MeshCharts, copy: 
         };
         let (va, vb) = (vol(&pa), vol(&pb));
         let s3 = scale.unwrap_or(1.0).powi(3);
-        let size =
-            (pa(tri[1]) - pa(tri[0])).length() * (pa(tri[2]) - pa(tri[0])).length() * (pa(far) - pa(tri[0])).length();
-        if (vb - s3 * va).abs() > COPY_TOLERANCE * s3 * size.max(1e-12) {
+        let lengths = |p: &dyn Fn(u32) -> glam::DVec3| {
+            let o = p(tri[0]);
+            [(p(tri[1]) - o).length(), (p(tri[2]) - o).length(), (p(far) - o).length()]
+        };
+        let [e1, e2, f] = lengths(&pa);
+        let [g1, g2, h] = lengths(&pb);
+        // Each vector's rounding times the other two lengths, both meshes' corners.
+        let rounded = 2.0 * rounding * (g1 * g2 + g1 * h + g2 * h);
+        if (vb - s3 * va).abs() > COPY_TOLERANCE * s3 * (e1 * e2 * f).max(1e-12) + rounded {
             return None;
         }
     }

@@ -654,7 +654,11 @@ fn rigid_copies_share_their_original_charts() {
     let mut nudged = moved.clone();
     nudged[7] += Vec3::new(0.001, 0.0, 0.0);
     let nudged: Vec<Vec3> = nudged.iter().map(|&q| q + Vec3::new(0.0, 5.0, 0.0)).collect();
-    for (name, pos) in [("torus", p), ("moved", moved), ("scaled", scaled), ("mirrored", mirrored), ("nudged", nudged)]
+    // Small (a 0.1 m torus: 2.5 cm edges) and 3 km away, where f32 positions are 2.4·10⁻⁴ m
+    // apart: its edges round by ~1 %, far beyond the relative tolerance.
+    let far: Vec<Vec3> = p.iter().map(|&q| turn * q * 0.1 + Vec3::new(3000.0, 0.0, 0.0)).collect();
+    for (name, pos) in
+        [("torus", p), ("moved", moved), ("scaled", scaled), ("mirrored", mirrored), ("nudged", nudged), ("far", far)]
     {
         b.mesh(name, pos, f.clone(), m);
     }
@@ -662,16 +666,18 @@ fn rigid_copies_share_their_original_charts() {
     let g = SceneGeometry::new(&s);
     let cfg = AtlasConfig { texel_budget: 40_000, ..AtlasConfig::default() };
     let SceneFaces { face_of, .. } = SceneFaces::new(&s, &g);
-    let meshes: Vec<MeshCharts> = (0..5).filter_map(|mi| MeshCharts::new(&s, &g, &face_of, mi, 0.05, &cfg)).collect();
+    let meshes: Vec<MeshCharts> = (0..6).filter_map(|mi| MeshCharts::new(&s, &g, &face_of, mi, 0.05, &cfg)).collect();
     let scale = |k: usize| rigid_copy(&s, &g, &meshes[0], &meshes[k]).map(|c| c.scale);
     assert!((scale(1).expect("a turned and moved copy") - 1.0).abs() < 1e-5);
     assert!((scale(2).expect("a scaled copy") - 2.0).abs() < 1e-5);
     assert!(scale(3).is_none(), "a mirror image is not a rigid copy");
     assert!(scale(4).is_none(), "a vertex moved by 1 mm is not a copy");
+    assert!((scale(5).expect("a small copy far away") - 0.1).abs() < 1e-3);
 
     let a = build(&s, &cfg);
     let per_mesh = |mi: u32| a.charts.iter().filter(|c| c.mesh == mi).count();
     assert_eq!(per_mesh(1), per_mesh(0));
     assert_eq!(per_mesh(2), per_mesh(0));
+    assert_eq!(per_mesh(5), per_mesh(0));
     check(&s, &a, 1, false);
 }

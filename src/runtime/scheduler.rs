@@ -468,8 +468,8 @@ pub(super) fn first_light(shared: &Shared) {
             return;
         }
     };
-    // The pass's counters before the map is shown: whoever wakes on the first-light event
-    // reads them.
+    // The LOD-0 bake's counters before its map is shown: whoever wakes on the event that
+    // shows it (first light, or LOD 0 published) reads them.
     {
         let mut st = shared.lock();
         st.stats.directions_traced += stats.directions;
