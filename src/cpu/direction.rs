@@ -159,15 +159,7 @@ fn trace_global(
         None => None,
         Some(_) => {
             let side = global.pixel * global.width as f32;
-            let corners = &ctx.scene.bundle.geom.corners;
-            ctx.scene.bounds.overlapping(
-                corners,
-                &frame,
-                global.origin,
-                side,
-                &mut s.bounds_stack,
-                &mut s.window_triangles,
-            );
+            ctx.scene.bounds.overlapping(&frame, global.origin, side, &mut s.bounds_stack, &mut s.window_triangles);
             Some(&s.window_triangles[..])
         }
     };
@@ -327,8 +319,7 @@ fn trace_light(
     let grid = Viewport::square(origin, pixel, tile_res * per_side);
     s.emitter_rows.fill(&ctx.scene.bundle.geom, &group.triangles, &frame, &grid);
     let rows = &s.emitter_rows;
-    let corners = &ctx.scene.bundle.geom.corners;
-    ctx.scene.bounds.select(corners, &frame, |lo, hi| rows.reaches(lo, hi), &mut s.bounds_stack, &mut s.candidates);
+    ctx.scene.bounds.select(&frame, |lo, hi| rows.reaches(lo, hi), &mut s.bounds_stack, &mut s.candidates);
     let candidates = std::mem::take(&mut s.candidates);
     s.queue.clear();
     for ty in (0..per_side).rev() {

@@ -299,7 +299,7 @@ impl GpuBundleBackend {
             Some(_) => {
                 let side = global.pixel * global.width as f32;
                 let (stack, out) = (&mut self.bounds_stack, &mut self.window_triangles);
-                scene.bounds.overlapping(&scene.bundle.geom.corners, &frame, global.origin, side, stack, out);
+                scene.bounds.overlapping(&frame, global.origin, side, stack, out);
                 Some(DrawnIds::new(&gpu, out))
             }
         };
@@ -356,7 +356,7 @@ impl GpuBundleBackend {
             // gathers a tile's candidates): a whole-scene window would draw them all.
             let side = vp.width.max(vp.height) as f32 * vp.pixel;
             let (stack, out) = (&mut self.bounds_stack, &mut self.tile_triangles);
-            scene.bounds.overlapping(&scene.bundle.geom.corners, &frame, vp.corner(), side, stack, out);
+            scene.bounds.overlapping(&frame, vp.corner(), side, stack, out);
             let tile_ids = DrawnIds::new(&gpu, out);
             let tile_drawn = Drawn::Uploaded(&tile_ids);
             self.lists.encode(&gpu, &mut encoder, &self.triangles, tile_drawn, &frame, &vp, &self.list_buffers);
