@@ -57,22 +57,22 @@ impl BoundsTree {
     /// Builds the tree over triangles with `corners`, by median splits along the longest
     /// axis of their boxes' centres.
     pub fn new(corners: &[[Vec3; 3]]) -> Self {
-        let boxes: Vec<(Vec3, Vec3)> =
-            corners.iter().map(|c| (c[0].min(c[1]).min(c[2]), c[0].max(c[1]).max(c[2]))).collect();
+        let boxes: Vec<(Vec3, Vec3)> = corners.iter().map(triangle_box).collect();
         let mut tree = BoundsTree { order: (0..corners.len() as u32).collect(), nodes: Vec::new(), boxes: Vec::new() };
         if !tree.order.is_empty() {
             tree.build(&boxes, 0, tree.order.len());
         }
-        tree.boxes = tree.order.iter().map(|&t| triangle_box(&corners[t as usize])).collect();
+        tree.boxes = tree.order.iter().map(|&t| boxes[t as usize]).collect();
         tree
     }
 
-    /// Appends the node over `order[first..end]` and its subtree.
+    /// Appends the node over `order[first..end]` and its subtree (`boxes`: the triangles'
+    /// centres and half extents).
     fn build(&mut self, boxes: &[(Vec3, Vec3)], first: usize, end: usize) {
         let (lo, hi) = self.order[first..end]
             .iter()
             .map(|&t| boxes[t as usize])
-            .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), (a, b)| (lo.min(a), hi.max(b)));
+            .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), (c, h)| (lo.min(c - h), hi.max(c + h)));
         // Grown as its triangles' boxes are, so that it holds them after rounding too.
         let (centre, half) = grown(lo, hi);
         let at = self.nodes.len();
@@ -80,10 +80,7 @@ impl BoundsTree {
         if end - first <= LEAF {
             return;
         }
-        let centre_of = |t: u32| {
-            let (a, b) = boxes[t as usize];
-            a + b
-        };
+        let centre_of = |t: u32| boxes[t as usize].0;
         let (clo, chi) = self.order[first..end]
             .iter()
             .map(|&t| centre_of(t))

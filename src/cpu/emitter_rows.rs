@@ -21,8 +21,7 @@ pub struct EmitterRows {
     /// First and last column per row (inclusive); `lo > hi` when the row has none.
     rows: Vec<(i32, i32)>,
     /// The rows' bounding rectangle (first and last column, first and last row): most
-    /// triangles of a large scene miss it, and testing it first is what keeps the gathering
-    /// as cheap as a square's.
+    /// triangles of a large scene miss it, and one test rejects them.
     bounds: [i32; 4],
     /// The unwidened hulls, while filling.
     covered: Vec<(i32, i32)>,
