@@ -18,6 +18,19 @@
 // below 2^62 with room to spare; a high word reaching 2^31 is counted as a saturation and
 // the host redoes the batch with smaller scales. Integer sums are exact and independent
 // of order: the result does not depend on scheduling.
+//
+// Foreign sides (surfaces outside the target, which a runtime cell's bundles see) show what
+// the runtime's `ShownSource` says they reflect: albedo/π times the shown light map's
+// irradiance at their surface point (group 1, lightmap.inc.wgsl), plus their emission where
+// the global bundles carry it (group 2, surface_radiance.inc.wgsl). Without a foreign
+// source (a whole-LOD bake) they are black and counted lost, as on the CPU. Which of the
+// two is a pipeline constant, so the pipeline without one holds none of that code: llvmpipe
+// runs both sides of a branch its lanes may take, and the foreign path, never taken, made
+// every whole-LOD resolve 6× slower as a branch on a parameter.
+override FOREIGN_SOURCE: bool = false;
+
+#include "lightmap.inc.wgsl"
+#include "surface_radiance.inc.wgsl"
 
 // Products, divisions and square roots round as the CPU's IEEE f32 arithmetic does (every
 // decision is then the CPU's): Vulkan lets f32 division and sqrt be off by ulps, so they go
@@ -53,11 +66,12 @@ const COPLANAR_COS: f32 = 0.9999995;
 // Fragments one pixel can hold for sorting; deeper pixels are counted and skipped.
 const MAX_DEPTH: u32 = 64u;
 // Status words after the sums: saturated additions, lost foreign lookups, covered pixels,
-// pixels deeper than MAX_DEPTH.
+// pixels deeper than MAX_DEPTH, foreign sides looked up (and resolved).
 const STATUS_SATURATED: u32 = 0u;
 const STATUS_LOST: u32 = 1u;
 const STATUS_COVERED: u32 = 2u;
 const STATUS_DEEP: u32 = 3u;
+const STATUS_FOREIGN: u32 = 4u;
 
 struct ResolveParams {
     t: vec3<f32>,
@@ -275,8 +289,18 @@ fn side_code(tri: u32, front: bool, minus: bool, bu: vec3<f32>, bv: vec3<f32>, d
     return texel_at(table, gu, gv, dx, dy, foreign);
 }
 
-// The fragment of triangle `tri` at grid centre (cx, cy) (`TileFragments::fill`).
-fn fragment(tri: u32, cx: f32, cy: f32) -> Fragment {
+// A triangle set up on the bundle grid (`ScreenTriangle::planes`): its barycentric and
+// depth planes, and the offset of the pixel centre from its anchor (the first snapped
+// corner), relative to which the CPU evaluates them (exact subtractions).
+struct TrianglePlanes {
+    bu: vec3<f32>,
+    bv: vec3<f32>,
+    depth: vec3<f32>,
+    dx: f32,
+    dy: f32,
+}
+
+fn triangle_planes(tri: u32, cx: f32, cy: f32) -> TrianglePlanes {
     var grid: array<vec2<f32>, 3>;
     var depths: vec3<f32>;
     for (var k = 0u; k < 3u; k++) {
@@ -288,18 +312,24 @@ fn fragment(tri: u32, cx: f32, cy: f32) -> Fragment {
     let e1 = grid[1] - grid[0];
     let e2 = grid[2] - grid[0];
     let inv = div(1.0, mul(e1.x, e2.y) - mul(e1.y, e2.x));
-    let bu = plane(grid, vec3<f32>(0.0, 1.0, 0.0), inv);
-    let bv = plane(grid, vec3<f32>(0.0, 0.0, 1.0), inv);
-    let depth = plane(grid, depths, inv);
+    var t: TrianglePlanes;
+    t.bu = plane(grid, vec3<f32>(0.0, 1.0, 0.0), inv);
+    t.bv = plane(grid, vec3<f32>(0.0, 0.0, 1.0), inv);
+    t.depth = plane(grid, depths, inv);
+    t.dx = cx - grid[0].x;
+    t.dy = cy - grid[0].y;
+    return t;
+}
+
+// The fragment of triangle `tri` at grid centre (cx, cy) (`TileFragments::fill`).
+fn fragment(tri: u32, cx: f32, cy: f32) -> Fragment {
+    let t = triangle_planes(tri, cx, cy);
     let n = triangles[tri].normal;
     let front_looks_plus = dot_cpu(n, params.dir) > 0.0;
-    // Relative to the anchor, as the CPU evaluates (`Planes`): exact subtractions.
-    let dx = cx - grid[0].x;
-    let dy = cy - grid[0].y;
     var f: Fragment;
-    f.depth = eval(depth, dx, dy);
-    f.plus = side_code(tri, front_looks_plus, false, bu, bv, dx, dy);
-    f.minus = side_code(tri, !front_looks_plus, true, bu, bv, dx, dy) | select(0u, FRONT_LOOKS_PLUS, front_looks_plus);
+    f.depth = eval(t.depth, t.dx, t.dy);
+    f.plus = side_code(tri, front_looks_plus, false, t.bu, t.bv, t.dx, t.dy);
+    f.minus = side_code(tri, !front_looks_plus, true, t.bu, t.bv, t.dx, t.dy) | select(0u, FRONT_LOOKS_PLUS, front_looks_plus);
     f.normal = pack_normal(frame_coords(n));
     return f;
 }
@@ -381,14 +411,80 @@ fn layer_end(n: u32, start: u32) -> u32 {
     return end;
 }
 
-// The radiance a side with `code` shows the bundles: a target texel's source; foreign
-// sides are not resolved on the GPU yet (black, counted lost, as the CPU does without a
-// foreign source).
-fn seen(code: u32) -> vec3<f32> {
+// Foreign sides this invocation looked up, and lost (added to the status words once, at
+// the end: one atomic per invocation, not one per lookup).
+var<private> foreign_lookups: u32;
+var<private> lost_lookups: u32;
+
+// `Grid::coords_of` with the CPU's correctly rounded division: a point within rounding of a
+// cell face lands in the CPU's cell, so it reads the same shown LOD.
+fn foreign_cell(p: vec3<f32>) -> vec3<u32> {
+    let d = p - lm.grid_origin;
+    let q = vec3<f32>(div(d.x, lm.cell_size), div(d.y, lm.cell_size), div(d.z, lm.cell_size));
+    var c: vec3<u32>;
+    for (var k = 0u; k < 3u; k++) {
+        c[k] = select(min(u32(q[k]), lm.grid_dims[k] - 1u), 0u, !(q[k] >= 0.0));
+    }
+    return c;
+}
+
+// The pixel being resolved: its grid centre (where foreign sides are located).
+var<private> centre: vec2<f32>;
+
+// `ShownSource::radiance` of foreign side `code` of fragment `f`: the side's face reflects
+// albedo/π of the shown irradiance at the pixel centre's surface point, plus its emission
+// where the global bundles carry it. The point's barycentrics are set up again here (as
+// `ForeignSides::locate` does), not carried by every fragment: foreign lookups are few
+// beside fragments, and a larger fragment slowed every resolve several times on lavapipe.
+fn foreign_radiance(f: Fragment, code: u32) -> vec3<f32> {
+    let tri = (code - FOREIGN) >> 1u;
+    let minus = (code & 1u) == 1u;
+    let front = ((f.minus & FRONT_LOOKS_PLUS) != 0u) != minus;
+    let info = triangles[tri];
+    if select(info.back_chart, info.front_chart, front) == NO_CHART {
+        return vec3<f32>(0.0);
+    }
+    // `Planes::barycentrics`: clamped onto the triangle.
+    let t = triangle_planes(tri, centre.x, centre.y);
+    let u = clamp(eval(t.bu, t.dx, t.dy), 0.0, 1.0);
+    let v = clamp(eval(t.bv, t.dx, t.dy), 0.0, 1.0 - u);
+    // `SceneGeometry::point` and `AtlasFace::uv_at`: a + (b − a)·u + (c − a)·v.
+    let a = corners[3u * tri].xyz;
+    let e1 = corners[3u * tri + 1u].xyz - a;
+    let e2 = corners[3u * tri + 2u].xyz - a;
+    let p = a + vec3<f32>(mul(e1.x, u), mul(e1.y, u), mul(e1.z, u))
+        + vec3<f32>(mul(e2.x, v), mul(e2.y, v), mul(e2.z, v));
+    var uv: array<vec2<f32>, 3>;
+    for (var k = 0u; k < 3u; k++) {
+        let c = info.corner_uv[k];
+        uv[k] = select(c.zw, c.xy, front);
+    }
+    let d1 = uv[1] - uv[0];
+    let d2 = uv[2] - uv[0];
+    let at = uv[0] + vec2<f32>(mul(d1.x, u), mul(d1.y, u)) + vec2<f32>(mul(d2.x, v), mul(d2.y, v));
+    let e = shown_irradiance_in(foreign_cell(p), p, at);
+    let albedo_e = mul3(surface_albedo(tri, u, v), e);
+    let reflected = vec3<f32>(mul(albedo_e.x, FRAC_1_PI), mul(albedo_e.y, FRAC_1_PI), mul(albedo_e.z, FRAC_1_PI));
+    if surface_carried(tri) {
+        return reflected + surface_emission(tri, front, u, v);
+    }
+    return reflected;
+}
+
+// std::f32::consts::FRAC_1_PI.
+const FRAC_1_PI: f32 = 0.3183098861837907;
+
+// The radiance side `code` of fragment `f` shows the bundles: a target texel's source, or a
+// foreign side's (black, counted lost, without a foreign source).
+fn seen(f: Fragment, code: u32) -> vec3<f32> {
     if code < FOREIGN {
         return vec3<f32>(own[3u * code], own[3u * code + 1u], own[3u * code + 2u]);
     }
-    atomicAdd(&sums[8u * params.texel_count + STATUS_LOST], 1u);
+    if FOREIGN_SOURCE {
+        foreign_lookups += 1u;
+        return foreign_radiance(f, code);
+    }
+    lost_lookups += 1u;
     return vec3<f32>(0.0);
 }
 
@@ -406,7 +502,7 @@ fn layer_face(start: u32, end: u32, minus_side: bool) -> vec3<f32> {
         if code == NO_SIDE {
             continue;
         }
-        let l = seen(code);
+        let l = seen(frags[i], code);
         if !found || element_sum(l) > element_sum(best) {
             best = l;
             found = true;
@@ -523,6 +619,7 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
     let pixel = py * params.width + px;
     let cx = f32(px + params.offset.x) + 0.5;
     let cy = f32(py + params.offset.y) + 0.5;
+    centre = vec2<f32>(cx, cy);
     var n = 0u;
     var next = heads[pixel];
     var steps = 0u;
@@ -543,6 +640,15 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     atomicAdd(&sums[8u * params.texel_count + STATUS_COVERED], 1u);
+    // A pixel where no fragment is a target side credits nothing (a cell's window draws
+    // the occluders around it): no sort.
+    var targets = false;
+    for (var i = 0u; i < n; i++) {
+        targets = targets || (frags[i].plus & CODE_MASK) < FOREIGN || (frags[i].minus & CODE_MASK) < FOREIGN;
+    }
+    if !targets {
+        return;
+    }
     // The list holds the nodes in reverse raster order; the CPU's pixel lists are in
     // triangle order, and the sort is stable, so order them by triangle first.
     for (var i = 1u; i < n; i++) {
@@ -560,5 +666,13 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
     if n > 1u {
         sort_by_depth(n);
     }
+    foreign_lookups = 0u;
+    lost_lookups = 0u;
     exchange(n);
+    if foreign_lookups > 0u {
+        atomicAdd(&sums[8u * params.texel_count + STATUS_FOREIGN], foreign_lookups);
+    }
+    if lost_lookups > 0u {
+        atomicAdd(&sums[8u * params.texel_count + STATUS_LOST], lost_lookups);
+    }
 }

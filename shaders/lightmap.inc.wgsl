@@ -160,7 +160,12 @@ fn lm_layer_irradiance(layer: u32, c: vec3<u32>, p: vec3<f32>, uv: vec2<f32>) ->
 
 // Irradiance (W/m²) shown at world position p with LOD-0 atlas UV uv: the layers summed.
 fn shown_irradiance(p: vec3<f32>, uv: vec2<f32>) -> vec3<f32> {
-    let c = lm_cell_coords(p);
+    return shown_irradiance_in(lm_cell_coords(p), p, uv);
+}
+
+// `shown_irradiance` in cell c (the cell holding p: a pass that must pick the CPU's cell
+// where p lies within rounding of a cell face computes c with the CPU's exact division).
+fn shown_irradiance_in(c: vec3<u32>, p: vec3<f32>, uv: vec2<f32>) -> vec3<f32> {
     var e = lm_layer_irradiance(0u, c, p, uv);
     if lm.layer_count > 1u {
         e += lm_layer_irradiance(1u, c, p, uv);

@@ -689,3 +689,95 @@ fn the_punctual_layer_is_exact_at_the_lod_the_camera_wants() {
     eprintln!("{in_light} lit and {in_shadow} shadowed floor points exact, {at_finest} at LOD {finest}");
     assert!(in_light > 1000 && in_shadow > 100 && at_finest > 100, "{in_light} lit, {in_shadow} shadowed, {at_finest}");
 }
+
+/// Cell bakes on the GPU backend (lavapipe here) equal the CPU backend's, foreign sides
+/// included: the surfaces outside a cell, which its bundles see through the shown map
+/// (albedo/π · E, textured albedo, carried emission), are evaluated in the GPU resolve.
+/// Two scenes: the Cornell box (textured walls, its lamp carried by the global bundles)
+/// and the Van Gogh room (double-sided materials, small emitters, punctual lights: the
+/// shown map has both layers). The map the bakes
+/// see has first light at LOD 0 and two cells published at LOD 1, so foreign points also
+/// read LOD 1 and blend across LOD borders.
+///
+/// Both backends make the same decisions (the resolve follows the CPU's arithmetic), so
+/// they look up the same foreign sides: the counts are equal. Per texel the bundle sums
+/// differ by (i) the summation: ≤ (k + lanes + 2)·2⁻²⁴ relative for k hits (the CPU's f32
+/// additions against the GPU's exact fixed point; see the backend's own twin test), with
+/// k ≤ 2·D·(2·os + 1)² per texel for D directions; and (ii) the foreign radiance: the same
+/// inputs (barycentrics, point, atlas UV and cell computed the CPU's way), then the shown
+/// map's bilinear taps and blend, whose roundings the GPU may fuse or round within WGSL's
+/// 2.5 ulp; the sampling twin test (tests/viewer.rs) bounds that by 2·10⁻⁵ relative. A
+/// ratio S/A of two sums adds their bounds, and the filter within charts is a positive
+/// average, which keeps a relative bound. A hit credited to another texel, or a foreign
+/// side read at another point or LOD, moves a texel by O(1/k) ≥ 10⁻³: far above this.
+#[test]
+fn cell_bakes_on_the_gpu_backend_equal_the_cpu_backends() {
+    use livebake::gpu::{GpuContext, GpuProvider};
+    let gpu = GpuProvider::new(GpuContext::headless().expect("a Vulkan adapter (lavapipe: mesa-vulkan-drivers)"));
+    let never = AtomicBool::new(false);
+    let directions = 16u32;
+    // The Cornell box's lamp is made a large emitter (the global bundles carry its light),
+    // so foreign sides show emission too.
+    for (rel, small_emitter_fraction) in
+        [("cornell_box/cornellBox-2.79-Cycles-gltf.gltf", 0.0), ("van_gogh_room/van_gogh_room_lit.gltf", 0.05)]
+    {
+        let mut config = RuntimeConfig::default();
+        config.bundle.small_emitter_fraction = small_emitter_fraction;
+        let world = world(load(rel), &config);
+        let carried = world.bundle.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
+        eprintln!("{rel}: {carried} triangles whose emission the global bundles carry");
+        let first = first_light(&world);
+        let cells = largest_cells(&world);
+        // Two cells at LOD 1 in the map the bakes see.
+        let mut map = (*first).clone();
+        for &cell in &cells[..2] {
+            let bake = bake_cell(&world, &first, cell, 1, 5, 8);
+            publish_bake(&mut map, &bake, &bake.result());
+        }
+        let shown = Arc::new(map);
+        let bc = &world.bundle.config;
+        let k = 2.0 * directions as f64 * (2.0 * bc.oversampling as f64 + 1.0).powi(2);
+        let bound = 2.0 * (k + bc.lanes as f64 + 2.0) * 2f64.powi(-24) + 2e-5;
+        let mut cpu = CpuProvider::new().backend(&world.bundle, 2).expect("CPU backend");
+        let mut on_gpu = gpu.backend(&world.bundle, 2).expect("GPU backend");
+        for &cell in &cells[1..4] {
+            let mut a = CellBake::new(&world, &[cell], 1, shown.clone(), 9);
+            let mut b = CellBake::new(&world, &[cell], 1, shown.clone(), 9);
+            let sa = a.step(&world, &mut cpu, directions, &never).expect("not cancelled").pass;
+            let sb = b.step(&world, &mut on_gpu, directions, &never).expect("not cancelled").pass;
+            assert_eq!(
+                (sb.cpu_fallback_batches, sb.unresolved_pixels, sb.saturated_sums, sb.lost_lookups),
+                (0, 0, 0, 0),
+                "{rel} cell {cell}: the GPU resolved the batch itself"
+            );
+            assert_eq!(sa.lost_lookups, 0);
+            assert!(sa.foreign_lookups > 1000, "{rel} cell {cell}: {} foreign lookups", sa.foreign_lookups);
+            assert_eq!(sb.foreign_lookups, sa.foreign_lookups, "{rel} cell {cell}: foreign sides looked up");
+            let (ra, rb) = (a.result(), b.result());
+            // Dark texels (below 10⁻⁷ of the cell's brightest) are compared at that level:
+            // there the GPU's fixed point (one unit is 2⁻⁶² of 64·D texel areas at the
+            // batch's brightest source, an emitter's radiance) rounds each hit by up to a
+            // unit, which the relative bound does not cover.
+            let brightest = ra.iter().fold(0f32, |m, x| m.max(x.max_element())) as f64;
+            let mut worst = 0f64;
+            let mut beyond = 0;
+            for (i, (x, y)) in ra.iter().zip(&rb).enumerate() {
+                let scale = (x.abs().max_element().max(y.abs().max_element()) as f64).max(1e-7 * brightest);
+                let d = (*x - *y).abs().max_element() as f64 / scale;
+                worst = worst.max(d);
+                if d > bound {
+                    beyond += 1;
+                    if beyond <= 3 {
+                        eprintln!("{rel} cell {cell} texel {i}: CPU {x} GPU {y}");
+                    }
+                }
+            }
+            eprintln!(
+                "{rel} cell {cell}: {} texels, {} foreign lookups, worst relative difference {worst:e} (bound {bound:e})",
+                ra.len(),
+                sa.foreign_lookups
+            );
+            assert_eq!(beyond, 0, "{rel} cell {cell}: texels beyond the bound");
+        }
+    }
+}

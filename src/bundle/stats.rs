@@ -22,7 +22,10 @@ pub struct PassStats {
     /// Global-bundle tiles built (after overflow splits).
     pub tiles: u64,
     pub fragments: u64,
-    /// Bundle pixels with at least one fragment: effective rays.
+    /// Bundle pixels with at least one fragment: effective rays. The CPU backend counts
+    /// those it resolves, within each row's hull of the spans that can show a target texel;
+    /// the GPU backend all of them: equal when every lit chart is in the target (a whole
+    /// LOD).
     pub covered_pixels: u64,
     /// Largest fragment count of any built tile (≤ N unless a single pixel exceeded it).
     pub peak_tile_fragments: u64,
@@ -52,14 +55,16 @@ pub struct PassStats {
     pub light_covered_pixels: u64,
     /// Fragments whose UV missed every texel through rounding (they still occlude).
     pub lost_lookups: u64,
+    /// Foreign sides (surfaces outside the target) whose radiance a target side saw.
+    pub foreign_lookups: u64,
     /// GPU backend: pixels deeper than its resolve can sort (skipped; 0 on every scene we
     /// bundle), batches redone because a fixed-point sum saturated, and sums that saturated
     /// even after that.
     pub unresolved_pixels: u64,
     pub redone_batches: u64,
     pub saturated_sums: u64,
-    /// GPU backend: batches it traced on the CPU backend instead (a GPU error, logged; or
-    /// foreign sides, which its resolve cannot read yet).
+    /// GPU backend: batches it traced on the CPU backend instead (a GPU error, logged; or a
+    /// foreign source its resolve has no kernel for).
     pub cpu_fallback_batches: u64,
 }
 
@@ -98,6 +103,7 @@ impl PassStats {
         self.light_fragments += o.light_fragments;
         self.light_covered_pixels += o.light_covered_pixels;
         self.lost_lookups += o.lost_lookups;
+        self.foreign_lookups += o.foreign_lookups;
         self.unresolved_pixels += o.unresolved_pixels;
         self.redone_batches += o.redone_batches;
         self.saturated_sums += o.saturated_sums;

@@ -134,6 +134,12 @@ pub trait SurfaceRadiance: Sync {
     fn radiance(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb;
     /// Emitted radiance (the light pass's emitters).
     fn emission(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb;
+    /// The concrete source, for a backend that evaluates some sources in its own kernels
+    /// (the GPU resolve evaluates the runtime's shown-light-map source); `None`: backends
+    /// call the methods above.
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
+        None
+    }
 }
 
 /// What the bundles of a batch see.

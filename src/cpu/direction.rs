@@ -121,22 +121,37 @@ fn gather(analysis: &mut Analysis, global: &Viewport, vp: &Viewport, out: &mut V
     analysis.candidates(lo.x as f64, lo.y as f64, hi.x as f64, hi.y as f64, out);
 }
 
+/// Foreign sides looked up by a direction's resolve: resolved, and lost (no foreign source).
+#[derive(Default)]
+struct ForeignLookups {
+    resolved: u64,
+    lost: u64,
+}
+
 /// The radiance a bundle line sees of the side with code `code` at grid centre (cx, cy):
 /// a target texel's source, or a foreign side's radiance at its surface point (black, and
 /// counted lost, when the source has no foreign radiance).
 #[inline]
-fn seen(source: &SourceRadiance, foreign: &ForeignSides, code: u32, cx: f32, cy: f32, lost: &mut u64) -> Rgb {
+fn seen(
+    source: &SourceRadiance,
+    foreign: &ForeignSides,
+    code: u32,
+    cx: f32,
+    cy: f32,
+    lookups: &mut ForeignLookups,
+) -> Rgb {
     if is_own(code) {
         return source.own[code as usize];
     }
     debug_assert!(code >= FOREIGN);
     match source.foreign {
         Some(f) => {
+            lookups.resolved += 1;
             let (tri, side, u, v) = foreign.locate(code, cx, cy);
             f.radiance(tri, side, u, v)
         }
         None => {
-            *lost += 1;
+            lookups.lost += 1;
             Rgb::ZERO
         }
     }
@@ -150,7 +165,6 @@ fn trace_global(
     stats: &mut PassStats,
 ) -> Result<(), Cancelled> {
     let cfg = ctx.config;
-    let receiver = |t: u32| ctx.importance[t as usize] > 0.0;
     let frame = BundleFrame::new(job.dir);
     let global = window(ctx).analysis_viewport(cfg, &frame, job.jitter);
 
@@ -206,12 +220,12 @@ fn trace_global(
 
     s.queue.clear();
     s.queue.extend(plan.tiles.iter().rev().map(|tile| tile_viewport(&global, tile)));
-    let mut lost = 0u64;
+    let mut lookups = ForeignLookups::default();
     while let Some(vp) = s.queue.pop() {
         check(ctx)?;
         gather(&mut s.analysis, &global, &vp, &mut s.candidates);
         let t = Instant::now();
-        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None, receiver);
+        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None);
         if count > cfg.node_capacity && split_overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             stats.build_seconds += seconds(t);
             continue;
@@ -226,11 +240,12 @@ fn trace_global(
         let (sky, source, coincidence) = (ctx.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel));
         let mut sink = BundleHits(&mut sums.bundle);
         stats.covered_pixels += s.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
-            exchange(f, coincidence, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lost), &mut sink)
+            exchange(f, coincidence, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), &mut sink)
         });
         stats.resolve_seconds += seconds(t);
     }
-    stats.lost_lookups += lost;
+    stats.lost_lookups += lookups.lost;
+    stats.foreign_lookups += lookups.resolved;
     Ok(())
 }
 
@@ -246,7 +261,6 @@ fn count_false_alarms(
     s: &mut Scratch,
     stats: &mut PassStats,
 ) -> Result<(), Cancelled> {
-    let receiver = |t: u32| ctx.importance[t as usize] > 0.0;
     let mut seen = std::collections::BTreeSet::new();
     let top_level = global.width.trailing_zeros();
     for tile in tiles {
@@ -267,7 +281,7 @@ fn count_false_alarms(
                 let res = bundle_resolution(rays, w2);
                 let vp = tile_viewport(global, &Tile { level: level as i32, x, y, res });
                 gather(&mut s.analysis, global, &vp, &mut s.candidates);
-                let count = s.fragments.prepare(ctx.scene, frame, &vp, &s.candidates, None, receiver);
+                let count = s.fragments.prepare(ctx.scene, frame, &vp, &s.candidates, None);
                 if count <= ctx.config.node_capacity {
                     stats.false_alarms += 1;
                 }
@@ -292,7 +306,6 @@ fn trace_light(
     stats: &mut PassStats,
 ) -> Result<(), Cancelled> {
     let cfg = ctx.config;
-    let receiver = |t: u32| ctx.importance[t as usize] > 0.0;
     let group = &ctx.scene.bundle.emitters.small[job.group as usize];
     let frame = BundleFrame::new(job.dir);
     let (mut lo, mut hi) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
@@ -335,7 +348,7 @@ fn trace_light(
             result = Err(c);
             break;
         }
-        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group), receiver);
+        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group));
         if count > cfg.node_capacity && split_overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             continue;
         }

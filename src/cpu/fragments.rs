@@ -37,8 +37,6 @@ struct TileTriangle {
     screen: ScreenTriangle,
     /// Belongs to the emitter group of the current light pass.
     emitter: bool,
-    /// Holds texels of the bake's target (only pixels with such a fragment can receive).
-    receiver: bool,
     /// Its front normal in the bundle frame, packed (which fragments are coplanar).
     normal: u32,
 }
@@ -70,6 +68,13 @@ enum SideLookup {
     /// UV, an affine function of grid pixel coordinates in LOD pixels, finds the texel; a
     /// pixel the table does not hold gives the foreign code.
     Table { uv: [Vec2; 3], table: u32, foreign: u32 },
+}
+
+impl FragmentPlanes {
+    /// Whether a side can show a target texel.
+    fn shows_targets(&self) -> bool {
+        matches!(self.plus, SideLookup::Table { .. }) || matches!(self.minus, SideLookup::Table { .. })
+    }
 }
 
 /// Pixels `x0..x1` of one row covered by triangle `tri` (an index into the tile's triangles).
@@ -113,8 +118,7 @@ fn side_uv(planes: &Planes, uv: [Vec2; 3]) -> [Vec2; 3] {
 
 impl TileFragments {
     /// Sets up `candidates` for `viewport`, keeps their covered spans and counts their
-    /// fragments. `emitter_group` makes this a light pass of that group; `receiver(t)` says
-    /// whether triangle t holds target texels. Returns the count.
+    /// fragments. `emitter_group` makes this a light pass of that group. Returns the count.
     pub fn prepare(
         &mut self,
         scene: &CpuScene,
@@ -122,7 +126,6 @@ impl TileFragments {
         viewport: &Viewport,
         candidates: &[u32],
         emitter_group: Option<u32>,
-        receiver: impl Fn(u32) -> bool,
     ) -> u64 {
         self.width = viewport.width;
         self.height = viewport.height;
@@ -136,7 +139,7 @@ impl TileFragments {
             if let Some(screen) = ScreenTriangle::setup(frame, viewport, &geom.corners[i], geom.normals[i]) {
                 let emitter = emitter_group.is_some_and(|g| g != NO_GROUP && scene.bundle.group_of[i] == g);
                 let normal = pack_normal(frame.coords(geom.normals[i]));
-                self.tris.push(TileTriangle { index: t, screen, emitter, receiver: receiver(t), normal });
+                self.tris.push(TileTriangle { index: t, screen, emitter, normal });
             }
         }
         self.size_buckets();
@@ -277,13 +280,16 @@ impl TileFragments {
         &self.spans[start..start + self.bucket_len[bucket] as usize]
     }
 
-    /// The pixels `lo..hi` of a bucket to resolve: the hull of its receivers' spans (no
-    /// other pixel can credit a target texel), in a light pass cut to the hull of its
-    /// emitter spans (no other pixel can receive its light). `None` when that is empty.
+    /// The pixels `lo..hi` of a bucket to resolve: the hull of the spans of triangles with a
+    /// side in a chart of the target's tables (no other pixel can credit a target texel; a
+    /// triangle that holds no target texel may still show one, where the texel's square
+    /// reaches over it from a neighbour in its chart), in a light pass cut to the hull of
+    /// its emitter spans (no other pixel can receive its light). `None` when that is empty.
     fn window(&self, bucket: usize) -> Option<(u32, u32)> {
         let spans = self.bucket_spans_of(bucket);
         let hull = |(lo, hi): (u32, u32), s: &Span| (lo.min(s.x0), hi.max(s.x1));
-        let (mut lo, mut hi) = spans.iter().filter(|s| self.tris[s.tri as usize].receiver).fold((u32::MAX, 0), hull);
+        let shows_targets = |s: &&Span| self.planes[s.tri as usize].shows_targets();
+        let (mut lo, mut hi) = spans.iter().filter(shows_targets).fold((u32::MAX, 0), hull);
         if self.emitters_only {
             let (a, b) = spans.iter().filter(|s| self.tris[s.tri as usize].emitter).fold((u32::MAX, 0), hull);
             (lo, hi) = (lo.max(a), hi.min(b));

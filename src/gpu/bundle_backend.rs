@@ -15,8 +15,11 @@
 //! few tiles per direction), and their work is a small share of a bake; they run on the
 //! CPU backend, on the same directions, while the host is otherwise idle waiting for the
 //! GPU. **Foreign sides** (a runtime cell bake, whose bundles see surfaces outside the
-//! target) need the shown light map's sampling function in the resolve, which the GPU
-//! resolve does not have yet: such batches run on the CPU backend (logged once).
+//! target) show the runtime's `ShownSource`, which the resolve evaluates itself
+//! ([`super::surface_radiance`]): the shown map's snapshot is mirrored on the GPU (pages
+//! that changed since the last batch are uploaded) beside the scene's materials (uploaded
+//! once, at the first such batch). A foreign source of another kind, or one the device
+//! cannot hold, runs on the CPU backend (logged once).
 //!
 //! Window culling (which triangles a cell's window draws) uses the CPU's bounds tree, as
 //! the CPU backend does; a whole-scene window draws every triangle.
@@ -32,6 +35,7 @@ use super::bundle_mips::{AnalysisMaps, MipPass};
 use super::bundle_resolve::{FixedPoint, Rectangle, ResolvePass, ResolveStatus, SceneSides, TargetBuffers};
 use super::bundle_tiles::{TileBuffers, TilePass};
 use super::device::GpuContext;
+use super::surface_radiance::ForeignRadiance;
 use crate::bundle::progressive::BatchSums;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
@@ -40,6 +44,8 @@ use crate::bundle::tiles::{TileParams, TilingMode};
 use crate::bundle::window::{WindowSource, split_overflowed, tile_viewport, unplanned};
 use crate::bundle::{BundleBackend, DirectionJob};
 use crate::cpu::{CpuBundleBackend, CpuProvider, CpuScene};
+use crate::runtime::shown::ShownLightmap;
+use crate::runtime::source::ShownSource;
 
 /// Why a GPU batch failed (the batch then runs on the CPU backend).
 #[derive(Debug, thiserror::Error)]
@@ -116,6 +122,8 @@ pub struct GpuBundleBackend {
     /// Waits for each phase so the stats time them apart (benches); otherwise build and
     /// resolve share one submission and `build_seconds` holds both.
     phase_timing: bool,
+    /// The runtime's foreign source on the GPU, made at the first batch that has one.
+    foreign: Option<ForeignRadiance>,
     warned_foreign: bool,
     /// Tests: fixed-point scales 2^this larger than chosen (to force a saturation).
     #[cfg(test)]
@@ -176,6 +184,7 @@ impl GpuBundleBackend {
             window_triangles: Vec::new(),
             tile_triangles: Vec::new(),
             phase_timing,
+            foreign: None,
             warned_foreign: false,
             #[cfg(test)]
             scale_boost_bits: 0,
@@ -203,12 +212,14 @@ impl GpuBundleBackend {
         Ok(self.plans.len() - 1)
     }
 
-    /// The global bundles of `batch` into `sums.bundle` (sized and zeroed by the caller).
+    /// The global bundles of `batch` into `sums.bundle` (sized and zeroed by the caller);
+    /// foreign sides show `self.foreign` when `foreign`.
     fn trace_global(
         &mut self,
         target: &BakeTarget,
         batch: &[DirectionJob],
         source: &SourceRadiance,
+        foreign: bool,
         sums: &mut BatchSums,
         cancel: &AtomicBool,
     ) -> Result<PassStats, BatchError> {
@@ -221,16 +232,18 @@ impl GpuBundleBackend {
             Some((k, b)) if k == key => b,
             _ => TargetBuffers::new(&self.gpu, target)?,
         };
-        let result = self.trace_global_into(target, batch, source, sums, cancel, &buffers);
+        let result = self.trace_global_into(target, batch, source, foreign, sums, cancel, &buffers);
         self.target_buffers = Some((key, buffers));
         result
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn trace_global_into(
         &mut self,
         target: &BakeTarget,
         batch: &[DirectionJob],
         source: &SourceRadiance,
+        foreign: bool,
         sums: &mut BatchSums,
         cancel: &AtomicBool,
         buffers: &TargetBuffers,
@@ -238,7 +251,11 @@ impl GpuBundleBackend {
         let bundle = &self.scene.bundle;
         let texel = bundle.atlas.texel_size / (1u64 << target.lod) as f32;
         let sky = bundle.scene.sky;
-        let brightest = source.own.iter().fold(sky.max_element(), |m, l| m.max(l.max_element()));
+        let foreign_brightest = match (&self.foreign, foreign) {
+            (Some(f), true) => f.brightest(),
+            _ => 0.0,
+        };
+        let brightest = source.own.iter().fold(sky.max_element().max(foreign_brightest), |m, l| m.max(l.max_element()));
         let mut scales = FixedPoint::for_batch(batch.len(), texel * texel, brightest);
         #[cfg(test)]
         {
@@ -250,7 +267,7 @@ impl GpuBundleBackend {
             buffers.start_batch(&self.gpu, source.own);
             let mut stats = PassStats::default();
             for job in batch {
-                self.trace_direction(target, job, buffers, scales, &mut stats, cancel)?;
+                self.trace_direction(target, job, buffers, foreign, scales, &mut stats, cancel)?;
             }
             let status: ResolveStatus = buffers.read(&self.gpu, scales, &mut sums.bundle)?;
             self.gpu.take_error()?;
@@ -261,6 +278,7 @@ impl GpuBundleBackend {
                 stats.saturated_sums += status.saturated as u64;
                 stats.redone_batches += attempt;
                 stats.lost_lookups += status.lost as u64;
+                stats.foreign_lookups += status.foreign as u64;
                 stats.covered_pixels += status.covered as u64;
                 stats.unresolved_pixels += status.deep as u64;
                 return Ok(stats);
@@ -271,11 +289,13 @@ impl GpuBundleBackend {
         unreachable!("the loop returns on its second attempt")
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn trace_direction(
         &mut self,
         target: &BakeTarget,
         job: &DirectionJob,
         buffers: &TargetBuffers,
+        foreign: bool,
         scales: FixedPoint,
         stats: &mut PassStats,
         cancel: &AtomicBool,
@@ -368,8 +388,10 @@ impl GpuBundleBackend {
                 sky: bundle.scene.sky,
                 scales,
             };
+            let foreign = self.foreign.as_ref().filter(|_| foreign);
             let resolve = |encoder: &mut wgpu::CommandEncoder| {
-                self.resolve.encode(&gpu, encoder, &self.triangles, &self.sides, &self.list_buffers, buffers, &rect)
+                let (triangles, sides, lists) = (&self.triangles, &self.sides, &self.list_buffers);
+                self.resolve.encode(&gpu, encoder, triangles, sides, lists, buffers, foreign, &rect)
             };
             if !self.phase_timing {
                 resolve(&mut encoder);
@@ -396,6 +418,32 @@ impl GpuBundleBackend {
     }
 }
 
+impl GpuBundleBackend {
+    /// Mirrors `source`'s foreign radiance on the GPU for the batch; why not, when the
+    /// resolve has no kernel for it or the device cannot hold it.
+    fn prepare_foreign(&mut self, source: &SourceRadiance) -> Result<(), String> {
+        let shown = source.foreign.and_then(|f| f.as_any()).and_then(|a| a.downcast_ref::<ShownSource>());
+        let Some(shown) = shown.filter(|s| Arc::ptr_eq(&s.bundle, &self.scene.bundle)) else {
+            return Err("the GPU resolve evaluates only the runtime's shown light map for this scene".into());
+        };
+        let snapshot: &Arc<ShownLightmap> = &shown.shown;
+        let pipeline = self.resolve.prepare_foreign(&self.gpu);
+        let (gpu, bindings, scene) = (&self.gpu, &self.resolve.foreign, &self.scene.bundle);
+        let result = pipeline.and_then(|()| match &mut self.foreign {
+            Some(f) => f.sync(gpu, bindings, scene, snapshot),
+            None => ForeignRadiance::new(gpu, bindings, scene, snapshot).map(|f| {
+                tracing::debug!("GPU resolve: scene materials uploaded ({} bytes)", f.surface_bytes());
+                self.foreign = Some(f);
+            }),
+        });
+        result.map_err(|e| {
+            // A mirror left half-synced is dropped; the next batch starts it anew.
+            self.foreign = None;
+            format!("the GPU cannot hold the shown light map or the scene's materials ({e})")
+        })
+    }
+}
+
 fn seconds(t: Instant) -> f64 {
     t.elapsed().as_secs_f64()
 }
@@ -418,12 +466,10 @@ impl BundleBackend for GpuBundleBackend {
         sums: &mut BatchSums,
         cancel: &AtomicBool,
     ) -> Result<PassStats, Cancelled> {
-        if source.foreign.is_some() {
+        let foreign = source.foreign.is_some();
+        if foreign && let Err(why) = self.prepare_foreign(source) {
             if !self.warned_foreign {
-                tracing::warn!(
-                    "the GPU resolve cannot read the shown light map yet: bakes that see surfaces outside their \
-                     target (runtime cells) run on the CPU backend"
-                );
+                tracing::warn!("{why}: bakes that see surfaces outside their target run on the CPU backend");
                 self.warned_foreign = true;
             }
             let mut stats = self.cpu.trace_batch(target, batch, source, sums, cancel)?;
@@ -443,7 +489,7 @@ impl BundleBackend for GpuBundleBackend {
             }
             PassStats::default()
         };
-        match self.trace_global(target, batch, source, sums, cancel) {
+        match self.trace_global(target, batch, source, foreign, sums, cancel) {
             Ok(global) => {
                 stats.add(&global);
                 Ok(stats)

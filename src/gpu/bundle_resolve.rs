@@ -19,6 +19,7 @@ use super::device::GpuContext;
 use super::layout::{ResolveParams, ResolveTriangle, TableHeader};
 use super::pass::{self, READ, WRITE};
 use super::shader;
+use super::surface_radiance::{ForeignBindings, ForeignRadiance};
 use crate::bundle::estimator::Coincidence;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::target::{BakeTarget, BundleScene};
@@ -29,13 +30,20 @@ const NO_CHART: u32 = u32::MAX;
 /// u32 words per texel: (lo, hi) of r, g, b and the weight.
 const WORDS_PER_TEXEL: u64 = 8;
 /// Status words after the sums (`STATUS_*` in the shader).
-const STATUS_WORDS: u64 = 4;
+const STATUS_WORDS: u64 = 5;
 
 /// The resolve pipelines: the groups of 8 pixels with fragments are listed
 /// (bundle_groups.wgsl), then resolved, an invocation per pixel of a listed group.
 pub struct ResolvePass {
     layout: wgpu::BindGroupLayout,
+    /// Groups 1 and 2: what foreign sides show (or placeholders).
+    pub foreign: ForeignBindings,
+    /// The resolve without a foreign source, and with one (`FOREIGN_SOURCE`; made at the
+    /// first bake that has one).
     pipeline: wgpu::ComputePipeline,
+    foreign_pipeline: Option<wgpu::ComputePipeline>,
+    pipeline_layout: wgpu::PipelineLayout,
+    module: wgpu::ShaderModule,
     groups_layout: wgpu::BindGroupLayout,
     groups_pipeline: wgpu::ComputePipeline,
     /// The rectangle's width and height, for the group listing.
@@ -126,12 +134,14 @@ impl FixedPoint {
 pub struct ResolveStatus {
     /// Additions that would have carried a sum to 2^63 (the batch must be redone).
     pub saturated: u32,
-    /// Foreign sides looked up (black: the GPU resolve has no foreign source).
+    /// Foreign sides looked up without a foreign source (black).
     pub lost: u32,
     /// Pixels with at least one fragment.
     pub covered: u32,
     /// Pixels deeper than the resolve's sort holds (skipped).
     pub deep: u32,
+    /// Foreign sides looked up and resolved.
+    pub foreign: u32,
 }
 
 /// One target's texel tables, sources and sums on the GPU.
@@ -262,7 +272,13 @@ impl TargetBuffers {
                 sum[c] = (fixed as f64 * inverse[c]) as f32;
             }
         }
-        Ok(ResolveStatus { saturated: status[0], lost: status[1], covered: status[2], deep: status[3] })
+        Ok(ResolveStatus {
+            saturated: status[0],
+            lost: status[1],
+            covered: status[2],
+            deep: status[3],
+            foreign: status[4],
+        })
     }
 }
 
@@ -295,19 +311,17 @@ impl ResolvePass {
             });
         }
         let layout = pass::buffer_layout(device, "bundle resolve", &bindings);
-        let pipeline_layout = pass::single_group(device, "bundle resolve", &layout);
+        let foreign = ForeignBindings::new(gpu);
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("bundle resolve"),
+            bind_group_layouts: &[Some(&layout), Some(&foreign.lightmap_layout), Some(&foreign.surfaces_layout)],
+            immediate_size: 0,
+        });
         // Exact division and square root through f64 where the device has it (see the shader).
         let name = "bundle_resolve.wgsl";
         let text = if gpu.has_f64() { shader::source_f64(name)? } else { shader::source(name)? };
         let module = shader::module_from(device, name, text);
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("bundle resolve"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: Some("resolve"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        let pipeline = resolve_pipeline(device, &pipeline_layout, &module, false);
         let groups_layout =
             pass::buffer_layout(device, "bundle resolve groups", &[(c, READ), (c, READ), (c, WRITE), (c, WRITE)]);
         let groups_pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -327,13 +341,37 @@ impl ResolvePass {
         let groups = buffer("bundle resolve groups", groups_bytes(head_side), storage);
         let dispatch = buffer("bundle resolve dispatch", 16, storage | wgpu::BufferUsages::INDIRECT);
         gpu.take_error()?;
-        Ok(ResolvePass { layout, pipeline, groups_layout, groups_pipeline, size, groups, dispatch, params })
+        Ok(ResolvePass {
+            layout,
+            foreign,
+            pipeline,
+            foreign_pipeline: None,
+            pipeline_layout,
+            module,
+            groups_layout,
+            groups_pipeline,
+            size,
+            groups,
+            dispatch,
+            params,
+        })
+    }
+
+    /// Makes the resolve that reads foreign sides (once; before the first [`Self::encode`]
+    /// with a foreign source).
+    pub fn prepare_foreign(&mut self, gpu: &GpuContext) -> Result<(), GpuError> {
+        if self.foreign_pipeline.is_none() {
+            self.foreign_pipeline = Some(resolve_pipeline(&gpu.device, &self.pipeline_layout, &self.module, true));
+            gpu.take_error()?;
+        }
+        Ok(())
     }
 
     /// Records the resolve of the rectangle last built into `lists` (in the same or an
     /// earlier submission). It does nothing when the list build overflowed a splittable
     /// rectangle (the host splits and redoes it). Its parameters are written through the
-    /// queue: one resolve per submission.
+    /// queue: one resolve per submission. Foreign sides show `foreign`'s radiance (after
+    /// [`Self::prepare_foreign`]), or are black and counted lost without one.
     #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
@@ -343,6 +381,7 @@ impl ResolvePass {
         sides: &SceneSides,
         lists: &ListBuffers,
         target: &TargetBuffers,
+        foreign: Option<&ForeignRadiance>,
         rect: &Rectangle,
     ) {
         let (vp, frame, c) = (rect.viewport, rect.frame, rect.coincidence);
@@ -415,8 +454,33 @@ impl ResolvePass {
         let group = bind(&self.layout, &buffers);
         let mut pass = encoder
             .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("bundle resolve"), timestamp_writes: None });
-        pass.set_pipeline(&self.pipeline);
+        let (pipeline, foreign) = match (foreign, &self.foreign_pipeline) {
+            (Some(f), Some(p)) => (p, Some(f)),
+            _ => (&self.pipeline, None),
+        };
+        pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &group, &[]);
+        let [lightmap, surfaces] = self.foreign.groups(foreign);
+        pass.set_bind_group(1, lightmap, &[]);
+        pass.set_bind_group(2, surfaces, &[]);
         pass.dispatch_workgroups_indirect(&self.dispatch, 0);
     }
+}
+
+/// The resolve pipeline, reading foreign sides or not (`FOREIGN_SOURCE`).
+fn resolve_pipeline(
+    device: &wgpu::Device,
+    layout: &wgpu::PipelineLayout,
+    module: &wgpu::ShaderModule,
+    foreign: bool,
+) -> wgpu::ComputePipeline {
+    let constants = [("FOREIGN_SOURCE", if foreign { 1.0 } else { 0.0 })];
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(if foreign { "bundle resolve (foreign sides)" } else { "bundle resolve" }),
+        layout: Some(layout),
+        module,
+        entry_point: Some("resolve"),
+        compilation_options: wgpu::PipelineCompilationOptions { constants: &constants, ..Default::default() },
+        cache: None,
+    })
 }

@@ -216,6 +216,45 @@ pub struct TableHeader {
     pub _pad: u32,
 }
 
+/// `SurfaceTriangle` (surface_radiance.inc.wgsl): what a triangle's material reads.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct SurfaceTriangle {
+    /// TEXCOORD_0 of the corners.
+    pub uv0: [[f32; 2]; 3],
+    pub material: u32,
+    /// 1 when the triangle's emission travels with the global bundles.
+    pub carried: u32,
+}
+
+/// `SurfaceMaterial` (surface_radiance.inc.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
+pub struct SurfaceMaterial {
+    pub base_color: [f32; 4],
+    pub emission: [f32; 3],
+    pub double_sided: u32,
+    /// Texture indices, `u32::MAX` for none.
+    pub base_texture: u32,
+    pub emissive_texture: u32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+}
+
+/// `TextureHeader` (surface_radiance.inc.wgsl): one RGBA8 texture in the texel buffer.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq, Eq)]
+pub struct TextureHeader {
+    pub width: u32,
+    pub height: u32,
+    pub first: u32,
+    pub srgb: u32,
+    pub wrap_s: u32,
+    pub wrap_t: u32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+}
+
 /// One corner of a drawn triangle (vertex buffer; `VertexInput` in surface.wgsl).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
@@ -346,6 +385,19 @@ mod tests {
                 opaque_zero,
                 _pad
             ]
+        );
+        assert_layout!("bundle_resolve.wgsl", SurfaceTriangle, "SurfaceTriangle", [uv0, material, carried]);
+        assert_layout!(
+            "bundle_resolve.wgsl",
+            SurfaceMaterial,
+            "SurfaceMaterial",
+            [base_color, emission, double_sided, base_texture, emissive_texture, _pad0, _pad1]
+        );
+        assert_layout!(
+            "bundle_resolve.wgsl",
+            TextureHeader,
+            "TextureHeader",
+            [width, height, first, srgb, wrap_s, wrap_t, _pad0, _pad1]
         );
         assert_layout!(
             "bundle_resolve.wgsl",

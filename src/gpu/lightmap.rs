@@ -21,7 +21,8 @@ use crate::runtime::shown::{Layer, PAGE_SIDE, Page, ShownLightmap};
 pub const NO_PAGE: u32 = u32::MAX;
 const TEXEL_BYTES: u32 = 16;
 const PAGE_BYTES: u64 = (PAGE_SIDE * PAGE_SIDE * TEXEL_BYTES) as u64;
-const POOL_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
+/// Format of the page pool (E and validity per pixel).
+pub const POOL_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Float;
 
 /// What one [`LightmapGpu::sync`] uploaded.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -429,7 +430,8 @@ fn create_pool(device: &wgpu::Device, columns: u32, rows: u32) -> Result<wgpu::T
     }))
 }
 
-fn create_bind_group(
+/// Group 1 over the mirror's buffers and pool (or a placeholder's).
+pub fn create_bind_group(
     device: &wgpu::Device,
     layout: &wgpu::BindGroupLayout,
     params: &wgpu::Buffer,

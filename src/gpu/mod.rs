@@ -15,6 +15,8 @@
 //! - [`lightmap`]: the shown light map's GPU mirror (partial page uploads).
 //! - [`scene`]: the scene's triangles, materials and textures on the GPU.
 //! - [`surface`]: the surface pass (albedo × E/π + emission, debug views).
+//! - [`surface_radiance`]: what surfaces outside a cell bake's target show its bundles (the
+//!   shown map's mirror and the scene's materials, read by the resolve).
 //! - [`probe`]: a compute pass evaluating the light map's sampling function at points.
 //! - [`target`]: render targets and read-back to images.
 
@@ -33,6 +35,7 @@ pub mod probe;
 pub mod scene;
 pub mod shader;
 pub mod surface;
+pub mod surface_radiance;
 pub mod target;
 
 pub use bundle_backend::{GpuBundleBackend, GpuProvider};

@@ -376,6 +376,20 @@ impl ShownLightmap {
         self.layers.iter().map(|l| l.live_pages()).sum::<usize>() * Page::BYTES
     }
 
+    /// A bound on any channel of [`ShownLightmap::irradiance`] anywhere: the layers' largest
+    /// published channels, summed (a sample is a convex blend of published pixels of each
+    /// used layer). Reads every page.
+    pub fn max_irradiance(&self) -> f32 {
+        let layer_max = |l: &LayerPages| {
+            let pages = l.levels.iter().flat_map(|level| level.rows.iter().flat_map(|row| row.iter().flatten()));
+            pages
+                .flat_map(|p| p.texels.iter())
+                .filter(|t| t[3] > 0.0)
+                .fold(0f32, |m, t| m.max(t[0]).max(t[1]).max(t[2]))
+        };
+        self.layers.iter().filter(|l| l.used).map(layer_max).sum()
+    }
+
     /// Cells shown at each LOD in `layer`.
     pub fn cells_per_lod(&self, layer: Layer) -> Vec<usize> {
         let l = &self.layers[layer as usize];

@@ -67,4 +67,9 @@ impl SurfaceRadiance for ShownSource {
         let m = &b.scene.materials[b.geom.material[tri as usize] as usize];
         if m.is_emissive() && m.emits_from(side) { b.geom.emission(&b.scene, tri, u, v) } else { Rgb::ZERO }
     }
+
+    /// The GPU resolve evaluates this source itself (`gpu::surface_radiance`).
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
+        Some(self)
+    }
 }

@@ -34,7 +34,8 @@ pub struct Texture {
     pub wrap_t: WrapMode,
 }
 
-fn srgb_to_linear_lut() -> &'static [f32; 256] {
+/// The sRGB decoding of each 8-bit value (the GPU resolve uploads the same table).
+pub fn srgb_to_linear_lut() -> &'static [f32; 256] {
     use std::sync::OnceLock;
     static LUT: OnceLock<[f32; 256]> = OnceLock::new();
     LUT.get_or_init(|| {

@@ -2,7 +2,9 @@
 //! directions over the same whole-LOD-0 target, on the bundled Cornell box and on the
 //! synthetic 312k-triangle temple. Wall time per batch (median), the paper's Table 1 phases
 //! per direction (a second GPU run waits after each phase to time it apart; the wall time
-//! comes from the run without waits), and the pass structure per direction.
+//! comes from the run without waits), and the pass structure per direction. Then the
+//! runtime's cell bakes on both backends: a cell's bundles see the surfaces around it
+//! through the shown light map (foreign sides), which the GPU resolve evaluates itself.
 
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -21,6 +23,9 @@ use livebake::bundle::{
 use livebake::cpu::CpuProvider;
 use livebake::gpu::{GpuContext, GpuProvider};
 use livebake::reference::scenes::temple_courtyard;
+use livebake::runtime::cell_bake::CellBake;
+use livebake::runtime::world::World;
+use livebake::runtime::{RuntimeConfig, bake_first_light, empty_shown};
 use livebake::scene::{LoadOptions, Rgb, Scene, SceneGeometry, load_gltf};
 
 use super::{assets, median, seconds};
@@ -105,11 +110,74 @@ fn one(name: &str, scene: Arc<Scene>, directions: u64, runs: usize, gpu: &GpuCon
             "submissions": 1.0 + per_direction(gpu_stats.tiles + gpu_stats.overflowed_tiles),
             "read_backs": 1.0 + per_direction(gpu_stats.tiles + gpu_stats.overflowed_tiles),
             "tiles": per_direction(gpu_stats.tiles),
-            "read_back_bytes_per_batch": 32 * texels.len() as u64 + 16,
+            "read_back_bytes_per_batch": 32 * texels.len() as u64 + 20,
         },
         "adapter": gpu.info.name,
         "software_adapter": gpu.is_software(),
     }))
+}
+
+/// The runtime's cell bakes at LOD 1 on both backends: the largest cells of `scene`, each
+/// one unit of `directions` against first light (median wall time of `runs` units, each a
+/// fresh bake of the same cell, so every run does the same work).
+fn cells(name: &str, scene: Arc<Scene>, directions: u32, runs: usize, gpu: &GpuContext, ui: &Ui) -> Result<Value> {
+    let config = RuntimeConfig::default();
+    let geom = Arc::new(SceneGeometry::new(&scene));
+    let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas)?);
+    let world = World::new(scene.clone(), geom, atlas, &config)?;
+    let threads = livebake::parallel::available_threads();
+    let never = AtomicBool::new(false);
+    ui.say(format!("  {name}: first light for the cell bakes ..."));
+    let mut cpu = CpuProvider::new().backend(&world.bundle, threads)?;
+    let shown = Arc::new(
+        bake_first_light(&world, &mut cpu, threads, empty_shown(&world), &never).map_err(anyhow::Error::msg)?.0,
+    );
+    let mut on_gpu = GpuProvider::new(gpu.clone()).backend(&world.bundle, threads)?;
+    let mut phased = GpuProvider::new(gpu.clone()).with_phase_timing(true).backend(&world.bundle, threads)?;
+    let mut cells: Vec<u32> = world.non_empty_cells().collect();
+    cells.sort_by_key(|&c| (std::cmp::Reverse(world.lod0_texels[c as usize]), c));
+    let mut out = Vec::new();
+    for &cell in cells.iter().take(3) {
+        ui.say(format!("  {name}: cell {cell} at LOD 1 on both backends ..."));
+        let unit = |backend: &mut dyn BundleBackend| -> Result<(f64, PassStats, usize)> {
+            let mut last = None;
+            // One untimed unit first (pipelines, buffers, the map's mirror).
+            let mut runs_left = runs + 1;
+            let mut times = Vec::new();
+            while runs_left > 0 {
+                let mut bake = CellBake::new(&world, &[cell], 1, shown.clone(), 1);
+                let t = Instant::now();
+                let stats = bake.step(&world, backend, directions, &never).map_err(anyhow::Error::from)?;
+                if runs_left <= runs {
+                    times.push(seconds(t));
+                }
+                last = Some((stats.pass, bake.texels.len()));
+                runs_left -= 1;
+            }
+            times.sort_by(f64::total_cmp);
+            let (stats, texels) = last.expect("at least one unit");
+            Ok((times[times.len() / 2], stats, texels))
+        };
+        let (cpu_wall, cpu_stats, texels) = unit(&mut cpu)?;
+        let (gpu_wall, gpu_stats, _) = unit(&mut on_gpu)?;
+        let (_, phased_stats, _) = unit(&mut phased)?;
+        out.push(json!({
+            "cell": cell,
+            "texels": texels,
+            "directions": directions,
+            "cpu_median_unit_seconds": cpu_wall,
+            "gpu_median_unit_seconds": gpu_wall,
+            "gpu_over_cpu_wall": gpu_wall / cpu_wall,
+            "cpu_phases_ms_per_direction": phases(&cpu_stats),
+            "gpu_phases_ms_per_direction": phases(&phased_stats),
+            "fragments_per_direction": gpu_stats.fragments as f64 / directions as f64,
+            "foreign_lookups_per_direction": gpu_stats.foreign_lookups as f64 / directions as f64,
+            "cpu_foreign_lookups_per_direction": cpu_stats.foreign_lookups as f64 / directions as f64,
+            "gpu_cpu_fallback_batches": gpu_stats.cpu_fallback_batches,
+            "gpu_tiles_per_direction": gpu_stats.tiles as f64 / directions as f64,
+        }));
+    }
+    Ok(json!({ "scene": name, "triangles": scene.triangle_count(), "lod": 1, "runs": runs, "cells": out }))
 }
 
 pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
@@ -118,8 +186,11 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     let cornell =
         Arc::new(load_gltf(&assets().join("cornell_box/cornellBox-2.79-Cycles-gltf.gltf"), &LoadOptions::default())?);
     let temple = Arc::new(temple_courtyard());
-    Ok(json!([
-        one("cornell_box", cornell, directions, runs, &gpu, ui)?,
-        one("temple_courtyard (synthetic)", temple, directions, runs, &gpu, ui)?,
-    ]))
+    Ok(json!({
+        "whole_lod0": [
+            one("cornell_box", cornell.clone(), directions, runs, &gpu, ui)?,
+            one("temple_courtyard (synthetic)", temple, directions, runs, &gpu, ui)?,
+        ],
+        "runtime_cells": cells("cornell_box", cornell, directions as u32, runs, &gpu, ui)?,
+    }))
 }
