@@ -434,8 +434,8 @@ var<private> centre: vec2<f32>;
 // `ShownSource::radiance` of foreign side `code` of fragment `f`: the side's face reflects
 // albedo/π of the shown irradiance at the pixel centre's surface point, plus its emission
 // where the global bundles carry it. The point's barycentrics are set up again here (as
-// `ForeignSides::locate` does), not carried by every fragment: foreign lookups are few
-// beside fragments, and a larger fragment slowed every resolve several times on lavapipe.
+// `ForeignSides::locate` does) rather than carried by every fragment: foreign lookups are
+// few beside fragments, which stay 16 bytes of each lane's private sort array.
 fn foreign_radiance(f: Fragment, code: u32) -> vec3<f32> {
     let tri = (code - FOREIGN) >> 1u;
     let minus = (code & 1u) == 1u;

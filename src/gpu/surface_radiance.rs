@@ -8,8 +8,8 @@
 //!   triangle its TEXCOORD_0 corners, material and whether the bundles carry its emission;
 //!   per material its factors and textures; the textures as RGBA8 words; the CPU's sRGB table.
 //!
-//! A bake without foreign sides binds [`ForeignBindings::placeholder`]s (the resolve never
-//! reads them: `params.foreign` is 0).
+//! A bake without a foreign source binds [`ForeignBindings`]' placeholders instead (its
+//! resolve pipeline, made with `FOREIGN_SOURCE` false, never reads them).
 
 use std::sync::Arc;
 
@@ -108,16 +108,6 @@ impl SurfaceRecords {
         }
         Ok(SurfaceRecords { triangles, materials, headers, texels })
     }
-}
-
-/// Bytes [`SceneSurfaces::new`] uploads for `scene` (for memory estimates).
-pub fn surfaces_bytes(scene: &BundleScene) -> u64 {
-    let texels: u64 = scene.scene.textures.iter().map(|t| t.rgba8.len() as u64).sum();
-    size_of::<SurfaceTriangle>() as u64 * scene.geom.len() as u64
-        + size_of::<SurfaceMaterial>() as u64 * scene.scene.materials.len() as u64
-        + size_of::<TextureHeader>() as u64 * scene.scene.textures.len() as u64
-        + 4 * texels
-        + 4 * 256
 }
 
 /// A storage buffer holding `data`, or zeros when it is empty: a binding must hold one
