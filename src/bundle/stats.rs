@@ -63,6 +63,9 @@ pub struct PassStats {
     pub unresolved_pixels: u64,
     pub redone_batches: u64,
     pub saturated_sums: u64,
+    /// GPU backend: submissions of a direction's tiles (the planned ones, then the parts of
+    /// overflowed ones), each with one read-back of their node counts.
+    pub tile_rounds: u64,
     /// GPU backend: batches it traced on the CPU backend instead (a GPU error, logged; or a
     /// foreign source its resolve has no kernel for).
     pub cpu_fallback_batches: u64,
@@ -107,6 +110,7 @@ impl PassStats {
         self.unresolved_pixels += o.unresolved_pixels;
         self.redone_batches += o.redone_batches;
         self.saturated_sums += o.saturated_sums;
+        self.tile_rounds += o.tile_rounds;
         self.cpu_fallback_batches += o.cpu_fallback_batches;
     }
 

@@ -4,10 +4,11 @@
 //! 1. one submission: analysis raster ([`super::bundle_analysis`]), mips
 //!    ([`super::bundle_mips`]), Program 1 ([`super::bundle_tiles`]); the plan is read back
 //!    (a few KB);
-//! 2. per planned tile, one submission: the linked-list build ([`super::bundle_lists`]),
-//!    a copy of its node counter, and the resolve ([`super::bundle_resolve`]), which does
-//!    nothing when the counter says the lists overflowed. The host reads the 4-byte count;
-//!    an overflowed tile is split and redone, as on the CPU.
+//! 2. all planned tiles in one submission: per tile the linked-list build
+//!    ([`super::bundle_lists`]), a copy of its node counter into its slot, and the resolve
+//!    ([`super::bundle_resolve`]), which does nothing when the counter says the lists
+//!    overflowed. The host reads the counts once; overflowed tiles are split, as on the
+//!    CPU, and their parts redone in a further submission (rare: a round is one read-back).
 //!
 //! The per-texel sums stay on the GPU for the whole batch and are read back once.
 //!
@@ -119,6 +120,7 @@ pub struct GpuBundleBackend {
     bounds_stack: Vec<u32>,
     window_triangles: Vec<u32>,
     tile_triangles: Vec<u32>,
+    tile_counts: TileCounts,
     /// Waits for each phase so the stats time them apart (benches); otherwise build and
     /// resolve share one submission and `build_seconds` holds both.
     phase_timing: bool,
@@ -183,6 +185,7 @@ impl GpuBundleBackend {
             bounds_stack: Vec::new(),
             window_triangles: Vec::new(),
             tile_triangles: Vec::new(),
+            tile_counts: TileCounts::default(),
             phase_timing,
             foreign: None,
             warned_foreign: false,
@@ -364,57 +367,105 @@ impl GpuBundleBackend {
         }
         stats.add_plan(&plan.stats);
 
+        // The planned tiles in one submission: per tile the list build, a copy of its node
+        // count into its slot and the resolve (which does nothing when the count says the
+        // lists overflowed); the counts are read back once. Overflowed tiles are split, and
+        // their parts make the next round.
         let capacity = cfg.node_capacity;
-        let mut queue: Vec<Viewport> = plan.tiles.iter().rev().map(|tile| tile_viewport(&global, tile)).collect();
-        while let Some(vp) = queue.pop() {
-            if cancel.load(Ordering::Relaxed) {
-                return Err(BatchError::Cancelled);
-            }
-            let t = Instant::now();
+        let mut round: Vec<Viewport> = plan.tiles.iter().map(|tile| tile_viewport(&global, tile)).collect();
+        while !round.is_empty() {
+            let counts = self.tile_counts.slots(&gpu, round.len());
+            // Phase timing: the current tile's build; otherwise the whole round.
+            let mut t = Instant::now();
             let mut encoder = gpu.device.create_command_encoder(&Default::default());
-            // The tile draws only the triangles whose projected bounds meet it (as the CPU
-            // gathers a tile's candidates): a whole-scene window would draw them all.
-            let side = vp.width.max(vp.height) as f32 * vp.pixel;
-            let (stack, out) = (&mut self.bounds_stack, &mut self.tile_triangles);
-            scene.bounds.overlapping(&frame, vp.corner(), side, stack, out);
-            let tile_ids = DrawnIds::new(&gpu, out);
-            let tile_drawn = Drawn::Uploaded(&tile_ids);
-            self.lists.encode(&gpu, &mut encoder, &self.triangles, tile_drawn, &frame, &vp, &self.list_buffers);
-            self.list_buffers.encode_count_read(&mut encoder);
-            let rect = Rectangle {
-                frame: &frame,
-                viewport: &vp,
-                coincidence: scene.coincidence_at(vp.pixel),
-                sky: bundle.scene.sky,
-                scales,
-            };
-            let foreign = self.foreign.as_ref().filter(|_| foreign);
-            let resolve = |encoder: &mut wgpu::CommandEncoder| {
+            // Each tile's triangle ids stay alive until the submission.
+            let mut drawn_ids = Vec::with_capacity(round.len());
+            for (slot, vp) in round.iter().enumerate() {
+                if cancel.load(Ordering::Relaxed) {
+                    return Err(BatchError::Cancelled);
+                }
+                // The tile draws only the triangles whose projected bounds meet it (as the
+                // CPU gathers a tile's candidates): a whole-scene window would draw them all.
+                let side = vp.width.max(vp.height) as f32 * vp.pixel;
+                let (stack, out) = (&mut self.bounds_stack, &mut self.tile_triangles);
+                scene.bounds.overlapping(&frame, vp.corner(), side, stack, out);
+                drawn_ids.push(DrawnIds::new(&gpu, out));
+                let tile_drawn = Drawn::Uploaded(&drawn_ids[slot]);
+                self.lists.encode(&gpu, &mut encoder, &self.triangles, tile_drawn, &frame, vp, &self.list_buffers);
+                self.list_buffers.encode_count_copy(&mut encoder, counts, 4 * slot as u64);
+                let rect = Rectangle {
+                    frame: &frame,
+                    viewport: vp,
+                    coincidence: scene.coincidence_at(vp.pixel),
+                    sky: bundle.scene.sky,
+                    scales,
+                };
+                let foreign = self.foreign.as_ref().filter(|_| foreign);
                 let (triangles, sides, lists) = (&self.triangles, &self.sides, &self.list_buffers);
-                self.resolve.encode(&gpu, encoder, triangles, sides, lists, buffers, foreign, &rect)
-            };
-            if !self.phase_timing {
-                resolve(&mut encoder);
+                if self.phase_timing {
+                    submit_and_wait(&gpu, encoder)?;
+                    stats.build_seconds += seconds(t);
+                    let resolve_start = Instant::now();
+                    encoder = gpu.device.create_command_encoder(&Default::default());
+                    self.resolve.encode(&gpu, &mut encoder, triangles, sides, lists, buffers, foreign, &rect);
+                    submit_and_wait(&gpu, encoder)?;
+                    stats.resolve_seconds += seconds(resolve_start);
+                    encoder = gpu.device.create_command_encoder(&Default::default());
+                    t = Instant::now();
+                } else {
+                    self.resolve.encode(&gpu, &mut encoder, triangles, sides, lists, buffers, foreign, &rect);
+                }
             }
             gpu.queue.submit([encoder.finish()]);
-            let count = self.list_buffers.read_count(&gpu)?;
-            stats.build_seconds += seconds(t);
-            if count > capacity && split_overflowed(&vp, count, capacity, &mut queue, stats) {
-                continue;
+            let counts = self.tile_counts.read(&gpu, round.len())?;
+            if !self.phase_timing {
+                // Without phase timing, build and resolve share the submission.
+                stats.build_seconds += seconds(t);
             }
-            if self.phase_timing {
-                let t = Instant::now();
-                let mut encoder = gpu.device.create_command_encoder(&Default::default());
-                resolve(&mut encoder);
-                submit_and_wait(&gpu, encoder)?;
-                stats.resolve_seconds += seconds(t);
+            let mut next = Vec::new();
+            for (vp, &count) in round.iter().zip(&counts) {
+                if count > capacity && split_overflowed(vp, count, capacity, &mut next, stats) {
+                    continue;
+                }
+                stats.tiles += 1;
+                stats.fragments += count;
+                stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
             }
-            stats.tiles += 1;
-            stats.fragments += count;
-            stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
+            stats.tile_rounds += 1;
+            round = next;
         }
         stats.directions += 1;
         Ok(())
+    }
+}
+
+/// The node counts of a round of tiles, copied on the GPU slot by slot and read back once.
+#[derive(Default)]
+struct TileCounts {
+    buffer: Option<wgpu::Buffer>,
+}
+
+impl TileCounts {
+    /// A buffer with room for `n` counts (grown by doubling).
+    fn slots(&mut self, gpu: &GpuContext, n: usize) -> &wgpu::Buffer {
+        let bytes = 4 * n.max(1) as u64;
+        if self.buffer.as_ref().is_none_or(|b| b.size() < bytes) {
+            self.buffer = Some(gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("bundle tile counts"),
+                size: bytes.next_power_of_two(),
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                mapped_at_creation: false,
+            }));
+        }
+        self.buffer.as_ref().expect("made above")
+    }
+
+    /// The first `n` counts of the submission just made.
+    fn read(&self, gpu: &GpuContext, n: usize) -> Result<Vec<u64>, GpuError> {
+        let Some(buffer) = &self.buffer else { return Ok(Vec::new()) };
+        let bytes = gpu.read_buffer(buffer, 4 * n as u64)?;
+        gpu.take_error()?;
+        Ok(bytes.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]) as u64).collect())
     }
 }
 
@@ -545,8 +596,8 @@ impl BackendProvider for GpuProvider {
 mod tests {
     use super::*;
     use crate::atlas::texels::TexelMap;
-    use crate::bundle::JobSequence;
     use crate::bundle::target::WholeLod;
+    use crate::bundle::{BundleConfig, JobSequence};
     use crate::gpu::bundle_analysis::tests::cornell;
     use crate::scene::Rgb;
 
@@ -664,6 +715,36 @@ mod tests {
         eprintln!("Van Gogh room: {} texels, worst relative difference {worst:e} (bound {bound:e})", texels.len());
         assert_eq!(beyond, 0, "texels whose sums differ beyond the summation bound");
         assert_eq!(cpu.light, gpu.light, "the light pass is the CPU's on both");
+    }
+
+    /// Tiles that overflow the node buffer: with a small buffer planned to its full size
+    /// (alpha 1, so the planner's estimate often falls short), tiles overflow; their parts
+    /// are built and resolved in further submissions of the direction (rounds), and the
+    /// sums are still the CPU backend's within the summation bound (which splits the same
+    /// tiles the same way).
+    #[test]
+    fn overflowed_tiles_are_redone_in_further_rounds() {
+        let cornell = cornell();
+        let config = BundleConfig { node_capacity: 20_000, alpha: 1.0, ..cornell.bundle.config.clone() };
+        let b = &cornell.bundle;
+        let bundle = BundleScene::new(b.scene.clone(), b.geom.clone(), b.atlas.clone(), config);
+        let scene = Arc::new(CpuScene::new(Arc::new(bundle)));
+        let (texels, cpu, gpu, stats, cpu_stats) = both(&scene, 0, 0, 2);
+        eprintln!(
+            "{} texels: {} tiles, {} overflowed, {} rounds over {} directions",
+            texels.len(),
+            stats.tiles,
+            stats.overflowed_tiles,
+            stats.tile_rounds,
+            stats.directions
+        );
+        assert!(stats.overflowed_tiles > 0, "no tile overflowed: the test tests nothing");
+        assert_eq!(stats.overflowed_tiles, cpu_stats.overflowed_tiles);
+        assert_eq!(stats.tiles, cpu_stats.tiles);
+        assert!(stats.tile_rounds > stats.directions, "overflowed parts make further rounds");
+        assert_eq!((stats.cpu_fallback_batches, stats.saturated_sums), (0, 0));
+        let (worst, beyond) = compare(&cpu, &gpu, summation_bound(&scene, 2));
+        assert_eq!(beyond, 0, "worst {worst:e}");
     }
 
     /// Fixed-point scales far too large for the batch (2^20 times the chosen ones): the

@@ -270,7 +270,13 @@ impl ListPass {
 impl ListBuffers {
     /// Records the copy of the node counter that [`read_count`](Self::read_count) reads.
     pub fn encode_count_read(&self, encoder: &mut wgpu::CommandEncoder) {
-        encoder.copy_buffer_to_buffer(&self.counter, 0, &self.readback, 0, 4);
+        self.encode_count_copy(encoder, &self.readback, 0);
+    }
+
+    /// Records a copy of the node counter (4 bytes) into `dst` at `offset`: the count of the
+    /// rectangle last built, kept while the next one is built in the same submission.
+    pub fn encode_count_copy(&self, encoder: &mut wgpu::CommandEncoder, dst: &wgpu::Buffer, offset: u64) {
+        encoder.copy_buffer_to_buffer(&self.counter, 0, dst, offset, 4);
     }
 
     /// The fragment count of the last build (after a submitted

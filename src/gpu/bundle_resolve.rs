@@ -46,17 +46,14 @@ pub struct ResolvePass {
     module: wgpu::ShaderModule,
     groups_layout: wgpu::BindGroupLayout,
     groups_pipeline: wgpu::ComputePipeline,
-    /// The rectangle's width and height, for the group listing.
-    size: wgpu::Buffer,
     /// 1 + each listed group's index (room for every group of a W×W rectangle, and a
     /// workgroup's worth past it).
     groups: wgpu::Buffer,
-    /// The resolve's indirect dispatch (x, y, z) and the count of listed groups.
+    /// The resolve's indirect dispatch (x, y, z) and the count of listed groups, reset from
+    /// `dispatch_reset` before each rectangle's listing (in the command stream, so that many
+    /// rectangles can share one submission).
     dispatch: wgpu::Buffer,
-    /// The rectangle's `ResolveParams`, rewritten for each (one rectangle per submission).
-    /// A storage buffer, not a uniform one: lavapipe compiles a shader variant for each set
-    /// of the uniform values that branches test (see the shader).
-    params: wgpu::Buffer,
+    dispatch_reset: wgpu::Buffer,
 }
 
 /// Every triangle's front normal and faces (charts and atlas UVs), uploaded once per scene.
@@ -336,10 +333,13 @@ impl ResolvePass {
             device.create_buffer(&wgpu::BufferDescriptor { label: Some(label), size, usage, mapped_at_creation: false })
         };
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST;
-        let params = buffer("bundle resolve params", size_of::<ResolveParams>() as u64, storage);
-        let size = buffer("bundle resolve size", 8, storage);
         let groups = buffer("bundle resolve groups", groups_bytes(head_side), storage);
         let dispatch = buffer("bundle resolve dispatch", 16, storage | wgpu::BufferUsages::INDIRECT);
+        let dispatch_reset = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("bundle resolve dispatch reset"),
+            contents: bytemuck::cast_slice(&[0u32, 1, 1, 0]),
+            usage: wgpu::BufferUsages::COPY_SRC,
+        });
         gpu.take_error()?;
         Ok(ResolvePass {
             layout,
@@ -350,10 +350,9 @@ impl ResolvePass {
             module,
             groups_layout,
             groups_pipeline,
-            size,
             groups,
             dispatch,
-            params,
+            dispatch_reset,
         })
     }
 
@@ -369,8 +368,8 @@ impl ResolvePass {
 
     /// Records the resolve of the rectangle last built into `lists` (in the same or an
     /// earlier submission). It does nothing when the list build overflowed a splittable
-    /// rectangle (the host splits and redoes it). Its parameters are written through the
-    /// queue: one resolve per submission. Foreign sides show `foreign`'s radiance (after
+    /// rectangle (the host splits and redoes it). Its parameters go in buffers of its own,
+    /// so many rectangles may share a submission. Foreign sides show `foreign`'s radiance (after
     /// [`Self::prepare_foreign`]), or are black and counted lost without one.
     #[allow(clippy::too_many_arguments)]
     pub fn encode(
@@ -410,9 +409,19 @@ impl ResolvePass {
             _pad: 0,
         };
         let device = &gpu.device;
-        gpu.queue.write_buffer(&self.params, 0, bytemuck::bytes_of(&params));
-        gpu.queue.write_buffer(&self.size, 0, bytemuck::cast_slice(&[vp.width, vp.height]));
-        gpu.queue.write_buffer(&self.dispatch, 0, bytemuck::cast_slice(&[0u32, 1, 1, 0]));
+        // The rectangle's parameters in buffers of its own (a storage buffer, not a uniform
+        // one: lavapipe compiles a shader variant for each set of the uniform values that
+        // branches test; see the shader), so rectangles can share a submission.
+        let init = |label, contents: &[u8]| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        let params = init("bundle resolve params", bytemuck::bytes_of(&params));
+        let size = init("bundle resolve size", bytemuck::cast_slice(&[vp.width, vp.height]));
+        encoder.copy_buffer_to_buffer(&self.dispatch_reset, 0, &self.dispatch, 0, 16);
         let group_count = vp.width.div_ceil(8) as u64 * vp.height as u64;
         encoder.clear_buffer(&self.groups, 0, Some(4 * (group_count + 8)));
         let bind = |layout, buffers: &[&wgpu::Buffer]| {
@@ -427,7 +436,7 @@ impl ResolvePass {
                 entries: &entries,
             })
         };
-        let listing = bind(&self.groups_layout, &[&self.size, &lists.heads, &self.groups, &self.dispatch]);
+        let listing = bind(&self.groups_layout, &[&size, &lists.heads, &self.groups, &self.dispatch]);
         {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("bundle resolve groups"),
@@ -438,7 +447,7 @@ impl ResolvePass {
             pass.dispatch_workgroups(group_count.div_ceil(64) as u32, 1, 1);
         }
         let buffers = [
-            &self.params,
+            &params,
             &triangles.corners,
             &sides.buffer,
             &lists.heads,

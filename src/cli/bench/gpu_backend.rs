@@ -106,9 +106,10 @@ fn one(name: &str, scene: Arc<Scene>, directions: u64, runs: usize, gpu: &GpuCon
         "target_gpu_over_cpu_wall": 3.0,
         "pass_structure_per_direction": {
             // One submission for analysis + mips + Program 1 and the plan's read-back, then one
-            // submission and a 4-byte count read-back per built tile (overflow splits included).
-            "submissions": 1.0 + per_direction(gpu_stats.tiles + gpu_stats.overflowed_tiles),
-            "read_backs": 1.0 + per_direction(gpu_stats.tiles + gpu_stats.overflowed_tiles),
+            // submission of the tiles and one read-back of their counts per round (the planned
+            // tiles; the parts of overflowed ones).
+            "submissions": 1.0 + per_direction(gpu_stats.tile_rounds),
+            "read_backs": 1.0 + per_direction(gpu_stats.tile_rounds),
             "tiles": per_direction(gpu_stats.tiles),
             "read_back_bytes_per_batch": 32 * texels.len() as u64 + 20,
         },
