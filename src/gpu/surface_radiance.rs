@@ -62,8 +62,19 @@ fn wrap_code(mode: WrapMode) -> u32 {
 }
 
 impl SurfaceRecords {
-    fn of(scene: &BundleScene) -> Result<SurfaceRecords, GpuError> {
+    /// The records of `scene`; an error, before anything is allocated, when the textures or
+    /// the triangles' records would exceed `limit` bytes (the device's storage binding size).
+    fn of(scene: &BundleScene, limit: u64) -> Result<SurfaceRecords, GpuError> {
         let (s, geom) = (&scene.scene, &scene.geom);
+        let words: u64 = s.textures.iter().map(|t| t.rgba8.len() as u64).sum();
+        let triangle_bytes = size_of::<SurfaceTriangle>() as u64 * geom.len() as u64;
+        for (what, bytes) in [("textures", 4 * words), ("triangle materials", triangle_bytes)] {
+            if bytes > limit {
+                return Err(GpuError::Validation(format!(
+                    "the scene's {what} need {bytes} bytes, over the device's storage binding limit of {limit}"
+                )));
+            }
+        }
         let triangles = (0..geom.len())
             .map(|t| {
                 let mesh = &s.meshes[geom.mesh[t] as usize];
@@ -88,7 +99,6 @@ impl SurfaceRecords {
                 _pad1: 0,
             })
             .collect();
-        let words: u64 = s.textures.iter().map(|t| t.rgba8.len() as u64).sum();
         let words = u32::try_from(words)
             .map_err(|_| GpuError::Validation(format!("the scene's textures hold {words} texels, over 2^32")))?;
         let mut texels = Vec::with_capacity(words as usize);
@@ -129,17 +139,7 @@ impl SceneSurfaces {
         layout: &wgpu::BindGroupLayout,
         scene: &BundleScene,
     ) -> Result<SceneSurfaces, GpuError> {
-        let records = SurfaceRecords::of(scene)?;
-        let limit = gpu.device.limits().max_storage_buffer_binding_size;
-        let texel_bytes = 4 * records.texels.len() as u64;
-        let triangle_bytes = size_of::<SurfaceTriangle>() as u64 * records.triangles.len() as u64;
-        for (what, bytes) in [("textures", texel_bytes), ("triangle materials", triangle_bytes)] {
-            if bytes > limit {
-                return Err(GpuError::Validation(format!(
-                    "the scene's {what} need {bytes} bytes, over the device's storage binding limit of {limit}"
-                )));
-            }
-        }
+        let records = SurfaceRecords::of(scene, gpu.device.limits().max_storage_buffer_binding_size)?;
         let lut = srgb_to_linear_lut();
         let buffers = [
             storage(&gpu.device, "surface triangles", bytemuck::cast_slice(&records.triangles)),
@@ -271,4 +271,26 @@ impl ForeignRadiance {
 fn brightest(scene: &BundleScene, shown: &ShownLightmap) -> f32 {
     let emission = scene.scene.materials.iter().fold(0f32, |m, mat| m.max(mat.emission.max_element()));
     shown.max_irradiance() * std::f32::consts::FRAC_1_PI + emission
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scene whose materials a device cannot bind is refused with the figure and the
+    /// limit (the backend then bakes its foreign sides on the CPU); otherwise every triangle
+    /// and texture texel gets its record.
+    #[test]
+    fn materials_beyond_the_binding_limit_are_refused() {
+        let scene = crate::gpu::bundle_analysis::tests::cornell();
+        let bundle = &scene.bundle;
+        let texels: u64 = bundle.scene.textures.iter().map(|t| t.rgba8.len() as u64).sum();
+        assert!(texels > 256, "the Cornell box has textures");
+        let Err(e) = SurfaceRecords::of(bundle, 4 * texels - 4) else { panic!("a limit below the textures passed") };
+        assert!(e.to_string().contains("storage binding limit"), "{e}");
+        let records = SurfaceRecords::of(bundle, u64::MAX).expect("no limit");
+        assert_eq!(records.triangles.len(), bundle.geom.len());
+        assert_eq!(records.texels.len() as u64, texels);
+        assert_eq!(records.headers.len(), bundle.scene.textures.len());
+    }
 }
