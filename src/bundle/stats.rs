@@ -63,8 +63,11 @@ pub struct PassStats {
     pub unresolved_pixels: u64,
     pub redone_batches: u64,
     pub saturated_sums: u64,
-    /// GPU backend: submissions of a direction's tiles (the planned ones, then the parts of
-    /// overflowed ones), each with one read-back of their node counts.
+    /// GPU backend: submissions of directions' plans (a batch's directions together), each
+    /// followed by the read-back of their plans; and submissions of tiles (the planned ones
+    /// of those directions, then the parts of overflowed ones), each with one read-back of
+    /// their node counts.
+    pub plan_submissions: u64,
     pub tile_rounds: u64,
     /// GPU backend: batches it traced on the CPU backend instead (a GPU error, logged; or a
     /// foreign source its resolve has no kernel for).
@@ -110,6 +113,7 @@ impl PassStats {
         self.unresolved_pixels += o.unresolved_pixels;
         self.redone_batches += o.redone_batches;
         self.saturated_sums += o.saturated_sums;
+        self.plan_submissions += o.plan_submissions;
         self.tile_rounds += o.tile_rounds;
         self.cpu_fallback_batches += o.cpu_fallback_batches;
     }

@@ -1,14 +1,17 @@
 //! The GPU bundle backend: the 2013 paper's method on wgpu, behind [`BundleBackend`].
 //!
-//! Per direction of a batch:
-//! 1. one submission: analysis raster ([`super::bundle_analysis`]), mips
-//!    ([`super::bundle_mips`]), Program 1 ([`super::bundle_tiles`]); the plan is read back
-//!    (a few KB);
-//! 2. all planned tiles in one submission: per tile the linked-list build
-//!    ([`super::bundle_lists`]), a copy of its node counter into its slot, and the resolve
-//!    ([`super::bundle_resolve`]), which does nothing when the counter says the lists
-//!    overflowed. The host reads the counts once; overflowed tiles are split, as on the
-//!    CPU, and their parts redone in a further submission (rare: a round is one read-back).
+//! Per batch of directions:
+//! 1. one submission for every direction: analysis raster ([`super::bundle_analysis`]),
+//!    mips ([`super::bundle_mips`]), Program 1 ([`super::bundle_tiles`]), each direction
+//!    into plan buffers of its own; the plans are read back (a few KB each);
+//! 2. all planned tiles of all the directions in one submission: per tile the linked-list
+//!    build ([`super::bundle_lists`]), a copy of its node counter into its slot, and the
+//!    resolve ([`super::bundle_resolve`]), which does nothing when the counter says the
+//!    lists overflowed. The host reads the counts once; overflowed tiles are split, as on
+//!    the CPU, and their parts redone in a further such round.
+//!
+//! No read-back happens inside a direction. (A batch whose plan buffers would exceed
+//! `PLAN_BUFFER_BUDGET` is cut into parts that go through 1–2 each.)
 //!
 //! The per-texel sums stay on the GPU for the whole batch and are read back once.
 //!
@@ -34,7 +37,7 @@ use super::bundle_analysis::{AnalysisPass, Drawn, DrawnIds, GpuTriangles};
 use super::bundle_lists::{ListBuffers, ListError, ListPass};
 use super::bundle_mips::{AnalysisMaps, MipPass};
 use super::bundle_resolve::{FixedPoint, Rectangle, ResolvePass, ResolveStatus, SceneSides, TargetBuffers};
-use super::bundle_tiles::{TileBuffers, TilePass};
+use super::bundle_tiles::{TileBuffers, TilePass, read_plans};
 use super::device::GpuContext;
 use super::surface_radiance::ForeignRadiance;
 use crate::bundle::progressive::BatchSums;
@@ -93,9 +96,16 @@ impl TargetKey {
     }
 }
 
-/// Analysis maps and plan buffers of one analysis resolution.
+/// Most bytes of plan buffers a submission's directions may hold (see
+/// `GpuBundleBackend::directions_per_submission`): at the default analysis resolution
+/// (128) that is 157 directions, more than a batch.
+const PLAN_BUFFER_BUDGET: u64 = 64 << 20;
+
+/// Analysis maps and plan buffers of one analysis resolution, for the `slot`-th direction
+/// of a submission.
 struct PlanBuffers {
     res: u32,
+    slot: usize,
     maps: AnalysisMaps,
     tiles: TileBuffers,
 }
@@ -205,14 +215,27 @@ impl GpuBundleBackend {
         self.triangles.set_importance(&self.gpu, &self.importance);
     }
 
-    fn plan_buffers(&mut self, res: u32) -> Result<usize, GpuError> {
-        if let Some(i) = self.plans.iter().position(|p| p.res == res) {
+    /// The plan buffers at analysis resolution `res` of the `slot`-th direction of a
+    /// submission (made on first use, then reused).
+    fn plan_buffers(&mut self, res: u32, slot: usize) -> Result<usize, GpuError> {
+        if let Some(i) = self.plans.iter().position(|p| p.res == res && p.slot == slot) {
             return Ok(i);
         }
         let maps = AnalysisMaps::new(&self.gpu, res)?;
         let tiles = self.planner.buffers(&self.gpu, res);
-        self.plans.push(PlanBuffers { res, maps, tiles });
+        self.plans.push(PlanBuffers { res, slot, maps, tiles });
         Ok(self.plans.len() - 1)
+    }
+
+    /// Directions planned in one submission: as many as keep their plan buffers (analysis
+    /// maps and tile list, each direction its own) within [`PLAN_BUFFER_BUDGET`] at the
+    /// largest analysis resolution.
+    fn directions_per_submission(&self) -> usize {
+        let res = self.scene.bundle.config.analysis_res as u64;
+        // Maps: importance and fragment count with their mips (4/3 of the finest level);
+        // the tile list: a `PlannedTile` (16 bytes) per finest pixel.
+        let per_direction = res * res * (2 * 4 * 4 / 3 + 16);
+        (PLAN_BUFFER_BUDGET / per_direction.max(1)).max(1) as usize
     }
 
     /// The global bundles of `batch` into `sums.bundle` (sized and zeroed by the caller);
@@ -269,8 +292,8 @@ impl GpuBundleBackend {
         for attempt in 0..2u64 {
             buffers.start_batch(&self.gpu, source.own);
             let mut stats = PassStats::default();
-            for job in batch {
-                self.trace_direction(target, job, buffers, foreign, scales, &mut stats, cancel)?;
+            for jobs in batch.chunks(self.directions_per_submission()) {
+                self.trace_directions(target, jobs, buffers, foreign, scales, &mut stats, cancel)?;
             }
             let status: ResolveStatus = buffers.read(&self.gpu, scales, &mut sums.bundle)?;
             self.gpu.take_error()?;
@@ -293,10 +316,10 @@ impl GpuBundleBackend {
     }
 
     #[allow(clippy::too_many_arguments)]
-    fn trace_direction(
+    fn trace_directions(
         &mut self,
         target: &BakeTarget,
-        job: &DirectionJob,
+        jobs: &[DirectionJob],
         buffers: &TargetBuffers,
         foreign: bool,
         scales: FixedPoint,
@@ -306,73 +329,89 @@ impl GpuBundleBackend {
         let scene = self.scene.clone();
         let bundle = &scene.bundle;
         let cfg = &bundle.config;
-        let frame = BundleFrame::new(job.dir);
         let window = WindowSource {
             target: target.window,
             centre: scene.centre,
             radius: scene.radius,
             bundle_pixel: bundle.light_pixel(target.lod),
         };
-        let global = window.analysis_viewport(cfg, &frame, job.jitter);
         let gpu = self.gpu.clone();
 
+        // The plans of all `jobs` in one submission (each direction its own maps and plan
+        // buffers), read back after it.
         let t = Instant::now();
-        let ids = match target.window {
-            None => None,
-            Some(_) => {
-                let side = global.pixel * global.width as f32;
-                let (stack, out) = (&mut self.bounds_stack, &mut self.window_triangles);
-                scene.bounds.overlapping(&frame, global.origin, side, stack, out);
-                Some(DrawnIds::new(&gpu, out))
-            }
-        };
-        let drawn = ids.as_ref().map_or(Drawn::All, Drawn::Uploaded);
-        let p = self.plan_buffers(global.width)?;
         let mut encoder = gpu.device.create_command_encoder(&Default::default());
-        let plan_buffers = &mut self.plans[p];
-        self.analysis.encode(&gpu, &mut encoder, &self.triangles, drawn, &frame, &global, &plan_buffers.maps);
-        if self.phase_timing {
-            submit_and_wait(&gpu, encoder)?;
-            stats.analysis_seconds += seconds(t);
-            encoder = gpu.device.create_command_encoder(&Default::default());
-        }
-        let t = Instant::now();
-        self.mips.encode(&gpu, &mut encoder, &mut plan_buffers.maps, true);
-        if self.phase_timing {
-            submit_and_wait(&gpu, encoder)?;
-            stats.mip_seconds += seconds(t);
-            encoder = gpu.device.create_command_encoder(&Default::default());
-        }
-        let t = Instant::now();
-        let params = TileParams {
-            w: cfg.head_side,
-            n: cfg.node_capacity,
-            alpha: cfg.alpha,
-            pixel_area: (global.pixel as f64).powi(2),
-        };
-        self.planner.encode(&gpu, &mut encoder, &plan_buffers.maps, &params, &plan_buffers.tiles);
-        gpu.queue.submit([encoder.finish()]);
-        let plan = match plan_buffers.tiles.read(&gpu) {
-            Ok(plan) => plan,
-            Err(e) => {
-                unplanned(stats, &e);
-                return Ok(());
+        let mut directions = Vec::with_capacity(jobs.len());
+        // Each window's triangle ids stay alive until the submission.
+        let mut window_ids = Vec::with_capacity(jobs.len());
+        for (slot, job) in jobs.iter().enumerate() {
+            let t = Instant::now();
+            let frame = BundleFrame::new(job.dir);
+            let global = window.analysis_viewport(cfg, &frame, job.jitter);
+            window_ids.push(match target.window {
+                None => None,
+                Some(_) => {
+                    let side = global.pixel * global.width as f32;
+                    let (stack, out) = (&mut self.bounds_stack, &mut self.window_triangles);
+                    scene.bounds.overlapping(&frame, global.origin, side, stack, out);
+                    Some(DrawnIds::new(&gpu, out))
+                }
+            });
+            let drawn = window_ids[slot].as_ref().map_or(Drawn::All, Drawn::Uploaded);
+            let p = self.plan_buffers(global.width, slot)?;
+            let plan_buffers = &mut self.plans[p];
+            self.analysis.encode(&gpu, &mut encoder, &self.triangles, drawn, &frame, &global, &plan_buffers.maps);
+            if self.phase_timing {
+                submit_and_wait(&gpu, encoder)?;
+                stats.analysis_seconds += seconds(t);
+                encoder = gpu.device.create_command_encoder(&Default::default());
             }
-        };
+            let t = Instant::now();
+            self.mips.encode(&gpu, &mut encoder, &mut plan_buffers.maps, true);
+            if self.phase_timing {
+                submit_and_wait(&gpu, encoder)?;
+                stats.mip_seconds += seconds(t);
+                encoder = gpu.device.create_command_encoder(&Default::default());
+            }
+            let t = Instant::now();
+            let params = TileParams {
+                w: cfg.head_side,
+                n: cfg.node_capacity,
+                alpha: cfg.alpha,
+                pixel_area: (global.pixel as f64).powi(2),
+            };
+            self.planner.encode(&gpu, &mut encoder, &plan_buffers.maps, &params, &plan_buffers.tiles);
+            if self.phase_timing {
+                submit_and_wait(&gpu, encoder)?;
+                stats.subdivision_seconds += seconds(t);
+                encoder = gpu.device.create_command_encoder(&Default::default());
+            }
+            directions.push((frame, global, p));
+        }
+        gpu.queue.submit([encoder.finish()]);
+        let plan_buffers: Vec<&TileBuffers> = directions.iter().map(|(_, _, p)| &self.plans[*p].tiles).collect();
+        let plans = read_plans(&gpu, &plan_buffers)?;
+        let mut round: Vec<(usize, Viewport)> = Vec::new();
+        for (d, ((_, global, _), plan)) in directions.iter().zip(plans).enumerate() {
+            match plan {
+                Ok(plan) => {
+                    stats.add_plan(&plan.stats);
+                    round.extend(plan.tiles.iter().map(|tile| (d, tile_viewport(global, tile))));
+                }
+                Err(e) => unplanned(stats, &e),
+            }
+        }
         // Without phase timing, the one submission's time is the analysis's.
-        if self.phase_timing {
-            stats.subdivision_seconds += seconds(t);
-        } else {
+        if !self.phase_timing {
             stats.analysis_seconds += seconds(t);
         }
-        stats.add_plan(&plan.stats);
+        stats.plan_submissions += 1;
 
-        // The planned tiles in one submission: per tile the list build, a copy of its node
-        // count into its slot and the resolve (which does nothing when the count says the
-        // lists overflowed); the counts are read back once. Overflowed tiles are split, and
-        // their parts make the next round.
+        // The planned tiles of all the directions in one submission: per tile the list
+        // build, a copy of its node count into its slot and the resolve (which does nothing
+        // when the count says the lists overflowed); the counts are read back once.
+        // Overflowed tiles are split, and their parts make the next round.
         let capacity = cfg.node_capacity;
-        let mut round: Vec<Viewport> = plan.tiles.iter().map(|tile| tile_viewport(&global, tile)).collect();
         while !round.is_empty() {
             let counts = self.tile_counts.slots(&gpu, round.len());
             // Phase timing: the current tile's build; otherwise the whole round.
@@ -380,7 +419,8 @@ impl GpuBundleBackend {
             let mut encoder = gpu.device.create_command_encoder(&Default::default());
             // Each tile's triangle ids stay alive until the submission.
             let mut drawn_ids = Vec::with_capacity(round.len());
-            for (slot, vp) in round.iter().enumerate() {
+            for (slot, (d, vp)) in round.iter().enumerate() {
+                let frame = &directions[*d].0;
                 if cancel.load(Ordering::Relaxed) {
                     return Err(BatchError::Cancelled);
                 }
@@ -388,13 +428,13 @@ impl GpuBundleBackend {
                 // CPU gathers a tile's candidates): a whole-scene window would draw them all.
                 let side = vp.width.max(vp.height) as f32 * vp.pixel;
                 let (stack, out) = (&mut self.bounds_stack, &mut self.tile_triangles);
-                scene.bounds.overlapping(&frame, vp.corner(), side, stack, out);
+                scene.bounds.overlapping(frame, vp.corner(), side, stack, out);
                 drawn_ids.push(DrawnIds::new(&gpu, out));
                 let tile_drawn = Drawn::Uploaded(&drawn_ids[slot]);
-                self.lists.encode(&gpu, &mut encoder, &self.triangles, tile_drawn, &frame, vp, &self.list_buffers);
+                self.lists.encode(&gpu, &mut encoder, &self.triangles, tile_drawn, frame, vp, &self.list_buffers);
                 self.list_buffers.encode_count_copy(&mut encoder, counts, 4 * slot as u64);
                 let rect = Rectangle {
-                    frame: &frame,
+                    frame,
                     viewport: vp,
                     coincidence: scene.coincidence_at(vp.pixel),
                     sky: bundle.scene.sky,
@@ -423,8 +463,10 @@ impl GpuBundleBackend {
                 stats.build_seconds += seconds(t);
             }
             let mut next = Vec::new();
-            for (vp, &count) in round.iter().zip(&counts) {
-                if count > capacity && split_overflowed(vp, count, capacity, &mut next, stats) {
+            let mut parts = Vec::new();
+            for (&(d, vp), &count) in round.iter().zip(&counts) {
+                if count > capacity && split_overflowed(&vp, count, capacity, &mut parts, stats) {
+                    next.extend(parts.drain(..).map(|part| (d, part)));
                     continue;
                 }
                 stats.tiles += 1;
@@ -434,7 +476,7 @@ impl GpuBundleBackend {
             stats.tile_rounds += 1;
             round = next;
         }
-        stats.directions += 1;
+        stats.directions += jobs.len() as u64;
         Ok(())
     }
 }
@@ -719,7 +761,7 @@ mod tests {
 
     /// Tiles that overflow the node buffer: with a small buffer planned to its full size
     /// (alpha 1, so the planner's estimate often falls short), tiles overflow; their parts
-    /// are built and resolved in further submissions of the direction (rounds), and the
+    /// are built and resolved in further submissions of the batch (rounds), and the
     /// sums are still the CPU backend's within the summation bound (which splits the same
     /// tiles the same way).
     #[test]
@@ -741,7 +783,7 @@ mod tests {
         assert!(stats.overflowed_tiles > 0, "no tile overflowed: the test tests nothing");
         assert_eq!(stats.overflowed_tiles, cpu_stats.overflowed_tiles);
         assert_eq!(stats.tiles, cpu_stats.tiles);
-        assert!(stats.tile_rounds > stats.directions, "overflowed parts make further rounds");
+        assert!(stats.tile_rounds >= 2, "overflowed parts make further rounds");
         assert_eq!((stats.cpu_fallback_batches, stats.saturated_sums), (0, 0));
         let (worst, beyond) = compare(&cpu, &gpu, summation_bound(&scene, 2));
         assert_eq!(beyond, 0, "worst {worst:e}");

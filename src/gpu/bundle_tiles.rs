@@ -145,50 +145,82 @@ impl TilePass {
 impl TileBuffers {
     /// Reads the plan back, tiles in Morton order (as `TilePlanner` returns them).
     pub fn read(&self, gpu: &GpuContext) -> Result<TilePlan, GpuError> {
-        let device = &gpu.device;
-        let staging = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("bundle counters read-back"),
-            size: 4 * COUNTERS,
+        read_plans(gpu, &[self])?.pop().expect("one plan read")
+    }
+}
+
+/// Reads back the plans of several directions planned in one submission: their counters in
+/// one copy and one wait, then their tiles in another (Morton order, as `TilePlanner`
+/// returns them). A plan that overran its buffer is an error of its own.
+pub fn read_plans(gpu: &GpuContext, plans: &[&TileBuffers]) -> Result<Vec<Result<TilePlan, GpuError>>, GpuError> {
+    let device = &gpu.device;
+    let staging = |label, size: u64| {
+        device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: size.max(4),
             usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
             mapped_at_creation: false,
-        });
-        let mut encoder = device.create_command_encoder(&Default::default());
-        encoder.copy_buffer_to_buffer(&self.counters, 0, &staging, 0, 4 * COUNTERS);
-        gpu.queue.submit([encoder.finish()]);
-        let counters: Vec<u32> = bytemuck::cast_slice(&gpu.read_buffer(&staging, 4 * COUNTERS)?).to_vec();
-        let count = counters[0];
-        if count > self.capacity {
-            return Err(GpuError::Validation(format!("{count} tiles planned for a buffer of {}", self.capacity)));
-        }
-        let mut tiles = Vec::with_capacity(count as usize);
-        if count > 0 {
-            let bytes = count as u64 * size_of::<PlannedTile>() as u64;
-            let staging = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("bundle tiles read-back"),
-                size: bytes,
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-                mapped_at_creation: false,
-            });
-            let mut encoder = device.create_command_encoder(&Default::default());
-            encoder.copy_buffer_to_buffer(&self.tiles, 0, &staging, 0, bytes);
-            gpu.queue.submit([encoder.finish()]);
-            let data = gpu.read_buffer(&staging, bytes)?;
-            tiles.extend(bytemuck::cast_slice::<u8, PlannedTile>(&data).iter().map(|t| Tile {
-                level: t.level as i32,
-                x: t.x,
-                y: t.y,
-                res: t.res,
-            }));
-        }
-        tiles.sort_by_key(Tile::morton_key);
-        let stats = PlanStats {
-            tiles: tiles.len(),
-            splits_for_importance: counters[1] as usize,
-            splits_for_memory: counters[2] as usize,
-            undersampled_tiles: counters[3] as usize,
-        };
-        Ok(TilePlan { tiles, stats })
+        })
+    };
+    let counter_bytes = 4 * COUNTERS;
+    let all_counters = staging("bundle counters read-back", counter_bytes * plans.len() as u64);
+    let mut encoder = device.create_command_encoder(&Default::default());
+    for (i, plan) in plans.iter().enumerate() {
+        encoder.copy_buffer_to_buffer(&plan.counters, 0, &all_counters, i as u64 * counter_bytes, counter_bytes);
     }
+    gpu.queue.submit([encoder.finish()]);
+    let bytes = gpu.read_buffer(&all_counters, counter_bytes * plans.len() as u64)?;
+    let words: Vec<u32> = bytes.chunks_exact(4).map(|w| u32::from_le_bytes([w[0], w[1], w[2], w[3]])).collect();
+    let counters: Vec<&[u32]> = words.chunks_exact(COUNTERS as usize).collect();
+    // Where each plan's tiles go in one staging buffer (none for an overrun or empty plan).
+    let tile_bytes = size_of::<PlannedTile>() as u64;
+    let mut offsets = Vec::with_capacity(plans.len());
+    let mut total = 0u64;
+    for (plan, c) in plans.iter().zip(&counters) {
+        offsets.push(total);
+        if c[0] <= plan.capacity {
+            total += c[0] as u64 * tile_bytes;
+        }
+    }
+    let mut data = Vec::new();
+    if total > 0 {
+        let all_tiles = staging("bundle tiles read-back", total);
+        let mut encoder = device.create_command_encoder(&Default::default());
+        for ((plan, c), &offset) in plans.iter().zip(&counters).zip(&offsets) {
+            if c[0] <= plan.capacity && c[0] > 0 {
+                encoder.copy_buffer_to_buffer(&plan.tiles, 0, &all_tiles, offset, c[0] as u64 * tile_bytes);
+            }
+        }
+        gpu.queue.submit([encoder.finish()]);
+        data = gpu.read_buffer(&all_tiles, total)?;
+    }
+    Ok(plans
+        .iter()
+        .zip(&counters)
+        .zip(&offsets)
+        .map(|((plan, c), &offset)| {
+            let count = c[0];
+            if count > plan.capacity {
+                return Err(GpuError::Validation(format!("{count} tiles planned for a buffer of {}", plan.capacity)));
+            }
+            let bytes = &data[offset as usize..(offset + count as u64 * tile_bytes) as usize];
+            let mut tiles: Vec<Tile> = bytes
+                .chunks_exact(tile_bytes as usize)
+                .map(|t| {
+                    let t: PlannedTile = bytemuck::pod_read_unaligned(t);
+                    Tile { level: t.level as i32, x: t.x, y: t.y, res: t.res }
+                })
+                .collect();
+            tiles.sort_by_key(Tile::morton_key);
+            let stats = PlanStats {
+                tiles: tiles.len(),
+                splits_for_importance: c[1] as usize,
+                splits_for_memory: c[2] as usize,
+                undersampled_tiles: c[3] as usize,
+            };
+            Ok(TilePlan { tiles, stats })
+        })
+        .collect())
 }
 
 #[cfg(test)]

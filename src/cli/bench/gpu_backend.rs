@@ -104,13 +104,15 @@ fn one(name: &str, scene: Arc<Scene>, directions: u64, runs: usize, gpu: &GpuCon
         },
         "gpu_over_cpu_wall": gpu_wall / cpu_wall,
         "target_gpu_over_cpu_wall": 3.0,
-        "pass_structure_per_direction": {
-            // One submission for analysis + mips + Program 1 and the plan's read-back, then one
-            // submission of the tiles and one read-back of their counts per round (the planned
-            // tiles; the parts of overflowed ones).
-            "submissions": 1.0 + per_direction(gpu_stats.tile_rounds),
-            "read_backs": 1.0 + per_direction(gpu_stats.tile_rounds),
-            "tiles": per_direction(gpu_stats.tiles),
+        "pass_structure_per_batch": {
+            // One submission for every direction's analysis + mips + Program 1, then two
+            // read-backs of the plans (all counters, then all tiles); then one submission of
+            // the tiles and one read-back of their counts per round (the planned tiles; the
+            // parts of overflowed ones); and the sums' read-back.
+            "directions": gpu_stats.directions,
+            "submissions": gpu_stats.plan_submissions + gpu_stats.tile_rounds,
+            "read_backs": 2 * gpu_stats.plan_submissions + gpu_stats.tile_rounds + 1,
+            "tiles_per_direction": per_direction(gpu_stats.tiles),
             "read_back_bytes_per_batch": 32 * texels.len() as u64 + 20,
         },
         "adapter": gpu.info.name,
