@@ -465,11 +465,15 @@ fn run_streams_events_and_writes_what_it_showed() {
         assert!(c["bounds"]["min"].as_array().unwrap().len() == 3 && c["shown_lod"].as_u64().is_some(), "{c}");
     }
     // Cells published (a cell may be published more than once: early at a finer level, then
-    // again as that level refines in place, see README "Refinement near the camera").
+    // again as that level refines in place, see README "Refinement near the camera"). Every
+    // one shows in the cell table (no eviction at this size). The table may show more: a
+    // publish emits its event just after it changes the map, so one that lands as the run
+    // takes its final snapshot is in the table while its event comes too late for the log.
     let published: std::collections::BTreeSet<u64> =
         events.iter().filter(|e| e["event"] == "cell_published").map(|e| e["cell"].as_u64().unwrap()).collect();
-    let refined = list.iter().filter(|c| c["shown_lod"].as_u64().unwrap() > 0).count();
-    assert_eq!(refined, published.len(), "every published cell shows in the cell table (no eviction at this size)");
+    let refined: std::collections::BTreeSet<u64> =
+        list.iter().filter(|c| c["shown_lod"].as_u64().unwrap() > 0).map(|c| c["cell"].as_u64().unwrap()).collect();
+    assert!(published.is_subset(&refined), "published cells not shown: {:?}", published.difference(&refined));
     let report = read_json(&out.join("report.json"));
     assert!(
         report["first_light_seconds"].as_f64().unwrap() > 0.0

@@ -335,6 +335,11 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         }
     }
     ui.end_phase();
+    // The events already sent go into the log before the final snapshot, so that it names
+    // what the snapshot shows (all but a publish landing at that very moment).
+    while let Ok(TimedEvent { t, event }) = runtime.events().try_recv() {
+        log.write(t, &event)?;
+    }
     // One moment's map and cell table: a publish between two reads would make cells.json
     // name LODs the written map does not show.
     let (shown, cells) = runtime.snapshot();
