@@ -142,6 +142,17 @@ pub enum BundleConfigError {
 pub const MIN_BATCHES: u32 = 32;
 
 impl BundleConfig {
+    /// Program 1's parameters for an analysis window of `pixel`-metre pixels (both backends
+    /// plan with these).
+    pub fn tile_params(&self, pixel: f32) -> tiles::TileParams {
+        tiles::TileParams {
+            w: self.head_side,
+            n: self.node_capacity,
+            alpha: self.alpha,
+            pixel_area: (pixel as f64).powi(2),
+        }
+    }
+
     /// Directions per batch for this bake: at most `directions_per_batch`, fewer if that
     /// leaves under [`MIN_BATCHES`] batches, but never fewer than one per lane.
     pub fn batch_size(&self) -> u32 {

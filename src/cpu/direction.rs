@@ -16,7 +16,7 @@ use crate::bundle::progressive::BatchSums;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
 use crate::bundle::target::{BakeTarget, Cancelled, SourceRadiance};
-use crate::bundle::tiles::{Tile, TileParams, TilePlanner, TilingMode, bundle_resolution};
+use crate::bundle::tiles::{Tile, TilePlanner, TilingMode, bundle_resolution};
 use crate::bundle::window::{WindowSource, split_overflowed, tile_viewport, unplanned};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
 use crate::scene::Rgb;
@@ -196,12 +196,7 @@ fn trace_global(
     };
 
     let t = Instant::now();
-    let params = TileParams {
-        w: cfg.head_side,
-        n: cfg.node_capacity,
-        alpha: cfg.alpha,
-        pixel_area: (global.pixel as f64).powi(2),
-    };
+    let params = cfg.tile_params(global.pixel);
     let planned =
         TilePlanner::new(&importance, &fragments, params).and_then(|p| p.plan(cfg.tiling).map(|plan| (p, plan)));
     let (planner, plan) = match planned {

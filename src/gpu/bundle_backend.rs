@@ -44,7 +44,7 @@ use crate::bundle::progressive::BatchSums;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
 use crate::bundle::target::{BackendError, BackendProvider, BakeTarget, BundleScene, Cancelled, SourceRadiance};
-use crate::bundle::tiles::{TileParams, TilingMode};
+use crate::bundle::tiles::TilingMode;
 use crate::bundle::window::{WindowSource, split_overflowed, tile_viewport, unplanned};
 use crate::bundle::{BundleBackend, DirectionJob};
 use crate::cpu::{CpuBundleBackend, CpuProvider, CpuScene};
@@ -374,12 +374,7 @@ impl GpuBundleBackend {
                 encoder = gpu.device.create_command_encoder(&Default::default());
             }
             let t = Instant::now();
-            let params = TileParams {
-                w: cfg.head_side,
-                n: cfg.node_capacity,
-                alpha: cfg.alpha,
-                pixel_area: (global.pixel as f64).powi(2),
-            };
+            let params = cfg.tile_params(global.pixel);
             self.planner.encode(&gpu, &mut encoder, &plan_buffers.maps, &params, &plan_buffers.tiles);
             if self.phase_timing {
                 submit_and_wait(&gpu, encoder)?;
