@@ -63,6 +63,7 @@ fn check_coverage(scene: &Scene, out: &BakeOutput) {
 
     for lod in &out.lods {
         let tm: &TexelMap = &lod.texels;
+        let slot = tm.slots();
         let k = tm.lod;
         assert_eq!((tm.width, tm.height), (atlas.width << k, atlas.height << k));
         let w = tm.width as i64;
@@ -76,7 +77,7 @@ fn check_coverage(scene: &Scene, out: &BakeOutput) {
         }
         // Pixels each chart's faces touch: never two charts in one pixel.
         let window = PixelRect::new(0, 0, w, tm.height as i64);
-        let mut chart_at = vec![u32::MAX; tm.slot.len()];
+        let mut chart_at = vec![u32::MAX; slot.len()];
         for (fi, face) in atlas.faces.iter().enumerate() {
             let chart = &atlas.charts[face.chart as usize];
             let px = raster::conservative_pixels(&face.uv_lod(k), window);
@@ -94,7 +95,7 @@ fn check_coverage(scene: &Scene, out: &BakeOutput) {
                 chart_at[i] = face.chart;
                 // What the face covers holds texels of its own chart.
                 if interior.contains(x, y) {
-                    let t = tm.slot[i];
+                    let t = slot[i];
                     assert_ne!(t, NO_TEXEL, "face {fi} lost pixel ({x},{y}) at LOD {k}");
                     assert_eq!(chart_of_texel(t), face.chart, "pixel ({x},{y}) at LOD {k}: texel of another chart");
                 }
@@ -117,13 +118,13 @@ fn check_coverage(scene: &Scene, out: &BakeOutput) {
         // Gutter pixels: empty, claimed by no other chart, and every texel around them
         // belongs to the chart of the texel they copy.
         for &(p, t) in &tm.gutter {
-            assert_eq!(tm.slot[p as usize], NO_TEXEL);
+            assert_eq!(slot[p as usize], NO_TEXEL);
             let c = chart_of_texel(t);
             assert!(chart_at[p as usize] == u32::MAX || chart_at[p as usize] == c, "gutter pixel {p} at LOD {k}");
             let (x, y) = (p as i64 % w, p as i64 / w);
             for yy in (y - 1).max(0)..=(y + 1).min(tm.height as i64 - 1) {
                 for xx in (x - 1).max(0)..=(x + 1).min(w - 1) {
-                    let n = tm.slot[(yy * w + xx) as usize];
+                    let n = slot[(yy * w + xx) as usize];
                     assert!(n == NO_TEXEL || chart_of_texel(n) == c, "gutter ({x},{y}) at LOD {k} next to two charts");
                 }
             }

@@ -267,7 +267,7 @@ impl SparseTexels {
             position: &self.position,
             normal: &self.normal,
             albedo: &self.albedo,
-            emission: &self.emission,
+            emission: super::texels::TexelEmission::Dense(&self.emission),
             area: &self.area,
         }
     }

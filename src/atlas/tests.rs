@@ -82,6 +82,7 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
     let mut maps = Vec::new();
     for lod in 0..=max_lod {
         let tm = TexelMap::build(scene, &g, atlas, lod);
+        let slot = tm.slots();
         let s = (1u32 << lod) as f64;
         let w = tm.width as i64;
         assert_eq!((tm.width, tm.height), (atlas.width << lod, atlas.height << lod));
@@ -91,18 +92,18 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
         }
         // Texels in block order over the whole map (bands hold whole blocks), slot consistent.
         let covered = texels::block_order(tm.width as usize, tm.height as usize)
-            .filter(|&p| tm.slot[p] != texels::NO_TEXEL)
+            .filter(|&p| slot[p] != texels::NO_TEXEL)
             .map(|p| p as u32);
         assert!(covered.eq(tm.pixel.iter().copied()));
         for (t, &p) in tm.pixel.iter().enumerate() {
-            assert_eq!(tm.slot[p as usize], t as u32);
+            assert_eq!(slot[p as usize], t as u32);
         }
-        assert_eq!(tm.slot.iter().filter(|&&s| s != texels::NO_TEXEL).count(), tm.len());
+        assert_eq!(slot.iter().filter(|&&s| s != texels::NO_TEXEL).count(), tm.len());
         // Independent conservative raster over the whole atlas (no clipping to the chart):
         // no pixel is touched by two charts, every touched pixel holds a texel of the
         // face's chart, and at LOD 0 nothing reaches a chart's border.
         let window = PixelRect::new(0, 0, tm.width as i64, tm.height as i64);
-        let mut chart_at: Vec<u32> = vec![u32::MAX; tm.slot.len()];
+        let mut chart_at: Vec<u32> = vec![u32::MAX; slot.len()];
         let mut owned = vec![0u32; atlas.faces.len()];
         for &f in &tm.face {
             owned[f as usize] += 1;
@@ -125,7 +126,7 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
                 );
                 chart_at[i] = face.chart;
                 if interior.contains(x, y) {
-                    let t = tm.slot[i];
+                    let t = slot[i];
                     assert_ne!(t, texels::NO_TEXEL, "face {fi} lost pixel ({x},{y}) at LOD {lod}");
                     assert_eq!(atlas.faces[tm.face[t as usize] as usize].chart, face.chart);
                 }
@@ -136,7 +137,7 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
         }
         // No two faces of a chart overlap: every pixel centre lies in at most one face of
         // each chart (top-left rule: a centre on a shared edge belongs to one side).
-        let mut centre_of: Vec<u32> = vec![u32::MAX; tm.slot.len()];
+        let mut centre_of: Vec<u32> = vec![u32::MAX; slot.len()];
         for (fi, face) in atlas.faces.iter().enumerate() {
             raster::centres_inside(&face.uv_lod(lod), window, |x, y| {
                 let c = &mut centre_of[(y * w + x) as usize];
@@ -166,9 +167,9 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
         // Gutters: empty pixels next to a texel, copying a neighbouring texel of the only
         // chart around; every empty 8-neighbour of a texel is a gutter pixel.
         let chart_of_texel = |t: u32| atlas.faces[tm.face[t as usize] as usize].chart;
-        let mut is_gutter = vec![false; tm.slot.len()];
+        let mut is_gutter = vec![false; slot.len()];
         for &(p, t) in &tm.gutter {
-            assert_eq!(tm.slot[p as usize], texels::NO_TEXEL);
+            assert_eq!(slot[p as usize], texels::NO_TEXEL);
             is_gutter[p as usize] = true;
             let (x, y) = ((p as i64) % w, (p as i64) / w);
             let (tx, ty) = ((tm.pixel[t as usize] as i64) % w, (tm.pixel[t as usize] as i64) / w);
@@ -177,7 +178,7 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
             assert!(atlas.charts[c as usize].rect(lod).contains(x, y), "gutter pixel outside its chart's rectangle");
             for yy in (y - 1).max(0)..=(y + 1).min(tm.height as i64 - 1) {
                 for xx in (x - 1).max(0)..=(x + 1).min(w - 1) {
-                    let n = tm.slot[(yy * w + xx) as usize];
+                    let n = slot[(yy * w + xx) as usize];
                     assert!(
                         n == texels::NO_TEXEL || chart_of_texel(n) == c,
                         "gutter ({x},{y}) LOD {lod} next to two charts"
@@ -190,7 +191,7 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
             for yy in (y - 1).max(0)..=(y + 1).min(tm.height as i64 - 1) {
                 for xx in (x - 1).max(0)..=(x + 1).min(w - 1) {
                     let i = (yy * w + xx) as usize;
-                    assert!(tm.slot[i] != texels::NO_TEXEL || is_gutter[i]);
+                    assert!(slot[i] != texels::NO_TEXEL || is_gutter[i]);
                 }
             }
         }
@@ -585,7 +586,7 @@ fn builds_are_deterministic() {
         assert_eq!((c1.rect_min, c1.rect_size, &c1.faces), (c2.rect_min, c2.rect_size, &c2.faces));
     }
     let (t1, t2) = (TexelMap::build(&s, &g, &a1, 1), TexelMap::build(&s, &g, &a2, 1));
-    assert_eq!((&t1.slot, &t1.face, &t1.gutter), (&t2.slot, &t2.face, &t2.gutter));
+    assert_eq!((&t1.pixel, &t1.face, &t1.gutter), (&t2.pixel, &t2.face, &t2.gutter));
     assert!(
         t1.position
             .iter()

@@ -2,7 +2,7 @@
 //! for.
 
 use crate::parallel::par_for_each;
-use glam::{DVec2, Vec2, Vec3};
+use glam::{DVec2, Vec3};
 
 use super::raster::{self, PixelRect};
 use super::{Atlas, FaceId};
@@ -18,8 +18,6 @@ pub struct TexelMap {
     pub lod: u32,
     pub width: u32,
     pub height: u32,
-    /// Per atlas pixel (row-major): index of its texel, or [`NO_TEXEL`].
-    pub slot: Vec<u32>,
     /// Per texel: its pixel index (`y · width + x`).
     pub pixel: Vec<u32>,
     /// Per texel: the face whose surface point it holds.
@@ -137,7 +135,6 @@ impl TexelMap {
             lod,
             width,
             height,
-            slot: Vec::new(),
             pixel: vec![0; total],
             face: vec![0; total],
             position: vec![Vec3::ZERO; total],
@@ -225,7 +222,6 @@ impl TexelMap {
             });
         }
         map.gutter = gutters.concat();
-        map.slot = slot;
         map
     }
 
@@ -238,6 +234,19 @@ impl TexelMap {
     pub fn drop_geometry(&mut self) {
         self.position = Vec::new();
         self.normal = Vec::new();
+    }
+
+    /// Gives up the dense emission (12 B a texel) for that of the emitting texels alone,
+    /// returned; [`restore_emission`](Self::restore_emission) puts it back.
+    pub fn take_emission(&mut self) -> EmittingTexels {
+        let e = EmittingTexels::from_dense(&self.emission);
+        self.emission = Vec::new();
+        e
+    }
+
+    /// Puts back the emission [`take_emission`](Self::take_emission) gave up, value for value.
+    pub fn restore_emission(&mut self, emitting: &EmittingTexels) {
+        self.emission = emitting.dense();
     }
 
     /// Recomputes the positions and normals [`drop_geometry`](Self::drop_geometry) gave up:
@@ -271,22 +280,15 @@ impl TexelMap {
         self.pixel.is_empty()
     }
 
-    /// The texel at a LOD-`self.lod` pixel coordinate, if any.
-    pub fn texel_at_pixel(&self, x: u32, y: u32) -> Option<u32> {
-        if x >= self.width || y >= self.height {
-            return None;
+    /// Per atlas pixel (row-major): the index of its texel, or [`NO_TEXEL`] (gutter pixels
+    /// too). Made on demand: the map does not keep it, since nothing reads it while a
+    /// bake or the runtime runs (4 B a pixel of every LOD held).
+    pub fn slots(&self) -> Vec<u32> {
+        let mut slot = vec![NO_TEXEL; self.width as usize * self.height as usize];
+        for (t, &p) in self.pixel.iter().enumerate() {
+            slot[p as usize] = t as u32;
         }
-        let t = self.slot[(y * self.width + x) as usize];
-        (t != NO_TEXEL).then_some(t)
-    }
-
-    /// The texel under an atlas UV given in LOD-0 texel units.
-    pub fn texel_at_uv(&self, uv_lod0: Vec2) -> Option<u32> {
-        let p = uv_lod0 * (1u32 << self.lod) as f32;
-        if p.x < 0.0 || p.y < 0.0 {
-            return None;
-        }
-        self.texel_at_pixel(p.x as u32, p.y as u32)
+        slot
     }
 
     /// Spreads per-texel `values` into a full row-major image, gutters filled from their
@@ -362,8 +364,70 @@ pub struct TexelView<'a> {
     pub position: &'a [Vec3],
     pub normal: &'a [Vec3],
     pub albedo: &'a [Rgb],
-    pub emission: &'a [Rgb],
+    pub emission: TexelEmission<'a>,
     pub area: &'a [f32],
+}
+
+/// Per texel: emitted radiance of its side, W/(sr·m²), held densely or for the emitting
+/// texels alone.
+#[derive(Clone, Copy, Debug)]
+pub enum TexelEmission<'a> {
+    /// One value per texel ([`TexelMap::emission`]).
+    Dense(&'a [Rgb]),
+    /// The emitting texels only; every other texel emits nothing.
+    Emitting(&'a EmittingTexels),
+}
+
+impl TexelEmission<'_> {
+    /// Texel `i`'s emitted radiance.
+    #[inline]
+    pub fn at(&self, i: usize) -> Rgb {
+        match self {
+            TexelEmission::Dense(e) => e[i],
+            TexelEmission::Emitting(e) => e.at(i as u32),
+        }
+    }
+}
+
+/// The emission of a texel map's emitting texels (ascending texel ids): what a bake keeps
+/// of [`TexelMap::emission`] while its bundles run, where most texels emit nothing and the
+/// dense array would be 12 B a texel at the bake's peak.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct EmittingTexels {
+    texels: usize,
+    texel: Vec<u32>,
+    radiance: Vec<Rgb>,
+}
+
+impl EmittingTexels {
+    pub fn from_dense(emission: &[Rgb]) -> Self {
+        let texel: Vec<u32> = (0..emission.len() as u32).filter(|&i| emission[i as usize] != Rgb::ZERO).collect();
+        let radiance = texel.iter().map(|&i| emission[i as usize]).collect();
+        EmittingTexels { texels: emission.len(), texel, radiance }
+    }
+
+    /// Texel `i`'s emitted radiance (zero when it emits nothing).
+    #[inline]
+    pub fn at(&self, i: u32) -> Rgb {
+        self.texel.binary_search(&i).map_or(Rgb::ZERO, |k| self.radiance[k])
+    }
+
+    /// The dense emission these were made from, value for value.
+    pub fn dense(&self) -> Vec<Rgb> {
+        let mut e = vec![Rgb::ZERO; self.texels];
+        for (&i, &r) in self.texel.iter().zip(&self.radiance) {
+            e[i as usize] = r;
+        }
+        e
+    }
+
+    pub fn len(&self) -> usize {
+        self.texel.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.texel.is_empty()
+    }
 }
 
 impl TexelView<'_> {
@@ -384,7 +448,7 @@ impl TexelMap {
             position: &self.position,
             normal: &self.normal,
             albedo: &self.albedo,
-            emission: &self.emission,
+            emission: TexelEmission::Dense(&self.emission),
             area: &self.area,
         }
     }

@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use crate::atlas::TexelMap;
 use crate::atlas::lookup::TexelTable;
-use crate::atlas::texels::TexelView;
+use crate::atlas::texels::{TexelEmission, TexelView};
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
 use crate::bundle::{
@@ -88,19 +88,15 @@ pub fn bake_lod_observed(
     observe: &mut Observer,
 ) -> Result<LodIrradiance, Cancelled> {
     let tables = [TexelTable::of_map(texels)];
-    let converged = coarser.map(|c| {
-        let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
-        let mut source = Vec::new();
-        source_from_coarser(texels, &c, &carried, &mut source);
-        source
-    });
+    let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
     let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None };
     bake_region_observed(bundle, bvh, backend, &region, converged, None, threads, progress, cancel, observe)
 }
 
 /// [`bake_lod`] holding less at its peak: the punctual pass first, then the texels'
 /// positions and normals (read by nothing else) are given up while the bundles run and
-/// recomputed at the end ([`TexelMap::restore_geometry`]: the same values). Same result.
+/// recomputed at the end ([`TexelMap::restore_geometry`]: the same values), and their
+/// emission is held for the emitting texels alone ([`TexelMap::take_emission`]). Same result.
 #[allow(clippy::too_many_arguments)]
 pub fn bake_lod_lean(
     bundle: &BundleScene,
@@ -117,16 +113,14 @@ pub fn bake_lod_lean(
         punctual_irradiance(&bundle.scene, bvh, &texels.position, &texels.normal, ray_epsilon(&bundle.scene), threads);
     let punctual = (punctual, t0.elapsed().as_secs_f64());
     texels.drop_geometry();
+    // Emission read from the coarser LOD's source before the dense array goes.
+    let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
+    let emitting = texels.take_emission();
     let result = {
         let texels = &*texels;
         let tables = [TexelTable::of_map(texels)];
-        let converged = coarser.map(|c| {
-            let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
-            let mut source = Vec::new();
-            source_from_coarser(texels, &c, &carried, &mut source);
-            source
-        });
-        let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None };
+        let view = TexelView { emission: TexelEmission::Emitting(&emitting), ..texels.view() };
+        let region = Region { texels: view, tables: &tables, window: None, foreign: None };
         let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
         bake_region_observed(
             bundle,
@@ -141,6 +135,7 @@ pub fn bake_lod_lean(
             never_stop,
         )
     };
+    texels.restore_emission(&emitting);
     texels.restore_geometry(&bundle.scene, &bundle.geom, &bundle.atlas, threads);
     result
 }
@@ -208,7 +203,7 @@ fn bake_region_observed(
     });
     stats.punctual_seconds = seconds;
 
-    let carried: Vec<bool> = texels.face.iter().map(|&f| bundle.carried(f)).collect();
+    let carried = |i: usize| bundle.carried(texels.face[i]);
     let triangles = crate::bundle::target::target_triangles(&bundle.atlas, texels.face);
     let target = BakeTarget {
         lod: texels.lod,
@@ -220,7 +215,7 @@ fn bake_region_observed(
     };
 
     let kind = if converged.is_some() { SourceKind::Converged } else { SourceKind::Progressive };
-    let mut estimate = ProgressiveEstimate::new(kind, punctual, texels.area.to_vec());
+    let mut estimate = ProgressiveEstimate::new(kind, punctual);
     let mut source = Vec::new();
     match converged {
         Some(c) => source = c,
@@ -248,7 +243,7 @@ fn bake_region_observed(
             }
         };
         stats.pass.add(&pass);
-        estimate.add_batch(&sums, count * config.light_directions as u64, threads);
+        estimate.add_batch(&sums, texels.area, count * config.light_directions as u64, threads);
         if kind == SourceKind::Progressive {
             estimate.source_radiance(texels.albedo, texels.emission, &carried, Some(&sums), threads, &mut source);
         }
@@ -283,18 +278,18 @@ pub struct LodIrradiance {
 
 /// Source radiance of a finer LOD's texels read from the converged coarser LOD: each texel
 /// takes the coarser irradiance under its centre (bilinear, gutters make that chart-safe).
-fn source_from_coarser(texels: &TexelMap, coarser: &CoarserLod, carried: &[bool], out: &mut Vec<Rgb>) {
+fn source_from_coarser(bundle: &BundleScene, texels: &TexelMap, coarser: &CoarserLod) -> Vec<Rgb> {
     let c = coarser.texels;
     let image = c.to_image(coarser.irradiance, Rgb::ZERO);
     let scale = (1u32 << texels.lod) as f32 / (1u32 << c.lod) as f32;
-    out.clear();
-    out.extend((0..texels.len()).map(|i| {
+    let carried = |i: usize| bundle.carried(texels.face[i]);
+    Vec::from_iter((0..texels.len()).map(|i| {
         let p = texels.pixel[i];
         let centre = Vec2::new((p % texels.width) as f32 + 0.5, (p / texels.width) as f32 + 0.5) / scale;
         let e = bilinear(&image, c.width, c.height, centre);
         let reflected = texels.albedo[i] * e * std::f32::consts::FRAC_1_PI;
-        if carried[i] { reflected + texels.emission[i] } else { reflected }
-    }));
+        if carried(i) { reflected + texels.emission[i] } else { reflected }
+    }))
 }
 
 fn bilinear(image: &[Rgb], w: u32, h: u32, p: Vec2) -> Rgb {

@@ -13,31 +13,33 @@
 //! | texel map: albedo, emission (2 × Vec3) | 24 |
 //! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]) | 0 |
 //! | punctual irradiance (Rgb) | 12 |
-//! | which texels the bundles carry the emission of (bool) | 1 |
-//! | progressive totals: Σw·S (DVec3) and Σw·A (f64) | 32 |
-//! | progressive totals: light-pass Σ (DVec3), only with a light pass | 24 |
-//! | the estimate's copy of the texel areas (f32) | 4 |
+//! | progressive totals: Σw·S (rgb) and Σw·A, f32 | 16 |
+//! | progressive totals: light-pass Σ a·Le/A_texel (rgb, f32), only with a light pass | 12 |
 //! | source radiance, reused for the irradiance at the end (Rgb) | 12 |
 //! | hit sums per lane, lane 0 being the batch's sums: (Σa·L, Σa) f32 × 4 | 16 L |
 //! | light-pass hit sums per lane, only with a light pass (Rgb) | 12 L |
 //!
-//! plus, per atlas pixel of that LOD, the texel map's pixel → texel slots and the blocked
-//! lookup table the bundles read (4 B each), and per gutter pixel 8 B (its pixel and source
-//! texel; the number is only known once the map is built, so a quarter of the texels is
-//! assumed: the rooms measured have 13–25%). Per lane, the fragment buffers: up to N
-//! fragments (12 B) and as many spans (12 B), and a row of W head pointers per row of W.
-//! What does not grow with the texels (scene, BVH, atlas) is already resident when the
-//! guard runs and is read from the process's resident set.
+//! plus, per atlas pixel of that LOD, the blocked lookup table the bundles read (4 B), and
+//! per gutter pixel 8 B (its pixel and source texel; the number is only known once the map
+//! is built, so a quarter of the texels is assumed: the rooms measured have 13–25%). Per
+//! lane, the fragment buffers: up to N fragments (12 B) and as many spans (12 B), and a row
+//! of W head pointers per row of W. What does not grow with the texels (scene, BVH, atlas)
+//! is already resident when the guard runs and is read from the process's resident set.
 //!
 //! Before this model (and the changes it describes), the same bake held 253 B per texel plus
 //! 8 B per pixel: the texel map whole (60), punctual (12), carried (1), totals in seven f64
 //! (56), the area copy (4), source (12), the batch's sums beside the two lanes' (3 × 28) and,
 //! at the end, the irradiance and a copy of the punctual part (24) — 265 B per texel
 //! measured (peak RSS growth) on the Van Gogh room at 1 cm (1.7 M texels, fill 0.70), with
-//! or without a light pass. Now: lane 0 accumulates into the batch's sums, light-pass sums
+//! or without a light pass. Then: lane 0 accumulates into the batch's sums, light-pass sums
 //! and totals exist only with a light pass, positions and normals are recomputed rather
 //! than held through the bundle passes, the irradiance reuses the source buffer, and the
-//! light-map images are filled straight from the texels (no full-size copy beside them).
+//! light-map images are filled straight from the texels (no full-size copy beside them):
+//! 142 B a texel (the slope of peak growth between 2 M and 4 M texels on the Van Gogh
+//! room). Now the totals are f32 (see [`crate::bundle::progressive`] for their error), the
+//! estimate reads the texel areas from the map and asks which texels the bundles carry the
+//! emission of instead of copying them, and texel maps keep no pixel → texel table (4 B a
+//! pixel, read by nothing once a map is built).
 
 use serde::Serialize;
 
@@ -52,10 +54,8 @@ pub const TEXEL_MAP_BYTES: u64 = 12 + 48;
 pub const LEAN_TEXEL_MAP_BYTES: u64 = 12 + 24;
 /// Irradiance kept per texel of a baked LOD (the output, Rgb).
 pub const IRRADIANCE_BYTES: u64 = 12;
-/// Per atlas pixel of the LOD being baked: texel-map slot and lookup-table entry.
-pub const PIXEL_BYTES: u64 = 4 + 4;
-/// Per atlas pixel of a baked, kept LOD: its texel-map slot.
-pub const KEPT_PIXEL_BYTES: u64 = 4;
+/// Per atlas pixel of the LOD being baked: its lookup-table entry.
+pub const PIXEL_BYTES: u64 = 4;
 /// Per gutter pixel: (pixel, source texel).
 pub const GUTTER_BYTES: u64 = 8;
 /// Gutter pixels assumed per covered texel before the map is built.
@@ -70,9 +70,8 @@ pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, light_pass: bool) 
         BackendKind::Cpu | BackendKind::Gpu | BackendKind::Auto => {
             let lanes = lanes.max(1) as u64;
             let light = u64::from(light_pass);
-            // lean map + punctual + carried + totals + area copy + source (then the
-            // irradiance) + lane sums
-            let cpu = LEAN_TEXEL_MAP_BYTES + 12 + 1 + 32 + 24 * light + 4 + 12 + lanes * (16 + 12 * light);
+            // lean map + punctual + totals + source (then the irradiance) + lane sums
+            let cpu = LEAN_TEXEL_MAP_BYTES + 12 + 16 + 12 * light + 12 + lanes * (16 + 12 * light);
             // The GPU backend keeps the CPU's (its light pass) and adds its buffers, which
             // are host memory on a software adapter: the sources (12 B) and the fixed-point
             // sums with their read-back copy (2 × 32 B). `auto` may pick either.
@@ -131,7 +130,7 @@ pub fn estimate_from_lod0(
             let table_copy = if config.backend == BackendKind::Cpu { 0 } else { 4 };
             bytes += t as f64 * per as f64 + pixels as f64 * (PIXEL_BYTES + table_copy) as f64;
         } else {
-            bytes += t as f64 * (TEXEL_MAP_BYTES + IRRADIANCE_BYTES) as f64 + pixels as f64 * KEPT_PIXEL_BYTES as f64;
+            bytes += t as f64 * (TEXEL_MAP_BYTES + IRRADIANCE_BYTES) as f64;
         }
     }
     let lane_bytes = match config.backend {
@@ -302,10 +301,10 @@ mod tests {
 
     #[test]
     fn lanes_and_the_light_pass_cost_what_the_table_says() {
-        assert_eq!(bake_bytes_per_texel(BackendKind::Cpu, 1, false), 36 + 12 + 1 + 32 + 4 + 12 + 16);
+        assert_eq!(bake_bytes_per_texel(BackendKind::Cpu, 1, false), 36 + 12 + 16 + 12 + 16);
         assert_eq!(
             bake_bytes_per_texel(BackendKind::Cpu, 2, true) - bake_bytes_per_texel(BackendKind::Cpu, 2, false),
-            24 + 2 * 12
+            12 + 2 * 12
         );
         assert_eq!(
             bake_bytes_per_texel(BackendKind::Cpu, 3, false) - bake_bytes_per_texel(BackendKind::Cpu, 2, false),

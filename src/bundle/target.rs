@@ -16,6 +16,7 @@ use super::progressive::BatchSums;
 use super::stats::PassStats;
 use super::{BundleConfig, DirectionJob};
 use crate::atlas::lookup::TexelTable;
+use crate::atlas::texels::TexelEmission;
 use crate::atlas::{Atlas, FaceId, TexelMap};
 use crate::scene::{Rgb, Scene, SceneGeometry, Side};
 
@@ -62,7 +63,7 @@ pub struct BakeTarget<'a> {
     /// Per texel: its face.
     pub face: &'a [FaceId],
     /// Per texel: emitted radiance of its side (the light pass's emitter texels).
-    pub emission: &'a [Rgb],
+    pub emission: TexelEmission<'a>,
     /// Where fragments find their texels: one whole-LOD table (`chart: None`), or one table
     /// per chart holding target texels (ascending by chart).
     pub tables: &'a [TexelTable],
@@ -109,7 +110,7 @@ impl WholeLod {
         BakeTarget {
             lod: texels.lod,
             face: &texels.face,
-            emission: &texels.emission,
+            emission: TexelEmission::Dense(&texels.emission),
             tables: &self.tables,
             window: None,
             triangles: &self.triangles,

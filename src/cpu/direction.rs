@@ -362,7 +362,7 @@ fn trace_light(
                 a_px,
                 |code| {
                     if is_own(code) {
-                        return own[code as usize];
+                        return own.at(code as usize);
                     }
                     match source.foreign {
                         Some(src) => {

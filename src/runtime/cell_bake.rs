@@ -21,7 +21,7 @@ use super::source::ShownSource;
 use super::world::World;
 use crate::atlas::lookup::TexelTable;
 use crate::atlas::sparse::SparseTexels;
-use crate::atlas::texels::NO_TEXEL;
+use crate::atlas::texels::{NO_TEXEL, TexelEmission};
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
 use crate::bundle::target::target_triangles;
@@ -105,7 +105,7 @@ impl CellBake {
             carried,
             // Punctual lights are the shown map's other layer (`runtime::punctual`): the bake
             // holds the bundles' part of the light only.
-            estimate: ProgressiveEstimate::new(SourceKind::Converged, vec![Rgb::ZERO; n], texels.area.clone()),
+            estimate: ProgressiveEstimate::new(SourceKind::Converged, vec![Rgb::ZERO; n]),
             moments: vec![BatchMoments::default(); n],
             jobs: JobSequence::new(
                 cell_seed(seed, cells[0], lod),
@@ -169,7 +169,7 @@ impl CellBake {
         let target = BakeTarget {
             lod: self.lod,
             face: &self.texels.face,
-            emission: &self.texels.emission,
+            emission: TexelEmission::Dense(&self.texels.emission),
             tables: &self.texels.tables,
             window: Some(self.window),
             triangles: &self.triangles,
@@ -177,7 +177,7 @@ impl CellBake {
         let source = SourceRadiance { own: &self.own_source, foreign: Some(&self.source) };
         let pass = backend.trace_batch(&target, &batch, &source, &mut self.sums, cancel)?;
         let light_directions = count as u64 * world.bundle.config.light_directions as u64;
-        self.estimate.add_batch(&self.sums, light_directions, 1);
+        self.estimate.add_batch(&self.sums, &self.texels.area, light_directions, 1);
         self.add_moments(light_directions);
         self.directions += count as u64;
         Ok(UnitStats { pass, directions: count as u64, texel_samples: count as u64 * self.texels.len() as u64 })

@@ -300,7 +300,7 @@ pub(super) fn current_stats(shared: &Shared, st: &mut State) -> RuntimeStats {
 /// BVH, the LOD-0 texels and the grid's triangle lists.
 fn fixed_bytes(world: &World) -> u64 {
     let tris = world.geom.len() as u64;
-    let lod0 = world.lod0.len() as u64 * (4 + 4 + 12 * 4 + 4) + world.lod0.slot.len() as u64 * 4;
+    let lod0 = world.lod0.len() as u64 * (4 + 4 + 12 * 4 + 4) + world.lod0.gutter.len() as u64 * 8;
     tris * (36 + 12 + 4 + 4 + 4 + 4) // geometry
         + world.atlas.faces.len() as u64 * 36
         + world.bvh.memory_bytes() as u64
