@@ -237,11 +237,16 @@ impl TexelMap {
     }
 
     /// Gives up the dense emission (12 B a texel) for that of the emitting texels alone,
-    /// returned; [`restore_emission`](Self::restore_emission) puts it back.
-    pub fn take_emission(&mut self) -> EmittingTexels {
+    /// returned; [`restore_emission`](Self::restore_emission) puts it back. `None` (the
+    /// dense emission kept) when so many texels emit that the sparse form (16 B each) would
+    /// be larger.
+    pub fn take_emission(&mut self) -> Option<EmittingTexels> {
         let e = EmittingTexels::from_dense(&self.emission);
+        if e.len() * 16 >= self.emission.len() * 12 {
+            return None;
+        }
         self.emission = Vec::new();
-        e
+        Some(e)
     }
 
     /// Puts back the emission [`take_emission`](Self::take_emission) gave up, value for value.

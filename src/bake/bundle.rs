@@ -119,7 +119,10 @@ pub fn bake_lod_lean(
     let result = {
         let texels = &*texels;
         let tables = [TexelTable::of_map(texels)];
-        let view = TexelView { emission: TexelEmission::Emitting(&emitting), ..texels.view() };
+        let view = match &emitting {
+            Some(e) => TexelView { emission: TexelEmission::Emitting(e), ..texels.view() },
+            None => texels.view(),
+        };
         let region = Region { texels: view, tables: &tables, window: None, foreign: None };
         let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
         bake_region_observed(
@@ -135,7 +138,9 @@ pub fn bake_lod_lean(
             never_stop,
         )
     };
-    texels.restore_emission(&emitting);
+    if let Some(e) = &emitting {
+        texels.restore_emission(e);
+    }
     texels.restore_geometry(&bundle.scene, &bundle.geom, &bundle.atlas, threads);
     result
 }

@@ -130,20 +130,28 @@ pub struct ProgressiveEstimate {
     /// Light directions traced so far (per emitter group: every group gets the same count).
     light_directions: u64,
     batches: u64,
-    /// Irradiance from punctual lights (W/m²).
+    /// Irradiance from punctual lights (W/m²); empty when the estimate holds none (zero).
     punctual: Vec<Rgb>,
 }
 
 impl ProgressiveEstimate {
     /// The estimate of `punctual.len()` texels, no batch folded in yet.
     pub fn new(kind: SourceKind, punctual: Vec<Rgb>) -> Self {
+        let mut e = Self::without_punctual(kind, punctual.len());
+        e.punctual = punctual;
+        e
+    }
+
+    /// The estimate of `texels` texels whose punctual light is held elsewhere (a runtime
+    /// cell's is a layer of its own): reads as zero, and costs no 12 B a texel.
+    pub fn without_punctual(kind: SourceKind, texels: usize) -> Self {
         ProgressiveEstimate {
             kind,
-            totals: vec![TexelTotals::default(); punctual.len()],
+            totals: vec![TexelTotals::default(); texels],
             light: Vec::new(),
             light_directions: 0,
             batches: 0,
-            punctual,
+            punctual: Vec::new(),
         }
     }
 
@@ -187,7 +195,8 @@ impl ProgressiveEstimate {
         }
     }
 
-    /// Irradiance from punctual lights per texel (exact, noise-free).
+    /// Irradiance from punctual lights per texel (exact, noise-free); empty when the
+    /// estimate holds none ([`without_punctual`](Self::without_punctual)).
     pub fn punctual(&self) -> &[Rgb] {
         &self.punctual
     }
@@ -239,7 +248,7 @@ impl ProgressiveEstimate {
     /// Punctual plus light-pass irradiance of texel `i`: the parts estimated absolutely.
     #[inline]
     fn direct_of(&self, i: usize) -> Rgb {
-        self.punctual[i] + self.light_of(i)
+        self.punctual.get(i).copied().unwrap_or(Rgb::ZERO) + self.light_of(i)
     }
 
     pub fn irradiance(&self) -> Vec<Rgb> {

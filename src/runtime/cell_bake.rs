@@ -105,7 +105,7 @@ impl CellBake {
             carried,
             // Punctual lights are the shown map's other layer (`runtime::punctual`): the bake
             // holds the bundles' part of the light only.
-            estimate: ProgressiveEstimate::new(SourceKind::Converged, vec![Rgb::ZERO; n]),
+            estimate: ProgressiveEstimate::without_punctual(SourceKind::Converged, n),
             moments: vec![BatchMoments::default(); n],
             jobs: JobSequence::new(
                 cell_seed(seed, cells[0], lod),
@@ -254,7 +254,9 @@ impl CellBake {
     /// Bytes held by the bake.
     pub fn bytes(&self) -> usize {
         let n = self.texels.len();
-        self.texels.bytes() + n * (std::mem::size_of::<BatchMoments>() + 28 + 56 + 12 + 12 + 4 + 1 + 2)
+        // Batch sums and totals (28 B each: bundle and light pass), own source (12), carried
+        // flag (1), owner (2).
+        self.texels.bytes() + n * (std::mem::size_of::<BatchMoments>() + 28 + 28 + 12 + 1 + 2)
     }
 }
 
