@@ -47,8 +47,7 @@ fn check(scene: &Scene, texel: f32, cell: f32, lod: u32) {
         cells_with_texels += usize::from(!sparse.is_empty());
         for i in 0..sparse.len() {
             let [x, y] = sparse.pixel[i];
-            let w =
-                texel_at(x, y).unwrap_or_else(|| panic!("cell {c}: pixel ({x},{y}) is no texel")) as usize;
+            let w = texel_at(x, y).unwrap_or_else(|| panic!("cell {c}: pixel ({x},{y}) is no texel")) as usize;
             assert!(seen.insert((x, y), c as usize).is_none(), "pixel ({x},{y}) in two cells");
             assert_eq!(grid.cell_of(whole.position[w]), c);
             assert_eq!(sparse.face[i], whole.face[w], "face at ({x},{y})");

@@ -310,3 +310,76 @@ fn bilinear(image: &[Rgb], w: u32, h: u32, p: Vec2) -> Rgb {
     let bottom = at(x0, y0 + 1.0) * (1.0 - fx) + at(x0 + 1.0, y0 + 1.0) * fx;
     top * (1.0 - fy) + bottom * fy
 }
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use super::*;
+    use crate::atlas::{Atlas, AtlasConfig};
+    use crate::bundle::BundleConfig;
+    use crate::bundle::target::BackendProvider;
+    use crate::cpu::CpuProvider;
+    use crate::progress::NoProgress;
+    use crate::scene::{LoadOptions, SceneGeometry, load_gltf};
+
+    /// Asserts `a` and `b` equal bit for bit, naming the first texel that differs.
+    fn assert_same_bits(a: &[Rgb], b: &[Rgb], what: &str) {
+        assert_eq!(a.len(), b.len(), "{what}: lengths");
+        let bits = |c: &Rgb| c.to_array().map(f32::to_bits);
+        if let Some(i) = (0..a.len()).find(|&i| bits(&a[i]) != bits(&b[i])) {
+            panic!("{what}: texel {i} is {} against {}", a[i], b[i]);
+        }
+    }
+
+    /// The lean bake gives up positions, normals and most of the emission while its bundles
+    /// run and puts them back: its irradiance, punctual part and texel map are the plain
+    /// bake's bit for bit, at LOD 0 (its own multi-bounce source, a light pass over the
+    /// Cornell box's lamp, texels emitting) and at LOD 1 (source read from LOD 0).
+    #[test]
+    fn the_lean_bake_equals_the_plain_one_bit_for_bit() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf");
+        let scene = Arc::new(load_gltf(&path, &LoadOptions::default()).expect("Cornell box"));
+        let geom = Arc::new(SceneGeometry::new(&scene));
+        let atlas_config = AtlasConfig { texel_budget: 4000, ..AtlasConfig::default() };
+        let atlas = Arc::new(Atlas::build(&scene, &geom, &atlas_config).expect("atlas"));
+        let config = BundleConfig { directions: 16, ..BundleConfig::default() };
+        let bundle = Arc::new(BundleScene::new(scene.clone(), geom.clone(), atlas.clone(), config));
+        assert!(!bundle.emitters.small.is_empty(), "the lamp should get the light pass");
+        let bvh = Bvh::for_scene(&scene, &geom);
+        let mut backend = CpuProvider::new().backend(&bundle, 2).expect("CPU backend");
+        let never = AtomicBool::new(false);
+        let mut coarser: Option<(TexelMap, Vec<Rgb>)> = None;
+        for lod in 0..2 {
+            let plain_map = TexelMap::build(&scene, &geom, &atlas, lod);
+            let emitting = plain_map.emission.iter().filter(|e| **e != Rgb::ZERO).count();
+            assert!(emitting > 0 && emitting * 4 < plain_map.len(), "LOD {lod}: {emitting} emitting texels");
+            let c = coarser.as_ref().map(|(t, e)| CoarserLod { texels: t, irradiance: e });
+            let plain = bake_lod(&bundle, &bvh, &mut backend, &plain_map, c, 2, &NoProgress, &never).expect("plain");
+            let mut lean_map = TexelMap::build(&scene, &geom, &atlas, lod);
+            let c = coarser.as_ref().map(|(t, e)| CoarserLod { texels: t, irradiance: e });
+            let lean =
+                bake_lod_lean(&bundle, &bvh, &mut backend, &mut lean_map, c, 2, &NoProgress, &never).expect("lean");
+            assert_same_bits(&lean.irradiance, &plain.irradiance, &format!("LOD {lod}: irradiance"));
+            assert_same_bits(&lean.punctual, &plain.punctual, &format!("LOD {lod}: punctual part"));
+            for (name, a, b) in [
+                ("position", &lean_map.position, &plain_map.position),
+                ("normal", &lean_map.normal, &plain_map.normal),
+                ("emission", &lean_map.emission, &plain_map.emission),
+                ("albedo", &lean_map.albedo, &plain_map.albedo),
+            ] {
+                assert_same_bits(a, b, &format!("LOD {lod}: {name}"));
+            }
+            assert_eq!(
+                (&lean_map.pixel, &lean_map.face, &lean_map.gutter),
+                (&plain_map.pixel, &plain_map.face, &plain_map.gutter)
+            );
+            // Where most texels emit, the dense emission is the smaller and stays.
+            let mut glowing = TexelMap::build(&scene, &geom, &atlas, lod);
+            glowing.emission.fill(Rgb::ONE);
+            assert!(glowing.take_emission().is_none() && glowing.emission.len() == glowing.len());
+            coarser = Some((plain_map, plain.irradiance));
+        }
+    }
+}

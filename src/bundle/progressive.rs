@@ -188,9 +188,7 @@ impl ProgressiveEstimate {
     #[inline]
     fn light_of(&self, i: usize) -> Rgb {
         match self.light.get(i) {
-            Some(&l) if self.light_directions > 0 => {
-                l * (std::f64::consts::TAU / self.light_directions as f64) as f32
-            }
+            Some(&l) if self.light_directions > 0 => l * (std::f64::consts::TAU / self.light_directions as f64) as f32,
             _ => Rgb::ZERO,
         }
     }
