@@ -1,7 +1,7 @@
 //! livebake: global-illumination light maps for glTF scenes.
 //!
 //! Pure-Rust parts (no GPU): [`scene`] (glTF import), [`atlas`] (light-map UVs, packing,
-//! per-LOD texel maps), [`lod`], [`reference`] (CPU reference path tracer), [`bundle`] (the
+//! per-LOD texel maps), [`lod`], [`mod@reference`] (CPU reference path tracer), [`bundle`] (the
 //! adaptive ray-bundle algorithm: directions, analysis mips, tile planner, estimator),
 //! [`cpu`] (the CPU bundle backend), [`bake`] (bake driver), [`output`] (EXR/PNG/JSON),
 //! [`probe`] (irradiance at surface points), [`export`] (glTF with the light map, for other

@@ -2,12 +2,12 @@
 //! grid cell), built without the rest of the LOD. LOD k has 4^k × LOD 0's texels; the runtime
 //! makes them per cell, where the viewer needs them, so memory grows with what was refined.
 //!
-//! The result is exactly the part of [`TexelMap::build`]'s texels (and gutter pixels) that the
+//! The result is exactly the part of [`TexelMap::build`](super::TexelMap::build)'s texels (and gutter pixels) that the
 //! region owns: same pixels, faces, positions, areas, bit for bit (a test holds them equal).
 //! That follows from computing each pixel from every face that touches it:
 //! * *core faces* are those whose triangle meets the region (only they can hold a texel
 //!   positioned in it); the part of each inside the region, mapped to UV and grown by
-//!   [`REACH`] pixels, bounds the pixels that matter in its chart;
+//!   `REACH` pixels, bounds the pixels that matter in its chart;
 //! * every face of those charts whose UV box meets that window is rasterised in it, so each
 //!   pixel's owner (the face containing its centre, else the nearest, ties to the lower id),
 //!   area and coverage are what the whole-LOD raster computes;

@@ -11,7 +11,7 @@ use crate::scene::{Rgb, Scene, SceneGeometry};
 /// Marks an atlas pixel that holds no texel (not covered by any face, or gutter).
 pub const NO_TEXEL: u32 = u32::MAX;
 
-/// Every valid texel of one LOD, stored compactly (covered texels only, in [`block_order`]),
+/// Every valid texel of one LOD, stored compactly (covered texels only, in `block_order`),
 /// plus the pixel → texel lookup and the gutter pixels that copy a texel.
 #[derive(Clone, Debug, Default)]
 pub struct TexelMap {

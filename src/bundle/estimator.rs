@@ -207,7 +207,7 @@ fn before(a: &Fragment, b: &Fragment, c: &Coincidence) -> bool {
     if c.same_place(a, b) { a.coincident_rank() < b.coincident_rank() } else { a.depth < b.depth }
 }
 
-/// Sorts one pixel's fragments along ω (see [`before`]). Insertion sort: lists are short
+/// Sorts one pixel's fragments along ω (see `before`). Insertion sort: lists are short
 /// (a few surfaces) and it is stable, so ties keep their deterministic build order.
 #[inline]
 pub fn sort_by_depth(frags: &mut [Fragment], c: Coincidence) {

@@ -155,7 +155,7 @@ span_int!(i64, i128);
 
 /// Barycentric weights of the *original* corners 1 and 2 and the depth, as affine
 /// functions of continuous *grid* pixel coordinates relative to the snapped corner 0 (the
-/// anchor): f(x, y) = c[0]·(x − a.x) + c[1]·(y − a.y) + c[2], c[2] being the value at the
+/// anchor): f(x, y) = c\[0\]·(x − a.x) + c\[1\]·(y − a.y) + c\[2\], c\[2\] being the value at the
 /// anchor. Grid, not rectangle, coordinates: a pixel gets bit-identical attributes
 /// whichever part of a split viewport it is rasterised in.
 ///
@@ -224,7 +224,7 @@ pub fn snapped_depth_slack(pixel: f32) -> f32 {
     std::f32::consts::SQRT_2 * pixel / SUBPIXEL as f32
 }
 
-/// An affine function f(x, y) = c[0]·x + c[1]·y + c[2] at (x, y) (coordinates relative to
+/// An affine function f(x, y) = c\[0\]·x + c\[1\]·y + c\[2\] at (x, y) (coordinates relative to
 /// the function's anchor, see [`Planes`]).
 #[inline]
 pub fn eval(c: &[f32; 3], x: f32, y: f32) -> f32 {

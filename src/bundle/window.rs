@@ -55,7 +55,7 @@ impl WindowSource {
     /// The analysis window of a direction: the square, R pixels, with one spare pixel so
     /// the per-direction jitter never shifts geometry out of it. A small window (a cell's)
     /// needs fewer analysis pixels: R is cut to the power of two giving about
-    /// [`BUNDLE_PIXELS_PER_ANALYSIS_PIXEL`] bundle pixels per analysis pixel at the target's
+    /// `BUNDLE_PIXELS_PER_ANALYSIS_PIXEL` bundle pixels per analysis pixel at the target's
     /// resolution, at least 8.
     pub fn analysis_viewport(&self, config: &BundleConfig, frame: &BundleFrame, jitter: Vec2) -> Viewport {
         let (corner, side) = self.square(frame);

@@ -6,7 +6,7 @@
 //! nearest surface point ([`Bvh::closest_point`]). Pure: no scene borrow, `Send + Sync`,
 //! reusable by the baker and the probe command.
 //!
-//! Robustness: triangles use the watertight test of [`super::triangle`]; box exits are scaled
+//! Robustness: triangles use the watertight test of `super::triangle`; box exits are scaled
 //! by `1 + 2γ₃` (Ize, "Robust BVH Ray Traversal", JCGT 2013) so rounding never culls a box the
 //! ray touches, including the zero-thickness boxes of axis-aligned walls.
 
