@@ -11,7 +11,7 @@
 //! this bake's estimate) and what the allocator keeps of freed temporaries (the texel map's
 //! per-band build buffers, a few % of the atlas). Resident sizes do not depend on timing,
 //! so the figure is stable run to run; a per-texel buffer added or dropped without the model
-//! being told (12 B or more of ~180) moves it by 7% and more, stacking with the above.
+//! being told (12 B or more of ~150) moves it by 8% and more, stacking with the above.
 
 use std::path::Path;
 use std::process::Command;

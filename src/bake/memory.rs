@@ -41,8 +41,8 @@
 //! estimate reads the texel areas from the map and asks which texels the bundles carry the
 //! emission of instead of copying them, and texel maps keep no pixel → texel table (4 B a
 //! pixel, read by nothing once a map is built), and the lean bake holds the emission of
-//! the emitting texels alone: 99 B a texel without a light pass and 141 B with one, by the
-//! same slope (the binary returns freed buffers of 1 MiB or more to the system, see
+//! the emitting texels alone: 105 B a texel without a light pass and 141 B with one, by the
+//! same slope (`livebake bench --only bake_memory`; the binary returns freed buffers of 1 MiB or more to the system, see
 //! `main.rs`; glibc's default kept ~7 B a texel of freed temporaries resident).
 
 use serde::Serialize;

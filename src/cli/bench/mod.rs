@@ -2,6 +2,7 @@
 //! ratios are measured side by side in one run; nothing here is a pass/fail test.
 
 mod atlas;
+mod bake_memory;
 mod convergence;
 mod gpu_backend;
 mod instanced;
@@ -34,7 +35,7 @@ pub fn assets() -> PathBuf {
 type Bench = fn(bool, &Ui) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 13] = [
+pub const SECTIONS: [(&str, Bench); 14] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -47,6 +48,7 @@ pub const SECTIONS: [(&str, Bench); 13] = [
     ("runtime_large", runtime_large::run),
     ("runtime_large_overcast", runtime_large::run_overcast),
     ("instanced_1m", instanced::run),
+    ("bake_memory", bake_memory::run),
     ("reload", reload::run),
 ];
 

@@ -1,0 +1,69 @@
+//! What a whole-LOD bake holds per texel (issue 8's goal: 64 B): `livebake bake` run as a
+//! process of its own at two texel budgets, with and without a light pass, each reporting
+//! its peak resident growth in `report.json`. The growth between the two budgets over the
+//! texels between them is the marginal cost of a texel, free of what does not grow with the
+//! texels (the fragment buffers, the scene); each run's own figure includes those.
+
+use std::path::Path;
+use std::process::Command;
+
+use anyhow::{Context, Result, bail};
+use serde_json::{Value, json};
+
+use super::assets;
+use crate::cli::progress::Ui;
+
+/// The issue's goal.
+const GOAL_BYTES_PER_TEXEL: f64 = 64.0;
+
+pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
+    // Few directions: memory does not depend on them, and the bake's peak is reached in the
+    // first batch.
+    let (budgets, samples) = if quick { ([500_000u64, 1_000_000], 16) } else { ([2_000_000, 4_000_000], 32) };
+    let room = assets().join("van_gogh_room");
+    let mut out = json!({ "goal_bytes_per_texel": GOAL_BYTES_PER_TEXEL, "samples": samples });
+    // The lit room has a small ceiling lamp (light pass); the plain one has no emitter.
+    for (name, file) in [("light_pass", "van_gogh_room_lit.gltf"), ("no_light_pass", "van_gogh_room.gltf")] {
+        let runs: Vec<Value> = budgets
+            .iter()
+            .map(|&budget| {
+                ui.say(format!("  {name}: {budget} texels"));
+                bake(&room.join(file), budget, samples)
+            })
+            .collect::<Result<_>>()?;
+        let figure = |r: &Value, key: &str| r[key].as_f64().unwrap_or(f64::NAN);
+        let (a, b) = (&runs[0], &runs[1]);
+        let marginal =
+            (figure(b, "peak_growth") - figure(a, "peak_growth")) / (figure(b, "texels") - figure(a, "texels"));
+        out[name] = json!({ "scene": file, "runs": runs, "marginal_bytes_per_texel": marginal });
+    }
+    Ok(out)
+}
+
+/// One `livebake bake` of `scene` at a texel budget; its memory figures and bake time.
+fn bake(scene: &Path, budget: u64, samples: u32) -> Result<Value> {
+    let dir = std::env::temp_dir().join(format!("livebake-bench-bake-memory-{}", std::process::id()));
+    let exe = std::env::current_exe().context("cannot find the livebake binary")?;
+    let status = Command::new(exe)
+        .arg("bake")
+        .arg(scene)
+        .args(["--texel-budget", &budget.to_string(), "--samples", &samples.to_string(), "-q", "--out"])
+        .arg(&dir)
+        .env_remove("RUST_LOG")
+        .output()
+        .context("cannot run livebake bake")?;
+    if !status.status.success() {
+        bail!("livebake bake failed: {}", String::from_utf8_lossy(&status.stderr).trim());
+    }
+    let report: Value = serde_json::from_slice(&std::fs::read(dir.join("report.json")).context("report.json")?)?;
+    let _ = std::fs::remove_dir_all(&dir);
+    let memory = &report["memory"];
+    Ok(json!({
+        "texel_budget": budget,
+        "texels": memory["estimate"]["texels"],
+        "peak_growth": memory["peak_growth"],
+        "bytes_per_texel": memory["measured_bytes_per_texel"],
+        "estimated_bytes_per_texel": memory["estimate"]["bytes_per_texel"],
+        "bake_seconds": report["lods"][0]["bake_seconds"],
+    }))
+}
