@@ -96,7 +96,9 @@ pub fn bake_lod_observed(
 /// [`bake_lod`] holding less at its peak: the punctual pass first, then the texels'
 /// positions and normals (read by nothing else) are given up while the bundles run and
 /// recomputed at the end ([`TexelMap::restore_geometry`]: the same values), and their
-/// emission is held for the emitting texels alone ([`TexelMap::take_emission`]). Same result.
+/// emission is held for the emitting texels alone ([`TexelMap::take_emission`]). Same result,
+/// except that the punctual part is empty where the scene has no punctual lights (no
+/// 12 B a texel of zeros at the end, when the texel map is whole again).
 #[allow(clippy::too_many_arguments)]
 pub fn bake_lod_lean(
     bundle: &BundleScene,
@@ -109,8 +111,13 @@ pub fn bake_lod_lean(
     cancel: &AtomicBool,
 ) -> Result<LodIrradiance, Cancelled> {
     let t0 = Instant::now();
-    let punctual =
-        punctual_irradiance(&bundle.scene, bvh, &texels.position, &texels.normal, ray_epsilon(&bundle.scene), threads);
+    // A scene without punctual lights gets no punctual array (zero everywhere, 12 B a texel
+    // at the peak): the estimate reads a missing one as zero.
+    let punctual = if bundle.scene.lights.is_empty() {
+        Vec::new()
+    } else {
+        punctual_irradiance(&bundle.scene, bvh, &texels.position, &texels.normal, ray_epsilon(&bundle.scene), threads)
+    };
     let punctual = (punctual, t0.elapsed().as_secs_f64());
     texels.drop_geometry();
     // Emission read from the coarser LOD's source before the dense array goes.
@@ -177,7 +184,7 @@ pub fn bake_region(
 
 /// [`bake_region`] with an observer (see [`bake_lod_observed`]); `punctual`: the punctual
 /// pass's irradiance and seconds when already computed (the region's positions and normals
-/// are then not read).
+/// are then not read; an empty irradiance stands for zero everywhere).
 #[allow(clippy::too_many_arguments)]
 fn bake_region_observed(
     bundle: &BundleScene,
@@ -220,7 +227,11 @@ fn bake_region_observed(
     };
 
     let kind = if converged.is_some() { SourceKind::Converged } else { SourceKind::Progressive };
-    let mut estimate = ProgressiveEstimate::new(kind, punctual);
+    let mut estimate = if punctual.is_empty() {
+        ProgressiveEstimate::without_punctual(kind, texels.len())
+    } else {
+        ProgressiveEstimate::new(kind, punctual)
+    };
     let mut source = Vec::new();
     match converged {
         Some(c) => source = c,
@@ -276,7 +287,8 @@ fn bake_region_observed(
 pub struct LodIrradiance {
     /// Irradiance per texel (W/m²).
     pub irradiance: Vec<Rgb>,
-    /// Its exact punctual-light part.
+    /// Its exact punctual-light part; empty (zero everywhere) from [`bake_lod_lean`] in a
+    /// scene without punctual lights.
     pub punctual: Vec<Rgb>,
     pub stats: BundleLodStats,
 }
@@ -335,12 +347,24 @@ mod tests {
     /// The lean bake gives up positions, normals and most of the emission while its bundles
     /// run and puts them back: its irradiance, punctual part and texel map are the plain
     /// bake's bit for bit, at LOD 0 (its own multi-bounce source, a light pass over the
-    /// Cornell box's lamp, texels emitting) and at LOD 1 (source read from LOD 0).
+    /// Cornell box's lamp, texels emitting) and at LOD 1 (source read from LOD 0); with a
+    /// point light added, and without one (then it holds no punctual part at all).
     #[test]
     fn the_lean_bake_equals_the_plain_one_bit_for_bit() {
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf");
-        let scene = Arc::new(load_gltf(&path, &LoadOptions::default()).expect("Cornell box"));
+        let unlit = load_gltf(&path, &LoadOptions::default()).expect("Cornell box");
+        assert!(unlit.lights.is_empty());
+        let mut lit = unlit.clone();
+        let mut lamp = crate::scene::SceneBuilder::new();
+        lamp.point_light(glam::Vec3::new(0.5, 1.5, 0.3), Rgb::splat(3.0));
+        lit.lights.extend(lamp.build().lights);
+        for scene in [unlit, lit] {
+            check_lean_bake(Arc::new(scene));
+        }
+    }
+
+    fn check_lean_bake(scene: Arc<crate::scene::Scene>) {
         let geom = Arc::new(SceneGeometry::new(&scene));
         let atlas_config = AtlasConfig { texel_budget: 4000, ..AtlasConfig::default() };
         let atlas = Arc::new(Atlas::build(&scene, &geom, &atlas_config).expect("atlas"));
@@ -361,15 +385,21 @@ mod tests {
             let c = coarser.as_ref().map(|(t, e)| CoarserLod { texels: t, irradiance: e });
             let lean =
                 bake_lod_lean(&bundle, &bvh, &mut backend, &mut lean_map, c, 2, &NoProgress, &never).expect("lean");
-            assert_same_bits(&lean.irradiance, &plain.irradiance, &format!("LOD {lod}: irradiance"));
-            assert_same_bits(&lean.punctual, &plain.punctual, &format!("LOD {lod}: punctual part"));
+            let lights = scene.lights.len();
+            assert_same_bits(&lean.irradiance, &plain.irradiance, &format!("{lights} lights, LOD {lod}: irradiance"));
+            if lights == 0 {
+                assert!(lean.punctual.is_empty() && plain.punctual.iter().all(|&e| e == Rgb::ZERO));
+            } else {
+                assert!(plain.punctual.iter().any(|&e| e != Rgb::ZERO), "the point light lights something");
+                assert_same_bits(&lean.punctual, &plain.punctual, &format!("LOD {lod}: punctual part"));
+            }
             for (name, a, b) in [
                 ("position", &lean_map.position, &plain_map.position),
                 ("normal", &lean_map.normal, &plain_map.normal),
                 ("emission", &lean_map.emission, &plain_map.emission),
                 ("albedo", &lean_map.albedo, &plain_map.albedo),
             ] {
-                assert_same_bits(a, b, &format!("LOD {lod}: {name}"));
+                assert_same_bits(a, b, &format!("{lights} lights, LOD {lod}: {name}"));
             }
             assert_eq!(
                 (&lean_map.pixel, &lean_map.face, &lean_map.gutter),

@@ -13,7 +13,7 @@
 //! | texel map: albedo (Vec3) | 12 |
 //! | texel map: emission (Vec3), held for the emitting texels alone while the bundles run ([`crate::atlas::TexelMap::take_emission`]) | 0 |
 //! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]) | 0 |
-//! | punctual irradiance (Rgb) | 12 |
+//! | punctual irradiance (Rgb); none in a scene without punctual lights, which the estimate does not know (it stays an upper bound) | 12 |
 //! | progressive totals: Σw·S (rgb) and Σw·A, f32 | 16 |
 //! | progressive totals: light-pass Σ a·Le/A_texel (rgb, f32), only with a light pass | 12 |
 //! | source radiance, reused for the irradiance at the end (Rgb) | 12 |
@@ -41,8 +41,9 @@
 //! estimate reads the texel areas from the map and asks which texels the bundles carry the
 //! emission of instead of copying them, and texel maps keep no pixel → texel table (4 B a
 //! pixel, read by nothing once a map is built), and the lean bake holds the emission of
-//! the emitting texels alone: 105 B a texel without a light pass and 141 B with one, by the
-//! same slope (`livebake bench --only bake_memory`; the binary returns freed buffers of 1 MiB or more to the system, see
+//! the emitting texels alone, and no punctual array where the scene has no punctual light:
+//! 95 B a texel in the plain Van Gogh room and 140 B in the lit one (light pass, point
+//! light), by the same slope (`livebake bench --only bake_memory`; the binary returns freed buffers of 1 MiB or more to the system, see
 //! `main.rs`; glibc's default kept ~7 B a texel of freed temporaries resident).
 
 use serde::Serialize;

@@ -265,7 +265,7 @@ impl ProgressiveEstimate {
         });
     }
 
-    /// The punctual irradiance, the estimate given up.
+    /// The punctual irradiance, the estimate given up (empty when it held none).
     pub fn into_punctual(self) -> Vec<Rgb> {
         self.punctual
     }
