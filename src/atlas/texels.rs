@@ -12,7 +12,8 @@ use crate::scene::{Rgb, Scene, SceneGeometry};
 pub const NO_TEXEL: u32 = u32::MAX;
 
 /// Every valid texel of one LOD, stored compactly (covered texels only, in `block_order`),
-/// plus the pixel → texel lookup and the gutter pixels that copy a texel.
+/// plus the gutter pixels that copy a texel. The pixel → texel lookup is not kept: the
+/// bundles read a [`TexelTable`](super::lookup::TexelTable), tests [`TexelMap::slots`].
 #[derive(Clone, Debug, Default)]
 pub struct TexelMap {
     pub lod: u32,
@@ -285,8 +286,8 @@ impl TexelMap {
         self.pixel.is_empty()
     }
 
-    /// Per atlas pixel (row-major): the index of its texel, or [`NO_TEXEL`] (gutter pixels
-    /// too). Made on demand: the map does not keep it, since nothing reads it while a
+    /// Per atlas pixel (row-major): the index of its texel, or [`NO_TEXEL`] (as gutter pixels
+    /// are). Made on demand: the map does not keep it, since nothing reads it while a
     /// bake or the runtime runs (4 B a pixel of every LOD held).
     pub fn slots(&self) -> Vec<u32> {
         let mut slot = vec![NO_TEXEL; self.width as usize * self.height as usize];
