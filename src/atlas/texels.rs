@@ -237,6 +237,13 @@ impl TexelMap {
         self.normal = Vec::new();
     }
 
+    /// Gives up the texels' albedo (12 B a texel) while a bake that no longer reads it runs (one
+    /// whose source radiance is already made); [`restore_geometry`](Self::restore_geometry)
+    /// recomputes it.
+    pub fn drop_albedo(&mut self) {
+        self.albedo = Vec::new();
+    }
+
     /// Gives up the dense emission (12 B a texel) for that of the emitting texels alone,
     /// returned; [`restore_emission`](Self::restore_emission) puts it back. `None` (the
     /// dense emission kept) when so many texels emit that the sparse form (16 B each) would
@@ -255,31 +262,43 @@ impl TexelMap {
         self.emission = emitting.dense();
     }
 
-    /// Recomputes the positions and normals [`drop_geometry`](Self::drop_geometry) gave up:
-    /// the same function of each texel's face and pixel as [`build`](Self::build), so the
-    /// same values bit for bit.
+    /// Recomputes the positions and normals [`drop_geometry`](Self::drop_geometry) gave up,
+    /// and the albedo when [`drop_albedo`](Self::drop_albedo) gave it up: the same function
+    /// of each texel's face and pixel as [`build`](Self::build), so the same values bit for
+    /// bit.
     pub fn restore_geometry(&mut self, scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, threads: usize) {
         let n = self.len();
         let mut position = vec![Vec3::ZERO; n];
         let mut normal = vec![Vec3::ZERO; n];
+        // Empty unless given up (a map of no texels has nothing to restore either way).
+        let mut albedo = if self.albedo.len() == n { Vec::new() } else { vec![Rgb::ZERO; n] };
         let chunk = n.div_ceil(threads.max(1) * 4).max(4096);
         let (w, lod) = (self.width, self.lod);
+        let mut albedo_chunks: Vec<&mut [Rgb]> = albedo.chunks_mut(chunk).collect();
+        albedo_chunks.resize_with(n.div_ceil(chunk), Default::default);
         let items: Vec<_> = position
             .chunks_mut(chunk)
             .zip(normal.chunks_mut(chunk))
+            .zip(albedo_chunks)
             .zip(self.face.chunks(chunk).zip(self.pixel.chunks(chunk)))
             .collect();
-        par_for_each(items, threads, |((position, normal), (face, pixel))| {
+        par_for_each(items, threads, |(((position, normal), albedo), (face, pixel))| {
             for k in 0..face.len() {
                 let uv = atlas.faces[face[k] as usize].uv_lod(lod);
                 let (x, y) = ((pixel[k] % w) as i64, (pixel[k] / w) as i64);
                 let a = TexelAttributes::at(scene, geom, atlas, face[k], &uv, x, y);
                 position[k] = a.position;
                 normal[k] = a.normal;
+                if let Some(albedo) = albedo.get_mut(k) {
+                    *albedo = a.albedo;
+                }
             }
         });
         self.position = position;
         self.normal = normal;
+        if !albedo.is_empty() {
+            self.albedo = albedo;
+        }
     }
 
     pub fn is_empty(&self) -> bool {

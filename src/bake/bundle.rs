@@ -96,9 +96,12 @@ pub fn bake_lod_observed(
 /// [`bake_lod`] holding less at its peak: the punctual pass first, then the texels'
 /// positions and normals (read by nothing else) are given up while the bundles run and
 /// recomputed at the end ([`TexelMap::restore_geometry`]: the same values), and their
-/// emission is held for the emitting texels alone ([`TexelMap::take_emission`]). Same result,
-/// except that the punctual part is empty where the scene has no punctual lights (no
-/// 12 B a texel of zeros at the end, when the texel map is whole again).
+/// emission is held for the emitting texels alone ([`TexelMap::take_emission`]). With a
+/// coarser LOD, whose radiance is made the source once, before the bundles, the albedo is
+/// given up and recomputed as well. The backend's own per-texel buffers are given back
+/// before anything is recomputed. Same result, except that the punctual part is empty where
+/// the scene has no punctual lights (no 12 B a texel of zeros at the end, when the texel map
+/// is whole again).
 #[allow(clippy::too_many_arguments)]
 pub fn bake_lod_lean(
     bundle: &BundleScene,
@@ -122,6 +125,11 @@ pub fn bake_lod_lean(
     texels.drop_geometry();
     // Emission read from the coarser LOD's source before the dense array goes.
     let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
+    // A converged source is all the bundles need of the albedo (a bake's own multi-bounce
+    // source is remade from it after every batch).
+    if converged.is_some() {
+        texels.drop_albedo();
+    }
     let emitting = texels.take_emission();
     let result = {
         let texels = &*texels;
@@ -145,6 +153,7 @@ pub fn bake_lod_lean(
             never_stop,
         )
     };
+    backend.release_texel_buffers();
     if let Some(e) = &emitting {
         texels.restore_emission(e);
     }

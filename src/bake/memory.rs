@@ -10,7 +10,7 @@
 //! | structure | bytes |
 //! |---|---|
 //! | texel map: pixel, face, area (u32, u32, f32) | 12 |
-//! | texel map: albedo (Vec3) | 12 |
+//! | texel map: albedo (Vec3); given up while the bundles of a LOD reading a coarser one run (its source is made before them) and recomputed after | 12 (LOD 0), 0 |
 //! | texel map: emission (Vec3), held for the emitting texels alone while the bundles run ([`crate::atlas::TexelMap::take_emission`]) | 0 |
 //! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]) | 0 |
 //! | punctual irradiance (Rgb); none in a scene without punctual lights, which the estimate does not know (it stays an upper bound) | 12 |
@@ -45,6 +45,10 @@
 //! 95 B a texel in the plain Van Gogh room and 140 B in the lit one (light pass, point
 //! light), by the same slope (`livebake bench --only bake_memory`; the binary returns freed buffers of 1 MiB or more to the system, see
 //! `main.rs`; glibc's default kept ~7 B a texel of freed temporaries resident).
+//! Then a LOD read from a coarser one stopped holding its albedo while its bundles run, and
+//! the backend's lane sums go before the texel map is made whole again: a two-LOD bake
+//! holds 7 B less a texel of LOD 1 in the plain Van Gogh room (slope 113.5 → 106.4 B), and
+//! 131 → 122 B a texel in all in the lit one (`bytes_per_texel`, 32 directions).
 
 use serde::Serialize;
 
@@ -68,16 +72,20 @@ pub const GUTTER_BYTES: u64 = 8;
 pub const GUTTER_PER_TEXEL: f64 = 0.25;
 
 /// Bytes per covered texel of the LOD being baked, its texel map and irradiance included,
-/// with `lanes` accumulation lanes and (or not) a light pass, at the bake's peak.
-pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, light_pass: bool) -> u64 {
+/// with `lanes` accumulation lanes and (or not) a light pass, at the bake's peak; `coarser`:
+/// whether the LOD reads a coarser one's radiance (LOD ≥ 1: its albedo is not held while
+/// the bundles run).
+pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, light_pass: bool, coarser: bool) -> u64 {
     match backend {
         // The texel map and the irradiance; the tracer's state is per thread.
         BackendKind::Reference => TEXEL_MAP_BYTES + IRRADIANCE_BYTES,
         BackendKind::Cpu | BackendKind::Gpu | BackendKind::Auto => {
             let lanes = lanes.max(1) as u64;
             let light = u64::from(light_pass);
-            // lean map + punctual + totals + source (then the irradiance) + lane sums
-            let cpu = LEAN_TEXEL_MAP_BYTES + 12 + 16 + 12 * light + 12 + lanes * (16 + 12 * light);
+            // lean map (without albedo, 12 B, after a coarser LOD) + punctual + totals +
+            // source (then the irradiance) + lane sums
+            let map = LEAN_TEXEL_MAP_BYTES - 12 * u64::from(coarser);
+            let cpu = map + 12 + 16 + 12 * light + 12 + lanes * (16 + 12 * light);
             // The GPU backend keeps the CPU's (its light pass) and adds its buffers, which
             // are host memory on a software adapter: the sources (12 B) and the fixed-point
             // sums with their read-back copy (2 × 32 B). `auto` may pick either.
@@ -131,7 +139,7 @@ pub fn estimate_from_lod0(
         let gutter = (t as f64 * GUTTER_PER_TEXEL).min(pixels.saturating_sub(t) as f64);
         bytes += gutter * GUTTER_BYTES as f64;
         if lod == finest {
-            let per = bake_bytes_per_texel(config.backend, config.bundle.lanes, light_pass);
+            let per = bake_bytes_per_texel(config.backend, config.bundle.lanes, light_pass, lod > 0);
             // The GPU backend uploads a copy of the lookup table (4 B a pixel).
             let table_copy = if config.backend == BackendKind::Cpu { 0 } else { 4 };
             bytes += t as f64 * per as f64 + pixels as f64 * (PIXEL_BYTES + table_copy) as f64;
@@ -307,14 +315,11 @@ mod tests {
 
     #[test]
     fn lanes_and_the_light_pass_cost_what_the_table_says() {
-        assert_eq!(bake_bytes_per_texel(BackendKind::Cpu, 1, false), 24 + 12 + 16 + 12 + 16);
-        assert_eq!(
-            bake_bytes_per_texel(BackendKind::Cpu, 2, true) - bake_bytes_per_texel(BackendKind::Cpu, 2, false),
-            12 + 2 * 12
-        );
-        assert_eq!(
-            bake_bytes_per_texel(BackendKind::Cpu, 3, false) - bake_bytes_per_texel(BackendKind::Cpu, 2, false),
-            16
-        );
+        let cpu = |lanes, light, coarser| bake_bytes_per_texel(BackendKind::Cpu, lanes, light, coarser);
+        assert_eq!(cpu(1, false, false), 24 + 12 + 16 + 12 + 16);
+        assert_eq!(cpu(2, true, false) - cpu(2, false, false), 12 + 2 * 12);
+        assert_eq!(cpu(3, false, false) - cpu(2, false, false), 16);
+        // A LOD reading a coarser one holds no albedo while its bundles run.
+        assert_eq!(cpu(2, false, false) - cpu(2, false, true), 12);
     }
 }

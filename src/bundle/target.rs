@@ -180,6 +180,12 @@ pub trait BundleBackend: Send {
         sums: &mut BatchSums,
         cancel: &AtomicBool,
     ) -> Result<PassStats, Cancelled>;
+
+    /// Gives up what the backend keeps per texel of its last target (its own sums) once the
+    /// driver is done with that target; the next batch sizes them again. A whole-LOD bake
+    /// calls it before it rebuilds what it gave up of the texel map, so that the two are
+    /// not held at once.
+    fn release_texel_buffers(&mut self) {}
 }
 
 /// Makes backends for a scene: the runtime is generic over this, never over a concrete

@@ -71,6 +71,12 @@ impl BundleBackend for CpuBundleBackend {
     ) -> Result<PassStats, Cancelled> {
         self.run(target, batch, source, sums, cancel, true)
     }
+
+    fn release_texel_buffers(&mut self) {
+        for lane in &mut self.lanes {
+            lane.sums = BatchSums::default();
+        }
+    }
 }
 
 impl CpuBundleBackend {

@@ -546,6 +546,12 @@ impl BundleBackend for GpuBundleBackend {
         "gpu"
     }
 
+    /// The CPU backend's lane sums (its light pass); the GPU buffers stay, sized for the
+    /// next target of this size.
+    fn release_texel_buffers(&mut self) {
+        self.cpu.release_texel_buffers();
+    }
+
     fn trace_batch(
         &mut self,
         target: &BakeTarget,
