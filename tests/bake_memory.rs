@@ -6,9 +6,10 @@
 //!
 //! Tolerance ±25%: the estimate counts every per-texel and per-pixel structure by its type's
 //! size (exact), and approximates three things: the gutter pixels (a quarter of the texels
-//! assumed, 8 B each: ±1 B a texel), the lanes' fragment buffers (counted at the full node
-//! budget, 2 × 24 MB here; they grow to the largest tile, which may be less: up to −15% of
-//! this bake's estimate) and what the allocator keeps of freed temporaries (the texel map's
+//! assumed, 8 B each: ±1 B a texel), the threads' fragment buffers and the hits kept for
+//! their turn (counted at the full node budget, 2 × 24 MB and 25 MB here, where a light
+//! pass gives the bake one lane for two threads; they grow to the largest tile, which may be
+//! less) and what the allocator keeps of freed temporaries (the texel map's
 //! per-band build buffers, a few % of the atlas). Resident sizes do not depend on timing,
 //! so the figure is stable run to run; a per-texel buffer added or dropped without the model
 //! being told (12 B or more of ~150) moves it by 8% and more, stacking with the above.

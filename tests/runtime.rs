@@ -737,7 +737,7 @@ fn cell_bakes_on_the_gpu_backend_equal_the_cpu_backends() {
         let shown = Arc::new(map);
         let bc = &world.bundle.config;
         let k = 2.0 * directions as f64 * (2.0 * bc.oversampling as f64 + 1.0).powi(2);
-        let bound = 2.0 * (k + bc.lanes as f64 + 2.0) * 2f64.powi(-24) + 2e-5;
+        let bound = 2.0 * (k + bc.lanes.most() as f64 + 2.0) * 2f64.powi(-24) + 2e-5;
         let mut cpu = CpuProvider::new().backend(&world.bundle, 2).expect("CPU backend");
         let mut on_gpu = gpu.backend(&world.bundle, 2).expect("GPU backend");
         for &cell in &cells[1..4] {

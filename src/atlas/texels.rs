@@ -11,6 +11,16 @@ use crate::scene::{Rgb, Scene, SceneGeometry};
 /// Marks an atlas pixel that holds no texel (not covered by any face, or gutter).
 pub const NO_TEXEL: u32 = u32::MAX;
 
+/// What [`TexelMap::restore_geometry`] recomputes of what a bake gave up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Restore {
+    /// Positions, normals and albedo: the map as [`TexelMap::build`] made it.
+    All,
+    /// The albedo alone (what light maps and their previews read): positions and normals
+    /// stay given up, 24 B a texel less in the output.
+    Albedo,
+}
+
 /// Every valid texel of one LOD, stored compactly (covered texels only, in `block_order`),
 /// plus the gutter pixels that copy a texel. The pixel → texel lookup is not kept: the
 /// bundles read a [`TexelTable`](super::lookup::TexelTable), tests [`TexelMap::slots`].
@@ -262,24 +272,41 @@ impl TexelMap {
         self.emission = emitting.dense();
     }
 
-    /// Recomputes the positions and normals [`drop_geometry`](Self::drop_geometry) gave up,
-    /// and the albedo when [`drop_albedo`](Self::drop_albedo) gave it up: the same function
-    /// of each texel's face and pixel as [`build`](Self::build), so the same values bit for
-    /// bit.
-    pub fn restore_geometry(&mut self, scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, threads: usize) {
+    /// Recomputes the albedo when [`drop_albedo`](Self::drop_albedo) gave it up, and with
+    /// [`Restore::All`] the positions and normals [`drop_geometry`](Self::drop_geometry) gave
+    /// up: the same function of each texel's face and pixel as [`build`](Self::build), so the
+    /// same values bit for bit.
+    pub fn restore_geometry(
+        &mut self,
+        scene: &Scene,
+        geom: &SceneGeometry,
+        atlas: &Atlas,
+        threads: usize,
+        restore: Restore,
+    ) {
         let n = self.len();
-        let mut position = vec![Vec3::ZERO; n];
-        let mut normal = vec![Vec3::ZERO; n];
+        // Each empty unless recomputed.
+        let geometry = if restore == Restore::All { n } else { 0 };
+        let mut position = vec![Vec3::ZERO; geometry];
+        let mut normal = vec![Vec3::ZERO; geometry];
         // Empty unless given up (a map of no texels has nothing to restore either way).
         let mut albedo = if self.albedo.len() == n { Vec::new() } else { vec![Rgb::ZERO; n] };
         let chunk = n.div_ceil(threads.max(1) * 4).max(4096);
         let (w, lod) = (self.width, self.lod);
-        let mut albedo_chunks: Vec<&mut [Rgb]> = albedo.chunks_mut(chunk).collect();
-        albedo_chunks.resize_with(n.div_ceil(chunk), Default::default);
-        let items: Vec<_> = position
-            .chunks_mut(chunk)
-            .zip(normal.chunks_mut(chunk))
-            .zip(albedo_chunks)
+        if geometry == 0 && albedo.is_empty() {
+            return;
+        }
+        // Chunks of the arrays recomputed, empty ones for the others.
+        fn chunks<T>(v: &mut [T], chunk: usize, count: usize) -> Vec<&mut [T]> {
+            let mut c: Vec<&mut [T]> = v.chunks_mut(chunk).collect();
+            c.resize_with(count, Default::default);
+            c
+        }
+        let count = n.div_ceil(chunk);
+        let items: Vec<_> = chunks(&mut position, chunk, count)
+            .into_iter()
+            .zip(chunks(&mut normal, chunk, count))
+            .zip(chunks(&mut albedo, chunk, count))
             .zip(self.face.chunks(chunk).zip(self.pixel.chunks(chunk)))
             .collect();
         par_for_each(items, threads, |(((position, normal), albedo), (face, pixel))| {
@@ -287,15 +314,18 @@ impl TexelMap {
                 let uv = atlas.faces[face[k] as usize].uv_lod(lod);
                 let (x, y) = ((pixel[k] % w) as i64, (pixel[k] / w) as i64);
                 let a = TexelAttributes::at(scene, geom, atlas, face[k], &uv, x, y);
-                position[k] = a.position;
-                normal[k] = a.normal;
+                if let (Some(p), Some(n)) = (position.get_mut(k), normal.get_mut(k)) {
+                    (*p, *n) = (a.position, a.normal);
+                }
                 if let Some(albedo) = albedo.get_mut(k) {
                     *albedo = a.albedo;
                 }
             }
         });
-        self.position = position;
-        self.normal = normal;
+        if geometry > 0 {
+            self.position = position;
+            self.normal = normal;
+        }
         if !albedo.is_empty() {
             self.albedo = albedo;
         }

@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use crate::atlas::TexelMap;
 use crate::atlas::lookup::TexelTable;
-use crate::atlas::texels::{TexelEmission, TexelView};
+use crate::atlas::texels::{Restore, TexelEmission, TexelView};
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
 use crate::bundle::{
@@ -99,7 +99,8 @@ pub fn bake_lod_observed(
 /// emission is held for the emitting texels alone ([`TexelMap::take_emission`]). With a
 /// coarser LOD, whose radiance is made the source once, before the bundles, the albedo is
 /// given up and recomputed as well. The backend's own per-texel buffers are given back
-/// before anything is recomputed. Same result, except that the punctual part is empty where
+/// before anything is recomputed; `restore` says what is ([`Restore::Albedo`]: the positions
+/// and normals stay given up). Same result, except that the punctual part is empty where
 /// the scene has no punctual lights (no 12 B a texel of zeros at the end, when the texel map
 /// is whole again).
 #[allow(clippy::too_many_arguments)]
@@ -109,6 +110,7 @@ pub fn bake_lod_lean(
     backend: &mut dyn BundleBackend,
     texels: &mut TexelMap,
     coarser: Option<CoarserLod>,
+    restore: Restore,
     threads: usize,
     progress: &dyn Progress,
     cancel: &AtomicBool,
@@ -157,7 +159,7 @@ pub fn bake_lod_lean(
     if let Some(e) = &emitting {
         texels.restore_emission(e);
     }
-    texels.restore_geometry(&bundle.scene, &bundle.geom, &bundle.atlas, threads);
+    texels.restore_geometry(&bundle.scene, &bundle.geom, &bundle.atlas, threads, restore);
     result
 }
 
@@ -393,7 +395,8 @@ mod tests {
             let mut lean_map = TexelMap::build(&scene, &geom, &atlas, lod);
             let c = coarser.as_ref().map(|(t, e)| CoarserLod { texels: t, irradiance: e });
             let lean =
-                bake_lod_lean(&bundle, &bvh, &mut backend, &mut lean_map, c, 2, &NoProgress, &never).expect("lean");
+                bake_lod_lean(&bundle, &bvh, &mut backend, &mut lean_map, c, Restore::All, 2, &NoProgress, &never)
+                    .expect("lean");
             let lights = scene.lights.len();
             assert_same_bits(&lean.irradiance, &plain.irradiance, &format!("{lights} lights, LOD {lod}: irradiance"));
             if lights == 0 {

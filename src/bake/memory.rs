@@ -2,8 +2,11 @@
 //! allocated, the guard that refuses a bake over the limit, and what it did hold (peak RSS).
 //!
 //! The model counts what is live at a bake's peak: the end of the last batch of the finest
-//! LOD, with every coarser LOD's texel map and irradiance kept (they are the output). Per
-//! covered texel of the LOD being baked (CPU backend, `L` lanes, sizes of the structures in
+//! LOD, with every coarser LOD's texel map (without positions and normals unless the config
+//! keeps them: `livebake bake` does not) and irradiance kept (they are the output). Per
+//! covered texel of the LOD being baked (CPU backend, `L` lanes (see
+//! [`crate::bundle::Lanes`]: 2, or 1 from 2²⁰ texels with a light pass by default), sizes of
+//! the structures in
 //! [`crate::atlas::texels`], [`crate::atlas::lookup`], [`crate::bundle::progressive`] and
 //! [`crate::cpu`]):
 //!
@@ -13,7 +16,7 @@
 //! | texel map: albedo (Vec3); given up while the bundles of a LOD reading a coarser one run (its source is made before them) and recomputed after | 12 (LOD 0), 0 |
 //! | texel map: emission (Vec3), held for the emitting texels alone while the bundles run ([`crate::atlas::TexelMap::take_emission`]) | 0 |
 //! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]) | 0 |
-//! | punctual irradiance (Rgb); none in a scene without punctual lights, which the estimate does not know (it stays an upper bound) | 12 |
+//! | punctual irradiance (Rgb), only in a scene with punctual lights | 12 |
 //! | progressive totals: Σw·S (rgb) and Σw·A, f32 | 16 |
 //! | progressive totals: light-pass Σ a·Le/A_texel (rgb, f32), only with a light pass | 12 |
 //! | source radiance, reused for the irradiance at the end (Rgb) | 12 |
@@ -23,8 +26,8 @@
 //! plus, per atlas pixel of that LOD, the blocked lookup table the bundles read (4 B), and
 //! per gutter pixel 8 B (its pixel and source texel; the number is only known once the map
 //! is built, so a quarter of the texels is assumed: the rooms measured have 13–25%). Per
-//! lane, the fragment buffers: up to N fragments (12 B) and as many spans (12 B), and a row
-//! of W head pointers per row of W. What does not grow with the texels (scene, BVH, atlas)
+//! thread, the fragment buffers and the hits kept for their turn ([`cpu_thread_bytes`]).
+//! What does not grow with the texels (scene, BVH, atlas)
 //! is already resident when the guard runs and is read from the process's resident set.
 //!
 //! Before this model (and the changes it describes), the same bake held 253 B per texel plus
@@ -48,13 +51,19 @@
 //! Then a LOD read from a coarser one stopped holding its albedo while its bundles run, and
 //! the backend's lane sums go before the texel map is made whole again: a two-LOD bake
 //! holds 7 B less a texel of LOD 1 in the plain Van Gogh room (slope 113.5 → 106.4 B), and
-//! 131 → 122 B a texel in all in the lit one (`bytes_per_texel`, 32 directions).
+//! 131 → 122 B a texel in all in the lit one (`bytes_per_texel`, 32 directions). Then the
+//! CPU backend's threads came to share lanes ([`crate::cpu`]), and a target of 2²⁰ texels or
+//! more with a light pass gets one lane by default, one set of sums where two threads kept
+//! one each (lit room 140.6 → 112.8 B a texel by the slope, as fast), and `livebake bake`'s
+//! output maps stopped getting their positions and normals back (the plain room's two-LOD
+//! bake 85.2 → 75.8 B a texel in all).
 
 use serde::Serialize;
 
 use crate::atlas::Atlas;
 
 use super::{BackendKind, BakeConfig};
+use crate::cpu::WAITING_HITS_PER_THREAD;
 
 /// Texel-map bytes per covered texel: pixel, face, area (4 B each) and position, normal,
 /// albedo, emission (12 B each).
@@ -71,21 +80,38 @@ pub const GUTTER_BYTES: u64 = 8;
 /// Gutter pixels assumed per covered texel before the map is built.
 pub const GUTTER_PER_TEXEL: f64 = 0.25;
 
+/// What a scene's lights add to a bake's memory.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Lighting {
+    /// Small emitters, which get the light pass (its sums and totals).
+    pub light_pass: bool,
+    /// Punctual lights (their exact irradiance per texel).
+    pub punctual: bool,
+}
+
+impl Lighting {
+    /// Both: the most a scene's lights can add.
+    pub const ALL: Lighting = Lighting { light_pass: true, punctual: true };
+    /// Neither: the least.
+    pub const NONE: Lighting = Lighting { light_pass: false, punctual: false };
+}
+
 /// Bytes per covered texel of the LOD being baked, its texel map and irradiance included,
-/// with `lanes` accumulation lanes and (or not) a light pass, at the bake's peak; `coarser`:
-/// whether the LOD reads a coarser one's radiance (LOD ≥ 1: its albedo is not held while
-/// the bundles run).
-pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, light_pass: bool, coarser: bool) -> u64 {
+/// with `lanes` accumulation lanes and `lighting`, at the bake's peak; `coarser`: whether
+/// the LOD reads a coarser one's radiance (LOD ≥ 1: its albedo is not held while the
+/// bundles run).
+pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, lighting: Lighting, coarser: bool) -> u64 {
     match backend {
         // The texel map and the irradiance; the tracer's state is per thread.
         BackendKind::Reference => TEXEL_MAP_BYTES + IRRADIANCE_BYTES,
         BackendKind::Cpu | BackendKind::Gpu | BackendKind::Auto => {
             let lanes = lanes.max(1) as u64;
-            let light = u64::from(light_pass);
+            let light = u64::from(lighting.light_pass);
+            let punctual = 12 * u64::from(lighting.punctual);
             // lean map (without albedo, 12 B, after a coarser LOD) + punctual + totals +
             // source (then the irradiance) + lane sums
             let map = LEAN_TEXEL_MAP_BYTES - 12 * u64::from(coarser);
-            let cpu = map + 12 + 16 + 12 * light + 12 + lanes * (16 + 12 * light);
+            let cpu = map + punctual + 16 + 12 * light + 12 + lanes * (16 + 12 * light);
             // The GPU backend keeps the CPU's (its light pass) and adds its buffers, which
             // are host memory on a software adapter: the sources (12 B) and the fixed-point
             // sums with their read-back copy (2 × 32 B). `auto` may pick either.
@@ -97,6 +123,20 @@ pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, light_pass: bool, 
     }
 }
 
+/// Bytes of the CPU backend's `threads` threads, sharing `lanes` lanes, that do not grow
+/// with the texels: each thread's fragment buffers (up to N fragments of 12 B and as many
+/// spans of 12 B, a row of W head pointers), and the hits kept for their turn by threads
+/// working ahead of their lane's next unit (20 B each, at most
+/// [`WAITING_HITS_PER_THREAD`] × N per thread beyond a lane's first, the cap past which
+/// they take no unit ahead; plus each such lane's spare record chunks).
+pub fn cpu_thread_bytes(b: &crate::bundle::BundleConfig, threads: u64, lanes: u64) -> u64 {
+    let fragments = b.node_capacity.saturating_mul(24) + b.head_side as u64 * 8;
+    let ahead = threads.saturating_sub(lanes);
+    let records = b.node_capacity.saturating_mul(20 * WAITING_HITS_PER_THREAD);
+    let spare = crate::cpu::SPARE_RECORD_BYTES * ahead.min(lanes);
+    fragments.saturating_mul(threads).saturating_add(records.saturating_mul(ahead)) + spare
+}
+
 /// What a bake is expected to hold at its peak, before it allocates anything per texel.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct MemoryEstimate {
@@ -104,18 +144,21 @@ pub struct MemoryEstimate {
     pub texels: u64,
     /// Bytes that grow with the texels (texel maps, sums, estimates, tables).
     pub texel_bytes: u64,
-    /// Bytes per lane that do not (fragment and span buffers).
-    pub lane_bytes: u64,
-    /// Everything: `texel_bytes + lane_bytes`.
+    /// Bytes of the backend's threads, which do not (fragment buffers, hits kept for
+    /// their turn).
+    pub thread_bytes: u64,
+    /// Accumulation lanes of the finest LOD's bake ([`crate::bundle::Lanes::for_target`]).
+    pub lanes: u32,
+    /// Everything: `texel_bytes + thread_bytes`.
     pub bytes: u64,
     /// `bytes / texels`.
     pub bytes_per_texel: f64,
 }
 
 /// The peak bytes of baking `config.lods` levels of `atlas` (see the module docs).
-pub fn estimate(atlas: &Atlas, config: &BakeConfig, light_pass: bool) -> MemoryEstimate {
+pub fn estimate(atlas: &Atlas, config: &BakeConfig, lighting: Lighting) -> MemoryEstimate {
     let hierarchy = atlas.lods(config.lods);
-    estimate_from_lod0(atlas.stats.covered_texels_lod0, Some(&|lod| hierarchy.texel_count(lod)), config, light_pass)
+    estimate_from_lod0(atlas.stats.covered_texels_lod0, Some(&|lod| hierarchy.texel_count(lod)), config, lighting)
 }
 
 /// [`estimate`] from LOD 0's covered texels and each LOD's atlas pixels (`None`: as many as
@@ -127,9 +170,11 @@ pub fn estimate_from_lod0(
     texels0: u64,
     pixels_at: Option<&dyn Fn(u32) -> u64>,
     config: &BakeConfig,
-    light_pass: bool,
+    lighting: Lighting,
 ) -> MemoryEstimate {
     let finest = config.lods.saturating_sub(1);
+    let finest_texels = texels0.saturating_mul(1u64 << (2 * finest.min(31)));
+    let lanes = config.bundle.lanes.for_target(finest_texels, lighting.light_pass);
     let mut texels = 0u64;
     let mut bytes = 0f64;
     for lod in 0..config.lods {
@@ -139,20 +184,21 @@ pub fn estimate_from_lod0(
         let gutter = (t as f64 * GUTTER_PER_TEXEL).min(pixels.saturating_sub(t) as f64);
         bytes += gutter * GUTTER_BYTES as f64;
         if lod == finest {
-            let per = bake_bytes_per_texel(config.backend, config.bundle.lanes, light_pass, lod > 0);
+            let per = bake_bytes_per_texel(config.backend, lanes, lighting, lod > 0);
             // The GPU backend uploads a copy of the lookup table (4 B a pixel).
             let table_copy = if config.backend == BackendKind::Cpu { 0 } else { 4 };
             bytes += t as f64 * per as f64 + pixels as f64 * (PIXEL_BYTES + table_copy) as f64;
         } else {
-            bytes += t as f64 * (TEXEL_MAP_BYTES + IRRADIANCE_BYTES) as f64;
+            // A coarser LOD's output: its map, without positions and normals unless kept.
+            let map = TEXEL_MAP_BYTES - if config.keep_texel_positions { 0 } else { 24 };
+            bytes += t as f64 * (map + IRRADIANCE_BYTES) as f64;
         }
     }
-    let lane_bytes = match config.backend {
+    let thread_bytes = match config.backend {
         BackendKind::Reference => 0,
         BackendKind::Cpu | BackendKind::Gpu | BackendKind::Auto => {
             let b = &config.bundle;
-            let per_lane = b.node_capacity.saturating_mul(24) + b.head_side as u64 * 8;
-            let cpu = per_lane.saturating_mul(b.lanes.max(1) as u64);
+            let cpu = cpu_thread_bytes(b, config.threads() as u64, lanes as u64);
             // GPU: nodes (8 B) and links (4 B), heads (W² × 4 B), the resolve's group list.
             let gpu = b.node_capacity.saturating_mul(12)
                 + (b.head_side as u64).pow(2) * 4
@@ -161,11 +207,12 @@ pub fn estimate_from_lod0(
         }
     };
     let texel_bytes = bytes.min(u64::MAX as f64 / 2.0) as u64;
-    let total = texel_bytes.saturating_add(lane_bytes);
+    let total = texel_bytes.saturating_add(thread_bytes);
     MemoryEstimate {
         texels,
         texel_bytes,
-        lane_bytes,
+        thread_bytes,
+        lanes: if config.backend == BackendKind::Reference { 0 } else { lanes },
         bytes: total,
         bytes_per_texel: if texels > 0 { total as f64 / texels as f64 } else { 0.0 },
     }
@@ -314,12 +361,15 @@ mod tests {
     }
 
     #[test]
-    fn lanes_and_the_light_pass_cost_what_the_table_says() {
-        let cpu = |lanes, light, coarser| bake_bytes_per_texel(BackendKind::Cpu, lanes, light, coarser);
-        assert_eq!(cpu(1, false, false), 24 + 12 + 16 + 12 + 16);
-        assert_eq!(cpu(2, true, false) - cpu(2, false, false), 12 + 2 * 12);
-        assert_eq!(cpu(3, false, false) - cpu(2, false, false), 16);
+    fn lanes_and_the_lights_cost_what_the_table_says() {
+        let plain = Lighting::NONE;
+        let small = Lighting { light_pass: true, punctual: false };
+        let cpu = |lanes, lighting, coarser| bake_bytes_per_texel(BackendKind::Cpu, lanes, lighting, coarser);
+        assert_eq!(cpu(1, plain, false), 24 + 16 + 12 + 16);
+        assert_eq!(cpu(2, small, false) - cpu(2, plain, false), 12 + 2 * 12);
+        assert_eq!(cpu(2, Lighting::ALL, false) - cpu(2, small, false), 12);
+        assert_eq!(cpu(3, plain, false) - cpu(2, plain, false), 16);
         // A LOD reading a coarser one holds no albedo while its bundles run.
-        assert_eq!(cpu(2, false, false) - cpu(2, false, true), 12);
+        assert_eq!(cpu(2, plain, false) - cpu(2, plain, true), 12);
     }
 }

@@ -14,6 +14,7 @@ use serde::Serialize;
 
 use std::sync::Arc;
 
+use crate::atlas::texels::Restore;
 use crate::atlas::{Atlas, AtlasConfig, AtlasError, TexelMap};
 use crate::bundle::{BundleConfig, BundleConfigError, BundleScene};
 use crate::progress::Progress;
@@ -68,6 +69,11 @@ pub struct BakeConfig {
     /// Most bytes the bake may hold (checked against an estimate before any texel map is
     /// built); `None`: three quarters of the machine's memory.
     pub memory_limit: Option<u64>,
+    /// Whether the output's texel maps hold their positions and normals (24 B a texel,
+    /// recomputed after the bundles of a bundle backend); without them they hold what
+    /// light maps and their previews read. Not part of the result.
+    #[serde(skip)]
+    pub keep_texel_positions: bool,
 }
 
 impl Default for BakeConfig {
@@ -81,6 +87,7 @@ impl Default for BakeConfig {
             bundle: BundleConfig::default(),
             threads: None,
             memory_limit: None,
+            keep_texel_positions: true,
         }
     }
 }
@@ -234,7 +241,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
     let mut lods: Vec<BakedLod> = Vec::new();
     match config.backend {
         BackendKind::Reference => {
-            report.memory = check_memory(&atlas, config, false)?;
+            report.memory = check_memory(&atlas, config, memory::Lighting::NONE)?;
             let backend = reference::ReferenceBackend::new(scene, config);
             report.memory.resident_at_start = memory::resident_bytes();
             for lod in 0..config.lods {
@@ -253,8 +260,9 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 Arc::new(atlas.clone()),
                 config.bundle_config(),
             ));
-            let light_pass = !bundle.emitters.small.is_empty();
-            report.memory = check_memory(&atlas, config, light_pass)?;
+            let lighting =
+                memory::Lighting { light_pass: !bundle.emitters.small.is_empty(), punctual: !scene.lights.is_empty() };
+            report.memory = check_memory(&atlas, config, lighting)?;
             let bvh = Bvh::for_scene(scene, &geom);
             check_node_capacity(&bvh, &config.bundle_config())?;
             let mut backend = backend::bundle_backend(config.backend, &bundle, config.threads())?;
@@ -275,6 +283,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                     &mut *backend,
                     &mut texels,
                     coarser,
+                    if config.keep_texel_positions { Restore::All } else { Restore::Albedo },
                     threads,
                     progress,
                     &never,
@@ -331,14 +340,18 @@ pub fn check_lod_sizes(atlas: &Atlas, lods: u32) -> Result<(), BakeError> {
 }
 
 /// The memory guard: estimates the peak of baking `config` on `atlas` ([`memory::estimate`];
-/// `light_pass`: whether the scene has small emitters) before anything per texel is
+/// `lighting`: what the scene's lights add) before anything per texel is
 /// allocated and refuses it when that, with what the process already holds, exceeds the
 /// limit (`config.memory_limit`, else 3/4 of the machine's memory). The error names the
 /// options that lower it. Returns the memory part of the report, measured figures to come.
-pub fn check_memory(atlas: &Atlas, config: &BakeConfig, light_pass: bool) -> Result<memory::MemoryReport, BakeError> {
-    let estimate = memory::estimate(atlas, config, light_pass);
+pub fn check_memory(
+    atlas: &Atlas,
+    config: &BakeConfig,
+    lighting: memory::Lighting,
+) -> Result<memory::MemoryReport, BakeError> {
+    let estimate = memory::estimate(atlas, config, lighting);
     let (limit, source) = memory::memory_limit(config.memory_limit);
-    refuse_over_limit(&estimate, config, light_pass, Some(atlas.texel_size), "~")?;
+    refuse_over_limit(&estimate, config, lighting.light_pass, Some(atlas.texel_size), "~")?;
     Ok(memory::MemoryReport {
         estimate,
         limit_bytes: limit,
@@ -360,10 +373,16 @@ fn check_memory_early(scene: &Scene, geom: &SceneGeometry, config: &BakeConfig) 
         Some(_) => crate::atlas::min_texels(scene, geom, &config.atlas).unwrap_or(0),
         None => (config.atlas.texel_budget as f64 * EARLY_BUDGET_SHARE) as u64,
     };
-    let mut estimate = memory::estimate_from_lod0(texels, None, config, false);
-    // The lanes' buffers are counted at their most: not part of a lower bound.
+    // Counted with one lane: `auto` gives a bake with a light pass one, should it have more
+    // texels than this lower bound.
+    let mut one_lane = config.clone();
+    if one_lane.bundle.lanes == crate::bundle::Lanes::Auto {
+        one_lane.bundle.lanes = crate::bundle::Lanes::Fixed(1);
+    }
+    let mut estimate = memory::estimate_from_lod0(texels, None, &one_lane, memory::Lighting::NONE);
+    // The threads' buffers are counted at their most: not part of a lower bound.
     estimate.bytes = estimate.texel_bytes;
-    estimate.lane_bytes = 0;
+    estimate.thread_bytes = 0;
     estimate.bytes_per_texel = estimate.bytes as f64 / estimate.texels.max(1) as f64;
     refuse_over_limit(&estimate, config, false, config.atlas.texel_size, "at least ")
 }
@@ -383,7 +402,7 @@ fn refuse_over_limit(
     if need > limit {
         // Texels scale as 1/texel size²: the size (or budget) that brings the texel part
         // within what is left, with 5% to spare.
-        let room = limit.saturating_sub(resident).saturating_sub(estimate.lane_bytes) as f64;
+        let room = limit.saturating_sub(resident).saturating_sub(estimate.thread_bytes) as f64;
         let shrink = estimate.texel_bytes as f64 / room.max(1.0) * 1.05;
         let size = texel_size.map(|t| memory::metres(t as f64 * shrink.sqrt()));
         let mut advice = if room < 1.0 {
@@ -405,10 +424,10 @@ fn refuse_over_limit(
                 config.lods
             ));
         }
-        if config.backend != BackendKind::Reference && config.bundle.lanes > 1 {
+        if estimate.lanes > 1 {
             advice.push_str(&format!(
-                ", or lower --lanes ({} now, {} B a texel each)",
-                config.bundle.lanes,
+                ", or give --lanes 1 ({} now, {} B a texel each)",
+                estimate.lanes,
                 16 + 12 * u64::from(light_pass)
             ));
         }

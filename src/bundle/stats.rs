@@ -29,6 +29,9 @@ pub struct PassStats {
     pub covered_pixels: u64,
     /// Largest fragment count of any built tile (≤ N unless a single pixel exceeded it).
     pub peak_tile_fragments: u64,
+    /// Most hits one unit of the CPU backend (a tile with its parts after an overflow, or a
+    /// light bundle) traced ahead of its turn kept as records (20 B each) until then.
+    pub peak_recorded_hits: u64,
     /// Tiles whose actual fragment count exceeded N (detected, split and redone).
     pub overflowed_tiles: u64,
     /// Fragments beyond N in those tiles: what a fixed node buffer would have lost.
@@ -94,6 +97,7 @@ impl PassStats {
         self.fragments += o.fragments;
         self.covered_pixels += o.covered_pixels;
         self.peak_tile_fragments = self.peak_tile_fragments.max(o.peak_tile_fragments);
+        self.peak_recorded_hits = self.peak_recorded_hits.max(o.peak_recorded_hits);
         self.overflowed_tiles += o.overflowed_tiles;
         self.overflow_fragments += o.overflow_fragments;
         self.resplits += o.resplits;

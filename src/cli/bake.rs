@@ -39,7 +39,8 @@ pub fn run(
     options: &SceneOptions,
     ui: &Ui,
 ) -> Result<()> {
-    let config = BakeConfig { memory_limit, ..options.bake_config(default_samples)? };
+    // The light maps, their previews and the export read no texel positions.
+    let config = BakeConfig { memory_limit, keep_texel_positions: false, ..options.bake_config(default_samples)? };
     let (scene, load_seconds) = load_scene(scene_path, options)?;
     tracing::info!(
         "loaded {}: {} meshes, {} triangles, {} lights in {:.2} s",

@@ -5,8 +5,8 @@ use clap::{Args, ValueEnum};
 
 use livebake::atlas::AtlasConfig;
 use livebake::bake::{BackendKind, BakeConfig};
-use livebake::bundle::BundleConfig;
 use livebake::bundle::tiles::TilingMode;
+use livebake::bundle::{BundleConfig, Lanes};
 use livebake::scene::Rgb;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -90,10 +90,11 @@ pub struct BundleOptions {
     /// Light-pass directions per global direction per small emitter.
     #[arg(long, default_value_t = BundleConfig::default().light_directions)]
     pub light_directions: u32,
-    /// Accumulation lanes (results depend on it, not on --threads; at most this many threads
-    /// trace bundles).
+    /// Accumulation lanes: `auto` (one for 2^20 texels or more with small emitters, else
+    /// two) or a count. Each holds its own sums, 16 B a texel (28 with small emitters);
+    /// results depend on it, not on --threads.
     #[arg(long, default_value_t = BundleConfig::default().lanes)]
-    pub lanes: u32,
+    pub lanes: Lanes,
 }
 
 impl Default for BundleOptions {
@@ -200,6 +201,7 @@ impl SceneOptions {
             },
             threads: self.threads,
             memory_limit: None,
+            keep_texel_positions: true,
         })
     }
 }

@@ -21,9 +21,8 @@ pub struct Analysis {
     pub fragments: Vec<f32>,
     /// Triangles whose projection touches each bin (row-major, BINS×BINS).
     bins: Vec<Vec<u32>>,
-    /// One bit per triangle: collected for the current window (dedupes bins). All clear
-    /// between windows.
-    collected: Vec<u64>,
+    /// Triangles of the scene (the bit set [`candidates`](Self::candidates) needs).
+    triangles: usize,
 }
 
 impl Analysis {
@@ -51,8 +50,7 @@ impl Analysis {
         self.fragments.resize(n, 0.0);
         self.bins.resize_with((BINS * BINS) as usize, Vec::new);
         self.bins.iter_mut().for_each(Vec::clear);
-        self.collected.clear();
-        self.collected.resize(geom.len().div_ceil(64), 0);
+        self.triangles = geom.len();
         match candidates {
             Some(c) => c.iter().for_each(|&t| self.add(scene, frame, viewport, t, importance[t as usize])),
             None => (0..geom.len() as u32).for_each(|t| self.add(scene, frame, viewport, t, importance[t as usize])),
@@ -106,8 +104,13 @@ impl Analysis {
 
     /// Triangles that may touch the window `[x0, x1) × [y0, y1)` (analysis pixels), each once,
     /// in ascending order (so fragment build order, and with it the result, is deterministic).
-    pub fn candidates(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, out: &mut Vec<u32>) {
+    /// `collected`: the caller's bit set, one bit per triangle, all clear between calls (it
+    /// dedupes bins; one per thread, so threads gather tiles of one analysis side by side).
+    pub fn candidates(&self, x0: f64, y0: f64, x1: f64, y1: f64, collected: &mut Vec<u64>, out: &mut Vec<u32>) {
         out.clear();
+        if collected.len() < self.triangles.div_ceil(64) {
+            collected.resize(self.triangles.div_ceil(64), 0);
+        }
         let bin_side = self.res as f64 / BINS as f64;
         let clamp = |v: f64| ((v / bin_side).max(0.0) as u32).min(BINS - 1);
         let (mut first_word, mut last_word) = (usize::MAX, 0);
@@ -115,8 +118,8 @@ impl Analysis {
             for bx in clamp(x0)..=clamp(x1 - 1e-9) {
                 for &t in &self.bins[(by * BINS + bx) as usize] {
                     let (word, bit) = ((t / 64) as usize, 1u64 << (t % 64));
-                    if self.collected[word] & bit == 0 {
-                        self.collected[word] |= bit;
+                    if collected[word] & bit == 0 {
+                        collected[word] |= bit;
                         out.push(t);
                         first_word = first_word.min(word);
                         last_word = last_word.max(word);
@@ -132,8 +135,8 @@ impl Analysis {
         let words = last_word - first_word + 1;
         if out.len() * 8 >= words {
             out.clear();
-            for word in first_word..=last_word {
-                let mut bits = std::mem::take(&mut self.collected[word]);
+            for (word, set) in collected.iter_mut().enumerate().take(last_word + 1).skip(first_word) {
+                let mut bits = std::mem::take(set);
                 while bits != 0 {
                     out.push(word as u32 * 64 + bits.trailing_zeros());
                     bits &= bits - 1;
@@ -142,7 +145,7 @@ impl Analysis {
         } else {
             out.sort_unstable();
             for &t in out.iter() {
-                self.collected[(t / 64) as usize] = 0;
+                collected[(t / 64) as usize] = 0;
             }
         }
     }
@@ -160,8 +163,8 @@ mod tests {
     fn candidates_are_the_union_of_the_bins_in_ascending_order() {
         let mut rng = Rng::new(29, 1);
         let triangles = 20_000u32;
-        let mut analysis = Analysis { res: 64, ..Analysis::default() };
-        analysis.collected = vec![0; (triangles as usize).div_ceil(64)];
+        let mut analysis = Analysis { res: 64, triangles: triangles as usize, ..Analysis::default() };
+        let mut collected = Vec::new();
         analysis.bins = (0..BINS * BINS)
             .map(|b| {
                 // Dense runs in some bins, a few scattered indices in others.
@@ -179,7 +182,7 @@ mod tests {
         for _ in 0..300 {
             let (x0, y0) = (rng.next_f32() as f64 * 64.0, rng.next_f32() as f64 * 64.0);
             let (x1, y1) = (x0 + rng.next_f32() as f64 * 20.0 + 0.1, y0 + rng.next_f32() as f64 * 20.0 + 0.1);
-            analysis.candidates(x0, y0, x1, y1, &mut out);
+            analysis.candidates(x0, y0, x1, y1, &mut collected, &mut out);
             let side = 64.0 / BINS as f64;
             let clamp = |v: f64| ((v / side).max(0.0) as u32).min(BINS - 1);
             let mut expected: Vec<u32> = (clamp(y0)..=clamp(y1 - 1e-9))
@@ -189,7 +192,7 @@ mod tests {
             expected.sort_unstable();
             expected.dedup();
             assert_eq!(out, expected);
-            assert!(analysis.collected.iter().all(|&w| w == 0));
+            assert!(collected.iter().all(|&w| w == 0));
         }
     }
 }

@@ -1,5 +1,8 @@
-//! One bundle direction on the CPU: analysis → mips → tile plan → per tile fragment build
-//! and resolve (global bundles), then the light bundles assigned to that direction.
+//! One bundle direction on the CPU, in units the batch scheduler ([`super::batch`]) hands to
+//! its threads: the plan (analysis → mips → tile plan), then each planned tile (fragment
+//! build and resolve of the global bundle) and each light bundle assigned to the direction.
+//! A unit writes its hits into any [`HitSink`]: the sums themselves, or records added to
+//! them later in unit order.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -12,7 +15,6 @@ use super::fragments::{ForeignSides, TileFragments};
 use super::scene::CpuScene;
 use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own};
 use crate::bundle::mips::MipChain;
-use crate::bundle::progressive::BatchSums;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
 use crate::bundle::target::{BakeTarget, Cancelled, SourceRadiance};
@@ -21,7 +23,7 @@ use crate::bundle::window::{WindowSource, split_overflowed, tile_viewport, unpla
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
 use crate::scene::Rgb;
 
-/// Read-only inputs shared by every lane of a batch.
+/// Read-only inputs shared by every thread of a batch.
 pub struct PassContext<'a> {
     pub scene: &'a CpuScene,
     pub config: &'a BundleConfig,
@@ -39,22 +41,57 @@ pub struct PassContext<'a> {
     pub global: bool,
 }
 
-/// Per-lane scratch buffers, reused across directions.
+/// One thread's scratch buffers, reused across units, and the statistics of its units.
 #[derive(Default)]
-pub struct Scratch {
-    analysis: Analysis,
+pub struct Worker {
     fragments: TileFragments,
     candidates: Vec<u32>,
+    /// One bit per triangle (see [`Analysis::candidates`]).
+    collected: Vec<u64>,
     /// Traversal stack of the triangles' bounds tree.
     bounds_stack: Vec<u32>,
     /// Triangles whose projection may meet the current window.
     window_triangles: Vec<u32>,
+    /// Viewports still to trace of the current unit (its parts after an overflow).
     queue: Vec<Viewport>,
     /// The current light bundle's emitter silhouette.
     emitter_rows: EmitterRows,
+    pub stats: PassStats,
 }
 
-struct BundleHits<'a>(&'a mut [[f32; 4]]);
+/// A planned direction: what its units read.
+pub struct DirectionPlan {
+    frame: BundleFrame,
+    /// The analysis window the tiles are cut from.
+    global: Viewport,
+    /// Its triangle bins (the tiles gather their candidates from them).
+    analysis: Analysis,
+    /// The planned tiles of the global bundle in plan order, large ones as their parts
+    /// ([`SPLIT_TILE_SHARE`]), each with whether it is a planned tile's first (none when
+    /// the global bundles are not traced, or the direction could not be planned).
+    tiles: Vec<(Viewport, bool)>,
+    lights: usize,
+}
+
+impl DirectionPlan {
+    /// Units: the tiles in plan order, then the light bundles in job order.
+    pub fn units(&self) -> usize {
+        self.tiles.len() + self.lights
+    }
+
+    /// Whether unit `u` is a global-bundle tile (else a light bundle).
+    pub fn is_tile(&self, u: usize) -> bool {
+        u < self.tiles.len()
+    }
+}
+
+/// Share of the node budget above which a planned tile is traced as its four parts (the same
+/// pixels, so the same hits, in another order), units of their own: a tile filling the node
+/// buffer is a few times the mean tile, and threads would otherwise wait behind it.
+const SPLIT_TILE_SHARE: f64 = 0.25;
+
+/// Global-bundle hits added straight to the sums.
+pub struct BundleHits<'a>(pub &'a mut [[f32; 4]]);
 
 impl HitSink for BundleHits<'_> {
     #[inline]
@@ -67,7 +104,8 @@ impl HitSink for BundleHits<'_> {
     }
 }
 
-struct LightHits<'a>(&'a mut [Rgb]);
+/// Light-pass hits added straight to the sums.
+pub struct LightHits<'a>(pub &'a mut [Rgb]);
 
 impl HitSink for LightHits<'_> {
     #[inline]
@@ -78,26 +116,6 @@ impl HitSink for LightHits<'_> {
 
 fn seconds(t: Instant) -> f64 {
     t.elapsed().as_secs_f64()
-}
-
-/// Traces global direction `job` and its light bundles into `sums`.
-pub fn trace_direction(
-    ctx: &PassContext,
-    job: &DirectionJob,
-    sums: &mut BatchSums,
-    s: &mut Scratch,
-    stats: &mut PassStats,
-) -> Result<(), Cancelled> {
-    if ctx.global {
-        trace_global(ctx, job, sums, s, stats)?;
-        stats.directions += 1;
-    }
-    let t = Instant::now();
-    for light in &job.lights {
-        trace_light(ctx, light, sums, s, stats)?;
-    }
-    stats.light_seconds += seconds(t);
-    Ok(())
 }
 
 fn check(ctx: &PassContext) -> Result<(), Cancelled> {
@@ -115,13 +133,13 @@ fn window(ctx: &PassContext) -> WindowSource {
 }
 
 /// The triangles that may touch `vp`, from the analysis bins over `global`.
-fn gather(analysis: &mut Analysis, global: &Viewport, vp: &Viewport, out: &mut Vec<u32>) {
+fn gather(analysis: &Analysis, global: &Viewport, vp: &Viewport, collected: &mut Vec<u64>, out: &mut Vec<u32>) {
     let lo = (vp.corner() - global.origin) / global.pixel;
     let hi = lo + Vec2::new(vp.width as f32, vp.height as f32) * (vp.pixel / global.pixel);
-    analysis.candidates(lo.x as f64, lo.y as f64, hi.x as f64, hi.y as f64, out);
+    analysis.candidates(lo.x as f64, lo.y as f64, hi.x as f64, hi.y as f64, collected, out);
 }
 
-/// Foreign sides looked up by a direction's resolve: resolved, and lost (no foreign source).
+/// Foreign sides looked up by a tile's resolve: resolved, and lost (no foreign source).
 #[derive(Default)]
 struct ForeignLookups {
     resolved: u64,
@@ -157,41 +175,45 @@ fn seen(
     }
 }
 
-fn trace_global(
-    ctx: &PassContext,
-    job: &DirectionJob,
-    sums: &mut BatchSums,
-    s: &mut Scratch,
-    stats: &mut PassStats,
-) -> Result<(), Cancelled> {
+/// Plans direction `job`: analysis, mips and tile plan of its global bundle (when the pass
+/// traces global bundles; a direction that cannot be planned gets no tiles and is counted
+/// in `w.stats`, which the driver refuses), and its light bundles.
+pub fn plan_direction(ctx: &PassContext, job: &DirectionJob, w: &mut Worker) -> Result<DirectionPlan, Cancelled> {
     let cfg = ctx.config;
     let frame = BundleFrame::new(job.dir);
     let global = window(ctx).analysis_viewport(cfg, &frame, job.jitter);
+    let mut plan =
+        DirectionPlan { frame, global, analysis: Analysis::default(), tiles: Vec::new(), lights: job.lights.len() };
+    if !ctx.global {
+        return Ok(plan);
+    }
+    let (frame, global) = (&plan.frame, &plan.global);
+    w.stats.directions += 1;
 
     let t = Instant::now();
     let candidates = match ctx.target.window {
         None => None,
         Some(_) => {
             let side = global.pixel * global.width as f32;
-            ctx.scene.bounds.overlapping(&frame, global.origin, side, &mut s.bounds_stack, &mut s.window_triangles);
-            Some(&s.window_triangles[..])
+            ctx.scene.bounds.overlapping(frame, global.origin, side, &mut w.bounds_stack, &mut w.window_triangles);
+            Some(&w.window_triangles[..])
         }
     };
-    s.analysis.run(ctx.scene, &frame, &global, candidates, ctx.importance);
-    stats.analysis_seconds += seconds(t);
+    plan.analysis.run(ctx.scene, frame, global, candidates, ctx.importance);
+    w.stats.analysis_seconds += seconds(t);
 
     let t = Instant::now();
     let res = global.width;
-    let importance = MipChain::max_mips(res, std::mem::take(&mut s.analysis.importance));
-    let fragments = MipChain::average_mips(res, std::mem::take(&mut s.analysis.fragments));
-    stats.mip_seconds += seconds(t);
+    let importance = MipChain::max_mips(res, std::mem::take(&mut plan.analysis.importance));
+    let fragments = MipChain::average_mips(res, std::mem::take(&mut plan.analysis.fragments));
+    w.stats.mip_seconds += seconds(t);
     // The config is validated when it is built, so none of these fail in practice; if one
     // does, the direction is counted as unplanned and the driver refuses the result.
     let (importance, fragments) = match (importance, fragments) {
         (Ok(i), Ok(f)) => (i, f),
         (Err(e), _) | (_, Err(e)) => {
-            unplanned(stats, &e);
-            return Ok(());
+            unplanned(&mut w.stats, &e);
+            return Ok(plan);
         }
     };
 
@@ -199,48 +221,94 @@ fn trace_global(
     let params = cfg.tile_params(global.pixel);
     let planned =
         TilePlanner::new(&importance, &fragments, params).and_then(|p| p.plan(cfg.tiling).map(|plan| (p, plan)));
-    let (planner, plan) = match planned {
+    let (planner, tiles) = match planned {
         Ok(planned) => planned,
         Err(e) => {
-            unplanned(stats, &e);
-            return Ok(());
+            unplanned(&mut w.stats, &e);
+            return Ok(plan);
         }
     };
-    stats.subdivision_seconds += seconds(t);
-    stats.add_plan(&plan.stats);
+    w.stats.subdivision_seconds += seconds(t);
+    w.stats.add_plan(&tiles.stats);
 
     if cfg.measure_false_alarms && cfg.tiling == TilingMode::Adaptive {
-        count_false_alarms(ctx, &planner, &plan.tiles, &frame, &global, s, stats)?;
+        count_false_alarms(ctx, &planner, &tiles.tiles, &plan, w)?;
     }
+    let split_above = SPLIT_TILE_SHARE * planner.params().node_budget();
+    for tile in &tiles.tiles {
+        let vp = tile_viewport(&plan.global, tile);
+        match vp.split() {
+            Some(parts) if planner.predicted_nodes(tile) > split_above => {
+                plan.tiles.extend(parts.into_iter().enumerate().map(|(k, part)| (part, k == 0)));
+            }
+            _ => plan.tiles.push((vp, true)),
+        }
+    }
+    Ok(plan)
+}
 
-    s.queue.clear();
-    s.queue.extend(plan.tiles.iter().rev().map(|tile| tile_viewport(&global, tile)));
+/// Traces unit `u` of `plan` (direction `job`) into `bundle` (a tile) or `light` (a light
+/// bundle).
+pub fn trace_unit(
+    ctx: &PassContext,
+    job: &DirectionJob,
+    plan: &DirectionPlan,
+    u: usize,
+    w: &mut Worker,
+    bundle: &mut impl HitSink,
+    light: &mut impl HitSink,
+) -> Result<(), Cancelled> {
+    match plan.tiles.get(u) {
+        Some((tile, first)) => trace_tile(ctx, plan, tile, *first, w, bundle),
+        None => {
+            let t = Instant::now();
+            let r = trace_light(ctx, &job.lights[u - plan.tiles.len()], w, light);
+            w.stats.light_seconds += seconds(t);
+            r
+        }
+    }
+}
+
+/// One planned tile of a global bundle (or a part of one: `first` says whether it counts as
+/// the tile in the statistics): fragment build and resolve, split in parts (in order) while
+/// it overflows the node buffer.
+fn trace_tile(
+    ctx: &PassContext,
+    plan: &DirectionPlan,
+    tile: &Viewport,
+    first: bool,
+    w: &mut Worker,
+    sink: &mut impl HitSink,
+) -> Result<(), Cancelled> {
+    let cfg = ctx.config;
     let mut lookups = ForeignLookups::default();
-    while let Some(vp) = s.queue.pop() {
+    w.queue.clear();
+    w.queue.push(*tile);
+    while let Some(vp) = w.queue.pop() {
         check(ctx)?;
-        gather(&mut s.analysis, &global, &vp, &mut s.candidates);
+        gather(&plan.analysis, &plan.global, &vp, &mut w.collected, &mut w.candidates);
         let t = Instant::now();
-        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &s.candidates, None);
-        if count > cfg.node_capacity && split_overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
+        let count = w.fragments.prepare(ctx.scene, &plan.frame, &vp, &w.candidates, None);
+        let stats = &mut w.stats;
+        if count > cfg.node_capacity && split_overflowed(&vp, count, cfg.node_capacity, &mut w.queue, stats) {
             stats.build_seconds += seconds(t);
             continue;
         }
         stats.build_seconds += seconds(t);
-        stats.tiles += 1;
+        stats.tiles += u64::from(first || vp != *tile);
         stats.fragments += count;
         stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
 
         let t = Instant::now();
         let a_px = vp.pixel_area();
         let (sky, source, coincidence) = (ctx.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel));
-        let mut sink = BundleHits(&mut sums.bundle);
-        stats.covered_pixels += s.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
-            exchange(f, coincidence, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), &mut sink)
+        stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
+            exchange(f, coincidence, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), sink)
         });
         stats.resolve_seconds += seconds(t);
     }
-    stats.lost_lookups += lookups.lost;
-    stats.foreign_lookups += lookups.resolved;
+    w.stats.lost_lookups += lookups.lost;
+    w.stats.foreign_lookups += lookups.resolved;
     Ok(())
 }
 
@@ -251,11 +319,10 @@ fn count_false_alarms(
     ctx: &PassContext,
     planner: &TilePlanner,
     tiles: &[Tile],
-    frame: &BundleFrame,
-    global: &Viewport,
-    s: &mut Scratch,
-    stats: &mut PassStats,
+    plan: &DirectionPlan,
+    w: &mut Worker,
 ) -> Result<(), Cancelled> {
+    let (frame, global) = (&plan.frame, &plan.global);
     let mut seen = std::collections::BTreeSet::new();
     let top_level = global.width.trailing_zeros();
     for tile in tiles {
@@ -272,13 +339,13 @@ fn count_false_alarms(
             let w2 = (ctx.config.head_side as f64).powi(2);
             if rays <= w2 {
                 // The split was for memory (importance alone fitted in W×W).
-                stats.memory_splits_checked += 1;
+                w.stats.memory_splits_checked += 1;
                 let res = bundle_resolution(rays, w2);
                 let vp = tile_viewport(global, &Tile { level: level as i32, x, y, res });
-                gather(&mut s.analysis, global, &vp, &mut s.candidates);
-                let count = s.fragments.prepare(ctx.scene, frame, &vp, &s.candidates, None);
+                gather(&plan.analysis, global, &vp, &mut w.collected, &mut w.candidates);
+                let count = w.fragments.prepare(ctx.scene, frame, &vp, &w.candidates, None);
                 if count <= ctx.config.node_capacity {
-                    stats.false_alarms += 1;
+                    w.stats.false_alarms += 1;
                 }
             }
             level += 1;
@@ -293,13 +360,7 @@ fn count_false_alarms(
 /// One light bundle: the window around an emitter group's footprint along ω (cut to the
 /// target's window, where only target texels can be lit), in tiles of at most W×W pixels;
 /// emitter fragments light the neighbours facing them.
-fn trace_light(
-    ctx: &PassContext,
-    job: &LightJob,
-    sums: &mut BatchSums,
-    s: &mut Scratch,
-    stats: &mut PassStats,
-) -> Result<(), Cancelled> {
+fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut impl HitSink) -> Result<(), Cancelled> {
     let cfg = ctx.config;
     let group = &ctx.scene.bundle.emitters.small[job.group as usize];
     let frame = BundleFrame::new(job.dir);
@@ -344,6 +405,7 @@ fn trace_light(
             break;
         }
         let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group));
+        let stats = &mut s.stats;
         if count > cfg.node_capacity && split_overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             continue;
         }
@@ -353,7 +415,6 @@ fn trace_light(
         let a_px = vp.pixel_area();
         let coincidence = ctx.scene.coincidence_at(vp.pixel);
         let (own, source) = (ctx.target.emission, ctx.source);
-        let mut sink = LightHits(&mut sums.light);
         s.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
             stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
             emit(
@@ -375,11 +436,11 @@ fn trace_light(
                         }
                     }
                 },
-                &mut sink,
+                sink,
             )
         });
     }
-    stats.lost_lookups += lost;
+    s.stats.lost_lookups += lost;
     s.candidates = candidates;
     result
 }

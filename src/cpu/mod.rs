@@ -1,16 +1,21 @@
 //! The CPU bundle backend: the adaptive ray-bundle algorithm on worker threads, with the
 //! same plan, node budget and estimator as the GPU backend.
 //!
-//! A batch of directions is split into a fixed number of lanes; each lane traces its
-//! directions in order into its own hit sums, and the lanes are added in order. The sums
-//! therefore do not depend on how many threads ran the lanes.
+//! A batch of directions is split into a fixed number of lanes ([`crate::bundle::Lanes`]):
+//! lane l traces directions l, l + L, … into its own sums, and the lanes are added in order.
+//! The threads are shared out among the lanes; the threads of one lane add their hits in
+//! the order one thread would (see `batch.rs`). The sums therefore depend on the lanes, not
+//! on how many threads ran them.
 
 pub(crate) mod analysis;
+mod batch;
 mod bounds_tree;
 pub(crate) mod direction;
 mod emitter_rows;
 pub(crate) mod fragments;
 pub mod scene;
+
+pub use batch::{SPARE_RECORD_BYTES, WAITING_HITS_PER_THREAD};
 
 use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex, Weak};
@@ -19,31 +24,26 @@ use crate::bundle::progressive::BatchSums;
 use crate::bundle::stats::PassStats;
 use crate::bundle::target::{BackendError, BackendProvider, BakeTarget, BundleScene, Cancelled, SourceRadiance};
 use crate::bundle::{BundleBackend, DirectionJob};
-use crate::parallel::par_map;
 
-use direction::{PassContext, Scratch, trace_direction};
+use direction::{PassContext, Worker};
 pub use scene::CpuScene;
-
-struct Lane {
-    sums: BatchSums,
-    scratch: Scratch,
-}
 
 pub struct CpuBundleBackend {
     scene: Arc<CpuScene>,
-    lanes: Vec<Lane>,
-    threads: usize,
+    /// One per thread.
+    workers: Vec<Worker>,
+    /// The sums of lanes 1, 2, … (lane 0 accumulates into the caller's), zeroed between
+    /// batches.
+    lane_sums: Vec<BatchSums>,
     /// Per triangle: the current target's importance (rays per m²); zero outside it.
     importance: Vec<f32>,
 }
 
 impl CpuBundleBackend {
     pub fn new(scene: Arc<CpuScene>, threads: usize) -> Self {
-        let lanes = (0..scene.bundle.config.lanes.max(1))
-            .map(|_| Lane { sums: BatchSums::default(), scratch: Scratch::default() })
-            .collect();
+        let workers = (0..threads.max(1)).map(|_| Worker::default()).collect();
         let importance = vec![0.0; scene.bundle.geom.len()];
-        CpuBundleBackend { scene, lanes, threads: threads.max(1), importance }
+        CpuBundleBackend { scene, workers, lane_sums: Vec::new(), importance }
     }
 
     /// Sets the importance of `target`'s triangles (LOD-k texel density × oversampling²).
@@ -73,9 +73,7 @@ impl BundleBackend for CpuBundleBackend {
     }
 
     fn release_texel_buffers(&mut self) {
-        for lane in &mut self.lanes {
-            lane.sums = BatchSums::default();
-        }
+        self.lane_sums = Vec::new();
     }
 }
 
@@ -103,20 +101,12 @@ impl CpuBundleBackend {
         global: bool,
     ) -> Result<PassStats, Cancelled> {
         self.set_importance(target, true);
-        // Lane 0 accumulates into `sums` itself (the caller is done with the last batch's),
-        // the others into their own buffers, zeroed by the previous reduction.
         let light = !self.scene.bundle.emitters.small.is_empty();
         let n = target.len();
         if sums.fits(n, light) {
             sums.clear();
         } else {
             *sums = BatchSums::with_light(n, light);
-        }
-        self.lanes[0].sums = std::mem::take(sums);
-        for lane in &mut self.lanes[1..] {
-            if !lane.sums.fits(n, light) {
-                lane.sums = BatchSums::with_light(n, light);
-            }
         }
         let bundle = &self.scene.bundle;
         let ctx = PassContext {
@@ -130,35 +120,71 @@ impl CpuBundleBackend {
             cancel,
             global,
         };
-        let n_lanes = self.lanes.len();
-        // Lane l traces directions l, l + n_lanes, ... in order into its own sums; lanes are
-        // independent, so which worker runs which lane does not change the result.
-        let lanes: Vec<(usize, &mut Lane)> = self.lanes.iter_mut().enumerate().collect();
-        let results = par_map(lanes, self.threads, |(l, lane)| {
-            let mut stats = PassStats::default();
-            for job in batch.iter().skip(l).step_by(n_lanes) {
-                trace_direction(&ctx, job, &mut lane.sums, &mut lane.scratch, &mut stats)?;
+        let lanes = bundle.config.lanes.for_target(n as u64, light) as usize;
+        self.lane_sums.truncate(lanes - 1);
+        for lane in &mut self.lane_sums {
+            if !lane.fits(n, light) {
+                *lane = BatchSums::with_light(n, light);
             }
-            Ok(stats)
-        });
-        self.set_importance(target, false);
+        }
+        self.lane_sums.resize_with(lanes - 1, || BatchSums::with_light(n, light));
+        let jobs: Vec<Vec<DirectionJob>> =
+            (0..lanes).map(|l| batch.iter().skip(l).step_by(lanes).cloned().collect()).collect();
+        let lane_work = jobs.iter().zip(std::iter::once(&mut *sums).chain(self.lane_sums.iter_mut())).collect();
+        let result = trace_lanes(&ctx, lane_work, &mut self.workers);
+        // Adding also zeroes lanes 1… for the next batch (a cancelled batch's included).
+        sums.add_lanes(&mut self.lane_sums, self.workers.len());
         let mut total = PassStats::default();
-        let mut cancelled = false;
-        for r in results {
-            match r {
-                Ok(s) => total.add(&s),
-                Err(Cancelled) => cancelled = true,
+        for w in &mut self.workers {
+            total.add(&std::mem::take(&mut w.stats));
+        }
+        self.set_importance(target, false);
+        result.map(|()| total)
+    }
+}
+
+/// Traces each lane's directions into its sums, the threads (`workers`) shared out among the
+/// lanes: all at once when there are as many threads as lanes or more, else in rounds of
+/// one thread each.
+fn trace_lanes(
+    ctx: &PassContext,
+    lanes: Vec<(&Vec<DirectionJob>, &mut BatchSums)>,
+    workers: &mut [Worker],
+) -> Result<(), Cancelled> {
+    let (n_lanes, threads) = (lanes.len(), workers.len().max(1));
+    let mut lanes = lanes.into_iter();
+    if n_lanes == 1
+        && let Some((jobs, sums)) = lanes.next()
+    {
+        return batch::trace_batch(ctx, jobs, sums, workers);
+    }
+    // Lane l's share of the threads: the first `threads % n_lanes` lanes get one more.
+    let mut groups: Vec<&mut [Worker]> = Vec::with_capacity(n_lanes);
+    let mut rest = workers;
+    for l in 0..n_lanes.min(threads) {
+        let take = (threads / n_lanes).max(1) + usize::from(threads > n_lanes && l < threads % n_lanes);
+        let (group, tail) = rest.split_at_mut(take.min(rest.len()));
+        groups.push(group);
+        rest = tail;
+    }
+    let mut result = Ok(());
+    loop {
+        let round: Vec<_> = lanes.by_ref().take(groups.len()).collect();
+        if round.is_empty() {
+            return result;
+        }
+        std::thread::scope(|s| {
+            let handles: Vec<_> = round
+                .into_iter()
+                .zip(groups.iter_mut())
+                .map(|((jobs, sums), group)| s.spawn(move || batch::trace_batch(ctx, jobs, sums, group)))
+                .collect();
+            // Joined here, so that a worker's panic reaches the caller with its own payload.
+            for h in handles {
+                let traced = h.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
+                result = result.and(traced);
             }
-        }
-        // Reducing also zeroes lanes 1… for the next batch (a cancelled batch included).
-        let (first, rest) = self.lanes.split_at_mut(1);
-        *sums = std::mem::take(&mut first[0].sums);
-        let mut others: Vec<BatchSums> = rest.iter_mut().map(|l| std::mem::take(&mut l.sums)).collect();
-        sums.add_lanes(&mut others, self.threads);
-        for (lane, s) in rest.iter_mut().zip(others) {
-            lane.sums = s;
-        }
-        if cancelled { Err(Cancelled) } else { Ok(total) }
+        });
     }
 }
 

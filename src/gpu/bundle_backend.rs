@@ -546,9 +546,11 @@ impl BundleBackend for GpuBundleBackend {
         "gpu"
     }
 
-    /// The CPU backend's lane sums (its light pass); the GPU buffers stay, sized for the
-    /// next target of this size.
+    /// The target's buffers (host memory on a software adapter: sources, fixed-point sums
+    /// and their read-back copy), made again for the next target, and the lane sums of the
+    /// CPU backend running the light pass.
     fn release_texel_buffers(&mut self) {
+        self.target_buffers = None;
         self.cpu.release_texel_buffers();
     }
 
@@ -716,7 +718,7 @@ mod tests {
     fn summation_bound(scene: &CpuScene, directions: u64) -> f64 {
         let os = scene.bundle.config.oversampling as f64;
         let k = 2.0 * directions as f64 * (2.0 * os + 1.0).powi(2);
-        (k + scene.bundle.config.lanes as f64 + 2.0) * 2f64.powi(-24)
+        (k + scene.bundle.config.lanes.most() as f64 + 2.0) * 2f64.powi(-24)
     }
 
     /// GPU and CPU backends on the same directions of the bundled Cornell box (whole LOD 0,
@@ -763,8 +765,9 @@ mod tests {
     /// Tiles that overflow the node buffer: with a small buffer planned to its full size
     /// (alpha 1, so the planner's estimate often falls short), tiles overflow; their parts
     /// are built and resolved in further submissions of the batch (rounds), and the
-    /// sums are still the CPU backend's within the summation bound (which splits the same
-    /// tiles the same way).
+    /// sums are still the CPU backend's within the summation bound: the same pixels, each
+    /// line credited once. (The CPU traces tiles planned to fill over a quarter of the node
+    /// buffer as their parts from the start, so its overflow counts are its own.)
     #[test]
     fn overflowed_tiles_are_redone_in_further_rounds() {
         let cornell = cornell();
@@ -782,8 +785,7 @@ mod tests {
             stats.directions
         );
         assert!(stats.overflowed_tiles > 0, "no tile overflowed: the test tests nothing");
-        assert_eq!(stats.overflowed_tiles, cpu_stats.overflowed_tiles);
-        assert_eq!(stats.tiles, cpu_stats.tiles);
+        assert_eq!(stats.covered_pixels, cpu_stats.covered_pixels, "the same pixels resolved");
         assert!(stats.tile_rounds >= 2, "overflowed parts make further rounds");
         assert_eq!((stats.cpu_fallback_batches, stats.saturated_sums), (0, 0));
         let (worst, beyond) = compare(&cpu, &gpu, summation_bound(&scene, 2));
