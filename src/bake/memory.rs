@@ -5,8 +5,7 @@
 //! LOD, with every coarser LOD's texel map (without positions and normals unless the config
 //! keeps them: `livebake bake` does not) and irradiance kept (they are the output). Per
 //! covered texel of the LOD being baked (CPU backend, `L` lanes (see
-//! [`crate::bundle::Lanes`]: 2, or 1 from 2²⁰ texels with a light pass by default), sizes of
-//! the structures in
+//! [`crate::bundle::Lanes`]: 2, or 1 from 2²⁰ texels by default), sizes of the structures in
 //! [`crate::atlas::texels`], [`crate::atlas::lookup`], [`crate::bundle::progressive`] and
 //! [`crate::cpu`]):
 //!
@@ -53,10 +52,9 @@
 //! holds 7 B less a texel of LOD 1 in the plain Van Gogh room (slope 113.5 → 106.4 B), and
 //! 131 → 122 B a texel in all in the lit one (`bytes_per_texel`, 32 directions). Then the
 //! CPU backend's threads came to share lanes ([`crate::cpu`]), and a target of 2²⁰ texels or
-//! more with a light pass gets one lane by default, one set of sums where two threads kept
-//! one each (lit room 140.6 → 112.8 B a texel by the slope, as fast), and `livebake bake`'s
-//! output maps stopped getting their positions and normals back (the plain room's two-LOD
-//! bake 85.2 → 75.8 B a texel in all).
+//! more gets one lane by default, one set of sums where two threads kept one each, and
+//! `livebake bake`'s output maps stopped getting their positions and normals back (figures
+//! in docs/ARCHITECTURE.md, "Memory of a whole-LOD bake").
 
 use serde::Serialize;
 
@@ -147,7 +145,7 @@ pub struct MemoryEstimate {
     /// Bytes of the backend's threads, which do not (fragment buffers, hits kept for
     /// their turn).
     pub thread_bytes: u64,
-    /// Accumulation lanes of the finest LOD's bake ([`crate::bundle::Lanes::for_target`]).
+    /// Accumulation lanes of the finest LOD's bake ([`crate::bundle::Lanes::for_texels`]).
     pub lanes: u32,
     /// Everything: `texel_bytes + thread_bytes`.
     pub bytes: u64,
@@ -174,7 +172,7 @@ pub fn estimate_from_lod0(
 ) -> MemoryEstimate {
     let finest = config.lods.saturating_sub(1);
     let finest_texels = texels0.saturating_mul(1u64 << (2 * finest.min(31)));
-    let lanes = config.bundle.lanes.for_target(finest_texels, lighting.light_pass);
+    let lanes = config.bundle.lanes.for_texels(finest_texels);
     let mut texels = 0u64;
     let mut bytes = 0f64;
     for lod in 0..config.lods {

@@ -373,8 +373,8 @@ fn check_memory_early(scene: &Scene, geom: &SceneGeometry, config: &BakeConfig) 
         Some(_) => crate::atlas::min_texels(scene, geom, &config.atlas).unwrap_or(0),
         None => (config.atlas.texel_budget as f64 * EARLY_BUDGET_SHARE) as u64,
     };
-    // Counted with one lane: `auto` gives a bake with a light pass one, should it have more
-    // texels than this lower bound.
+    // Counted with one lane: `auto` gives the bake one, should it have more texels than this
+    // lower bound.
     let mut one_lane = config.clone();
     if one_lane.bundle.lanes == crate::bundle::Lanes::Auto {
         one_lane.bundle.lanes = crate::bundle::Lanes::Fixed(1);

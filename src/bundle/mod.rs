@@ -115,24 +115,23 @@ pub const MAX_LIGHT_DIRECTIONS: u32 = 1024;
 /// than cores only cost memory.
 pub const MAX_LANES: u32 = 64;
 
-/// Texels from which [`Lanes::Auto`] gives a target with a light pass one lane. A lane is a
-/// set of hit sums for its share of the batch's directions (16 B a texel, 28 B with a light
-/// pass), traced in order; the threads share the lanes, and a thread working ahead of its
-/// lane's next unit keeps that unit's hits as records until its turn (`cpu::batch`). Two
-/// lanes on two threads never record but hold a second set of sums and add it to the first
-/// after every batch; one lane holds one set, records about half the hits and shares its
-/// sums' cache lines between the cores. Measured side by side on this project's 2-core
-/// machine (Van Gogh room): with a light pass one lane was as fast at 2 M and 4 M texels
-/// (7.1 against 7.4 s at 4 M, 32 directions) and held 28 B a texel less; without one it
-/// took 12–14% longer (18% more CPU time) for 16 B a texel, and on the Cornell box (0.5 M
-/// texels) 9–20% longer.
+/// Texels from which [`Lanes::Auto`] gives a target one lane. A lane is a set of hit sums for
+/// its share of the batch's directions (16 B a texel, 28 B with a light pass), traced in
+/// order; the threads share the lanes, and a thread working ahead of its lane's next unit
+/// keeps that unit's hits as records until its turn (`cpu::batch`). Two lanes on two threads
+/// never record but hold a second set of sums and add it to the first after every batch; one
+/// lane holds one set, records about half the hits and shares its sums' cache lines between
+/// the cores. Measured side by side with one build on this project's 2-core machine (Van
+/// Gogh room, 4 M texels, 32 directions, medians of 6): one lane took 8% longer (16% more CPU
+/// time) and peaked 12% lower (345 against 394 MB); with a light pass and a point light 7%
+/// longer and 16% lower (475 against 566 MB). On the Cornell box (0.5 M texels, where the
+/// sums are small beside what does not grow with them) one lane was 9–20% slower.
 pub const AUTO_ONE_LANE_TEXELS: u64 = 1 << 20;
 
 /// How many accumulation lanes a batch is split into.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Lanes {
-    /// One lane for a target with a light pass and [`AUTO_ONE_LANE_TEXELS`] texels or more,
-    /// else two.
+    /// One lane for a target of [`AUTO_ONE_LANE_TEXELS`] texels or more, else two.
     #[default]
     Auto,
     /// This many for every target (1 ..= [`MAX_LANES`]).
@@ -140,10 +139,10 @@ pub enum Lanes {
 }
 
 impl Lanes {
-    /// The lanes of a target of `texels` texels, with (or without) a light pass.
-    pub fn for_target(self, texels: u64, light_pass: bool) -> u32 {
+    /// The lanes of a target of `texels` texels.
+    pub fn for_texels(self, texels: u64) -> u32 {
         match self {
-            Lanes::Auto if light_pass && texels >= AUTO_ONE_LANE_TEXELS => 1,
+            Lanes::Auto if texels >= AUTO_ONE_LANE_TEXELS => 1,
             Lanes::Auto => 2,
             Lanes::Fixed(n) => n.max(1),
         }
@@ -329,19 +328,15 @@ impl JobSequence {
 mod tests {
     use super::*;
 
-    /// `auto` gives targets with a light pass of 2²⁰ texels and more one lane, others two;
-    /// a count is taken for every target; the option reads back as it was written, and
-    /// counts out of range are refused by the validation.
+    /// `auto` gives targets of 2²⁰ texels and more one lane and smaller ones two; a count
+    /// is taken for every target; the option reads back as it was written, and counts out
+    /// of range are refused by the validation.
     #[test]
     fn lanes_are_auto_or_a_count() {
         let auto: Lanes = "auto".parse().expect("auto");
-        let big = AUTO_ONE_LANE_TEXELS;
-        assert_eq!(
-            (auto.for_target(big - 1, true), auto.for_target(big, true), auto.for_target(big, false)),
-            (2, 1, 2)
-        );
+        assert_eq!((auto.for_texels(AUTO_ONE_LANE_TEXELS - 1), auto.for_texels(AUTO_ONE_LANE_TEXELS)), (2, 1));
         let three: Lanes = "3".parse().expect("a count");
-        assert_eq!((three.for_target(10, true), three.for_target(1 << 30, true), three.most()), (3, 3, 3));
+        assert_eq!((three.for_texels(10), three.for_texels(1 << 30), three.most()), (3, 3, 3));
         assert_eq!((auto.to_string(), three.to_string()), ("auto".to_string(), "3".to_string()));
         assert!("two".parse::<Lanes>().is_err());
         for bad in [0, MAX_LANES + 1] {

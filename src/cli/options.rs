@@ -90,9 +90,9 @@ pub struct BundleOptions {
     /// Light-pass directions per global direction per small emitter.
     #[arg(long, default_value_t = BundleConfig::default().light_directions)]
     pub light_directions: u32,
-    /// Accumulation lanes: `auto` (one for 2^20 texels or more with small emitters, else
-    /// two) or a count. Each holds its own sums, 16 B a texel (28 with small emitters);
-    /// results depend on it, not on --threads.
+    /// Accumulation lanes: `auto` (one for a LOD of 2^20 texels or more, else two) or a
+    /// count. Each holds its own sums, 16 B a texel (28 with small emitters); results depend
+    /// on it, not on --threads.
     #[arg(long, default_value_t = BundleConfig::default().lanes)]
     pub lanes: Lanes,
 }

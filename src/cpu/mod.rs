@@ -120,7 +120,7 @@ impl CpuBundleBackend {
             cancel,
             global,
         };
-        let lanes = bundle.config.lanes.for_target(n as u64, light) as usize;
+        let lanes = bundle.config.lanes.for_texels(n as u64) as usize;
         self.lane_sums.truncate(lanes - 1);
         for lane in &mut self.lane_sums {
             if !lane.fits(n, light) {
