@@ -39,6 +39,11 @@ pub struct PassContext<'a> {
     /// Whether to trace the global bundles; `false` traces only the light bundles (the
     /// GPU backend resolves the global bundles itself and reuses the CPU's light pass).
     pub global: bool,
+    /// Whether planned tiles filling over [`SPLIT_TILE_SHARE`] of the node budget are traced
+    /// as their parts: when the batch has one lane, whose threads would otherwise wait
+    /// behind them. Decided by the lanes, not the threads, since it changes the order hits
+    /// are added in.
+    pub split_large_tiles: bool,
 }
 
 /// One thread's scratch buffers, reused across units, and the statistics of its units.
@@ -67,7 +72,7 @@ pub struct DirectionPlan {
     /// Its triangle bins (the tiles gather their candidates from them).
     analysis: Analysis,
     /// The planned tiles of the global bundle in plan order, large ones as their parts
-    /// ([`SPLIT_TILE_SHARE`]), each with whether it is a planned tile's first (none when
+    /// ([`PassContext::split_large_tiles`]), each with whether it is a planned tile's first (none when
     /// the global bundles are not traced, or the direction could not be planned).
     tiles: Vec<(Viewport, bool)>,
     lights: usize,
@@ -234,7 +239,8 @@ pub fn plan_direction(ctx: &PassContext, job: &DirectionJob, w: &mut Worker) -> 
     if cfg.measure_false_alarms && cfg.tiling == TilingMode::Adaptive {
         count_false_alarms(ctx, &planner, &tiles.tiles, &plan, w)?;
     }
-    let split_above = SPLIT_TILE_SHARE * planner.params().node_budget();
+    let split_above =
+        if ctx.split_large_tiles { SPLIT_TILE_SHARE * planner.params().node_budget() } else { f64::INFINITY };
     for tile in &tiles.tiles {
         let vp = tile_viewport(&plan.global, tile);
         match vp.split() {

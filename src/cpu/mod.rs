@@ -109,6 +109,7 @@ impl CpuBundleBackend {
             *sums = BatchSums::with_light(n, light);
         }
         let bundle = &self.scene.bundle;
+        let lanes = bundle.config.lanes.for_texels(n as u64) as usize;
         let ctx = PassContext {
             scene: &self.scene,
             config: &bundle.config,
@@ -119,8 +120,8 @@ impl CpuBundleBackend {
             light_pixel: bundle.light_pixel(target.lod),
             cancel,
             global,
+            split_large_tiles: lanes == 1,
         };
-        let lanes = bundle.config.lanes.for_texels(n as u64) as usize;
         self.lane_sums.truncate(lanes - 1);
         for lane in &mut self.lane_sums {
             if !lane.fits(n, light) {

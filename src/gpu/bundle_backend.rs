@@ -765,9 +765,9 @@ mod tests {
     /// Tiles that overflow the node buffer: with a small buffer planned to its full size
     /// (alpha 1, so the planner's estimate often falls short), tiles overflow; their parts
     /// are built and resolved in further submissions of the batch (rounds), and the
-    /// sums are still the CPU backend's within the summation bound: the same pixels, each
-    /// line credited once. (The CPU traces tiles planned to fill over a quarter of the node
-    /// buffer as their parts from the start, so its overflow counts are its own.)
+    /// sums are still the CPU backend's within the summation bound (which splits the same
+    /// tiles the same way: with two lanes it traces planned tiles whole), the same pixels,
+    /// each line credited once.
     #[test]
     fn overflowed_tiles_are_redone_in_further_rounds() {
         let cornell = cornell();
@@ -786,6 +786,7 @@ mod tests {
         );
         assert!(stats.overflowed_tiles > 0, "no tile overflowed: the test tests nothing");
         assert_eq!(stats.covered_pixels, cpu_stats.covered_pixels, "the same pixels resolved");
+        assert_eq!((stats.tiles, stats.overflowed_tiles), (cpu_stats.tiles, cpu_stats.overflowed_tiles));
         assert!(stats.tile_rounds >= 2, "overflowed parts make further rounds");
         assert_eq!((stats.cpu_fallback_batches, stats.saturated_sums), (0, 0));
         let (worst, beyond) = compare(&cpu, &gpu, summation_bound(&scene, 2));
