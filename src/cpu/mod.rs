@@ -122,6 +122,8 @@ impl CpuBundleBackend {
             global,
             split_large_tiles: lanes == 1,
         };
+        // Lane 0 accumulates into `sums` itself (the caller is done with the last batch's),
+        // the others into buffers of their own, zeroed when they were last added.
         self.lane_sums.truncate(lanes - 1);
         for lane in &mut self.lane_sums {
             if !lane.fits(n, light) {
