@@ -195,3 +195,15 @@ pub trait BackendProvider: Send + Sync + 'static {
     fn name(&self) -> &'static str;
     fn backend(&self, scene: &Arc<BundleScene>, threads: usize) -> Result<Self::Backend, BackendError>;
 }
+
+/// A made-up source radiance for tests: every one of `texels` texels a different colour, so
+/// that which texel a line sees shows in the sums.
+#[cfg(test)]
+pub(crate) fn distinct_colours(texels: usize) -> Vec<crate::scene::Rgb> {
+    (0..texels)
+        .map(|i| {
+            let h = crate::sampling::mix64(i as u64);
+            crate::scene::Rgb::new((h & 0xFF) as f32, (h >> 8 & 0xFF) as f32, (h >> 16 & 0xFF) as f32) / 64.0
+        })
+        .collect()
+}

@@ -482,13 +482,7 @@ mod tests {
             let texels = TexelMap::build(&bundle.scene, &bundle.geom, &bundle.atlas, 0);
             let whole = WholeLod::new(&bundle.atlas, &texels);
             let target = whole.target(&texels);
-            // Every texel a different colour, so which texel a line sees shows in the sums.
-            let own: Vec<Rgb> = (0..texels.len())
-                .map(|i| {
-                    let h = crate::sampling::mix64(i as u64);
-                    Rgb::new((h & 0xFF) as f32, (h >> 8 & 0xFF) as f32, (h >> 16 & 0xFF) as f32) / 64.0
-                })
-                .collect();
+            let own = crate::bundle::target::distinct_colours(texels.len());
             let source = SourceRadiance { own: &own, foreign: None };
             let jobs =
                 JobSequence::new(bundle.config.seed, bundle.emitters.small.len(), bundle.config.light_directions);
