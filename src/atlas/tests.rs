@@ -3,6 +3,7 @@
 
 use glam::{DVec2, Vec3};
 
+use super::lookup::{self, TexelTable};
 use super::raster::{self, PixelRect};
 use super::*;
 use crate::reference::scenes::{icosphere, torus};
@@ -98,6 +99,24 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
         for (t, &p) in tm.pixel.iter().enumerate() {
             assert_eq!(slot[p as usize], t as u32);
         }
+        // The lookup table ranks the blocks' texels: it reads every texel and gutter pixel
+        // as the map lists them, and gives back the map's lists as they are.
+        let table = TexelTable::of_map(&tm);
+        assert!(table.holds_map_pixels());
+        let mut expected = slot.clone();
+        for &(p, t) in &tm.gutter {
+            expected[p as usize] = t;
+        }
+        for (p, &e) in expected.iter().enumerate() {
+            assert_eq!(table.get(p as i64 % w, p as i64 / w), e, "LOD {lod} pixel {p}");
+        }
+        assert_eq!(table.map_pixels(), Some(lookup::MapPixels { pixel: tm.pixel.clone(), gutter: tm.gutter.clone() }));
+        // A map built without positions and normals gets build's back.
+        let mut lean = TexelMap::build_with(scene, &g, atlas, lod, texels::Restore::Albedo);
+        assert!(lean.position.is_empty() && lean.normal.is_empty());
+        assert_eq!((&lean.pixel, &lean.face, &lean.albedo, &lean.area), (&tm.pixel, &tm.face, &tm.albedo, &tm.area));
+        lean.restore_geometry(scene, &g, atlas, 2, texels::Restore::All);
+        assert_eq!((&lean.position, &lean.normal), (&tm.position, &tm.normal));
         assert_eq!(slot.iter().filter(|&&s| s != texels::NO_TEXEL).count(), tm.len());
         // Independent conservative raster over the whole atlas (no clipping to the chart):
         // no pixel is touched by two charts, every touched pixel holds a texel of the

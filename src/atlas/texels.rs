@@ -4,6 +4,7 @@
 use crate::parallel::par_for_each;
 use glam::{DVec2, Vec3};
 
+use super::lookup::TexelTable;
 use super::raster::{self, PixelRect};
 use super::{Atlas, FaceId};
 use crate::scene::{Rgb, Scene, SceneGeometry};
@@ -64,6 +65,16 @@ impl TexelMap {
     /// # Panics
     /// When the LOD's pixel count does not fit in `u32` (`width · height · 4^lod ≥ 2³²`).
     pub fn build(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, lod: u32) -> TexelMap {
+        Self::build_with(scene, geom, atlas, lod, Restore::All)
+    }
+
+    /// [`build`](Self::build) making what `made` says: with [`Restore::Albedo`] the map has
+    /// no positions and normals (as if [`drop_geometry`](Self::drop_geometry) had given
+    /// them up; 24 B a texel less while it is built, for a bake that reads neither).
+    ///
+    /// # Panics
+    /// As [`build`](Self::build).
+    pub fn build_with(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, lod: u32, made: Restore) -> TexelMap {
         let width =
             atlas.width.checked_shl(lod).filter(|w| w >> lod == atlas.width).expect("LOD too fine for u32 pixels");
         let height =
@@ -142,14 +153,15 @@ impl TexelMap {
 
         // Phase 2: texels, in block order ([`block_order`]); `slot` turns from face into texel ids.
         let total: usize = counts.iter().sum();
+        let geometry = if made == Restore::All { total } else { 0 };
         let mut map = TexelMap {
             lod,
             width,
             height,
             pixel: vec![0; total],
             face: vec![0; total],
-            position: vec![Vec3::ZERO; total],
-            normal: vec![Vec3::ZERO; total],
+            position: vec![Vec3::ZERO; geometry],
+            normal: vec![Vec3::ZERO; geometry],
             albedo: vec![Vec3::ZERO; total],
             emission: vec![Vec3::ZERO; total],
             area: vec![0.0; total],
@@ -170,8 +182,8 @@ impl TexelMap {
                     chunk,
                     take_front(&mut pixel, n),
                     take_front(&mut face, n),
-                    take_front(&mut position, n),
-                    take_front(&mut normal, n),
+                    take_front(&mut position, n.min(geometry)),
+                    take_front(&mut normal, n.min(geometry)),
                     take_front(&mut albedo, n),
                     take_front(&mut emission, n),
                     take_front(&mut area, n),
@@ -196,8 +208,9 @@ impl TexelMap {
                         pixel[k] = (y * w + x) as u32;
                         area[k] = band_area[i];
                         face[k] = fid;
-                        position[k] = a.position;
-                        normal[k] = a.normal;
+                        if let (Some(p), Some(n)) = (position.get_mut(k), normal.get_mut(k)) {
+                            (*p, *n) = (a.position, a.normal);
+                        }
                         albedo[k] = a.albedo;
                         emission[k] = a.emission;
                         *s = (first + k) as u32;
@@ -219,15 +232,16 @@ impl TexelMap {
                         slot[y as usize * w + x as usize]
                     }
                 };
-                for y in b * band_rows..((b + 1) * band_rows).min(h) {
-                    for x in 0..w {
-                        let (xi, yi) = (x as i64, y as i64);
-                        if at(xi, yi) != NO_TEXEL {
-                            continue;
-                        }
-                        if let Some((dx, dy)) = gutter_source(|dx, dy| at(xi + dx, yi + dy) != NO_TEXEL) {
-                            out.push(((y * w + x) as u32, at(xi + dx, yi + dy)));
-                        }
+                // In block order, as the texels (a ranked lookup table gives them back so).
+                let y0 = b * band_rows;
+                for i in block_order(w, (((b + 1) * band_rows).min(h)).saturating_sub(y0)) {
+                    let (x, y) = (i % w, y0 + i / w);
+                    let (xi, yi) = (x as i64, y as i64);
+                    if at(xi, yi) != NO_TEXEL {
+                        continue;
+                    }
+                    if let Some((dx, dy)) = gutter_source(|dx, dy| at(xi + dx, yi + dy) != NO_TEXEL) {
+                        out.push(((y * w + x) as u32, at(xi + dx, yi + dy)));
                     }
                 }
             });
@@ -237,7 +251,35 @@ impl TexelMap {
     }
 
     pub fn len(&self) -> usize {
-        self.pixel.len()
+        self.face.len()
+    }
+
+    /// Gives up the texels' pixels and the gutter pixels (4 B a texel and 8 B a gutter
+    /// pixel) while `table`, a ranked table of this map ([`TexelTable::of_map`]), holds
+    /// them; `false` (nothing given up) when `table` cannot give them back (a dense one).
+    /// [`restore_pixels`](Self::restore_pixels) puts them back.
+    pub fn drop_pixels(&mut self, table: &TexelTable) -> bool {
+        if table.chart.is_some() || !table.holds_map_pixels() {
+            return false;
+        }
+        self.pixel = Vec::new();
+        self.gutter = Vec::new();
+        true
+    }
+
+    /// Puts back the pixels [`drop_pixels`](Self::drop_pixels) gave up to `table`, value
+    /// for value.
+    pub fn restore_pixels(&mut self, table: &TexelTable) {
+        if let Some(given) = table.map_pixels() {
+            self.pixel = given.pixel;
+            self.gutter = given.gutter;
+        }
+    }
+
+    /// Gives up the texels' areas (4 B a texel), read by the light pass alone and by
+    /// nothing that reads a finished map's light.
+    pub fn drop_area(&mut self) {
+        self.area = Vec::new();
     }
 
     /// Gives up the texels' positions and normals (24 B a texel) while a bake that no longer
@@ -332,7 +374,7 @@ impl TexelMap {
     }
 
     pub fn is_empty(&self) -> bool {
-        self.pixel.is_empty()
+        self.face.is_empty()
     }
 
     /// Per atlas pixel (row-major): the index of its texel, or [`NO_TEXEL`] (as gutter pixels

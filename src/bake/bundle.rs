@@ -98,11 +98,16 @@ pub fn bake_lod_observed(
 /// recomputed at the end ([`TexelMap::restore_geometry`]: the same values), and their
 /// emission is held for the emitting texels alone ([`TexelMap::take_emission`]). With a
 /// coarser LOD, whose radiance is made the source once, before the bundles, the albedo is
-/// given up and recomputed as well. The backend's own per-texel buffers are given back
-/// before anything is recomputed; `restore` says what is ([`Restore::Albedo`]: the positions
-/// and normals stay given up). Same result, except that the punctual part is empty where
-/// the scene has no punctual lights (no 12 B a texel of zeros at the end, when the texel map
-/// is whole again).
+/// given up and recomputed as well. The texels' pixels and the gutter pixels are held by
+/// the lookup table alone meanwhile ([`TexelMap::drop_pixels`]), and given back after. The
+/// backend's own per-texel buffers are given back before anything is recomputed; `restore`
+/// says what is ([`Restore::Albedo`]: the positions and normals stay given up, and the
+/// areas, which the light pass alone reads, are given up too, before the bundles when the
+/// scene has no light pass). A map built without positions and normals
+/// ([`TexelMap::build_with`]) gets them for the punctual pass when the scene has punctual
+/// lights. Same result, except that the punctual part is empty where the scene has no
+/// punctual lights (no 12 B a texel of zeros at the end, when the texel map is whole
+/// again).
 #[allow(clippy::too_many_arguments)]
 pub fn bake_lod_lean(
     bundle: &BundleScene,
@@ -121,6 +126,10 @@ pub fn bake_lod_lean(
     let punctual = if bundle.scene.lights.is_empty() {
         Vec::new()
     } else {
+        if texels.position.len() != texels.len() {
+            // A map built without them (`TexelMap::build_with`): the punctual pass reads them.
+            texels.restore_geometry(&bundle.scene, &bundle.geom, &bundle.atlas, threads, Restore::All);
+        }
         punctual_irradiance(&bundle.scene, bvh, &texels.position, &texels.normal, ray_epsilon(&bundle.scene), threads)
     };
     let punctual = (punctual, t0.elapsed().as_secs_f64());
@@ -133,9 +142,16 @@ pub fn bake_lod_lean(
         texels.drop_albedo();
     }
     let emitting = texels.take_emission();
+    // The lookup table holds the texels' pixels and the gutters, given up meanwhile.
+    let tables = [TexelTable::of_map(texels)];
+    let pixels_given_up = texels.drop_pixels(&tables[0]);
+    // The light pass alone reads the areas; an output map without positions keeps none.
+    let light_pass = !bundle.emitters.small.is_empty();
+    if restore == Restore::Albedo && !light_pass {
+        texels.drop_area();
+    }
     let result = {
         let texels = &*texels;
-        let tables = [TexelTable::of_map(texels)];
         let view = match &emitting {
             Some(e) => TexelView { emission: TexelEmission::Emitting(e), ..texels.view() },
             None => texels.view(),
@@ -156,6 +172,13 @@ pub fn bake_lod_lean(
         )
     };
     backend.release_texel_buffers();
+    if pixels_given_up {
+        texels.restore_pixels(&tables[0]);
+    }
+    drop(tables);
+    if restore == Restore::Albedo {
+        texels.drop_area();
+    }
     if let Some(e) = &emitting {
         texels.restore_emission(e);
     }
@@ -417,6 +440,22 @@ mod tests {
                 (&lean_map.pixel, &lean_map.face, &lean_map.gutter),
                 (&plain_map.pixel, &plain_map.face, &plain_map.gutter)
             );
+            // As `livebake bake` does it: a map built without positions unless the punctual
+            // pass reads them, its output without positions and areas.
+            let made = if lights == 0 { Restore::Albedo } else { Restore::All };
+            let mut out_map = TexelMap::build_with(&scene, &geom, &atlas, lod, made);
+            let c = coarser.as_ref().map(|(t, e)| CoarserLod { texels: t, irradiance: e });
+            let out =
+                bake_lod_lean(&bundle, &bvh, &mut backend, &mut out_map, c, Restore::Albedo, 2, &NoProgress, &never)
+                    .expect("output map");
+            assert_same_bits(&out.irradiance, &plain.irradiance, &format!("{lights} lights, LOD {lod}: output"));
+            assert_same_bits(&out_map.albedo, &plain_map.albedo, "output albedo");
+            assert_same_bits(&out_map.emission, &plain_map.emission, "output emission");
+            assert_eq!(
+                (&out_map.pixel, &out_map.face, &out_map.gutter),
+                (&plain_map.pixel, &plain_map.face, &plain_map.gutter)
+            );
+            assert!(out_map.position.is_empty() && out_map.normal.is_empty() && out_map.area.is_empty());
             // Where most texels emit, the dense emission is the smaller and stays.
             let mut glowing = TexelMap::build(&scene, &geom, &atlas, lod);
             glowing.emission.fill(Rgb::ONE);

@@ -11,7 +11,9 @@
 //!
 //! | structure | bytes |
 //! |---|---|
-//! | texel map: pixel, face, area (u32, u32, f32) | 12 |
+//! | texel map: face (u32) | 4 |
+//! | texel map: pixel (u32), held by the lookup table while the bundles run and given back after ([`crate::atlas::TexelMap::drop_pixels`]) | 0 |
+//! | texel map: area (f32), read by the light pass alone; an output map of `livebake bake` keeps none | 4 (light pass, or kept), 0 |
 //! | texel map: albedo (Vec3); given up while the bundles of a LOD reading a coarser one run (its source is made before them) and recomputed after | 12 (LOD 0), 0 |
 //! | texel map: emission (Vec3), held for the emitting texels alone while the bundles run ([`crate::atlas::TexelMap::take_emission`]) | 0 |
 //! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]) | 0 |
@@ -22,9 +24,11 @@
 //! | hit sums per lane, lane 0 being the batch's sums: (Σa·L, Σa) f32 × 4 | 16 L |
 //! | light-pass hit sums per lane, only with a light pass (Rgb) | 12 L |
 //!
-//! plus, per atlas pixel of that LOD, the blocked lookup table the bundles read (4 B), and
-//! per gutter pixel 8 B (its pixel and source texel; the number is only known once the map
-//! is built, so a quarter of the texels is assumed: the rooms measured have 13–25%). Per
+//! plus the lookup table the bundles read: 24 B per 8×8 block of that LOD's atlas pixels,
+//! and per gutter pixel its texel (4 B; the map's own list of gutter pixels and their texels,
+//! 8 B each, is given up meanwhile, as its texels' pixels are; the number of gutter pixels is
+//! only known once the map is built, so a quarter of the texels is assumed: the rooms
+//! measured have 13–25%). Per
 //! thread, the fragment buffers and the hits kept for their turn ([`cpu_thread_bytes`]).
 //! What does not grow with the texels (scene, BVH, atlas)
 //! is already resident when the guard runs and is read from the process's resident set.
@@ -54,7 +58,10 @@
 //! CPU backend's threads came to share lanes ([`crate::cpu`]), and a target of 2²⁰ texels or
 //! more gets one lane by default, one set of sums where two threads kept one each, and
 //! `livebake bake`'s output maps stopped getting their positions and normals back (figures
-//! in docs/ARCHITECTURE.md, "Memory of a whole-LOD bake").
+//! in docs/ARCHITECTURE.md, "Memory of a whole-LOD bake"). Then the lookup table stopped
+//! holding 4 B a pixel (it ranks the covered pixels of each 8×8 block, whose texels are
+//! consecutive ids) and came to hold the map's pixels and gutters while the bundles run,
+//! and `livebake bake`'s output maps stopped holding areas (read by the light pass alone).
 
 use serde::Serialize;
 
@@ -66,14 +73,17 @@ use crate::cpu::WAITING_HITS_PER_THREAD;
 /// Texel-map bytes per covered texel: pixel, face, area (4 B each) and position, normal,
 /// albedo, emission (12 B each).
 pub const TEXEL_MAP_BYTES: u64 = 12 + 48;
-/// The same while the bundles run: positions and normals given up, emission kept for the
-/// emitting texels alone (a few, not counted).
-pub const LEAN_TEXEL_MAP_BYTES: u64 = 12 + 12;
+/// What an output map of `livebake bake` gives up of that: positions, normals and areas.
+pub const OUTPUT_MAP_SAVING: u64 = 24 + 4;
 /// Irradiance kept per texel of a baked LOD (the output, Rgb).
 pub const IRRADIANCE_BYTES: u64 = 12;
-/// Per atlas pixel of the LOD being baked: its lookup-table entry.
-pub const PIXEL_BYTES: u64 = 4;
-/// Per gutter pixel: (pixel, source texel).
+/// Per 8×8 block of atlas pixels of the LOD being baked: the ranked lookup table's block
+/// ([`crate::atlas::lookup::TexelTable`]).
+pub const TABLE_BLOCK_BYTES: u64 = 24;
+/// Per gutter pixel of the LOD being baked, while its bundles run: its texel in the lookup
+/// table (the map's own list is given up meanwhile).
+pub const TABLE_GUTTER_BYTES: u64 = 4;
+/// Per gutter pixel of a map: (pixel, source texel).
 pub const GUTTER_BYTES: u64 = 8;
 /// Gutter pixels assumed per covered texel before the map is built.
 pub const GUTTER_PER_TEXEL: f64 = 0.25;
@@ -95,10 +105,18 @@ impl Lighting {
 }
 
 /// Bytes per covered texel of the LOD being baked, its texel map and irradiance included,
-/// with `lanes` accumulation lanes and `lighting`, at the bake's peak; `coarser`: whether
-/// the LOD reads a coarser one's radiance (LOD ≥ 1: its albedo is not held while the
-/// bundles run).
-pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, lighting: Lighting, coarser: bool) -> u64 {
+/// with `lanes` accumulation lanes and `lighting`, at the bake's peak (the lookup table,
+/// per pixel, apart); `coarser`: whether the LOD reads a coarser one's radiance (LOD ≥ 1:
+/// its albedo is not held while the bundles run); `keep_area`: whether the map keeps its
+/// texels' areas while the bundles run (the light pass reads them; the library's maps keep
+/// them, `livebake bake`'s output maps do not).
+pub fn bake_bytes_per_texel(
+    backend: BackendKind,
+    lanes: u32,
+    lighting: Lighting,
+    coarser: bool,
+    keep_area: bool,
+) -> u64 {
     match backend {
         // The texel map and the irradiance; the tracer's state is per thread.
         BackendKind::Reference => TEXEL_MAP_BYTES + IRRADIANCE_BYTES,
@@ -106,9 +124,11 @@ pub fn bake_bytes_per_texel(backend: BackendKind, lanes: u32, lighting: Lighting
             let lanes = lanes.max(1) as u64;
             let light = u64::from(lighting.light_pass);
             let punctual = 12 * u64::from(lighting.punctual);
-            // lean map (without albedo, 12 B, after a coarser LOD) + punctual + totals +
-            // source (then the irradiance) + lane sums
-            let map = LEAN_TEXEL_MAP_BYTES - 12 * u64::from(coarser);
+            // face (its pixel is in the lookup table meanwhile), area (with the light pass
+            // or kept), albedo (12 B, not after a coarser LOD) + punctual + totals + source
+            // (then the irradiance) + lane sums
+            let area = 4 * u64::from(keep_area || lighting.light_pass);
+            let map = 4 + area + 12 * u64::from(!coarser);
             let cpu = map + punctual + 16 + 12 * light + 12 + lanes * (16 + 12 * light);
             // The GPU backend keeps the CPU's (its light pass) and adds its buffers, which
             // are host memory on a software adapter: the sources (12 B) and the fixed-point
@@ -180,16 +200,18 @@ pub fn estimate_from_lod0(
         let pixels = pixels_at.map_or(t, |p| p(lod));
         texels = texels.saturating_add(t);
         let gutter = (t as f64 * GUTTER_PER_TEXEL).min(pixels.saturating_sub(t) as f64);
-        bytes += gutter * GUTTER_BYTES as f64;
         if lod == finest {
-            let per = bake_bytes_per_texel(config.backend, lanes, lighting, lod > 0);
-            // The GPU backend uploads a copy of the lookup table (4 B a pixel).
-            let table_copy = if config.backend == BackendKind::Cpu { 0 } else { 4 };
-            bytes += t as f64 * per as f64 + pixels as f64 * (PIXEL_BYTES + table_copy) as f64;
+            let keep = config.keep_texel_positions;
+            let per = bake_bytes_per_texel(config.backend, lanes, lighting, lod > 0, keep);
+            // The ranked lookup table; the GPU backend uploads it dense (4 B a pixel).
+            let table = pixels as f64 * TABLE_BLOCK_BYTES as f64 / 64.0 + gutter * TABLE_GUTTER_BYTES as f64;
+            let table_copy = if config.backend == BackendKind::Cpu { 0.0 } else { pixels as f64 * 4.0 };
+            bytes += t as f64 * per as f64 + table + table_copy;
         } else {
-            // A coarser LOD's output: its map, without positions and normals unless kept.
-            let map = TEXEL_MAP_BYTES - if config.keep_texel_positions { 0 } else { 24 };
-            bytes += t as f64 * (map + IRRADIANCE_BYTES) as f64;
+            // A coarser LOD's output: its map, without positions, normals and areas unless
+            // kept.
+            let map = TEXEL_MAP_BYTES - if config.keep_texel_positions { 0 } else { OUTPUT_MAP_SAVING };
+            bytes += t as f64 * (map + IRRADIANCE_BYTES) as f64 + gutter * GUTTER_BYTES as f64;
         }
     }
     let thread_bytes = match config.backend {
@@ -362,9 +384,13 @@ mod tests {
     fn lanes_and_the_lights_cost_what_the_table_says() {
         let plain = Lighting::NONE;
         let small = Lighting { light_pass: true, punctual: false };
-        let cpu = |lanes, lighting, coarser| bake_bytes_per_texel(BackendKind::Cpu, lanes, lighting, coarser);
-        assert_eq!(cpu(1, plain, false), 24 + 16 + 12 + 16);
-        assert_eq!(cpu(2, small, false) - cpu(2, plain, false), 12 + 2 * 12);
+        let cpu = |lanes, lighting, coarser| bake_bytes_per_texel(BackendKind::Cpu, lanes, lighting, coarser, false);
+        // face, albedo; totals, source, sums
+        assert_eq!(cpu(1, plain, false), 16 + 16 + 12 + 16);
+        // The light pass keeps the areas (4 B) and adds its totals and sums.
+        assert_eq!(cpu(2, small, false) - cpu(2, plain, false), 4 + 12 + 2 * 12);
+        // The library's maps keep the areas.
+        assert_eq!(bake_bytes_per_texel(BackendKind::Cpu, 1, plain, false, true) - cpu(1, plain, false), 4);
         assert_eq!(cpu(2, Lighting::ALL, false) - cpu(2, small, false), 12);
         assert_eq!(cpu(3, plain, false) - cpu(2, plain, false), 16);
         // A LOD reading a coarser one holds no albedo while its bundles run.

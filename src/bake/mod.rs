@@ -272,7 +272,11 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
             report.memory.resident_at_start = memory::resident_bytes();
             for lod in 0..config.lods {
                 let t0 = Instant::now();
-                let mut texels = TexelMap::build(scene, &geom, &atlas, lod);
+                // Positions and normals only where something reads them: the punctual
+                // pass, or the caller.
+                let restore = if config.keep_texel_positions { Restore::All } else { Restore::Albedo };
+                let made = if scene.lights.is_empty() { restore } else { Restore::All };
+                let mut texels = TexelMap::build_with(scene, &geom, &atlas, lod, made);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
                 let never = std::sync::atomic::AtomicBool::new(false);
@@ -283,7 +287,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                     &mut *backend,
                     &mut texels,
                     coarser,
-                    if config.keep_texel_positions { Restore::All } else { Restore::Albedo },
+                    restore,
                     threads,
                     progress,
                     &never,

@@ -88,9 +88,7 @@ impl TargetKey {
             for v in [t.rect.x0, t.rect.y0, t.rect.x1, t.rect.y1] {
                 add(v as u64);
             }
-            for &e in t.entries() {
-                add(e as u64);
-            }
+            add(t.fingerprint());
         }
         TargetKey { lod: target.lod, texels: target.len(), tables: h }
     }

@@ -156,7 +156,7 @@ pub struct TargetBuffers {
 
 /// Bytes of storage the target's buffers need (for the memory estimate and limits).
 pub fn target_bytes(target: &BakeTarget) -> u64 {
-    let entries: u64 = target.tables.iter().map(|t| t.entries().len() as u64 * 4).sum();
+    let entries: u64 = target.tables.iter().map(|t| t.dense_len() as u64 * 4).sum();
     let n = target.len() as u64;
     entries + n * 12 + 2 * (n * WORDS_PER_TEXEL + STATUS_WORDS) * 4
 }
@@ -181,7 +181,7 @@ impl TargetBuffers {
                 first: entries.len() as u32,
                 _pad: 0,
             });
-            entries.extend_from_slice(t.entries());
+            entries.extend_from_slice(&t.dense_entries());
         }
         let whole_table = matches!(target.tables, [t] if t.chart.is_none());
         let n = target.len() as u64;
