@@ -266,7 +266,7 @@ impl SparseTexels {
             face: &self.face,
             position: &self.position,
             normal: &self.normal,
-            albedo: &self.albedo,
+            albedo: super::texels::TexelAlbedo::Dense(&self.albedo),
             emission: super::texels::TexelEmission::Dense(&self.emission),
             area: &self.area,
         }

@@ -2,7 +2,7 @@
 //! for.
 
 use crate::parallel::par_for_each;
-use glam::{DVec2, Vec3};
+use glam::{DVec2, Vec2, Vec3};
 
 use super::lookup::TexelTable;
 use super::raster::{self, PixelRect};
@@ -298,11 +298,10 @@ impl TexelMap {
 
     /// Gives up the dense emission (12 B a texel) for that of the emitting texels alone,
     /// returned; [`restore_emission`](Self::restore_emission) puts it back. `None` (the
-    /// dense emission kept) when so many texels emit that the sparse form (16 B each) would
-    /// be larger.
-    pub fn take_emission(&mut self) -> Option<EmittingTexels> {
-        let e = EmittingTexels::from_dense(&self.emission);
-        if e.len() * 16 >= self.emission.len() * 12 {
+    /// dense emission kept) when so many texels emit that the sparse form would be larger.
+    pub fn take_emission(&mut self) -> Option<TexelSubset> {
+        let e = TexelSubset::from_dense(&self.emission);
+        if e.bytes() >= self.emission.len() * 12 {
             return None;
         }
         self.emission = Vec::new();
@@ -310,8 +309,28 @@ impl TexelMap {
     }
 
     /// Puts back the emission [`take_emission`](Self::take_emission) gave up, value for value.
-    pub fn restore_emission(&mut self, emitting: &EmittingTexels) {
+    pub fn restore_emission(&mut self, emitting: &TexelSubset) {
         self.emission = emitting.dense();
+    }
+
+    /// Gives up the albedo (12 B a texel) of the texels whose material has no texture (their
+    /// face's [`uniform_albedo`]), returning the others'; [`restore_albedo`](Self::restore_albedo)
+    /// puts it back. `None` (the dense albedo kept) when so many texels are textured that the
+    /// sparse form would be larger.
+    pub fn take_albedo(&mut self, scene: &Scene, geom: &SceneGeometry, atlas: &Atlas) -> Option<TexelSubset> {
+        let textured = |i: usize| uniform_albedo(scene, geom, atlas, self.face[i]).is_none();
+        let t = TexelSubset::from_dense_where(&self.albedo, textured);
+        if t.bytes() >= self.albedo.len() * 12 {
+            return None;
+        }
+        self.albedo = Vec::new();
+        Some(t)
+    }
+
+    /// Puts back the albedo [`take_albedo`](Self::take_albedo) gave up, value for value.
+    pub fn restore_albedo(&mut self, textured: &TexelSubset, scene: &Scene, geom: &SceneGeometry, atlas: &Atlas) {
+        let view = TexelAlbedo::Textured(textured);
+        self.albedo = (0..self.face.len()).map(|i| view.at(i, self.face[i], scene, geom, atlas)).collect();
     }
 
     /// Recomputes the albedo when [`drop_albedo`](Self::drop_albedo) gave it up, and with
@@ -460,7 +479,7 @@ pub struct TexelView<'a> {
     pub face: &'a [FaceId],
     pub position: &'a [Vec3],
     pub normal: &'a [Vec3],
-    pub albedo: &'a [Rgb],
+    pub albedo: TexelAlbedo<'a>,
     pub emission: TexelEmission<'a>,
     pub area: &'a [f32],
 }
@@ -472,7 +491,7 @@ pub enum TexelEmission<'a> {
     /// One value per texel ([`TexelMap::emission`]).
     Dense(&'a [Rgb]),
     /// The emitting texels only; every other texel emits nothing.
-    Emitting(&'a EmittingTexels),
+    Emitting(&'a TexelSubset),
 }
 
 impl TexelEmission<'_> {
@@ -486,44 +505,112 @@ impl TexelEmission<'_> {
     }
 }
 
-/// The emission of a texel map's emitting texels (ascending texel ids): what a bake keeps
-/// of [`TexelMap::emission`] while its bundles run, where most texels emit nothing and the
-/// dense array would be 12 B a texel at the bake's peak.
+/// Values of a few of a map's texels (the others read as zero or absent): what a bake keeps
+/// of a per-texel array while its bundles run where most texels need none, such as the
+/// emission of the emitting texels, or the albedo of texels of textured materials. Which
+/// texels are held is a bit per texel; a held texel's value is found through the count of
+/// held texels before its 64-texel word (12 B a held texel, ~0.2 B a texel).
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct EmittingTexels {
+pub struct TexelSubset {
     texels: usize,
-    texel: Vec<u32>,
-    radiance: Vec<Rgb>,
+    /// Bit `i % 64` of word `i / 64`: whether texel `i` is held.
+    held: Vec<u64>,
+    /// Per word: the held texels before it.
+    before: Vec<u32>,
+    values: Vec<Rgb>,
 }
 
-impl EmittingTexels {
-    pub fn from_dense(emission: &[Rgb]) -> Self {
-        let texel: Vec<u32> = (0..emission.len() as u32).filter(|&i| emission[i as usize] != Rgb::ZERO).collect();
-        let radiance = texel.iter().map(|&i| emission[i as usize]).collect();
-        EmittingTexels { texels: emission.len(), texel, radiance }
+impl TexelSubset {
+    /// The nonzero values of `dense`.
+    pub fn from_dense(dense: &[Rgb]) -> Self {
+        Self::from_dense_where(dense, |i| dense[i] != Rgb::ZERO)
     }
 
-    /// Texel `i`'s emitted radiance (zero when it emits nothing).
+    /// The values of `dense` at the texels `keep` says.
+    pub fn from_dense_where(dense: &[Rgb], keep: impl Fn(usize) -> bool) -> Self {
+        let words = dense.len().div_ceil(64);
+        let (mut held, mut before, mut values) = (vec![0u64; words], Vec::with_capacity(words), Vec::new());
+        for ((w, bits), word) in held.iter_mut().enumerate().zip(dense.chunks(64)) {
+            before.push(values.len() as u32);
+            for (b, &v) in word.iter().enumerate() {
+                if keep(w * 64 + b) {
+                    *bits |= 1 << b;
+                    values.push(v);
+                }
+            }
+        }
+        TexelSubset { texels: dense.len(), held, before, values }
+    }
+
+    /// Texel `i`'s value, `None` when it is not held.
+    #[inline]
+    pub fn get(&self, i: u32) -> Option<Rgb> {
+        let (w, b) = (i as usize / 64, i % 64);
+        let bits = *self.held.get(w)?;
+        (bits >> b & 1 == 1).then(|| self.values[(self.before[w] + (bits & ((1u64 << b) - 1)).count_ones()) as usize])
+    }
+
+    /// Texel `i`'s value, zero when it is not held.
     #[inline]
     pub fn at(&self, i: u32) -> Rgb {
-        self.texel.binary_search(&i).map_or(Rgb::ZERO, |k| self.radiance[k])
+        self.get(i).unwrap_or(Rgb::ZERO)
     }
 
-    /// The dense emission these were made from, value for value.
+    /// The dense array these were made from where held, zero elsewhere.
     pub fn dense(&self) -> Vec<Rgb> {
         let mut e = vec![Rgb::ZERO; self.texels];
-        for (&i, &r) in self.texel.iter().zip(&self.radiance) {
-            e[i as usize] = r;
+        let mut values = self.values.iter();
+        for (i, v) in e.iter_mut().enumerate() {
+            if self.held[i / 64] >> (i % 64) & 1 == 1 {
+                *v = *values.next().expect("one value per held texel");
+            }
         }
         e
     }
 
+    /// Held texels.
     pub fn len(&self) -> usize {
-        self.texel.len()
+        self.values.len()
     }
 
     pub fn is_empty(&self) -> bool {
-        self.texel.is_empty()
+        self.values.is_empty()
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> usize {
+        self.held.len() * 12 + self.values.len() * 12
+    }
+}
+
+/// The albedo of face `face` where its material has no base-colour texture (the same at every
+/// point: what [`TexelMap::build`] gives each of its texels), `None` where it has one.
+#[inline]
+pub fn uniform_albedo(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, face: FaceId) -> Option<Rgb> {
+    let m = &scene.materials[geom.material[atlas.faces[face as usize].tri as usize] as usize];
+    m.base_color_texture.is_none().then(|| m.albedo(&scene.textures, Vec2::ZERO))
+}
+
+/// Per texel: diffuse albedo, held densely or for the texels of textured materials alone.
+#[derive(Clone, Copy, Debug)]
+pub enum TexelAlbedo<'a> {
+    /// One value per texel ([`TexelMap::albedo`]).
+    Dense(&'a [Rgb]),
+    /// The texels of textured materials only; every other texel's is its material's
+    /// ([`uniform_albedo`] of its face).
+    Textured(&'a TexelSubset),
+}
+
+impl TexelAlbedo<'_> {
+    /// Texel `i` of face `face`'s albedo.
+    #[inline]
+    pub fn at(&self, i: usize, face: FaceId, scene: &Scene, geom: &SceneGeometry, atlas: &Atlas) -> Rgb {
+        match self {
+            TexelAlbedo::Dense(a) => a[i],
+            TexelAlbedo::Textured(t) => {
+                t.get(i as u32).or_else(|| uniform_albedo(scene, geom, atlas, face)).unwrap_or(Rgb::ZERO)
+            }
+        }
     }
 }
 
@@ -544,7 +631,7 @@ impl TexelMap {
             face: &self.face,
             position: &self.position,
             normal: &self.normal,
-            albedo: &self.albedo,
+            albedo: TexelAlbedo::Dense(&self.albedo),
             emission: TexelEmission::Dense(&self.emission),
             area: &self.area,
         }
@@ -580,4 +667,31 @@ fn take_front<'a, T>(s: &mut &'a mut [T], n: usize) -> &'a mut [T] {
     let (front, rest) = std::mem::take(s).split_at_mut(n);
     *s = rest;
     front
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_texel_subset_reads_the_texels_it_holds() {
+        // 200 texels (ragged last word), every third held, one word with none.
+        let dense: Vec<Rgb> = (0..200).map(|i| Rgb::new(i as f32, 1.0, -(i as f32))).collect();
+        let keep = |i: usize| i % 3 == 0 && !(64..128).contains(&i);
+        let subset = TexelSubset::from_dense_where(&dense, keep);
+        assert_eq!(subset.len(), (0..200).filter(|&i| keep(i)).count());
+        for (i, &v) in dense.iter().enumerate() {
+            assert_eq!(subset.get(i as u32), keep(i).then_some(v), "texel {i}");
+        }
+        assert_eq!(subset.get(200), None);
+        let back = subset.dense();
+        assert!((0..200).all(|i| back[i] == if keep(i) { dense[i] } else { Rgb::ZERO }));
+        // From nonzero values: the zero texel 0 is not held, and nothing is lost.
+        let mut emission = dense.clone();
+        emission[0] = Rgb::ZERO;
+        let emitting = TexelSubset::from_dense(&emission);
+        assert_eq!((emitting.len(), emitting.at(0)), (199, Rgb::ZERO));
+        assert_eq!(emitting.dense(), emission);
+        assert_eq!(emitting.bytes(), 4 * 12 + 199 * 12);
+    }
 }

@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use crate::atlas::TexelMap;
 use crate::atlas::lookup::TexelTable;
-use crate::atlas::texels::{Restore, TexelEmission, TexelView};
+use crate::atlas::texels::{Restore, TexelAlbedo, TexelEmission, TexelView};
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
 use crate::bundle::{
@@ -138,9 +138,14 @@ pub fn bake_lod_lean(
     let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
     // A converged source is all the bundles need of the albedo (a bake's own multi-bounce
     // source is remade from it after every batch).
-    if converged.is_some() {
+    // Otherwise the albedo of texels of untextured materials is their material's, asked of
+    // their face rather than held.
+    let textured = if converged.is_some() {
         texels.drop_albedo();
-    }
+        None
+    } else {
+        texels.take_albedo(&bundle.scene, &bundle.geom, &bundle.atlas)
+    };
     let emitting = texels.take_emission();
     // The lookup table holds the texels' pixels and the gutters, given up meanwhile.
     let tables = [TexelTable::of_map(texels)];
@@ -152,10 +157,13 @@ pub fn bake_lod_lean(
     }
     let result = {
         let texels = &*texels;
-        let view = match &emitting {
-            Some(e) => TexelView { emission: TexelEmission::Emitting(e), ..texels.view() },
-            None => texels.view(),
-        };
+        let mut view = texels.view();
+        if let Some(e) = &emitting {
+            view.emission = TexelEmission::Emitting(e);
+        }
+        if let Some(t) = &textured {
+            view.albedo = TexelAlbedo::Textured(t);
+        }
         let region = Region { texels: view, tables: &tables, window: None, foreign: None };
         let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
         bake_region_observed(
@@ -181,6 +189,9 @@ pub fn bake_lod_lean(
     }
     if let Some(e) = &emitting {
         texels.restore_emission(e);
+    }
+    if let Some(t) = &textured {
+        texels.restore_albedo(t, &bundle.scene, &bundle.geom, &bundle.atlas);
     }
     texels.restore_geometry(&bundle.scene, &bundle.geom, &bundle.atlas, threads, restore);
     result
@@ -250,6 +261,7 @@ fn bake_region_observed(
     stats.punctual_seconds = seconds;
 
     let carried = |i: usize| bundle.carried(texels.face[i]);
+    let albedo = |i: usize| texels.albedo.at(i, texels.face[i], &bundle.scene, &bundle.geom, &bundle.atlas);
     let triangles = crate::bundle::target::target_triangles(&bundle.atlas, texels.face);
     let target = BakeTarget {
         lod: texels.lod,
@@ -269,7 +281,7 @@ fn bake_region_observed(
     let mut source = Vec::new();
     match converged {
         Some(c) => source = c,
-        None => estimate.source_radiance(texels.albedo, texels.emission, &carried, None, threads, &mut source),
+        None => estimate.source_radiance(&albedo, texels.emission, &carried, None, threads, &mut source),
     }
     stats.light_pass_groups = bundle.emitters.small.len();
     stats.emitter_triangles_in_global_bundles = bundle.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
@@ -295,7 +307,7 @@ fn bake_region_observed(
         stats.pass.add(&pass);
         estimate.add_batch(&sums, texels.area, count * config.light_directions as u64, threads);
         if kind == SourceKind::Progressive {
-            estimate.source_radiance(texels.albedo, texels.emission, &carried, Some(&sums), threads, &mut source);
+            estimate.source_radiance(&albedo, texels.emission, &carried, Some(&sums), threads, &mut source);
         }
         first += count;
         progress.advance(count);
@@ -378,8 +390,8 @@ mod tests {
         }
     }
 
-    /// The lean bake gives up positions, normals and most of the emission while its bundles
-    /// run and puts them back: its irradiance, punctual part and texel map are the plain
+    /// The lean bake gives up positions, normals, most of the emission and (at LOD 0) the
+    /// albedo of untextured texels while its bundles run and puts them back: its irradiance, punctual part and texel map are the plain
     /// bake's bit for bit, at LOD 0 (its own multi-bounce source, a light pass over the
     /// Cornell box's lamp, texels emitting) and at LOD 1 (source read from LOD 0); with a
     /// point light added, and without one (then it holds no punctual part at all).
@@ -411,6 +423,10 @@ mod tests {
         let mut coarser: Option<(TexelMap, Vec<Rgb>)> = None;
         for lod in 0..2 {
             let plain_map = TexelMap::build(&scene, &geom, &atlas, lod);
+            // The box's textured materials cover some texels and not others: at LOD 0 the
+            // lean bake holds the albedo of those alone.
+            let textured = plain_map.clone().take_albedo(&scene, &geom, &atlas).expect("few textured texels");
+            assert!(!textured.is_empty() && textured.len() * 4 < plain_map.len(), "{} textured", textured.len());
             let emitting = plain_map.emission.iter().filter(|e| **e != Rgb::ZERO).count();
             assert!(emitting > 0 && emitting * 4 < plain_map.len(), "LOD {lod}: {emitting} emitting texels");
             let c = coarser.as_ref().map(|(t, e)| CoarserLod { texels: t, irradiance: e });

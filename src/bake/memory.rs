@@ -65,7 +65,9 @@
 
 use serde::Serialize;
 
-use crate::atlas::Atlas;
+use crate::atlas::texels::uniform_albedo;
+use crate::atlas::{Atlas, FaceId};
+use crate::scene::{Scene, SceneGeometry};
 
 use super::{BackendKind, BakeConfig};
 use crate::cpu::WAITING_HITS_PER_THREAD;
@@ -88,54 +90,76 @@ pub const GUTTER_BYTES: u64 = 8;
 /// Gutter pixels assumed per covered texel before the map is built.
 pub const GUTTER_PER_TEXEL: f64 = 0.25;
 
-/// What a scene's lights add to a bake's memory.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Lighting {
+/// What a scene brings to a bake's memory beyond its texels: its lights and its textures.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SceneTraits {
     /// Small emitters, which get the light pass (its sums and totals).
     pub light_pass: bool,
     /// Punctual lights (their exact irradiance per texel).
     pub punctual: bool,
+    /// The share of the surface (so, near enough, of the texels) whose material has a
+    /// base-colour texture: a LOD-0 bake holds those texels' albedo alone
+    /// ([`crate::atlas::TexelMap::take_albedo`]).
+    pub textured_share: f64,
 }
 
-impl Lighting {
-    /// Both: the most a scene's lights can add.
-    pub const ALL: Lighting = Lighting { light_pass: true, punctual: true };
-    /// Neither: the least.
-    pub const NONE: Lighting = Lighting { light_pass: false, punctual: false };
+impl SceneTraits {
+    /// The most a scene can add: both kinds of light, every surface textured.
+    pub const MOST: SceneTraits = SceneTraits { light_pass: true, punctual: true, textured_share: 1.0 };
+    /// The least.
+    pub const LEAST: SceneTraits = SceneTraits { light_pass: false, punctual: false, textured_share: 0.0 };
+
+    /// The traits of `scene` unwrapped into `atlas`; `light_pass`: whether it has small
+    /// emitters.
+    pub fn of(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, light_pass: bool) -> SceneTraits {
+        let (mut textured, mut all) = (0f64, 0f64);
+        for (f, face) in atlas.faces.iter().enumerate() {
+            let area = geom.areas[face.tri as usize] as f64;
+            all += area;
+            if uniform_albedo(scene, geom, atlas, f as FaceId).is_none() {
+                textured += area;
+            }
+        }
+        let textured_share = if all > 0.0 { textured / all } else { 0.0 };
+        SceneTraits { light_pass, punctual: !scene.lights.is_empty(), textured_share }
+    }
 }
 
 /// Bytes per covered texel of the LOD being baked, its texel map and irradiance included,
-/// with `lanes` accumulation lanes and `lighting`, at the bake's peak (the lookup table,
-/// per pixel, apart); `coarser`: whether the LOD reads a coarser one's radiance (LOD ≥ 1:
-/// its albedo is not held while the bundles run); `keep_area`: whether the map keeps its
-/// texels' areas while the bundles run (the light pass reads them; the library's maps keep
-/// them, `livebake bake`'s output maps do not).
+/// with `lanes` accumulation lanes and the scene's `traits`, at the bake's peak (the lookup
+/// table, per pixel, apart); `coarser`: whether the LOD reads a coarser one's radiance
+/// (LOD ≥ 1: its albedo is not held while the bundles run); `keep_area`: whether the map
+/// keeps its texels' areas while the bundles run (the light pass reads them; the library's
+/// maps keep them, `livebake bake`'s output maps do not).
 pub fn bake_bytes_per_texel(
     backend: BackendKind,
     lanes: u32,
-    lighting: Lighting,
+    traits: SceneTraits,
     coarser: bool,
     keep_area: bool,
-) -> u64 {
+) -> f64 {
     match backend {
         // The texel map and the irradiance; the tracer's state is per thread.
-        BackendKind::Reference => TEXEL_MAP_BYTES + IRRADIANCE_BYTES,
+        BackendKind::Reference => (TEXEL_MAP_BYTES + IRRADIANCE_BYTES) as f64,
         BackendKind::Cpu | BackendKind::Gpu | BackendKind::Auto => {
-            let lanes = lanes.max(1) as u64;
-            let light = u64::from(lighting.light_pass);
-            let punctual = 12 * u64::from(lighting.punctual);
+            let lanes = lanes.max(1) as f64;
+            let light = if traits.light_pass { 1.0 } else { 0.0 };
+            let punctual = if traits.punctual { 12.0 } else { 0.0 };
+            // The albedo at LOD 0: that of textured texels alone (12 B each and a bit per
+            // texel), unless that is more than all of it.
+            let albedo =
+                if coarser { 0.0 } else { (12.0 * traits.textured_share.clamp(0.0, 1.0) + 12.0 / 64.0).min(12.0) };
             // face (its pixel is in the lookup table meanwhile), area (with the light pass
-            // or kept), albedo (12 B, not after a coarser LOD) + punctual + totals + source
-            // (then the irradiance) + lane sums
-            let area = 4 * u64::from(keep_area || lighting.light_pass);
-            let map = 4 + area + 12 * u64::from(!coarser);
-            let cpu = map + punctual + 16 + 12 * light + 12 + lanes * (16 + 12 * light);
+            // or kept), albedo + punctual + totals + source (then the irradiance) + lane sums
+            let area = if keep_area || traits.light_pass { 4.0 } else { 0.0 };
+            let map = 4.0 + area + albedo;
+            let cpu = map + punctual + 16.0 + 12.0 * light + 12.0 + lanes * (16.0 + 12.0 * light);
             // The GPU backend keeps the CPU's (its light pass) and adds its buffers, which
             // are host memory on a software adapter: the sources (12 B) and the fixed-point
             // sums with their read-back copy (2 × 32 B). `auto` may pick either.
             match backend {
                 BackendKind::Cpu => cpu,
-                _ => cpu + 12 + 64,
+                _ => cpu + 12.0 + 64.0,
             }
         }
     }
@@ -174,9 +198,9 @@ pub struct MemoryEstimate {
 }
 
 /// The peak bytes of baking `config.lods` levels of `atlas` (see the module docs).
-pub fn estimate(atlas: &Atlas, config: &BakeConfig, lighting: Lighting) -> MemoryEstimate {
+pub fn estimate(atlas: &Atlas, config: &BakeConfig, traits: SceneTraits) -> MemoryEstimate {
     let hierarchy = atlas.lods(config.lods);
-    estimate_from_lod0(atlas.stats.covered_texels_lod0, Some(&|lod| hierarchy.texel_count(lod)), config, lighting)
+    estimate_from_lod0(atlas.stats.covered_texels_lod0, Some(&|lod| hierarchy.texel_count(lod)), config, traits)
 }
 
 /// [`estimate`] from LOD 0's covered texels and each LOD's atlas pixels (`None`: as many as
@@ -188,7 +212,7 @@ pub fn estimate_from_lod0(
     texels0: u64,
     pixels_at: Option<&dyn Fn(u32) -> u64>,
     config: &BakeConfig,
-    lighting: Lighting,
+    traits: SceneTraits,
 ) -> MemoryEstimate {
     let finest = config.lods.saturating_sub(1);
     let finest_texels = texels0.saturating_mul(1u64 << (2 * finest.min(31)));
@@ -202,11 +226,11 @@ pub fn estimate_from_lod0(
         let gutter = (t as f64 * GUTTER_PER_TEXEL).min(pixels.saturating_sub(t) as f64);
         if lod == finest {
             let keep = config.keep_texel_positions;
-            let per = bake_bytes_per_texel(config.backend, lanes, lighting, lod > 0, keep);
+            let per = bake_bytes_per_texel(config.backend, lanes, traits, lod > 0, keep);
             // The ranked lookup table; the GPU backend uploads it dense (4 B a pixel).
             let table = pixels as f64 * TABLE_BLOCK_BYTES as f64 / 64.0 + gutter * TABLE_GUTTER_BYTES as f64;
             let table_copy = if config.backend == BackendKind::Cpu { 0.0 } else { pixels as f64 * 4.0 };
-            bytes += t as f64 * per as f64 + table + table_copy;
+            bytes += t as f64 * per + table + table_copy;
         } else {
             // A coarser LOD's output: its map, without positions, normals and areas unless
             // kept.
@@ -382,18 +406,26 @@ mod tests {
 
     #[test]
     fn lanes_and_the_lights_cost_what_the_table_says() {
-        let plain = Lighting::NONE;
-        let small = Lighting { light_pass: true, punctual: false };
-        let cpu = |lanes, lighting, coarser| bake_bytes_per_texel(BackendKind::Cpu, lanes, lighting, coarser, false);
-        // face, albedo; totals, source, sums
-        assert_eq!(cpu(1, plain, false), 16 + 16 + 12 + 16);
+        let plain = SceneTraits::LEAST;
+        let small = SceneTraits { light_pass: true, ..plain };
+        let cpu = |lanes, traits, coarser| bake_bytes_per_texel(BackendKind::Cpu, lanes, traits, coarser, false);
+        // face, the bits saying which texels are textured (none); totals, source, sums
+        assert_eq!(cpu(1, plain, false), 4.0 + 0.1875 + 16.0 + 12.0 + 16.0);
         // The light pass keeps the areas (4 B) and adds its totals and sums.
-        assert_eq!(cpu(2, small, false) - cpu(2, plain, false), 4 + 12 + 2 * 12);
+        assert_eq!(cpu(2, small, false) - cpu(2, plain, false), 4.0 + 12.0 + 2.0 * 12.0);
         // The library's maps keep the areas.
-        assert_eq!(bake_bytes_per_texel(BackendKind::Cpu, 1, plain, false, true) - cpu(1, plain, false), 4);
-        assert_eq!(cpu(2, Lighting::ALL, false) - cpu(2, small, false), 12);
-        assert_eq!(cpu(3, plain, false) - cpu(2, plain, false), 16);
+        assert_eq!(bake_bytes_per_texel(BackendKind::Cpu, 1, plain, false, true) - cpu(1, plain, false), 4.0);
+        assert_eq!(cpu(2, SceneTraits { punctual: true, ..small }, false) - cpu(2, small, false), 12.0);
+        assert_eq!(cpu(3, plain, false) - cpu(2, plain, false), 16.0);
+        // Textured texels keep their albedo, all of it when most are.
+        let half = SceneTraits { textured_share: 0.5, ..plain };
+        assert_eq!(cpu(1, half, false) - cpu(1, plain, false), 6.0);
+        assert_eq!(
+            cpu(1, SceneTraits::MOST, false) - cpu(1, SceneTraits { textured_share: 0.0, ..SceneTraits::MOST }, false),
+            12.0 - 0.1875
+        );
         // A LOD reading a coarser one holds no albedo while its bundles run.
-        assert_eq!(cpu(2, plain, false) - cpu(2, plain, true), 12);
+        assert_eq!(cpu(2, plain, false) - cpu(2, plain, true), 0.1875);
+        assert_eq!(cpu(2, SceneTraits::MOST, false) - cpu(2, SceneTraits::MOST, true), 12.0);
     }
 }

@@ -110,10 +110,11 @@ pub struct BakedLod {
 }
 
 impl BakedLod {
-    /// Outgoing radiance of each texel of a diffuse surface: `Le + albedo/π · E`.
-    pub fn radiance(&self) -> Vec<Rgb> {
+    /// Outgoing radiance of texel `i` of a diffuse surface: `Le + albedo/π · E`.
+    #[inline]
+    pub fn radiance_of(&self, i: usize) -> Rgb {
         let t = &self.texels;
-        (0..t.len()).map(|i| t.emission[i] + t.albedo[i] * self.irradiance[i] * std::f32::consts::FRAC_1_PI).collect()
+        t.emission[i] + t.albedo[i] * self.irradiance[i] * std::f32::consts::FRAC_1_PI
     }
 }
 
@@ -241,7 +242,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
     let mut lods: Vec<BakedLod> = Vec::new();
     match config.backend {
         BackendKind::Reference => {
-            report.memory = check_memory(&atlas, config, memory::Lighting::NONE)?;
+            report.memory = check_memory(&atlas, config, memory::SceneTraits::LEAST)?;
             let backend = reference::ReferenceBackend::new(scene, config);
             report.memory.resident_at_start = memory::resident_bytes();
             for lod in 0..config.lods {
@@ -260,9 +261,8 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 Arc::new(atlas.clone()),
                 config.bundle_config(),
             ));
-            let lighting =
-                memory::Lighting { light_pass: !bundle.emitters.small.is_empty(), punctual: !scene.lights.is_empty() };
-            report.memory = check_memory(&atlas, config, lighting)?;
+            let traits = memory::SceneTraits::of(scene, &geom, &atlas, !bundle.emitters.small.is_empty());
+            report.memory = check_memory(&atlas, config, traits)?;
             let bvh = Bvh::for_scene(scene, &geom);
             check_node_capacity(&bvh, &config.bundle_config())?;
             let mut backend = backend::bundle_backend(config.backend, &bundle, config.threads())?;
@@ -344,18 +344,18 @@ pub fn check_lod_sizes(atlas: &Atlas, lods: u32) -> Result<(), BakeError> {
 }
 
 /// The memory guard: estimates the peak of baking `config` on `atlas` ([`memory::estimate`];
-/// `lighting`: what the scene's lights add) before anything per texel is
+/// `traits`: what the scene's lights and textures add) before anything per texel is
 /// allocated and refuses it when that, with what the process already holds, exceeds the
 /// limit (`config.memory_limit`, else 3/4 of the machine's memory). The error names the
 /// options that lower it. Returns the memory part of the report, measured figures to come.
 pub fn check_memory(
     atlas: &Atlas,
     config: &BakeConfig,
-    lighting: memory::Lighting,
+    traits: memory::SceneTraits,
 ) -> Result<memory::MemoryReport, BakeError> {
-    let estimate = memory::estimate(atlas, config, lighting);
+    let estimate = memory::estimate(atlas, config, traits);
     let (limit, source) = memory::memory_limit(config.memory_limit);
-    refuse_over_limit(&estimate, config, lighting.light_pass, Some(atlas.texel_size), "~")?;
+    refuse_over_limit(&estimate, config, traits.light_pass, Some(atlas.texel_size), "~")?;
     Ok(memory::MemoryReport {
         estimate,
         limit_bytes: limit,
@@ -383,7 +383,7 @@ fn check_memory_early(scene: &Scene, geom: &SceneGeometry, config: &BakeConfig) 
     if one_lane.bundle.lanes == crate::bundle::Lanes::Auto {
         one_lane.bundle.lanes = crate::bundle::Lanes::Fixed(1);
     }
-    let mut estimate = memory::estimate_from_lod0(texels, None, &one_lane, memory::Lighting::NONE);
+    let mut estimate = memory::estimate_from_lod0(texels, None, &one_lane, memory::SceneTraits::LEAST);
     // The threads' buffers are counted at their most: not part of a lower bound.
     estimate.bytes = estimate.texel_bytes;
     estimate.thread_bytes = 0;

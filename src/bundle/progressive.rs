@@ -278,12 +278,14 @@ impl ProgressiveEstimate {
     /// Outgoing radiance each texel sends into the next batch: reflected light
     /// `albedo/π · E_src`, plus its emission when the global bundles carry it (`carried(i)`,
     /// asked rather than held: a per-texel flag is one more byte a texel at the bake's peak).
+    /// `albedo(i)`: texel `i`'s albedo (asked as well: a bake may hold the albedo of textured
+    /// texels alone, see [`crate::atlas::texels::TexelAlbedo`]).
     /// `E_src` is the direct estimate so far plus the indirect light of `last` (the batch
     /// just folded in) alone — see the module docs — or, for a texel that batch missed, the
     /// running indirect estimate.
     pub fn source_radiance(
         &self,
-        albedo: &[Rgb],
+        albedo: &(dyn Fn(usize) -> Rgb + Sync),
         emission: TexelEmission,
         carried: &(dyn Fn(usize) -> bool + Sync),
         last: Option<&BatchSums>,
@@ -301,7 +303,7 @@ impl ProgressiveEstimate {
                     }
                     _ => self.irradiance_of(i),
                 };
-                let reflected = albedo[i] * e * std::f32::consts::FRAC_1_PI;
+                let reflected = albedo(i) * e * std::f32::consts::FRAC_1_PI;
                 *o = if carried(i) { reflected + emission.at(i) } else { reflected };
             }
         });

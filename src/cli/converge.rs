@@ -150,7 +150,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas).map_err(BakeError::from)?);
     check_lod_sizes(&atlas, 1)?;
     // As `bake` does (one LOD; a light pass assumed: the estimate bounds the bake's part).
-    check_memory(&atlas, &BakeConfig { lods: 1, ..config.clone() }, livebake::bake::memory::Lighting::ALL)?;
+    check_memory(&atlas, &BakeConfig { lods: 1, ..config.clone() }, livebake::bake::memory::SceneTraits::MOST)?;
     let texels = TexelMap::build(&scene, &geom, &atlas, 0);
     let bvh = Bvh::for_scene(&scene, &geom);
     check_node_capacity(&bvh, &config.bundle_config())?;

@@ -358,7 +358,7 @@ pub(super) fn whole_bake(
 /// machine usable, and the runtime it is compared with stays far below).
 pub(super) fn whole_bake_estimate(atlas: &Atlas, light_pass: bool) -> Result<u64> {
     let config = BakeConfig { lods: 1, bundle: RuntimeConfig::default().bundle, ..BakeConfig::default() };
-    let estimate = memory::estimate(atlas, &config, memory::Lighting { light_pass, punctual: true });
+    let estimate = memory::estimate(atlas, &config, memory::SceneTraits { light_pass, ..memory::SceneTraits::MOST });
     let (three_quarters, _) = memory::memory_limit(None);
     let limit = three_quarters / 3 * 2;
     if estimate.bytes > limit {
