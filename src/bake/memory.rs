@@ -14,9 +14,9 @@
 //! | texel map: face (u32) | 4 |
 //! | texel map: pixel (u32), held by the lookup table while the bundles run and given back after ([`crate::atlas::TexelMap::drop_pixels`]) | 0 |
 //! | texel map: area (f32), read by the light pass alone; an output map of `livebake bake` keeps none | 4 (light pass, or kept), 0 |
-//! | texel map: albedo (Vec3); given up while the bundles of a LOD reading a coarser one run (its source is made before them) and recomputed after | 12 (LOD 0), 0 |
+//! | texel map: albedo (Vec3); at LOD 0 held for the texels of textured materials alone while the bundles run (12 B each and a bit a texel; the others' is their material's, asked of their face: [`crate::atlas::TexelMap::take_albedo`]); given up while the bundles of a LOD reading a coarser one run (its source is made before them) and recomputed after | 12 × textured share + 0.19 (LOD 0), 0 |
 //! | texel map: emission (Vec3), held for the emitting texels alone while the bundles run ([`crate::atlas::TexelMap::take_emission`]) | 0 |
-//! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]) | 0 |
+//! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]); `livebake bake` builds its maps without them where no punctual pass reads them | 0 |
 //! | punctual irradiance (Rgb), only in a scene with punctual lights | 12 |
 //! | progressive totals: Σw·S (rgb) and Σw·A, f32 | 16 |
 //! | progressive totals: light-pass Σ a·Le/A_texel (rgb, f32), only with a light pass | 12 |
@@ -62,6 +62,10 @@
 //! holding 4 B a pixel (it ranks the covered pixels of each 8×8 block, whose texels are
 //! consecutive ids) and came to hold the map's pixels and gutters while the bundles run,
 //! and `livebake bake`'s output maps stopped holding areas (read by the light pass alone).
+//! Then a LOD-0 bake came to hold the albedo of textured texels alone, and the light maps
+//! to be written without a full-size image (EXR) or radiance array (PNG) beside the map:
+//! 76.9 → 52.3 B a texel in the plain Van Gogh room and 112.0 → 88.5 B in the lit one
+//! (marginal; 84.5 → 58.8 and 120.1 → 97.9 B in all at 4 M texels).
 
 use serde::Serialize;
 
