@@ -151,7 +151,8 @@ pub fn export_gltf(
     let mut gltf = serde_json::to_vec_pretty(&built.json).expect("a serde_json::Value always serialises");
     gltf.push(b'\n');
     let png = encode(&files.png.path, lightmap::png_image(lightmap, png_intensity), ImageFormat::Png)?;
-    let exr = encode(&files.hdr.path, lightmap.clone(), ImageFormat::OpenExr)?;
+    // Encoded from the borrowed image: no copy of it (12 B a pixel) beside the original.
+    let exr = encode_buffer(&files.hdr.path, lightmap, ImageFormat::OpenExr)?;
     // The .gltf goes last: until it is renamed, an older export stays whole.
     write_all(
         &files.dir,
@@ -221,6 +222,21 @@ fn encode(path: &Path, img: impl Into<image::DynamicImage>, format: ImageFormat)
     img.into()
         .write_to(&mut bytes, format)
         .map_err(|source| ExportError::Encode { path: path.to_path_buf(), source })?;
+    Ok(bytes.into_inner())
+}
+
+/// [`encode`] of a borrowed image buffer, the same bytes.
+fn encode_buffer<P>(
+    path: &Path,
+    img: &image::ImageBuffer<P, Vec<P::Subpixel>>,
+    format: ImageFormat,
+) -> Result<Vec<u8>, ExportError>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+{
+    let mut bytes = Cursor::new(Vec::new());
+    img.write_to(&mut bytes, format).map_err(|source| ExportError::Encode { path: path.to_path_buf(), source })?;
     Ok(bytes.into_inner())
 }
 
