@@ -24,7 +24,7 @@ pub enum Restore {
 
 /// Every valid texel of one LOD, stored compactly (covered texels only, in `block_order`),
 /// plus the gutter pixels that copy a texel. The pixel → texel lookup is not kept: the
-/// bundles read a [`TexelTable`](super::lookup::TexelTable), tests [`TexelMap::slots`].
+/// bundles read a [`TexelTable`], tests [`TexelMap::slots`].
 #[derive(Clone, Debug, Default)]
 pub struct TexelMap {
     pub lod: u32,
@@ -268,7 +268,7 @@ impl TexelMap {
     }
 
     /// Puts back the pixels [`drop_pixels`](Self::drop_pixels) gave up to `table`, value
-    /// for value.
+    /// for value (the gutter pixels in block order, as [`build`](Self::build) lists them).
     pub fn restore_pixels(&mut self, table: &TexelTable) {
         if let Some(given) = table.map_pixels() {
             self.pixel = given.pixel;

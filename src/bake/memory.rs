@@ -2,8 +2,8 @@
 //! allocated, the guard that refuses a bake over the limit, and what it did hold (peak RSS).
 //!
 //! The model counts what is live at a bake's peak: the end of the last batch of the finest
-//! LOD, with every coarser LOD's texel map (without positions and normals unless the config
-//! keeps them: `livebake bake` does not) and irradiance kept (they are the output). Per
+//! LOD, with every coarser LOD's texel map (without positions, normals and areas unless the
+//! config keeps them: `livebake bake` does not) and irradiance kept (they are the output). Per
 //! covered texel of the LOD being baked (CPU backend, `L` lanes (see
 //! [`crate::bundle::Lanes`]: 2, or 1 from 2²⁰ texels by default), sizes of the structures in
 //! [`crate::atlas::texels`], [`crate::atlas::lookup`], [`crate::bundle::progressive`] and
