@@ -497,24 +497,35 @@ mod tests {
             for threads in [1, 2, 3] {
                 let mut backend = CpuBundleBackend::new(scene.clone(), threads);
                 let mut sums = BatchSums::default();
-                let stats = backend.trace_batch(&target, &batch, &source, &mut sums, &never).expect("batch");
-                assert!(sums.bundle.iter().any(|b| b[3] > 0.0) && sums.light.iter().any(|l| *l != Rgb::ZERO));
-                if threads <= lanes as usize {
-                    assert_eq!(
-                        stats.peak_recorded_hits, 0,
-                        "{lanes} lanes, {threads} threads: a lane's one thread traces the unit due"
-                    );
-                } else {
-                    assert!(
-                        stats.peak_recorded_hits > 0,
-                        "{lanes} lanes, {threads} threads: no unit was traced ahead of its turn"
-                    );
+                // Whether a thread gets ahead of its lane's unit due is up to the OS's
+                // scheduling (on a loaded machine one thread may take every unit in turn):
+                // batches are traced until one was, each one's sums checked.
+                let mut recorded = false;
+                for _attempt in 0..20 {
+                    let stats = backend.trace_batch(&target, &batch, &source, &mut sums, &never).expect("batch");
+                    assert!(sums.bundle.iter().any(|b| b[3] > 0.0) && sums.light.iter().any(|l| *l != Rgb::ZERO));
+                    if threads <= lanes as usize {
+                        assert_eq!(
+                            stats.peak_recorded_hits, 0,
+                            "{lanes} lanes, {threads} threads: a lane's one thread traces the unit due"
+                        );
+                    }
+                    recorded |= stats.peak_recorded_hits > 0;
+                    let b = bits(&sums);
+                    match &first {
+                        None => first = Some(b),
+                        Some(f) => {
+                            assert!(*f == b, "{lanes} lanes, {threads} threads: sums differ from one thread's")
+                        }
+                    }
+                    if recorded || threads <= lanes as usize {
+                        break;
+                    }
                 }
-                let b = bits(&sums);
-                match &first {
-                    None => first = Some(b),
-                    Some(f) => assert!(*f == b, "{lanes} lanes, {threads} threads: sums differ from one thread's"),
-                }
+                assert!(
+                    recorded || threads <= lanes as usize,
+                    "{lanes} lanes, {threads} threads: no unit was traced ahead of its turn in 20 batches"
+                );
                 let cancel = AtomicBool::new(true);
                 assert!(backend.trace_batch(&target, &batch, &source, &mut sums, &cancel).is_err());
             }
