@@ -56,9 +56,10 @@ fn z_coordinate(m: u32) -> i64 {
     ((m & 1) | (m >> 1 & 2) | (m >> 2 & 4)) as i64
 }
 
-/// The covered pixels of a mask before index `m`.
+/// The set bits of `mask` below bit `m`: the rank of a held item among those of its
+/// 64-item word (the lookup table's blocks, [`super::texels::TexelSubset`]'s words).
 #[inline(always)]
-fn before(mask: u64, m: u32) -> u32 {
+pub(super) fn before(mask: u64, m: u32) -> u32 {
     (mask & ((1u64 << m) - 1)).count_ones()
 }
 

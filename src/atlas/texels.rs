@@ -2,7 +2,7 @@
 //! for.
 
 use crate::parallel::par_for_each;
-use glam::{DVec2, Vec2, Vec3};
+use glam::{DVec2, Vec3};
 
 use super::lookup::TexelTable;
 use super::raster;
@@ -554,7 +554,7 @@ impl TexelSubset {
     pub fn get(&self, i: u32) -> Option<Rgb> {
         let (w, b) = (i as usize / 64, i % 64);
         let bits = *self.held.get(w)?;
-        (bits >> b & 1 == 1).then(|| self.values[(self.before[w] + (bits & ((1u64 << b) - 1)).count_ones()) as usize])
+        (bits >> b & 1 == 1).then(|| self.values[(self.before[w] + super::lookup::before(bits, b)) as usize])
     }
 
     /// Texel `i`'s value, zero when it is not held.
@@ -594,8 +594,7 @@ impl TexelSubset {
 /// point: what [`TexelMap::build`] gives each of its texels), `None` where it has one.
 #[inline]
 pub fn uniform_albedo(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, face: FaceId) -> Option<Rgb> {
-    let m = &scene.materials[geom.material[atlas.faces[face as usize].tri as usize] as usize];
-    m.base_color_texture.is_none().then(|| m.albedo(&scene.textures, Vec2::ZERO))
+    scene.materials[geom.material[atlas.faces[face as usize].tri as usize] as usize].uniform_albedo(&scene.textures)
 }
 
 /// Per texel: diffuse albedo, held densely or for the texels of textured materials alone.

@@ -85,10 +85,7 @@ impl SceneGeometry {
     /// Diffuse albedo of triangle `t` at barycentrics (u, v).
     pub fn albedo(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Rgb {
         let m = &scene.materials[self.material[t as usize] as usize];
-        if m.base_color_texture.is_none() {
-            return m.albedo(&scene.textures, Vec2::ZERO);
-        }
-        m.albedo(&scene.textures, self.uv0(scene, t, u, v))
+        m.uniform_albedo(&scene.textures).unwrap_or_else(|| m.albedo(&scene.textures, self.uv0(scene, t, u, v)))
     }
 
     /// Emitted radiance of triangle `t` at barycentrics (u, v), from its emitting side(s).

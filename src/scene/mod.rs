@@ -113,6 +113,12 @@ impl Material {
         c.clamp(Vec3::ZERO, Vec3::ONE)
     }
 
+    /// The albedo where it is the same at every point (no base-colour texture), `None`
+    /// where a texture varies it.
+    pub fn uniform_albedo(&self, textures: &[Texture]) -> Option<Rgb> {
+        self.base_color_texture.is_none().then(|| self.albedo(textures, Vec2::ZERO))
+    }
+
     /// Alpha at `uv0` (factor × texture alpha).
     pub fn alpha(&self, textures: &[Texture], uv0: Vec2) -> f32 {
         let mut a = self.base_color.w;
