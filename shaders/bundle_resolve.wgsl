@@ -511,6 +511,17 @@ fn layer_face(start: u32, end: u32, minus_side: bool) -> vec3<f32> {
     return best;
 }
 
+// Whether no fragment of frags[start..end] shows a lit face on the chosen side
+// (`estimator::buried`'s `blind`).
+fn blind(start: u32, end: u32, minus_side: bool) -> bool {
+    for (var i = start; i < end; i++) {
+        if (select(frags[i].plus, frags[i].minus, minus_side) & CODE_MASK) != NO_SIDE {
+            return false;
+        }
+    }
+    return true;
+}
+
 // Adds `value` (≥ 0, fixed-point units) to 64-bit sum `slot`.
 fn add_fixed(slot: u32, value: f32) {
     if !(value > 0.0) {
@@ -560,7 +571,9 @@ fn exchange(n: u32) {
         var l_behind = vec3<f32>(0.0);
         var have_ahead = false;
         var have_behind = false;
-        for (var i = start; i < end; i++) {
+        // `estimator::buried`: a layer inside closed geometry gets no hit.
+        let buried = has_behind && end < n && blind(behind_start, behind_end, false) && blind(end, next_end, true);
+        for (var i = start; i < select(end, start, buried); i++) {
             let f = frags[i];
             let plus = f.plus & CODE_MASK;
             if plus < FOREIGN {

@@ -80,10 +80,17 @@ fn furnace_converges_to_the_closed_form() {
 
 fn furnace_on(scene: &Scene, rho: f32, le: Rgb, cfg: BakeConfig) {
     let out = run(scene, &cfg);
-    let batches = (cfg.samples / cfg.bundle_config().batch_size()) as i32;
-    let (mut num, mut den) = (0.0f64, 0.0f64);
-    for k in 0..batches {
-        let w = ((k + 1) as f64).powi(2);
+    // Batch k's source has k bounces, so its irradiance is π·Le·(1 − ρ^(k+1))/(1 − ρ); the
+    // estimate weighs each batch's hits by (k+1)², and a batch has as many hits as directions.
+    let bundle = cfg.bundle_config();
+    let (mut num, mut den, mut traced) = (0.0f64, 0.0f64, 0u32);
+    for k in 0.. {
+        if traced >= cfg.samples {
+            break;
+        }
+        let n = bundle.progressive_batch(k as u64).min(cfg.samples - traced);
+        traced += n;
+        let w = ((k + 1) as f64).powi(2) * n as f64;
         num += w * (1.0 - (rho as f64).powi(k + 1)) / (1.0 - rho as f64);
         den += w;
     }

@@ -22,6 +22,7 @@
 //! what the TEXCOORD_1 check tested and what the texel map rasterises), [`texels`] (inverse
 //! mapping).
 
+pub mod chart_filter;
 pub mod charts;
 pub mod lookup;
 pub mod pack;

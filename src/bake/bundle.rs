@@ -291,10 +291,13 @@ fn bake_region_observed(
     // Sized by the backend (lane 0's buffer; light-pass sums only with a light pass).
     let mut sums = BatchSums::default();
     progress.begin(&format!("LOD {} bundles", texels.lod), config.directions as u64);
-    let per_batch = config.batch_size() as u64;
     let mut first = 0u64;
     while first < config.directions as u64 {
-        let count = per_batch.min(config.directions as u64 - first);
+        let per_batch = match kind {
+            SourceKind::Progressive => config.progressive_batch(estimate.batches()),
+            SourceKind::Converged => config.batch_size(),
+        };
+        let count = (per_batch as u64).min(config.directions as u64 - first);
         let batch: Vec<DirectionJob> = (first..first + count).map(|i| jobs.job(i)).collect();
         let own = SourceRadiance { own: &source, foreign: region.foreign };
         let pass = match backend.trace_batch(&target, &batch, &own, &mut sums, cancel) {
@@ -326,7 +329,8 @@ fn bake_region_observed(
     // per-texel buffer is added at the bake's peak.
     let mut irradiance = source;
     estimate.irradiance_into(threads, &mut irradiance);
-    Ok(LodIrradiance { irradiance, punctual: estimate.into_punctual(), stats })
+    let unsampled = estimate.unsampled_texels();
+    Ok(LodIrradiance { irradiance, punctual: estimate.into_punctual(), unsampled, stats })
 }
 
 /// A whole LOD's bundle bake.
@@ -336,6 +340,9 @@ pub struct LodIrradiance {
     /// Its exact punctual-light part; empty (zero everywhere) from [`bake_lod_lean`] in a
     /// scene without punctual lights.
     pub punctual: Vec<Rgb>,
+    /// Texels no global bundle reached (ascending): their irradiance is their direct part
+    /// alone (see [`crate::atlas::chart_filter::filter_within_charts`] for how they are shown).
+    pub unsampled: Vec<u32>,
     pub stats: BundleLodStats,
 }
 

@@ -30,6 +30,15 @@
 //! the self-normalising `E = π · Σ a·L / Σ a` (hits are cosine-distributed because a texel's
 //! projected area is ∝ |n·ω|).
 //!
+//! **Buried layers.** A layer whose neighbours on both sides show it only backs of
+//! single-sided surfaces lies inside closed geometry: a face running through a solid
+//! (a slab through a floor, a prop sunk into a wall, the parts of real assets that
+//! intersect). Those stretches of a texel are never seen, so their lines give no hit at all
+//! (rather than black ones): the texel's estimate is that of its visible part. A texel
+//! wholly inside gets none (see [`crate::bundle::progressive`] for how it is shown). On
+//! zdm2 (a real game map) at 0.25 m texels this took the error at 96 points against
+//! Mitsuba from 7.0% to 4.6% (mean bias −2.3% to +0.1%), the same directions.
+//!
 //! The light pass uses the same layers but only emitter faces give: the sides facing a
 //! layer whose face emits receive `a_px · Le`, normalised later by the texel's area.
 //!
@@ -299,6 +308,11 @@ pub fn exchange(
             None => sky,
             Some(layer) => layer_face(layer, side, |_, code| Some(seen(code))).unwrap_or(Rgb::ZERO),
         };
+        if buried(behind, ahead) {
+            behind = Some(&frags[start..end]);
+            (start, end) = (end, next_end);
+            continue;
+        }
         for f in &frags[start..end] {
             if let Some(t) = f.plus_texel() {
                 let l = *l_ahead.get_or_insert_with(|| look(ahead, minus_side));
@@ -312,6 +326,20 @@ pub fn exchange(
         behind = Some(&frags[start..end]);
         (start, end) = (end, next_end);
     }
+}
+
+/// Whether a layer between `behind` and `ahead` (its neighbours along the line; `None`: the
+/// sky) lies inside closed geometry: both neighbours are surfaces whose sides toward it are
+/// not lit faces (backs of single-sided surfaces). A face passing through a solid (real
+/// assets are full of intersecting pieces, slabs through floors, props sunk into walls)
+/// has such stretches; they are never seen, so their hits would only darken the texel's
+/// visible part.
+#[inline]
+fn buried(behind: Option<&[Fragment]>, ahead: Option<&[Fragment]>) -> bool {
+    let blind = |layer: Option<&[Fragment]>, side: fn(&Fragment) -> u32| {
+        layer.is_some_and(|l| l.iter().all(|f| side(f) & CODE_MASK == NO_SIDE))
+    };
+    blind(behind, plus_side) && blind(ahead, minus_side)
 }
 
 /// Light-pass exchange: where a layer's side faces an emitter of the light pass (fragments
@@ -423,6 +451,25 @@ mod tests {
         let mut log = Log::default();
         exchange(&frags, C, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32 * 100.0), &mut log);
         assert_eq!(log.0, vec![(1, Rgb::ZERO, 1.0), (2, Rgb::splat(4.0), 1.0), (3, Rgb::splat(4.0), 1.0)]);
+    }
+
+    /// A floor (texel 5, looks +ω) running through a closed box (bottom texel 8 looks −ω,
+    /// top texel 9 looks +ω, both outward): inside the box the floor's line sees only the
+    /// box's backs on both sides, so it gets no hit; the box's own faces still see the sky.
+    /// Where only one side is a back (a wall seen from behind across open space, the sky on
+    /// the other side) the floor takes its black hit as before.
+    #[test]
+    fn a_face_inside_closed_geometry_gets_no_hit() {
+        let bottom = frag(0.0, NO_SIDE, 8);
+        let floor = frag(0.5, 5, NO_SIDE | FRONT_LOOKS_PLUS);
+        let top = frag(1.0, 9, NO_SIDE | FRONT_LOOKS_PLUS);
+        let mut log = Log::default();
+        exchange(&[bottom, floor, top], C, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32), &mut log);
+        assert_eq!(log.0, vec![(8, Rgb::splat(4.0), 1.0), (9, Rgb::splat(4.0), 1.0)]);
+        let wall_back = frag(1.0, NO_SIDE, NO_SIDE | FRONT_LOOKS_PLUS);
+        let mut log = Log::default();
+        exchange(&[floor, wall_back], C, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32), &mut log);
+        assert_eq!(log.0, vec![(5, Rgb::ZERO, 1.0)]);
     }
 
     #[test]

@@ -215,6 +215,12 @@ pub enum BundleConfigError {
 /// split into at least this many batches when its directions allow.
 pub const MIN_BATCHES: u32 = 32;
 
+/// Batches of a progressive bake given the fewest directions a batch may have before the
+/// batches grow to [`BundleConfig::batch_size`]: 32 Jacobi steps take an albedo-weighted
+/// return of 0.9 (a bright, mostly enclosed space) to 3% of its first bounce, where the
+/// (b+1)²-weighted mean of the batches then leaves ~1.5% of it (0.3% at 0.85).
+pub const EARLY_BATCHES: u32 = 32;
+
 /// Fewest directions a batch gets (fewer than [`MIN_BATCHES`] batches rather than fewer):
 /// the CPU backend's threads run one direction's units while another's largest tile
 /// finishes, so a batch of one direction leaves them idle behind its largest tile (a
@@ -236,8 +242,24 @@ impl BundleConfig {
     /// Directions per batch for this bake: at most `directions_per_batch`, fewer if that
     /// leaves under [`MIN_BATCHES`] batches, but at least [`MIN_BATCH_SIZE`] and one per lane.
     pub fn batch_size(&self) -> u32 {
-        let least = MIN_BATCH_SIZE.max(self.lanes.most());
-        (self.directions / MIN_BATCHES).clamp(least, self.directions_per_batch.max(least))
+        (self.directions / MIN_BATCHES).clamp(self.least_batch(), self.directions_per_batch.max(self.least_batch()))
+    }
+
+    /// The fewest directions a batch may have: [`MIN_BATCH_SIZE`], and one per lane.
+    fn least_batch(&self) -> u32 {
+        MIN_BATCH_SIZE.max(self.lanes.most())
+    }
+
+    /// Directions of batch `b` (from 0) of a bake whose source is its own running estimate
+    /// (multi-bounce by Jacobi steps, [`progressive`]): the first [`EARLY_BATCHES`] have the
+    /// fewest directions a batch may have, the rest [`batch_size`](Self::batch_size). Each
+    /// batch adds one bounce to the source, so a bake of a few batches stays short of the
+    /// bounces a bright, enclosed scene needs (its reflected light falls short by ~ρ^b after
+    /// b batches, for an albedo-weighted return ρ): 16 batches of 8 directions left zdm2's
+    /// points lit mostly by bounced light 9–13% too dark, where the same directions in
+    /// smaller batches first converge the bounces before the batches grow.
+    pub fn progressive_batch(&self, b: u64) -> u32 {
+        if b < EARLY_BATCHES as u64 { self.least_batch().min(self.batch_size()) } else { self.batch_size() }
     }
 
     pub fn validate(&self) -> Result<(), BundleConfigError> {

@@ -275,6 +275,18 @@ impl ProgressiveEstimate {
         self.totals.iter().filter(|t| t.bundle_weight == 0.0).count()
     }
 
+    /// Whether a global bundle has hit texel `i` (one wholly inside closed geometry never
+    /// is: [`crate::bundle::estimator`]'s buried layers).
+    #[inline]
+    pub fn sampled(&self, i: usize) -> bool {
+        self.totals[i].bundle_weight > 0.0
+    }
+
+    /// The texels no global bundle has hit, ascending.
+    pub fn unsampled_texels(&self) -> Vec<u32> {
+        (0..self.totals.len() as u32).filter(|&i| !self.sampled(i as usize)).collect()
+    }
+
     /// Outgoing radiance each texel sends into the next batch: reflected light
     /// `albedo/π · E_src`, plus its emission when the global bundles carry it (`carried(i)`,
     /// asked rather than held: a per-texel flag is one more byte a texel at the bake's peak).

@@ -19,9 +19,9 @@ use glam::Vec3;
 use super::shown::ShownLightmap;
 use super::source::ShownSource;
 use super::world::World;
-use crate::atlas::lookup::TexelTable;
+use crate::atlas::chart_filter::{filter_scalar_within_charts, filter_within_charts};
 use crate::atlas::sparse::SparseTexels;
-use crate::atlas::texels::{NO_TEXEL, TexelEmission};
+use crate::atlas::texels::TexelEmission;
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
 use crate::bundle::target::target_triangles;
@@ -248,7 +248,7 @@ impl CellBake {
     pub fn result(&self) -> Vec<Rgb> {
         let total: Vec<Rgb> = (0..self.texels.len()).map(|i| self.estimate.irradiance_of(i)).collect();
         let t = &self.texels;
-        filter_within_charts(&t.pixel, |i| t.table_of(i), &total)
+        filter_within_charts(&t.pixel, |i| t.table_of(i), &total, |i| self.estimate.sampled(i))
     }
 
     /// Bytes held by the bake.
@@ -262,69 +262,4 @@ impl CellBake {
 
 pub(super) fn luminance(c: Rgb) -> f32 {
     0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
-}
-
-/// The 3×3 tent (1-2-1 per axis) weight of neighbour (dx, dy), and which neighbours of a
-/// texel count: texels of the same chart and bake, never a gutter pixel (it copies a texel)
-/// nor another chart's pixel. Calls `each(j, w)` for texel `i`'s neighbours (itself included).
-fn for_each_neighbour<'t>(
-    pixels: &[[u32; 2]],
-    table: &impl Fn(usize) -> &'t TexelTable,
-    i: usize,
-    mut each: impl FnMut(usize, f32),
-) {
-    let [x, y] = pixels[i];
-    let chart = table(i);
-    for dy in -1i64..=1 {
-        for dx in -1i64..=1 {
-            let (nx, ny) = (x as i64 + dx, y as i64 + dy);
-            let j = chart.get(nx, ny);
-            if j == NO_TEXEL || pixels[j as usize] != [nx as u32, ny as u32] {
-                continue;
-            }
-            each(j as usize, ((2 - dx.abs()) * (2 - dy.abs())) as f32);
-        }
-    }
-}
-
-/// A 3×3 tent filter over each texel and its neighbours of the same chart and bake, never
-/// across a chart border: bundles of parallel lines leave streaks along the last
-/// directions' lines, which this smooths at the scale of one texel. `pixels[i]` is texel i's
-/// LOD pixel and `table(i)` the lookup table of its chart.
-pub fn filter_within_charts<'t>(
-    pixels: &[[u32; 2]],
-    table: impl Fn(usize) -> &'t TexelTable,
-    values: &[Rgb],
-) -> Vec<Rgb> {
-    (0..pixels.len())
-        .map(|i| {
-            let (mut sum, mut wsum) = (Rgb::ZERO, 0.0);
-            for_each_neighbour(pixels, &table, i, |j, w| {
-                sum += values[j] * w;
-                wsum += w;
-            });
-            sum / wsum
-        })
-        .collect()
-}
-
-/// [`filter_within_charts`] of one value per texel, NaN marking texels without one (they
-/// are left out, and stay NaN when no neighbour has a value).
-fn filter_scalar_within_charts<'t>(
-    pixels: &[[u32; 2]],
-    table: impl Fn(usize) -> &'t TexelTable,
-    values: &[f32],
-) -> Vec<f32> {
-    (0..pixels.len())
-        .map(|i| {
-            let (mut sum, mut wsum) = (0.0, 0.0);
-            for_each_neighbour(pixels, &table, i, |j, w| {
-                if !values[j].is_nan() {
-                    sum += values[j] * w;
-                    wsum += w;
-                }
-            });
-            if wsum > 0.0 { sum / wsum } else { f32::NAN }
-        })
-        .collect()
 }

@@ -352,6 +352,8 @@ pub struct RuntimeStats {
     pub texel_samples_per_second: f64,
     /// Bytes: shown pages, bakes in progress, and what the scene's fixed structures hold.
     pub page_bytes: u64,
+    /// Published pixels over the pixels of the pages held (see [`ShownLightmap::page_fill`]).
+    pub page_fill: f64,
     pub bake_bytes: u64,
     pub fixed_bytes: u64,
     pub resident_bytes: u64,

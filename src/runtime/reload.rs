@@ -28,13 +28,13 @@ use std::time::Instant;
 
 use glam::Vec3;
 
-use super::cell_bake::filter_within_charts;
 use super::scheduler::{CellState, Refining, Shared, bake_first_light, empty_shown, take_camera, update_views};
 use super::shown::{Layer, PageWriter, ShownLightmap};
 use super::source::ShownSource;
 use super::world::World;
 use super::{ReloadSteps, RuntimeError, RuntimeEvent};
 use crate::atlas::Atlas;
+use crate::atlas::chart_filter::filter_within_charts;
 use crate::atlas::sparse::SparseTexels;
 use crate::atlas::update::MeshOrigin;
 use crate::bake::bundle::{Region, bake_region};
@@ -321,7 +321,8 @@ fn relight(
     // The bundles' part filtered within charts in the bundle layer, the exact punctual part
     // in the punctual layer (as first light publishes them).
     let noisy: Vec<Rgb> = baked.irradiance.iter().zip(&baked.punctual).map(|(e, d)| *e - *d).collect();
-    let filtered = filter_within_charts(&texels.pixel, |i| texels.table_of(i), &noisy);
+    let sampled = |i: usize| baked.unsampled.binary_search(&(i as u32)).is_err();
+    let filtered = filter_within_charts(&texels.pixel, |i| texels.table_of(i), &noisy, sampled);
     let layers = [(Layer::Bundles, &filtered), (Layer::Punctual, &baked.punctual)];
     let lights = !world.scene.lights.is_empty();
     let mut owned = vec![Vec::new(); grid.len()];

@@ -12,12 +12,13 @@ use std::time::{Duration, Instant};
 
 use crossbeam_channel::Sender;
 
-use super::cell_bake::{CellBake, filter_within_charts};
+use super::cell_bake::CellBake;
 use super::policy::{CameraView, CellView, Work, cell_view, priority, target_lod};
 use super::punctual::{PunctualBake, punctual_bake_bytes};
 use super::shown::{Layer, PageWriter, ShownLightmap};
 use super::world::World;
 use super::{RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
+use crate::atlas::chart_filter::filter_within_charts;
 use crate::atlas::lookup::TexelTable;
 use crate::bake::bundle::{BatchDone, BundleLodStats, bake_lod_observed};
 use crate::bundle::{BackendError, BundleBackend, BundleScene};
@@ -289,6 +290,7 @@ pub(super) fn current_stats(shared: &Shared, st: &mut State) -> RuntimeStats {
         s.baking += usize::from(cell.bake.is_some() || cell.busy || cell.punctual.busy);
     }
     s.page_bytes = shown.page_bytes() as u64;
+    s.page_fill = shown.page_fill();
     s.bake_bytes = st.bake_bytes;
     s.fixed_bytes = fixed_bytes(world);
     s.resident_bytes = s.page_bytes + s.bake_bytes + s.fixed_bytes;
@@ -352,29 +354,34 @@ pub fn bake_first_light_observed(
     // The published values: the noisy part (bundles, light pass) filtered within charts in
     // the bundle layer, the exact punctual part in the punctual layer.
     let lights = !world.scene.lights.is_empty();
-    let publish = |mut map: ShownLightmap, irradiance: &dyn Fn(usize) -> Rgb, direct: &[Rgb]| {
-        let noisy: Vec<Rgb> = (0..pixels.len()).map(|i| irradiance(i) - direct[i]).collect();
-        let layers =
-            [(Layer::Bundles, filter_within_charts(&pixels, |_| &table, &noisy)), (Layer::Punctual, direct.to_vec())];
-        let mut writer = PageWriter::new(&mut map);
-        for (layer, values) in layers.iter().take(if lights { 2 } else { 1 }) {
-            for (i, p) in pixels.iter().enumerate() {
-                writer.write(*layer, 0, p[0], p[1], values[i]);
+    let publish =
+        |mut map: ShownLightmap, irradiance: &dyn Fn(usize) -> Rgb, direct: &[Rgb], sampled: &dyn Fn(usize) -> bool| {
+            let noisy: Vec<Rgb> = (0..pixels.len()).map(|i| irradiance(i) - direct[i]).collect();
+            let filtered = filter_within_charts(&pixels, |_| &table, &noisy, sampled);
+            let layers = [(Layer::Bundles, filtered), (Layer::Punctual, direct.to_vec())];
+            let mut writer = PageWriter::new(&mut map);
+            for (layer, values) in layers.iter().take(if lights { 2 } else { 1 }) {
+                for (i, p) in pixels.iter().enumerate() {
+                    writer.write(*layer, 0, p[0], p[1], values[i]);
+                }
+                for &(g, t) in &lod0.gutter {
+                    writer.write(*layer, 0, g % w, g / w, values[t as usize]);
+                }
             }
-            for &(g, t) in &lod0.gutter {
-                writer.write(*layer, 0, g % w, g / w, values[t as usize]);
-            }
-        }
-        writer.finish();
-        map
-    };
+            writer.finish();
+            map
+        };
     let mut next = early.iter().copied().filter(|&d| d > 0).min();
     let mut observe = |done: &BatchDone| {
         if let Some(at) = next
             && done.directions >= at
         {
             let e = done.estimate;
-            published(publish(map.clone(), &|i| e.irradiance_of(i), e.punctual()), &owned, done.directions);
+            published(
+                publish(map.clone(), &|i| e.irradiance_of(i), e.punctual(), &|i| e.sampled(i)),
+                &owned,
+                done.directions,
+            );
             next = early.iter().copied().filter(|&d| d > done.directions).min();
         }
         ControlFlow::Continue(())
@@ -385,7 +392,8 @@ pub fn bake_first_light_observed(
     if baked.stats.pass.unplanned_directions > 0 {
         return Err(format!("{} bundle directions could not be planned", baked.stats.pass.unplanned_directions));
     }
-    let map = publish(map, &|i| baked.irradiance[i], &baked.punctual);
+    let sampled = |i: usize| baked.unsampled.binary_search(&(i as u32)).is_err();
+    let map = publish(map, &|i| baked.irradiance[i], &baked.punctual, &sampled);
     Ok((map, owned, baked.stats))
 }
 

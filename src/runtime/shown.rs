@@ -102,6 +102,11 @@ impl LodPages {
     pub fn live_pages(&self) -> usize {
         self.rows.iter().map(|r| r.iter().filter(|p| p.is_some()).count()).sum()
     }
+
+    /// Published pixels (texels and gutter pixels) over the allocated pages.
+    pub fn published_pixels(&self) -> usize {
+        self.rows.iter().flat_map(|r| r.iter().flatten()).map(|p| p.valid as usize).sum()
+    }
 }
 
 /// Which part of the light a layer of the shown map holds (module docs); the irradiance is
@@ -373,7 +378,22 @@ impl ShownLightmap {
 
     /// Bytes of the pages held (both layers).
     pub fn page_bytes(&self) -> usize {
-        self.layers.iter().map(|l| l.live_pages()).sum::<usize>() * Page::BYTES
+        self.live_pages() * Page::BYTES
+    }
+
+    /// Pages held (both layers).
+    pub fn live_pages(&self) -> usize {
+        self.layers.iter().map(|l| l.live_pages()).sum::<usize>()
+    }
+
+    /// The share of the held pages' pixels that are published (both layers): how much of
+    /// the page memory holds light.
+    pub fn page_fill(&self) -> f64 {
+        let pixels: usize = self.layers.iter().flat_map(|l| l.levels.iter()).map(|l| l.published_pixels()).sum();
+        match self.live_pages() {
+            0 => 1.0,
+            pages => pixels as f64 / (pages * PAGE_TEXELS) as f64,
+        }
     }
 
     /// A bound on any channel of [`ShownLightmap::irradiance`] anywhere: the layers' largest
