@@ -14,7 +14,7 @@ use serde::Serialize;
 use crate::atlas::lookup::TexelTable;
 use crate::atlas::texels::NO_TEXEL;
 use crate::bake::{BakeOutput, BakedLod};
-use crate::scene::Rgb;
+use crate::scene::{Rgb, luminance};
 
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {
@@ -92,10 +92,6 @@ pub fn radiance_preview(lod: &BakedLod) -> RgbImage {
     spread(lod, radiance, image::Rgb(EMPTY), |c: Rgb| {
         image::Rgb(if c.x.is_nan() { EMPTY } else { tone_map(c * exposure) })
     })
-}
-
-fn luminance(c: Rgb) -> f32 {
-    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
 }
 
 fn tone_map(c: Rgb) -> [u8; 3] {

@@ -10,18 +10,18 @@ use crate::scene::Rgb;
 /// texel count: texels of the same chart and set, never a gutter pixel nor another chart's
 /// pixel. Calls `each(j, w)` for texel `i`'s neighbours (itself included).
 fn for_each_neighbour<'t>(
-    pixels: &[[u32; 2]],
+    pixel: &impl Fn(usize) -> [u32; 2],
     table: &impl Fn(usize) -> &'t TexelTable,
     i: usize,
     mut each: impl FnMut(usize, f32),
 ) {
-    let [x, y] = pixels[i];
+    let [x, y] = pixel(i);
     let chart = table(i);
     for dy in -1i64..=1 {
         for dx in -1i64..=1 {
             let (nx, ny) = (x as i64 + dx, y as i64 + dy);
             let j = chart.get(nx, ny);
-            if j == NO_TEXEL || pixels.get(j as usize) != Some(&[nx as u32, ny as u32]) {
+            if j == NO_TEXEL || pixel(j as usize) != [nx as u32, ny as u32] {
                 continue;
             }
             each(j as usize, ((2 - dx.abs()) * (2 - dy.abs())) as f32);
@@ -46,7 +46,7 @@ pub fn filter_within_charts<'t>(
     (0..pixels.len())
         .map(|i| {
             let (mut sum, mut wsum) = (Rgb::ZERO, 0.0);
-            for_each_neighbour(pixels, &table, i, |j, w| {
+            for_each_neighbour(&|k| pixels[k], &table, i, |j, w| {
                 if sampled(j) {
                     sum += values[j] * w;
                     wsum += w;
@@ -55,6 +55,35 @@ pub fn filter_within_charts<'t>(
             if wsum > 0.0 { sum / wsum } else { values[i] }
         })
         .collect()
+}
+
+/// Gives each texel of `missing` (ascending) the tent-weighted mean of its chart neighbours
+/// not in it (one without such neighbours keeps its value): texels with no value of their
+/// own, wholly inside closed geometry, that bilinear sampling at a visible texel beside them
+/// still reads.
+pub fn fill_within_charts<'t>(
+    pixel: impl Fn(usize) -> [u32; 2],
+    table: impl Fn(usize) -> &'t TexelTable,
+    values: &mut [Rgb],
+    missing: &[u32],
+) {
+    let has = |j: usize| missing.binary_search(&(j as u32)).is_err();
+    let filled: Vec<Rgb> = missing
+        .iter()
+        .map(|&i| {
+            let (mut sum, mut wsum) = (Rgb::ZERO, 0.0);
+            for_each_neighbour(&pixel, &table, i as usize, |j, w| {
+                if has(j) {
+                    sum += values[j] * w;
+                    wsum += w;
+                }
+            });
+            if wsum > 0.0 { sum / wsum } else { values[i as usize] }
+        })
+        .collect();
+    for (&i, v) in missing.iter().zip(filled) {
+        values[i as usize] = v;
+    }
 }
 
 /// [`filter_within_charts`] of one value per texel, NaN marking texels without one (they
@@ -67,7 +96,7 @@ pub fn filter_scalar_within_charts<'t>(
     (0..pixels.len())
         .map(|i| {
             let (mut sum, mut wsum) = (0.0, 0.0);
-            for_each_neighbour(pixels, &table, i, |j, w| {
+            for_each_neighbour(&|k| pixels[k], &table, i, |j, w| {
                 if !values[j].is_nan() {
                     sum += values[j] * w;
                     wsum += w;
@@ -76,4 +105,52 @@ pub fn filter_scalar_within_charts<'t>(
             if wsum > 0.0 { sum / wsum } else { f32::NAN }
         })
         .collect()
+}
+
+/// Per texel: the squared difference between `values[i]` and the tent-weighted mean of its
+/// chart neighbours (itself left out); NaN for a texel with none. What a finer level of the
+/// same light would resolve shows here first: light that changes from texel to texel.
+pub fn contrast_within_charts<'t>(
+    pixels: &[[u32; 2]],
+    table: impl Fn(usize) -> &'t TexelTable,
+    values: &[f32],
+) -> Vec<f32> {
+    (0..pixels.len())
+        .map(|i| {
+            let (mut sum, mut wsum) = (0.0, 0.0);
+            for_each_neighbour(&|k| pixels[k], &table, i, |j, w| {
+                if j != i {
+                    sum += values[j] * w;
+                    wsum += w;
+                }
+            });
+            if wsum > 0.0 { (values[i] - sum / wsum).powi(2) } else { f32::NAN }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 3×2 chart: texel 5 has no sampled value; the filter leaves it out of its
+    /// neighbours and gives it their mean; contrast is each texel against its neighbours.
+    #[test]
+    fn filters_skip_unsampled_texels_and_contrast_leaves_the_texel_out() {
+        let pixels: Vec<[u32; 2]> = vec![[0, 0], [1, 0], [2, 0], [0, 1], [1, 1], [2, 1]];
+        let mut table = TexelTable::new(Some(0), crate::atlas::raster::PixelRect::new(0, 0, 3, 2));
+        for (i, p) in pixels.iter().enumerate() {
+            table.set(p[0] as i64, p[1] as i64, i as u32);
+        }
+        let values: Vec<Rgb> = [1.0, 1.0, 1.0, 1.0, 1.0, 0.0].iter().map(|&v| Rgb::splat(v)).collect();
+        let f = filter_within_charts(&pixels, |_| &table, &values, |i| i != 5);
+        assert!(f.iter().all(|v| (*v - Rgb::ONE).length() < 1e-6), "{f:?}");
+        let g = filter_within_charts(&pixels, |_| &table, &values, |_| true);
+        assert!(g[4].x < 1.0, "an unsampled zero counts when it is taken as sampled");
+        let c = contrast_within_charts(&pixels, |_| &table, &[0.0, 0.0, 0.0, 0.0, 0.0, 4.0]);
+        assert_eq!(c[0], 0.0);
+        // Texel 5's neighbours (2 with weight 2, 1 with 1, 4 with 2) are all 0: (4 − 0)².
+        assert_eq!(c[5], 16.0);
+        assert!(c[4] > 0.0);
+    }
 }

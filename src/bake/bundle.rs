@@ -8,16 +8,17 @@ use std::time::Instant;
 use glam::{Vec2, Vec3};
 use serde::Serialize;
 
-use crate::atlas::TexelMap;
+use crate::atlas::chart_filter::fill_within_charts;
 use crate::atlas::lookup::TexelTable;
 use crate::atlas::texels::{Restore, TexelAlbedo, TexelEmission, TexelView};
+use crate::atlas::{FaceId, TexelMap};
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
 use crate::bundle::{
     BakeTarget, BundleBackend, BundleScene, Cancelled, DirectionJob, JobSequence, SourceRadiance, SurfaceRadiance,
 };
 use crate::progress::Progress;
-use crate::reference::punctual::punctual_irradiance;
+use crate::reference::punctual::punctual_irradiance_of_texels;
 use crate::reference::{Bvh, ray_epsilon};
 use crate::scene::Rgb;
 
@@ -89,8 +90,9 @@ pub fn bake_lod_observed(
 ) -> Result<LodIrradiance, Cancelled> {
     let tables = [TexelTable::of_map(texels)];
     let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
+    let punctual = PunctualPass::of_map(bundle, bvh, texels, threads);
     let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None };
-    bake_region_observed(bundle, bvh, backend, &region, converged, None, threads, progress, cancel, observe)
+    bake_region_observed(bundle, backend, &region, converged, punctual, threads, progress, cancel, observe)
 }
 
 /// [`bake_lod`] holding less at its peak: the punctual pass first, then the texels'
@@ -120,19 +122,10 @@ pub fn bake_lod_lean(
     progress: &dyn Progress,
     cancel: &AtomicBool,
 ) -> Result<LodIrradiance, Cancelled> {
-    let t0 = Instant::now();
     // A scene without punctual lights gets no punctual array (zero everywhere, 12 B a texel
-    // at the peak): the estimate reads a missing one as zero.
-    let punctual = if bundle.scene.lights.is_empty() {
-        Vec::new()
-    } else {
-        if texels.position.len() != texels.len() {
-            // A map built without them (`TexelMap::build_with`): the punctual pass reads them.
-            texels.restore_geometry(&bundle.scene, &bundle.geom, &bundle.atlas, threads, Restore::All);
-        }
-        punctual_irradiance(&bundle.scene, bvh, &texels.position, &texels.normal, ray_epsilon(&bundle.scene), threads)
-    };
-    let punctual = (punctual, t0.elapsed().as_secs_f64());
+    // at the peak): the estimate reads a missing one as zero. The pass reads faces and
+    // pixels, not the map's positions.
+    let punctual = PunctualPass::of_map(bundle, bvh, texels, threads);
     texels.drop_geometry();
     // Emission read from the coarser LOD's source before the dense array goes.
     let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
@@ -166,18 +159,7 @@ pub fn bake_lod_lean(
         }
         let region = Region { texels: view, tables: &tables, window: None, foreign: None };
         let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
-        bake_region_observed(
-            bundle,
-            bvh,
-            backend,
-            &region,
-            converged,
-            Some(punctual),
-            threads,
-            progress,
-            cancel,
-            never_stop,
-        )
+        bake_region_observed(bundle, backend, &region, converged, punctual, threads, progress, cancel, never_stop)
     };
     backend.release_texel_buffers();
     if pixels_given_up {
@@ -197,6 +179,60 @@ pub fn bake_lod_lean(
     result
 }
 
+/// The punctual pass of a set of texels: each texel's direct light from the punctual lights
+/// over its visible part ([`punctual_irradiance_of_texels`]).
+pub struct PunctualPass {
+    /// Irradiance per texel (W/m²); empty in a scene without punctual lights (zero everywhere).
+    pub irradiance: Vec<Rgb>,
+    /// Texels wholly inside closed geometry (ascending): their value is their centre's.
+    pub buried: Vec<u32>,
+    pub seconds: f64,
+}
+
+impl PunctualPass {
+    /// The pass over the texels of LOD `lod` on `faces`, texel `i` at LOD pixel `pixel(i)`
+    /// in the chart table `table(i)`; a buried texel shows its chart neighbours' mean
+    /// ([`fill_within_charts`]).
+    pub fn of<'t>(
+        bundle: &BundleScene,
+        bvh: &Bvh,
+        lod: u32,
+        faces: &[FaceId],
+        pixel: &(dyn Fn(usize) -> [u32; 2] + Sync),
+        table: impl Fn(usize) -> &'t TexelTable,
+        threads: usize,
+    ) -> PunctualPass {
+        let t0 = Instant::now();
+        if bundle.scene.lights.is_empty() {
+            return PunctualPass { irradiance: Vec::new(), buried: Vec::new(), seconds: 0.0 };
+        }
+        let (mut irradiance, buried) = punctual_irradiance_of_texels(
+            &bundle.scene,
+            &bundle.geom,
+            &bundle.atlas,
+            bvh,
+            lod,
+            faces,
+            pixel,
+            ray_epsilon(&bundle.scene),
+            threads,
+        );
+        fill_within_charts(pixel, table, &mut irradiance, &buried);
+        PunctualPass { irradiance, buried, seconds: t0.elapsed().as_secs_f64() }
+    }
+
+    /// The pass over a whole-LOD texel map (its pixels held).
+    pub fn of_map(bundle: &BundleScene, bvh: &Bvh, texels: &TexelMap, threads: usize) -> PunctualPass {
+        if bundle.scene.lights.is_empty() {
+            return PunctualPass { irradiance: Vec::new(), buried: Vec::new(), seconds: 0.0 };
+        }
+        let w = texels.width;
+        let pixel = |i: usize| [texels.pixel[i] % w, texels.pixel[i] / w];
+        let table = TexelTable::of_map(texels);
+        PunctualPass::of(bundle, bvh, texels.lod, &texels.face, &pixel, |_| &table, threads)
+    }
+}
+
 /// Texels to bake with a bundle backend, and what lies around them.
 pub struct Region<'a> {
     pub texels: TexelView<'a>,
@@ -208,36 +244,34 @@ pub struct Region<'a> {
     pub foreign: Option<&'a dyn SurfaceRadiance>,
 }
 
-/// Bakes a region's texels: punctual pass, then batches of directions. Without `converged`
+/// Bakes a region's texels: their punctual pass (made by the caller), then batches of
+/// directions. Without `converged`
 /// (each texel's outgoing radiance from an already converged estimate) the source radiance
 /// is the bake's own estimate, refreshed after each batch (multi-bounce inside the region;
 /// what lies outside is seen through `region.foreign`).
 #[allow(clippy::too_many_arguments)]
 pub fn bake_region(
     bundle: &BundleScene,
-    bvh: &Bvh,
     backend: &mut dyn BundleBackend,
     region: &Region,
     converged: Option<Vec<Rgb>>,
+    punctual: PunctualPass,
     threads: usize,
     progress: &dyn Progress,
     cancel: &AtomicBool,
 ) -> Result<LodIrradiance, Cancelled> {
     let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
-    bake_region_observed(bundle, bvh, backend, region, converged, None, threads, progress, cancel, never_stop)
+    bake_region_observed(bundle, backend, region, converged, punctual, threads, progress, cancel, never_stop)
 }
 
-/// [`bake_region`] with an observer (see [`bake_lod_observed`]); `punctual`: the punctual
-/// pass's irradiance and seconds when already computed (the region's positions and normals
-/// are then not read; an empty irradiance stands for zero everywhere).
+/// [`bake_region`] with an observer (see [`bake_lod_observed`]).
 #[allow(clippy::too_many_arguments)]
 fn bake_region_observed(
     bundle: &BundleScene,
-    bvh: &Bvh,
     backend: &mut dyn BundleBackend,
     region: &Region,
     converged: Option<Vec<Rgb>>,
-    punctual: Option<(Vec<Rgb>, f64)>,
+    punctual: PunctualPass,
     threads: usize,
     progress: &dyn Progress,
     cancel: &AtomicBool,
@@ -246,18 +280,7 @@ fn bake_region_observed(
     let texels = &region.texels;
     let config = &bundle.config;
     let mut stats = BundleLodStats::default();
-    let (punctual, seconds) = punctual.unwrap_or_else(|| {
-        let t0 = Instant::now();
-        let e = punctual_irradiance(
-            &bundle.scene,
-            bvh,
-            texels.position,
-            texels.normal,
-            ray_epsilon(&bundle.scene),
-            threads,
-        );
-        (e, t0.elapsed().as_secs_f64())
-    });
+    let PunctualPass { irradiance: punctual, buried, seconds } = punctual;
     stats.punctual_seconds = seconds;
 
     let carried = |i: usize| bundle.carried(texels.face[i]);
@@ -330,7 +353,7 @@ fn bake_region_observed(
     let mut irradiance = source;
     estimate.irradiance_into(threads, &mut irradiance);
     let unsampled = estimate.unsampled_texels();
-    Ok(LodIrradiance { irradiance, punctual: estimate.into_punctual(), unsampled, stats })
+    Ok(LodIrradiance { irradiance, punctual: estimate.into_punctual(), unsampled, buried, stats })
 }
 
 /// A whole LOD's bundle bake.
@@ -343,6 +366,9 @@ pub struct LodIrradiance {
     /// Texels no global bundle reached (ascending): their irradiance is their direct part
     /// alone (see [`crate::atlas::chart_filter::filter_within_charts`] for how they are shown).
     pub unsampled: Vec<u32>,
+    /// Texels whose punctual part is that of a point inside closed geometry (ascending; see
+    /// [`PunctualPass::buried`]).
+    pub buried: Vec<u32>,
     pub stats: BundleLodStats,
 }
 

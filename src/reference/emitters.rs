@@ -7,13 +7,7 @@
 use glam::Vec2;
 
 use crate::sampling::uniform_triangle;
-use crate::scene::{Rgb, Scene, SceneGeometry, TriangleId};
-
-/// Rec. 709 luminance of linear RGB.
-#[inline]
-pub fn luminance(c: Rgb) -> f32 {
-    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
-}
+use crate::scene::{Rgb, Scene, SceneGeometry, TriangleId, luminance};
 
 /// Walker/Vose alias table: O(1) sampling of an index with given weights.
 #[derive(Clone, Debug, Default)]

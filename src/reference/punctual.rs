@@ -2,11 +2,13 @@
 //! hit a point, so each texel casts one shadow ray per light through the BVH. Deterministic
 //! and noise-free; shadows are as sharp as the texels.
 
-use glam::Vec3;
+use glam::{DVec2, Vec3};
 
 use super::Bvh;
+use crate::atlas::raster::closest_barycentric;
+use crate::atlas::{Atlas, FaceId};
 use crate::parallel::par_map;
-use crate::scene::{Rgb, Scene};
+use crate::scene::{Rgb, Scene, SceneGeometry, Side};
 
 /// Irradiance (W/m²) from every punctual light of `scene` at every texel (surface points
 /// `positions` with unit normals `normals`). Shadow rays leave from `p + ε·n` and stop ε
@@ -40,6 +42,95 @@ pub fn punctual_irradiance(
         out[i as usize] = e;
     }
     out
+}
+
+/// Irradiance (W/m²) from every punctual light over each texel's visible part: texel `i` is
+/// LOD `lod` pixel `pixel(i)` of atlas face `faces[i]`, sampled at the 2×2 points of its
+/// pixel (each moved to the nearest point of its face's UV triangle) that do not lie inside
+/// closed geometry ([`is_buried`]), and their mean taken. A point sample at the texel's
+/// centre is wrong wherever a texel straddles other geometry: a floor texel whose centre is
+/// under a wall shows the wall's shadow over its whole visible part, and real assets (a
+/// slab through a floor, a prop sunk into a wall) are full of such texels, most of all at
+/// coarse LODs. A texel whose every point is buried is never seen: it keeps its centre's
+/// value and is reported in the second list, for its neighbours to stand in for it.
+#[allow(clippy::too_many_arguments)]
+pub fn punctual_irradiance_of_texels(
+    scene: &Scene,
+    geom: &SceneGeometry,
+    atlas: &Atlas,
+    bvh: &Bvh,
+    lod: u32,
+    faces: &[FaceId],
+    pixel: &(dyn Fn(usize) -> [u32; 2] + Sync),
+    epsilon: f32,
+    threads: usize,
+) -> (Vec<Rgb>, Vec<u32>) {
+    let n = faces.len();
+    if scene.lights.is_empty() || n == 0 {
+        return (vec![Rgb::ZERO; n], Vec::new());
+    }
+    let point = |i: usize, dx: f64, dy: f64| {
+        let f = &atlas.faces[faces[i] as usize];
+        let [x, y] = pixel(i);
+        let (u, v, _) = closest_barycentric(&f.uv_lod(lod), DVec2::new(x as f64 + dx, y as f64 + dy));
+        (f.tri, geom.point(f.tri, u as f32, v as f32), geom.normals[f.tri as usize] * f.side.sign())
+    };
+    let centres: Vec<Vec3> = (0..n).map(|i| point(i, 0.5, 0.5).1).collect();
+    let order = spatial_order(&centres);
+    drop(centres);
+    let chunks: Vec<&[u32]> = order.chunks(CHUNK).collect();
+    let per_chunk = par_map(chunks, threads, |chunk| {
+        let mut cache = vec![NO_OCCLUDER; scene.lights.len()];
+        chunk
+            .iter()
+            .map(|&i| {
+                let (mut sum, mut seen) = (Rgb::ZERO, 0u32);
+                for (dx, dy) in SUBPIXELS {
+                    let (tri, p, nrm) = point(i as usize, dx, dy);
+                    if !is_buried(scene, geom, bvh, tri, p, nrm, epsilon) {
+                        sum += point_irradiance(scene, bvh, p, nrm, epsilon, &mut cache);
+                        seen += 1;
+                    }
+                }
+                if seen > 0 {
+                    (sum / seen as f32, false)
+                } else {
+                    let (_, p, nrm) = point(i as usize, 0.5, 0.5);
+                    (point_irradiance(scene, bvh, p, nrm, epsilon, &mut cache), true)
+                }
+            })
+            .collect::<Vec<_>>()
+    });
+    let mut out = vec![Rgb::ZERO; n];
+    let mut buried = Vec::new();
+    for (&i, (e, b)) in order.iter().zip(per_chunk.into_iter().flatten()) {
+        out[i as usize] = e;
+        if b {
+            buried.push(i);
+        }
+    }
+    buried.sort_unstable();
+    (out, buried)
+}
+
+/// The points of a texel's pixel [`punctual_irradiance_of_texels`] samples (2×2, pixel units).
+const SUBPIXELS: [(f64, f64); 4] = [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)];
+
+/// Whether the surface point `p` of triangle `tri` (on the side of unit normal `n`) lies
+/// inside closed geometry: the first surfaces straight out along `n` and straight back along
+/// `−n` both show it their backs, and neither back is a lit face (the insides of
+/// single-sided surfaces): the rule of the bundles' buried layers (`bundle::estimator`) on
+/// the line through `p` along its normal. A point on a floor under a wall's solid, or on the
+/// part of a face that runs through a box, sees the solid's inside both ways.
+pub fn is_buried(scene: &Scene, geom: &SceneGeometry, bvh: &Bvh, tri: u32, p: Vec3, n: Vec3, epsilon: f32) -> bool {
+    let blind = |dir: Vec3| match bvh.intersect(p + dir * epsilon, dir, 0.0, f32::INFINITY) {
+        Some(hit) if hit.tri != tri => {
+            let facing_away = geom.normals[hit.tri as usize].dot(dir) > 0.0;
+            facing_away && !scene.materials[geom.material[hit.tri as usize] as usize].has_side(Side::Back)
+        }
+        _ => false,
+    };
+    blind(n) && blind(-n)
 }
 
 /// Indices of `positions` sorted by the Morton code of their cell in a 1024³ grid over their

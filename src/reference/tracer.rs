@@ -33,8 +33,9 @@ use std::f32::consts::PI;
 use glam::{DVec3, Vec3};
 
 use super::bvh::Bvh;
-use super::emitters::{EmitterTable, luminance};
+use super::emitters::EmitterTable;
 use crate::sampling::{Rng, cosine_hemisphere};
+use crate::scene::luminance;
 use crate::scene::{Material, Rgb, Scene, SceneGeometry, Side};
 
 /// Knobs of the reference tracer. The defaults are what every test and report uses.

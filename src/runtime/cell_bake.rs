@@ -28,7 +28,7 @@ use crate::bundle::target::target_triangles;
 use crate::bundle::{BakeTarget, BundleBackend, Cancelled, JobSequence, SourceRadiance};
 use crate::grid::CellId;
 use crate::sampling::mix64;
-use crate::scene::Rgb;
+use crate::scene::{Rgb, luminance};
 
 /// Per texel: batches folded in and the sum of their squared (filtered) residuals.
 #[derive(Clone, Copy, Default)]
@@ -258,8 +258,4 @@ impl CellBake {
         // flag (1), owner (2).
         self.texels.bytes() + n * (std::mem::size_of::<BatchMoments>() + 28 + 28 + 12 + 1 + 2)
     }
-}
-
-pub(super) fn luminance(c: Rgb) -> f32 {
-    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
 }

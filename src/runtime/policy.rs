@@ -112,26 +112,119 @@ pub fn target_lod(camera: &CameraView, view: CellView, texel0: f32, texel_pixels
     k.min(levels.saturating_sub(1))
 }
 
-/// Which layer a job makes; at equal urgency the punctual layer goes first (one cheap
-/// exact bake a cell, where the bundles take many units).
+/// Which layer a job makes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Work {
     Punctual,
     Bundles,
 }
 
-/// Sort key of a job on a cell (smaller goes first): refinement before refreshing stale
-/// light (`refresh`), cells in view before others, then the largest LOD deficit (target −
-/// shown in the layer the job makes: a deficit of d shows texels 2^d times too coarse for
-/// the screen, so this goes for the blurriest light on screen first, which is the nearest
-/// surfaces'), the punctual layer before the bundles, then the nearest.
-pub fn priority(
-    view: CellView,
-    deficit: u32,
-    refresh: bool,
-    work: Work,
-) -> (bool, bool, std::cmp::Reverse<u32>, Work, u32) {
-    (refresh, !view.in_frustum, std::cmp::Reverse(deficit), work, view.distance.to_bits())
+/// One layer of a cell's light at one LOD, as published: what a job on that layer can gain.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LayerLight {
+    /// Mean luminance of the cell's texels (W/m²).
+    pub luminance: f32,
+    /// Detail the texels show at this LOD: the RMS difference between a texel's luminance
+    /// and its chart neighbours' mean, over [`LayerLight::luminance`]. Where light changes
+    /// from texel to texel (a shadow's edge, a corner), a finer LOD changes what is shown;
+    /// where it is smooth, it changes little.
+    pub detail: f32,
+}
+
+impl LayerLight {
+    /// The light of a cell's texels from their luminances and their squared differences to
+    /// their chart neighbours' mean (NaN for a texel with no neighbour, left out).
+    pub fn of(luminance: impl Iterator<Item = (f32, f32)>) -> LayerLight {
+        let (mut sum, mut n, mut contrast, mut m) = (0.0f64, 0usize, 0.0f64, 0usize);
+        for (l, c) in luminance {
+            sum += l as f64;
+            n += 1;
+            if !c.is_nan() {
+                contrast += c as f64;
+                m += 1;
+            }
+        }
+        if n == 0 || sum <= 0.0 {
+            return LayerLight::default();
+        }
+        let mean = sum / n as f64;
+        let detail = if m > 0 { (contrast / m as f64).sqrt() / mean } else { 0.0 };
+        LayerLight { luminance: mean as f32, detail: detail as f32 }
+    }
+}
+
+/// Share of its screen weight a cell outside the frustum keeps: a turning head shows it soon.
+pub const OUT_OF_VIEW: f32 = 0.25;
+
+/// Least detail assumed of a level: one that shows none may still hide some below its texels
+/// (a crease thinner than a texel), so it is refined, last.
+pub const MIN_DETAIL: f32 = 0.01;
+
+/// Work of making one texel of a cell's texel map (rasterised in UV, its surface point and
+/// area) in texel-directions, the unit of bundle work: measured on zdm2, a texel map of a
+/// cell costs about as much a texel as this many bundle directions.
+pub const TEXEL_MAP_WORK: f64 = 24.0;
+/// Work of one texel of a punctual bake (its texel map and a shadow ray per light), in
+/// texel-directions.
+pub const PUNCTUAL_TEXEL_WORK: f64 = 32.0;
+
+/// How much of the screen a cell's surfaces may cover: their area over the squared distance
+/// (the cell's half side added, so the cell holding the eye counts as a close one, not an
+/// infinite one), [`OUT_OF_VIEW`] of it outside the frustum.
+pub fn screen_weight(view: CellView, area: f32, cell_size: f32) -> f32 {
+    let h = 0.5 * cell_size;
+    let w = area / (view.distance * view.distance + h * h);
+    if view.in_frustum { w } else { OUT_OF_VIEW * w }
+}
+
+/// A job on one layer of a cell, for [`urgency`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Step {
+    /// The bundles' next finer LOD: `texels` there, `directions` still to trace before it is
+    /// shown, `new` when its texel map is still to make (no bake of it is parked).
+    Refine { texels: u64, directions: u64, new: bool },
+    /// The shown level was published early and its bake goes on: its estimated relative
+    /// `error` falls by 1/√2 over the `directions` still to trace before it is shown again.
+    Continue { texels: u64, directions: u64, error: f32 },
+    /// The punctual layer's next finer LOD (`texels` there).
+    Punctual { texels: u64 },
+}
+
+/// The on-screen error a job is expected to remove per unit of work: the cell's screen
+/// weight × the layer's luminance × the relative error the step removes (the detail of the
+/// shown level for a finer LOD: its texels halve in size, and the light's variation within
+/// them is what the finer level shows), over the work in texel-directions. One scale for
+/// both layers: a sharper sun shadow and better bounced light compete by what they change
+/// on screen and what they cost.
+pub fn urgency(weight: f32, light: LayerLight, step: Step) -> f32 {
+    let (gain, work) = match step {
+        Step::Refine { texels, directions, new } => {
+            let setup = if new { TEXEL_MAP_WORK } else { 0.0 };
+            (light.detail.max(MIN_DETAIL), texels as f64 * (setup + directions as f64))
+        }
+        Step::Continue { texels, directions, error } => {
+            let error = if error.is_finite() { error } else { 1.0 };
+            (error * (1.0 - std::f32::consts::FRAC_1_SQRT_2), texels as f64 * directions as f64)
+        }
+        Step::Punctual { texels } => (light.detail.max(MIN_DETAIL), texels as f64 * PUNCTUAL_TEXEL_WORK),
+    };
+    let u = weight as f64 * light.luminance as f64 * gain as f64 / work.max(1.0);
+    if u.is_finite() { u.max(0.0) as f32 } else { 0.0 }
+}
+
+/// Which work comes first whatever its urgency: a reload's provisional cells (the change
+/// shown at full quality soonest), then refinement, then refreshing stale light.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Tier {
+    Provisional,
+    Refine,
+    Refresh,
+}
+
+/// Sort key of a job (smaller goes first): its tier, then the more urgent.
+pub fn priority(tier: Tier, urgency: f32) -> (Tier, std::cmp::Reverse<u32>) {
+    // Non-negative finite f32s order as their bits.
+    (tier, std::cmp::Reverse(urgency.max(0.0).to_bits()))
 }
 
 #[cfg(test)]
@@ -171,24 +264,38 @@ mod tests {
         assert_eq!(target_lod(&cam, CellView { distance: 5.0, in_frustum: false }, 0.16, 2.0, 8), b - 1);
     }
 
+    /// A cell's light at LOD 0, as first light shows it: mean luminance and relative detail.
     #[test]
-    fn priority_orders_view_then_deficit_then_layer_then_distance() {
-        let v = |d: f32, f: bool| CellView { distance: d, in_frustum: f };
-        let b = Work::Bundles;
-        let mut keys = [
-            priority(v(1.0, false), 3, false, b),
-            priority(v(9.0, true), 1, false, b),
-            priority(v(2.0, true), 2, false, b),
-            priority(v(8.0, true), 2, false, b),
-            priority(v(50.0, true), 2, false, Work::Punctual),
-            priority(v(0.5, true), 6, true, b),
-        ];
-        keys.sort();
-        assert_eq!(keys[0], priority(v(50.0, true), 2, false, Work::Punctual));
-        assert_eq!(keys[1], priority(v(2.0, true), 2, false, b));
-        assert_eq!(keys[2], priority(v(8.0, true), 2, false, b));
-        assert_eq!(keys[3], priority(v(9.0, true), 1, false, b));
-        assert_eq!(keys[4], priority(v(1.0, false), 3, false, b));
-        assert_eq!(keys[5], priority(v(0.5, true), 6, true, b), "refreshes last");
+    fn layer_light_is_mean_luminance_and_relative_contrast() {
+        let l = LayerLight::of([(2.0, 0.04), (4.0, f32::NAN), (6.0, 0.0)].into_iter());
+        assert_eq!(l.luminance, 4.0);
+        assert!((l.detail - (0.02f32).sqrt() / 4.0).abs() < 1e-6, "{l:?}");
+        assert_eq!(LayerLight::of(std::iter::empty()), LayerLight::default());
+    }
+
+    /// Per unit of work: the brighter, more detailed, nearer, in-view cell first; a level
+    /// four times the texels is four times the work; a punctual step competes on one scale.
+    #[test]
+    fn urgency_weighs_light_detail_screen_and_work() {
+        let near = CellView { distance: 1.0, in_frustum: true };
+        let far = CellView { distance: 20.0, in_frustum: true };
+        let behind = CellView { distance: 1.0, in_frustum: false };
+        let (w_near, w_far, w_behind) =
+            (screen_weight(near, 10.0, 4.0), screen_weight(far, 10.0, 4.0), screen_weight(behind, 10.0, 4.0));
+        assert!(w_near > 50.0 * w_far && (w_behind - OUT_OF_VIEW * w_near).abs() < 1e-6);
+        let light = LayerLight { luminance: 2.0, detail: 0.2 };
+        let refine = |texels| Step::Refine { texels, directions: 128, new: true };
+        let u = urgency(w_near, light, refine(1000));
+        assert!((urgency(w_near, light, refine(4000)) - u / 4.0).abs() < 1e-6 * u);
+        assert!(urgency(w_far, light, refine(1000)) < u);
+        let dim = LayerLight { luminance: 1.0, ..light };
+        assert!((urgency(w_near, dim, refine(1000)) - u / 2.0).abs() < 1e-6 * u);
+        let flat = LayerLight { detail: 0.0, ..light };
+        assert!(urgency(w_near, flat, refine(1000)) > 0.0, "a flat level is refined, last");
+        let p = urgency(w_near, light, Step::Punctual { texels: 1000 });
+        assert!(p > u, "a punctual step of as many texels is cheaper than a bundle level");
+        assert!(urgency(w_near, light, Step::Punctual { texels: 64_000 }) < u);
+        assert!(priority(Tier::Refine, 0.0) < priority(Tier::Refresh, 1e9));
+        assert!(priority(Tier::Refine, 2.0) < priority(Tier::Refine, 1.0));
     }
 }

@@ -6,9 +6,10 @@
 //! screen's resolution within a fraction of a second of the camera arriving.
 
 use super::world::World;
+use crate::atlas::chart_filter::fill_within_charts;
 use crate::atlas::sparse::SparseTexels;
 use crate::grid::CellId;
-use crate::reference::punctual::punctual_irradiance;
+use crate::reference::punctual::punctual_irradiance_of_texels;
 use crate::scene::Rgb;
 
 /// One cell's punctual light at one LOD.
@@ -23,8 +24,18 @@ pub struct PunctualBake {
 impl PunctualBake {
     pub fn new(world: &World, cell: CellId, lod: u32) -> PunctualBake {
         let (texels, _) = world.cells_texels(&[cell], lod);
-        let irradiance =
-            punctual_irradiance(&world.scene, &world.bvh, &texels.position, &texels.normal, world.epsilon, 1);
+        let (mut irradiance, buried) = punctual_irradiance_of_texels(
+            &world.scene,
+            &world.geom,
+            &world.atlas,
+            &world.bvh,
+            lod,
+            &texels.face,
+            &|i| texels.pixel[i],
+            world.epsilon,
+            1,
+        );
+        fill_within_charts(|i| texels.pixel[i], |i| texels.table_of(i), &mut irradiance, &buried);
         PunctualBake { cell, lod, texels, irradiance }
     }
 

@@ -37,7 +37,7 @@ use crate::atlas::Atlas;
 use crate::atlas::chart_filter::filter_within_charts;
 use crate::atlas::sparse::SparseTexels;
 use crate::atlas::update::MeshOrigin;
-use crate::bake::bundle::{Region, bake_region};
+use crate::bake::bundle::{PunctualPass, Region, bake_region};
 use crate::bundle::{BundleConfig, BundleScene};
 use crate::grid::CellId;
 use crate::progress::NoProgress;
@@ -211,8 +211,10 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
             s.punctual.busy = punctual_busy;
             s.history = vec![(directions as u64, f32::NAN)];
             s.published = vec![owned[c as usize].clone()];
+            s.set_light(Layer::Bundles, 0, map.layer_light(Layer::Bundles, 0, &owned[c as usize]));
             if lights {
                 s.punctual.published = vec![owned[c as usize].clone()];
+                s.set_light(Layer::Punctual, 0, map.layer_light(Layer::Punctual, 0, &owned[c as usize]));
             }
         } else if world.lod0_texels[c as usize] > 0 {
             s.stale = true;
@@ -315,7 +317,9 @@ fn relight(
         foreign: Some(&source),
     };
     lap(&mut steps.region);
-    let baked = bake_region(bundle, &world.bvh, backend, &region, None, threads, &NoProgress, &shared.shutdown)
+    let punctual =
+        PunctualPass::of(bundle, &world.bvh, 0, &texels.face, &|i| texels.pixel[i], |i| texels.table_of(i), threads);
+    let baked = bake_region(bundle, backend, &region, None, punctual, threads, &NoProgress, &shared.shutdown)
         .map_err(|e| e.to_string())?;
     lap(&mut steps.bake);
     // The bundles' part filtered within charts in the bundle layer, the exact punctual part

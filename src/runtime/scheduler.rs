@@ -13,7 +13,9 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::Sender;
 
 use super::cell_bake::CellBake;
-use super::policy::{CameraView, CellView, Work, cell_view, priority, target_lod};
+use super::policy::{
+    CameraView, CellView, LayerLight, Step, Tier, Work, cell_view, priority, screen_weight, target_lod, urgency,
+};
 use super::punctual::{PunctualBake, punctual_bake_bytes};
 use super::shown::{Layer, PageWriter, ShownLightmap};
 use super::world::World;
@@ -65,43 +67,58 @@ pub(super) struct CellState {
     pub published: Vec<Vec<[u32; 2]>>,
     /// The cell's punctual layer (scenes with punctual lights).
     pub punctual: PunctualState,
+    /// The light each layer shows at each LOD (indexed by [`Layer`], then LOD), as last
+    /// published: what refining it is worth ([`urgency`]).
+    pub lights: [Vec<LayerLight>; 2],
 }
 
-/// A cell's punctual layer ([`super::punctual`]): baked straight at its target LOD and the
-/// one below (toward which it blends at borders with a coarser neighbour: neighbours'
-/// targets are at most one apart, [`update_views`]); LOD 0 comes with first light and
-/// stays; levels in between are skipped.
+impl CellState {
+    /// The light `layer` showed at `lod` when last published there (none: dark, flat).
+    pub fn light(&self, layer: Layer, lod: u32) -> LayerLight {
+        self.lights[layer as usize].get(lod as usize).copied().unwrap_or_default()
+    }
+
+    /// Notes the light `layer` shows at `lod` (see [`ShownLightmap::layer_light`]).
+    pub fn set_light(&mut self, layer: Layer, lod: u32, light: LayerLight) {
+        let lights = &mut self.lights[layer as usize];
+        if lights.len() <= lod as usize {
+            lights.resize(lod as usize + 1, LayerLight::default());
+        }
+        lights[lod as usize] = light;
+    }
+}
+
+/// A cell's punctual layer ([`super::punctual`]): LOD 0 comes with first light; each bake
+/// then makes the next finer LOD, up to the cell's target, as long as that is worth its
+/// work beside everything else to do ([`urgency`]).
 #[derive(Default)]
 pub(super) struct PunctualState {
     /// The LOD shown.
     pub shown: u32,
-    /// The LOD wanted: the cell's target, raised to within one of its neighbours'.
+    /// The LOD wanted: the cell's target.
     pub target: u32,
     /// Pixels written at each LOD (index = LOD; empty where skipped).
     pub published: Vec<Vec<[u32; 2]>>,
     /// A worker is baking it.
     pub busy: bool,
-    /// A hot reload changed the scene after it was baked: re-bake it (LOD 0 and the LODs
-    /// wanted), whatever the LOD.
+    /// A hot reload changed the scene after it was baked: re-bake LOD 0 and the two
+    /// finest levels shown (the others are withdrawn), whatever the LOD.
     pub stale: bool,
 }
 
 impl PunctualState {
-    /// The LODs its next bake makes (ascending), if it has one to make: when the target is
-    /// finer than shown, the target and the LOD below, those not published yet; when stale,
-    /// LOD 0 besides and all of them again.
+    /// The LODs its next bake makes (ascending), if it has one to make: the next finer LOD
+    /// when the target is finer than shown; when stale, LOD 0 and the two finest shown.
     pub fn next_levels(&self) -> Option<Vec<u32>> {
-        if self.busy || !(self.stale || self.target > self.shown) {
+        if self.busy {
             return None;
         }
-        let mut levels = vec![self.target.saturating_sub(1), self.target];
         if self.stale {
-            levels.insert(0, 0);
-        } else {
-            levels.retain(|&k| k > 0 && self.published.get(k as usize).is_none_or(|p| p.is_empty()));
+            let mut levels = vec![0, self.shown.saturating_sub(1), self.shown];
+            levels.dedup();
+            return Some(levels);
         }
-        levels.dedup();
-        (!levels.is_empty()).then_some(levels)
+        (self.target > self.shown).then(|| vec![self.shown + 1])
     }
 }
 
@@ -233,8 +250,8 @@ pub(super) fn take_camera(shared: &Shared, st: &mut State) -> bool {
     changed
 }
 
-/// Recomputes every non-empty cell's view and target LOD for the current camera, and the
-/// punctual layer's targets ([`PunctualState::target`]).
+/// Recomputes every non-empty cell's view and target LOD (both layers') for the current
+/// camera.
 pub(super) fn update_views(shared: &Shared, st: &mut State) {
     let Some(camera) = st.camera else { return };
     let world = st.world.clone();
@@ -244,31 +261,6 @@ pub(super) fn update_views(shared: &Shared, st: &mut State) {
         cell.view = Some(view);
         cell.target = target_lod(&camera, view, world.atlas.texel_size, shared.config.texel_pixels, world.lods);
         cell.punctual.target = cell.target;
-    }
-    // Face-neighbours' punctual targets at most one LOD apart (raised, never lowered): a cell
-    // blends toward a coarser neighbour's LOD from its own pixels at that LOD, and a
-    // punctual bake makes its target and the LOD below ([`PunctualState::next_levels`]). A
-    // few passes settle it (targets fall by at most one a pass).
-    let grid = world.grid;
-    for _ in 0..world.lods {
-        let mut raised = false;
-        for c in world.non_empty_cells() {
-            let mut t = st.cells[c as usize].punctual.target;
-            for axis in 0..3 {
-                for step in [-1, 1] {
-                    if let Some(n) = grid.neighbour(c, axis, step) {
-                        t = t.max(st.cells[n as usize].punctual.target.saturating_sub(1));
-                    }
-                }
-            }
-            if t > st.cells[c as usize].punctual.target {
-                st.cells[c as usize].punctual.target = t;
-                raised = true;
-            }
-        }
-        if !raised {
-            break;
-        }
     }
 }
 
@@ -426,7 +418,6 @@ pub(super) fn first_light(shared: &Shared) {
         // LOD 0 only: punctual bakes may have published finer levels meanwhile.
         let mut shown = (*shared.shown()).clone();
         shown.adopt_level(&map, 0);
-        shared.set_shown(shown);
         let first = !st.first_light;
         let lights = !world.scene.lights.is_empty();
         for (c, pixels) in owned.iter().enumerate() {
@@ -438,7 +429,14 @@ pub(super) fn first_light(shared: &Shared) {
                     cell.punctual.published = vec![pixels.clone()];
                 }
             }
+            if !pixels.is_empty() {
+                cell.set_light(Layer::Bundles, 0, shown.layer_light(Layer::Bundles, 0, pixels));
+                if lights {
+                    cell.set_light(Layer::Punctual, 0, shown.layer_light(Layer::Punctual, 0, pixels));
+                }
+            }
         }
+        shared.set_shown(shown);
         st.lod0_directions = directions;
         if first {
             st.first_light = true;
@@ -602,17 +600,17 @@ fn shown_now(st: &State, bake: &CellBake) -> ShownNow {
 
 /// The next job (from first light on: punctual bakes; once LOD 0 has all its directions,
 /// bundle bakes too), the most urgent of both layers' work ([`priority`]: a reload's
-/// provisional cells first, then cells in view, the largest deficit in the layer the job
-/// makes, the punctual layer first at equal deficit — one cheap exact bake a cell — then
-/// the nearest), not being worked on, with room within the memory budget (made by evicting
-/// what matters less, [`make_room`]); `None` when nothing is to be done or nothing fits. A
+/// provisional cells first, then the on-screen error a job removes per unit of work,
+/// [`urgency`], one scale for both layers), not being worked on, with room within the
+/// memory budget (made by evicting what matters less, [`make_room`]); `None` when nothing
+/// is to be done or nothing fits. A
 /// cell whose group bake is parked (it is a member) brings its leader's bake back; a new
 /// bake gathers neighbours that want the same LOD ([`gather_group`]).
 fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
     let punctual = best_punctual(st);
     // Bundle bakes see the shown map as converged light: they wait for all of LOD 0's
     // directions (punctual bakes, exact, need not).
-    let bundles = if st.lod0_done { best_bundles(st) } else { None };
+    let bundles = if st.lod0_done { best_bundles(&shared.config, st) } else { None };
     // The more urgent first; when it does not fit the memory budget, the other. Bundle work
     // waiting gets every few jobs whatever the order says: a camera turning faster than
     // punctual bakes finish keeps raising in-view cells' punctual targets, and the
@@ -641,21 +639,32 @@ fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
 /// saw 3 bundle publishes in 30 s.
 const PUNCTUAL_STREAK: u32 = 2;
 
-/// A job's place in the order of work ([`priority`]), a reload's provisional cells first.
-type JobKey = (bool, (bool, bool, std::cmp::Reverse<u32>, Work, u32), CellId);
+/// A job's place in the order of work ([`priority`]).
+type JobKey = ((Tier, std::cmp::Reverse<u32>), CellId);
 
-/// The cell whose punctual layer is most urgent, if any has work waiting.
+/// Where a cell stands for the camera, and how much of the screen its surfaces may cover
+/// ([`screen_weight`]).
+fn weight_of(world: &World, s: &CellState, c: CellId) -> f32 {
+    let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
+    let texel = world.atlas.texel_size;
+    let area = world.lod0_texels[c as usize] as f32 * texel * texel;
+    screen_weight(view, area, world.grid.cell_size)
+}
+
+/// The cell whose punctual layer is most urgent ([`urgency`] of its next level's bake), if
+/// any has work waiting; a stale layer's re-bake after all refinement.
 fn best_punctual(st: &State) -> Option<(JobKey, CellId)> {
     let world = &st.world;
     world
         .non_empty_cells()
-        .filter(|&c| punctual_work(world, &st.cells[c as usize]).is_some())
-        .map(|c| {
+        .filter_map(|c| {
             let s = &st.cells[c as usize];
-            let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
+            let levels = punctual_work(world, s)?;
             let p = &s.punctual;
-            let deficit = p.target.saturating_sub(p.shown);
-            ((true, priority(view, deficit, deficit == 0, Work::Punctual), c), c)
+            let texels = levels.iter().map(|&k| lod_texels(world, c, k)).sum();
+            let u = urgency(weight_of(world, s, c), s.light(Layer::Punctual, p.shown), Step::Punctual { texels });
+            let tier = if p.stale { Tier::Refresh } else { Tier::Refine };
+            Some(((priority(tier, u), c), c))
         })
         .min()
 }
@@ -674,27 +683,40 @@ fn take_punctual(shared: &Shared, st: &mut State, c: CellId) -> Option<Job> {
 }
 
 /// The cell whose bundle layer is most urgent, if any has work waiting: a reload's
-/// provisional cells first (the change is shown at full quality soonest), refinement (an
-/// unsettled level's included) before refreshing stale light, then the policy's order. An
-/// unsettled level ranks as the settled level it came from: its early publish changes what
-/// is shown, not what is worked on (the bake in progress stays as urgent as it was, so the
-/// cells near the camera are refined as far and as soon as they were before early
-/// publishes, and show it sooner).
-fn best_bundles(st: &State) -> Option<(JobKey, CellId)> {
+/// provisional cells first (the change is shown at full quality soonest), then refinement by
+/// [`urgency`] (a finer level: the detail of the shown one, over the work until it swaps in;
+/// an early-published level: its noise, over the work until it is published again), then
+/// refreshing stale light.
+fn best_bundles(config: &RuntimeConfig, st: &State) -> Option<(JobKey, CellId)> {
+    let world = &st.world;
     let leader_of = |c: CellId| st.cells[c as usize].member_of.unwrap_or(c);
-    st.world
+    world
         .non_empty_cells()
-        .filter(|&c| {
+        .filter_map(|c| {
             let s = &st.cells[c as usize];
-            !st.cells[leader_of(c) as usize].busy && s.view.is_some() && next_lod(s).is_some()
-        })
-        .map(|c| {
-            let s = &st.cells[c as usize];
-            let view = s.view.unwrap_or(CellView { distance: f32::MAX, in_frustum: false });
-            let refines = s.target > s.shown || (s.unsettled && s.target >= s.shown);
-            let settled_lod = s.shown - u32::from(s.unsettled && s.shown > 0);
-            let deficit = s.target.saturating_sub(settled_lod);
-            ((!s.provisional, priority(view, deficit, !refines, Work::Bundles), c), c)
+            if st.cells[leader_of(c) as usize].busy || s.view.is_none() {
+                return None;
+            }
+            let lod = next_lod(s)?;
+            let parked = st.cells[leader_of(c) as usize].bake.as_ref().filter(|b| b.lod == lod);
+            let traced = parked.map_or(0, |b| b.directions());
+            let (shown_directions, error) = s.history.get(s.shown as usize).copied().unwrap_or((0, f32::INFINITY));
+            let texels = lod_texels(world, c, lod);
+            let step = if lod > s.shown {
+                let wanted = (config.min_directions as u64).max(shown_directions);
+                Step::Refine { texels, directions: wanted.saturating_sub(traced).max(1), new: parked.is_none() }
+            } else {
+                Step::Continue { texels, directions: (2 * shown_directions).saturating_sub(traced).max(1), error }
+            };
+            let tier = if s.provisional {
+                Tier::Provisional
+            } else if lod > s.shown || s.unsettled {
+                Tier::Refine
+            } else {
+                Tier::Refresh
+            };
+            let u = urgency(weight_of(world, s, c), s.light(Layer::Bundles, s.shown), step);
+            Some(((priority(tier, u), c), c))
         })
         .min()
 }
@@ -1090,11 +1112,16 @@ fn bake_punctual(shared: &Shared, world: &World, generation: u64, cell: CellId, 
         }
         texels = bake.texels.len();
     }
-    // The finest level it has now (a level below the target may have been all it lacked).
+    // The finest level it has now.
     let shown = p.published.iter().rposition(|v| !v.is_empty()).unwrap_or(0) as u32;
     writer.set_cell_lod(Layer::Punctual, cell, shown);
     writer.finish();
     p.shown = shown;
+    let s = &mut st.cells[cell as usize];
+    for &k in levels {
+        let light = map.layer_light(Layer::Punctual, k, &s.punctual.published[k as usize]);
+        s.set_light(Layer::Punctual, k, light);
+    }
     shared.set_shown(map);
     st.stats.publishes += 1;
     drop(st);
@@ -1160,10 +1187,10 @@ fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32, settled
         .collect();
     let mut map = (*shared.shown()).clone();
     let pixels = publish_texels(&mut map, bake, &values, &replaced);
-    shared.set_shown(map);
     let mut refreshed = 0;
     for (&c, pixels) in bake.cells.iter().zip(pixels) {
         let cell = &mut st.cells[c as usize];
+        cell.set_light(Layer::Bundles, bake.lod, map.layer_light(Layer::Bundles, bake.lod, &pixels));
         cell.shown = bake.lod;
         cell.stale = false;
         cell.unsettled = !settled;
@@ -1177,6 +1204,7 @@ fn publish(shared: &Shared, st: &mut State, bake: &CellBake, error: f32, settled
         cell.published.resize(lod + 1, Vec::new());
         cell.published[lod] = pixels;
     }
+    shared.set_shown(map);
     st.stats.publishes += 1;
     if refreshed == 0 {
         return None;

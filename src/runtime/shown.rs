@@ -32,8 +32,9 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use glam::{Vec2, Vec3};
 use serde::Serialize;
 
+use super::policy::LayerLight;
 use crate::grid::{CellId, Grid};
-use crate::scene::Rgb;
+use crate::scene::{Rgb, luminance};
 
 /// Side of a page, in pixels of its LOD.
 pub const PAGE_SIDE: u32 = 64;
@@ -408,6 +409,35 @@ impl ShownLightmap {
                 .fold(0f32, |m, t| m.max(t[0]).max(t[1]).max(t[2]))
         };
         self.layers.iter().filter(|l| l.used).map(layer_max).sum()
+    }
+
+    /// The light `layer` shows at LOD `lod` over `pixels` (a cell's published pixels there):
+    /// their mean luminance and relative detail ([`LayerLight`]), each pixel against the
+    /// tent-weighted mean of its published 8-neighbours at that LOD. A gutter pixel copies
+    /// the texel beside it, so pixels of other charts across a gutter never meet.
+    pub fn layer_light(&self, layer: Layer, lod: u32, pixels: &[[u32; 2]]) -> LayerLight {
+        let Some(level) = self.layers[layer as usize].levels.get(lod as usize) else {
+            return LayerLight::default();
+        };
+        let lum = |x: i64, y: i64| level.texel(x, y).map(luminance);
+        LayerLight::of(pixels.iter().filter_map(|&[x, y]| {
+            let (x, y) = (x as i64, y as i64);
+            let v = lum(x, y)?;
+            let (mut sum, mut wsum) = (0.0, 0.0);
+            for dy in -1i64..=1 {
+                for dx in -1i64..=1 {
+                    if (dx, dy) == (0, 0) {
+                        continue;
+                    }
+                    if let Some(n) = lum(x + dx, y + dy) {
+                        let w = ((2 - dx.abs()) * (2 - dy.abs())) as f32;
+                        sum += n * w;
+                        wsum += w;
+                    }
+                }
+            }
+            Some((v, if wsum > 0.0 { (v - sum / wsum).powi(2) } else { f32::NAN }))
+        }))
     }
 
     /// Cells shown at each LOD in `layer`.

@@ -45,7 +45,7 @@ impl ShownSource {
                 let uv = Vec2::new(x as f32 + 0.5, y as f32 + 0.5) * scale;
                 let p = texels.position[i];
                 let e = self.shown.layer_irradiance(Layer::Punctual, self.shown.grid.cell_of(p), p, uv);
-                super::cell_bake::luminance(e) as f64
+                crate::scene::luminance(e) as f64
             })
             .sum();
         sum / texels.len() as f64

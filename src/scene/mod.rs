@@ -24,6 +24,12 @@ pub use texture::{Texture, TextureRef, WrapMode};
 /// Linear RGB triple (radiance, irradiance, albedo...). Units are given where it is used.
 pub type Rgb = Vec3;
 
+/// Rec. 709 luminance of linear RGB.
+#[inline]
+pub fn luminance(c: Rgb) -> f32 {
+    0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+}
+
 /// Which face of a triangle. `Front` is the side its counter-clockwise winding faces
 /// (glTF convention); `Back` exists as a light-mapped surface only for double-sided materials.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
