@@ -145,7 +145,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
         same_points(reference, converge.reference.as_deref(), points, converge.points.as_deref())?;
     }
 
-    let (scene, _) = load_scene(scene_path, options)?;
+    let (scene, _) = load_scene(scene_path, options, None)?;
     let geom = Arc::new(SceneGeometry::new(&scene));
     let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas).map_err(BakeError::from)?);
     check_lod_sizes(&atlas, 1)?;
@@ -238,6 +238,16 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     }
     let (steps, stop) = (run.steps, run.stop);
     let last = *steps.last().context("the bake ran no batch")?;
+    if let Some(s) = steps.iter().find(|s| !s.rel_rms.is_finite()) {
+        bail!(
+            "the error after {} directions is {} (the light overflowed f32); nothing was written",
+            s.directions,
+            s.rel_rms
+        );
+    }
+    if reference.e.iter().any(|e| !e.is_finite()) {
+        bail!("the reference has non-finite irradiance (the light overflowed f32); nothing was written");
+    }
 
     std::fs::create_dir_all(&converge.out)
         .with_context(|| format!("cannot create output directory {}", converge.out.display()))?;

@@ -93,8 +93,16 @@ impl ReferencePoints {
     }
 }
 
-/// Adds each result to its point and writes the document to `out` (stdout when `None`).
+/// Adds each result to its point and writes the document to `out` (stdout when `None`);
+/// nothing is written when a result is not finite.
 pub fn write_results(doc: &mut Value, results: &[Result<Rgb, ProbeError>], out: Option<&Path>, ui: &Ui) -> Result<()> {
+    let non_finite = results.iter().filter(|r| r.as_ref().is_ok_and(|e| !e.is_finite())).count();
+    if non_finite > 0 {
+        bail!(
+            "{non_finite} of {} points have non-finite irradiance (the light overflowed f32); nothing was written",
+            results.len()
+        );
+    }
     if let Some(list) = doc.get_mut("points").and_then(Value::as_array_mut) {
         for (pt, r) in list.iter_mut().zip(results) {
             match r {

@@ -43,13 +43,17 @@ impl AlphaMasks {
     pub fn new(scene: &Scene, geom: &SceneGeometry) -> AlphaMasks {
         let mut out = AlphaMasks::default();
         let mut local_material = vec![NONE; scene.materials.len()];
+        // One alpha-only copy per texture, however many masked materials use it.
+        let mut local_texture = std::collections::HashMap::new();
         for (mi, m) in scene.materials.iter().enumerate() {
             let AlphaMode::Mask { cutoff } = m.alpha_mode else { continue };
             let mut material = m.clone();
             material.emissive_texture = None;
             if let Some(t) = material.base_color_texture.as_mut() {
-                out.textures.push(alpha_only(&scene.textures[t.texture]));
-                t.texture = out.textures.len() - 1;
+                t.texture = *local_texture.entry(t.texture).or_insert_with(|| {
+                    out.textures.push(alpha_only(&scene.textures[t.texture]));
+                    out.textures.len() - 1
+                });
             }
             local_material[mi] = out.materials.len() as u32;
             out.materials.push(MaskMaterial { material, cutoff });
