@@ -340,3 +340,119 @@ fn positions_whose_area_overflows_say_so() {
     d.mesh_node(vec![p], json!({}));
     load(&d.write_gltf(dir.path(), "big")).expect("1e6 m");
 }
+
+// ---------------------------------------------------------------------------------------------
+// the command: one `error:` line, exit 1, earlier results left alone
+
+/// `out/` holding the light map of an earlier bake, to see that a failed one leaves it.
+fn earlier_results(dir: &Path) -> (String, PathBuf) {
+    let out = dir.join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let exr = write(&out, "lightmap_lod0.exr", b"an earlier light map");
+    (out.display().to_string(), exr)
+}
+
+#[track_caller]
+fn left_alone(exr: &Path) {
+    assert_eq!(std::fs::read(exr).unwrap(), b"an earlier light map");
+    assert!(!exr.with_file_name("report.json").exists());
+}
+
+#[test]
+fn the_command_refuses_hostile_scenes_with_one_error_line() {
+    let (root, scene, elsewhere) = two_folders();
+    let dir = root.path();
+    let (out, exr) = earlier_results(dir);
+    let bake = |path: &Path, extra: &[&str], needles: &[&str]| {
+        let p = path.display().to_string();
+        let mut args = vec!["-q", "bake", p.as_str(), "--out", out.as_str(), "--texel-budget", "2000"];
+        args.extend_from_slice(extra);
+        assert_eq!(support::fails(dir, &args, needles), 1);
+        left_alone(&exr);
+    };
+    write(&elsewhere, "x.png", &png(2, 2, |_, _| [255, 0, 0, 255]));
+    bake(
+        &textured("../elsewhere/x.png").write_gltf(&scene, "escape"),
+        &[],
+        &["'../elsewhere/x.png'", "--allow-outside-files"],
+    );
+    let zero = textured("/dev/zero").write_gltf(&scene, "zero");
+    bake(&zero, &[], &["'/dev/zero'", "absolute path"]);
+    bake(&zero, &["--allow-outside-files"], &["'/dev/zero'", "character device"]);
+    write(&scene, "bomb.png", &support::png_bomb(16384, 16384));
+    let bomb = textured("bomb.png").write_gltf(&scene, "bomb");
+    bake(&bomb, &[], &["bomb.png", "16384×16384", "--max-texture-pixels"]);
+    // A lower limit refuses smaller textures; the opt-in reads the file outside.
+    write(&scene, "small.png", &png(64, 64, |_, _| [9; 4]));
+    bake(&textured("small.png").write_gltf(&scene, "small"), &["--max-texture-pixels", "1000"], &["64×64", "1000"]);
+    let lamp = lit_doc(json!({ "type": "point", "name": "lamp", "intensity": 1e38 })).write_gltf(&scene, "lamp");
+    bake(&lamp, &[], &["light 0 'lamp'", "1e38 W/sr"]);
+    let mut far = Doc::new();
+    let corners: Vec<[f32; 3]> = TRI.iter().map(|p| p.map(|c| c * 1e30)).collect();
+    let p = far.prim(&corners, Some(&UP_Z), None);
+    far.mesh_node(vec![p], json!({}));
+    bake(&far.write_gltf(&scene, "far"), &[], &["overflows f32"]);
+    let plain = lit_doc(json!({ "type": "point", "intensity": 10.0 })).write_gltf(&scene, "plain");
+    bake(&plain, &["--sky", "1e30"], &["--sky", "1e30"]);
+
+    // The same scenes are refused by every command that loads one.
+    let points = write_json(dir, "points.json", &json!({ "points": [{ "p": [0.2, 0.2, 0.0], "n": [0, 0, 1] }] }));
+    let (escape, points) = (scene.join("escape.gltf").display().to_string(), points.display().to_string());
+    support::fails(dir, &["probe", &escape, "--points", &points], &["'../elsewhere/x.png'"]);
+    support::fails(dir, &["run", &escape, "--seconds", "0", "--out", &out], &["'../elsewhere/x.png'"]);
+    left_alone(&exr);
+    support::fails(dir, &["converge", &escape, "--samples", "8", "--out", &out], &["'../elsewhere/x.png'"]);
+    // With the opt-in the scene bakes (and its texture is the one outside).
+    support::ok(
+        dir,
+        &["-q", "bake", &escape, "--out", "opted", "--texel-budget", "2000", "--samples", "8", "--allow-outside-files"],
+    );
+}
+
+/// A lamp within the ceiling can still overflow f32 at a surface closer to it than the
+/// ceiling assumes (`radiometry::NEAREST_LIGHT`): here a square of 0.1 µm (whose ceiling is
+/// 4.4·10²⁴ W/sr) 0.5 nm under a lamp of 4·10²⁴ W/sr, its texels 1 nm apart, so the nearest
+/// texel (< 0.9 nm away) gets `I·cos/d² > 3·10⁴²` W/m², beyond f32. The bake fails with
+/// exit 1 and writes nothing.
+#[test]
+fn a_bake_with_non_finite_texels_fails_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let (out, exr) = earlier_results(dir.path());
+    let mut d = Doc::new();
+    let s = 1e-7;
+    let quad = [[0.0, 0.0, 0.0], [s, 0.0, 0.0], [s, s, 0.0], [0.0, s, 0.0]];
+    let p = d.prim(&quad, Some(&[[0.0, 0.0, 1.0]; 4]), Some(&[0, 1, 2, 0, 2, 3]));
+    d.mesh_node(vec![p], json!({}));
+    d.json["extensionsUsed"] = json!(["KHR_lights_punctual"]);
+    d.json["extensions"] = json!({ "KHR_lights_punctual": { "lights": [{ "type": "point", "intensity": 4e24 }] } });
+    let at = json!([s / 2.0, s / 2.0, 5e-10]);
+    let n = d.push("nodes", json!({ "translation": at, "extensions": { "KHR_lights_punctual": { "light": 0 } } }));
+    d.add_root(n);
+    let path = d.write_gltf(dir.path(), "micro").display().to_string();
+    let args = ["-q", "bake", &path, "--out", &out, "--texel-size", "1e-9", "--samples", "8"];
+    assert_eq!(support::fails(dir.path(), &args, &["non-finite irradiance", "nothing was written"]), 1);
+    left_alone(&exr);
+}
+
+#[test]
+fn points_files_over_the_limit_are_refused_before_the_scene_loads() {
+    let dir = tempfile::tempdir().unwrap();
+    let max = 1 << 20;
+    let point = r#"{"p":[0,0,0],"n":[0,0,1]}"#;
+    let mut text = String::with_capacity((max + 1) * (point.len() + 1) + 16);
+    text.push_str(r#"{"points":["#);
+    for k in 0..=max {
+        if k > 0 {
+            text.push(',');
+        }
+        text.push_str(point);
+    }
+    text.push_str("]}");
+    let big = write(dir.path(), "big.json", text.as_bytes()).display().to_string();
+    // The scene does not exist: the points file is refused first.
+    let scene = dir.path().join("absent.gltf").display().to_string();
+    let needles = ["big.json", "more than 1048576 points"];
+    support::fails(dir.path(), &["probe", &scene, "--points", &big], &needles);
+    support::fails(dir.path(), &["run", &scene, "--points", &big, "--points-out", "o.json"], &needles);
+    support::fails(dir.path(), &["converge", &scene, "--points", &big, "--samples", "8"], &needles);
+}

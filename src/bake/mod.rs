@@ -247,7 +247,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
     let mut lods: Vec<BakedLod> = Vec::new();
     match config.backend {
         BackendKind::Reference => {
-            report.memory = check_memory(&atlas, config, memory::SceneTraits::LEAST)?;
+            report.memory = check_memory(&atlas, config, memory::SceneTraits::LEAST.with_masks(scene))?;
             let backend = reference::ReferenceBackend::new(scene, config);
             report.memory.resident_at_start = memory::resident_bytes();
             for lod in 0..config.lods {
@@ -422,7 +422,8 @@ fn refuse_over_limit(
     if need > limit {
         // Texels scale as 1/texel size²: the size (or budget) that brings the texel part
         // within what is left, with 5% to spare.
-        let room = limit.saturating_sub(resident).saturating_sub(estimate.thread_bytes) as f64;
+        let fixed = estimate.thread_bytes.saturating_add(estimate.texture_bytes);
+        let room = limit.saturating_sub(resident).saturating_sub(fixed) as f64;
         let shrink = estimate.texel_bytes as f64 / room.max(1.0) * 1.05;
         let size = texel_size.map(|t| memory::metres(t as f64 * shrink.sqrt()));
         let mut advice = if room < 1.0 {

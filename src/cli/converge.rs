@@ -140,7 +140,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     let limits = Limits { until: converge.until, budget: converge.budget, max_directions: config.samples as u64 };
     // Files first: a bad one fails before any work.
     let file_reference = converge.reference.as_deref().map(read_reference).transpose()?;
-    let points = converge.points.as_deref().map(|p| read_points(p).map(|(_, q)| q)).transpose()?;
+    let points = converge.points.as_deref().map(|p| read_points(p).map(|f| f.queries)).transpose()?;
     if let (Some(reference), Some(points)) = (&file_reference, &points) {
         same_points(reference, converge.reference.as_deref(), points, converge.points.as_deref())?;
     }
@@ -150,7 +150,8 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas).map_err(BakeError::from)?);
     check_lod_sizes(&atlas, 1)?;
     // As `bake` does (one LOD; a light pass assumed: the estimate bounds the bake's part).
-    check_memory(&atlas, &BakeConfig { lods: 1, ..config.clone() }, livebake::bake::memory::SceneTraits::MOST)?;
+    let traits = livebake::bake::memory::SceneTraits::MOST.with_masks(&scene);
+    check_memory(&atlas, &BakeConfig { lods: 1, ..config.clone() }, traits)?;
     let texels = TexelMap::build(&scene, &geom, &atlas, 0);
     let bvh = Bvh::for_scene(&scene, &geom);
     check_node_capacity(&bvh, &config.bundle_config())?;

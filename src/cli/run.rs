@@ -426,9 +426,10 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         })),
     });
     write_json(&run.out.join("report.json"), &report)?;
-    if let (Some((mut doc, queries)), Some(out)) = (points, run.points_out.as_deref()) {
+    if let (Some(points), Some(out)) = (points, run.points_out.as_deref()) {
         let locator = SurfaceLocator::new(&world.geom, &world.bvh);
-        let results: Vec<Result<Rgb, ProbeError>> = queries
+        let results: Vec<Result<Rgb, ProbeError>> = points
+            .queries
             .iter()
             .map(|q| {
                 let at = locator.locate(q.p, q.n)?;
@@ -437,7 +438,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
                 Ok(shown.irradiance(world.geom.point(at.tri, at.u, at.v), uv))
             })
             .collect();
-        write_results(&mut doc, &results, Some(out), ui)?;
+        write_results(&points, &results, Some(out), ui)?;
     }
     log.write(t_end, &json!({"event": "finished", "stats": stats}))?;
     log.flush()?;

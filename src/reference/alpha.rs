@@ -39,6 +39,20 @@ fn alpha_only(t: &Texture) -> Texture {
 }
 
 impl AlphaMasks {
+    /// Bytes of the alpha-only textures [`AlphaMasks::new`] makes of `scene`: one copy of
+    /// each texture a masked material reads its alpha from.
+    pub fn texture_bytes(scene: &Scene) -> u64 {
+        let mut textures: Vec<usize> = scene
+            .materials
+            .iter()
+            .filter(|m| matches!(m.alpha_mode, AlphaMode::Mask { .. }))
+            .filter_map(|m| m.base_color_texture.map(|t| t.texture))
+            .collect();
+        textures.sort_unstable();
+        textures.dedup();
+        textures.iter().filter_map(|&t| scene.textures.get(t)).map(|t| t.rgba8.len() as u64 * 4).sum()
+    }
+
     /// Collects the masked triangles of `scene` (as laid out by `geom`).
     pub fn new(scene: &Scene, geom: &SceneGeometry) -> AlphaMasks {
         let mut out = AlphaMasks::default();

@@ -61,7 +61,7 @@ pub enum LoadError {
 
     /// Decoding an image would take the scene's textures past the memory they may hold.
     #[error(
-        "{}: {image} would take the decoded textures to {need} bytes, more than the {limit} they may hold",
+        "{}: {image} would take the decoded textures to {need} bytes, more than the {limit} they may hold (--memory-limit)",
         file.display()
     )]
     TexturesOverMemory { file: PathBuf, image: String, need: u64, limit: u64 },
