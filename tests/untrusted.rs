@@ -196,6 +196,44 @@ fn the_hot_reload_list_refuses_what_the_loader_refuses() {
     assert!(listed.iter().any(|f| f.uri == "../elsewhere/x.png"));
 }
 
+/// The watcher asks the loader's rule: a save that names a file outside fails, the next good
+/// one loads; a watcher whose loads are opted in follows the file outside.
+#[test]
+fn hot_reload_refuses_a_save_that_reaches_outside() {
+    use livebake::watch::{SceneWatcher, WatchConfig, WatchEvent};
+    let (_root, scene, elsewhere) = two_folders();
+    write(&elsewhere, "x.png", &png(1, 1, |_, _| [255, 0, 0, 255]));
+    write(&scene, "in.png", &png(1, 1, |_, _| [0, 0, 255, 255]));
+    let gltf = textured("in.png").write_gltf(&scene, "scene");
+    let outcome = |allow_outside_files: bool| {
+        let load = LoadOptions { allow_outside_files, ..LoadOptions::default() };
+        let watcher = SceneWatcher::start(&gltf, WatchConfig { load, ..WatchConfig::default() }).unwrap();
+        std::thread::sleep(Duration::from_millis(300));
+        textured("../elsewhere/x.png").write_gltf(&scene, "scene");
+        let outcome = loop {
+            match watcher.events().recv_timeout(Duration::from_secs(30)).expect("a report from the watcher") {
+                WatchEvent::Started { .. } => continue,
+                e => break e,
+            }
+        };
+        textured("in.png").write_gltf(&scene, "scene");
+        std::thread::sleep(Duration::from_millis(300));
+        outcome
+    };
+    match outcome(false) {
+        WatchEvent::Failed { error, .. } => {
+            assert!(error.contains("'../elsewhere/x.png'") && error.contains("leads out"), "{error}")
+        }
+        WatchEvent::Loaded { .. } => panic!("the save reaching outside loaded"),
+        WatchEvent::Started { .. } => unreachable!(),
+    }
+    match outcome(true) {
+        WatchEvent::Loaded { scene, .. } => assert_eq!(scene.textures[0].rgba8[0], [255, 0, 0, 255]),
+        WatchEvent::Failed { error, .. } => panic!("opted in, the save failed: {error}"),
+        WatchEvent::Started { .. } => unreachable!(),
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // decompression bombs
 
