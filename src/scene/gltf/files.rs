@@ -120,7 +120,6 @@ impl FileScope {
     }
 
     /// Whether a file whose real path (symbolic links resolved) is `real` is in the folder.
-    /// `named`: the path as the URI names it, for messages.
     pub fn admits_real(&self, real: &Path) -> Result<(), Refusal> {
         match &self.folder {
             Some(folder) if !real.starts_with(folder) => Err(Refusal::LinksOut { target: real.to_path_buf() }),
