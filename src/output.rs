@@ -51,6 +51,12 @@ fn write_atomically(
     }
 }
 
+/// Writes `path` as [`write_json`] does (through a temporary sibling and a rename), with
+/// `write` streaming its bytes.
+pub fn write_stream(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<(), OutputError> {
+    write_atomically(path, |w| write(w).map_err(|source| OutputError::Io { path: path.to_path_buf(), source }))
+}
+
 /// Linear RGB irradiance of every pixel of `lod` (gutters filled, empty pixels 0), written
 /// straight into the image (no full-size copy of the map beside it).
 pub fn irradiance_image(lod: &BakedLod) -> Rgb32FImage {

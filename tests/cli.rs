@@ -2,10 +2,13 @@
 //! their contents, the no-argument default, `probe`, error messages for bad input, and
 //! identical results for identical options (and any thread count).
 
+mod support;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use serde_json::{Value, json};
+use support::{fails, ok, text};
 
 const CORNELL: &str = "cornell_box/cornellBox-2.79-Cycles-gltf.gltf";
 
@@ -15,54 +18,6 @@ fn asset(rel: &str) -> PathBuf {
 
 fn cornell() -> String {
     asset(CORNELL).display().to_string()
-}
-
-/// Runs `livebake args…` in `cwd` (no RUST_LOG from the environment: default logging).
-fn livebake(cwd: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_livebake"))
-        .args(args)
-        .current_dir(cwd)
-        .env_remove("RUST_LOG")
-        // No display: `livebake` without arguments runs headless.
-        .env_remove("DISPLAY")
-        .env_remove("WAYLAND_DISPLAY")
-        .output()
-        .expect("cannot run livebake")
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
-
-/// Runs and requires success; returns stdout.
-#[track_caller]
-fn ok(cwd: &Path, args: &[&str]) -> String {
-    let out = livebake(cwd, args);
-    let stderr = text(&out.stderr);
-    assert!(out.status.success(), "livebake {args:?} failed ({}):\n{stderr}", out.status);
-    assert!(!stderr.contains("panicked"), "{stderr}");
-    text(&out.stdout)
-}
-
-/// Runs and requires failure with an `error:` line containing every one of `needles`
-/// (case-insensitive), an exit code (not an abort) and no panic. Returns the exit code: 1, or
-/// 2 for what the argument parser refuses.
-#[track_caller]
-fn fails(cwd: &Path, args: &[&str], needles: &[&str]) -> i32 {
-    let out = livebake(cwd, args);
-    let stderr = text(&out.stderr);
-    assert!(!out.status.success(), "livebake {args:?} succeeded but should not have:\n{stderr}");
-    assert!(!stderr.contains("panicked"), "livebake {args:?} panicked:\n{stderr}");
-    let code = out.status.code().unwrap_or_else(|| panic!("livebake {args:?} was killed ({}):\n{stderr}", out.status));
-    assert!(code == 1 || code == 2, "livebake {args:?} exited with {code}:\n{stderr}");
-    let line = stderr
-        .lines()
-        .find(|l| l.starts_with("error:"))
-        .unwrap_or_else(|| panic!("livebake {args:?}: no `error:` line in\n{stderr}"));
-    for n in needles {
-        assert!(line.to_lowercase().contains(&n.to_lowercase()), "livebake {args:?}: {line:?} does not mention {n:?}");
-    }
-    code
 }
 
 fn read_json(path: &Path) -> Value {

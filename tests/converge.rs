@@ -4,10 +4,12 @@
 //! `probe` plus a comparison done by hand, the output files, the in-crate reference and
 //! bad input.
 
+mod support;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use serde_json::{Value, json};
+use support::{livebake, text};
 
 const TEXEL_BUDGET: &str = "20000";
 
@@ -21,19 +23,6 @@ fn scene() -> String {
 
 fn mitsuba() -> String {
     asset("cornell_2m/mitsuba_reference.json").display().to_string()
-}
-
-fn livebake(cwd: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_livebake"))
-        .args(args)
-        .current_dir(cwd)
-        .env_remove("RUST_LOG")
-        .output()
-        .expect("cannot run livebake")
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
 }
 
 /// Runs `livebake -q converge SCENE --texel-budget 20000 --out out args…` in `dir`, requires

@@ -25,6 +25,7 @@ use livebake::probe::{LightmapSampler, SurfacePoint};
 use livebake::progress::NoProgress;
 use livebake::scene::{LoadError, LoadOptions, Scene, SceneBuilder, SceneGeometry, Side, load_gltf};
 use serde_json::{Value, json};
+use support::livebake;
 
 const CORNELL: &str = "cornell_box/cornellBox-2.79-Cycles-gltf.gltf";
 const VAN_GOGH_LIT: &str = "van_gogh_room/van_gogh_room_lit.gltf";
@@ -639,15 +640,6 @@ fn a_failed_export_leaves_the_previous_one_whole() {
 
 // ---------------------------------------------------------------------------------------
 // Command line
-
-fn livebake(cwd: &Path, args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_livebake"))
-        .args(args)
-        .current_dir(cwd)
-        .env_remove("RUST_LOG")
-        .output()
-        .expect("cannot run livebake")
-}
 
 /// `livebake bake SCENE --export-gltf OUT.gltf` writes the export beside the bake's own files;
 /// a bad export name is one `error:` line.

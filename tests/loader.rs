@@ -979,11 +979,11 @@ fn textures_from_data_uri_and_buffer_view_with_samplers() {
         assert_eq!(s.stats.textures, 2);
         let rg = &s.textures[0];
         assert_eq!((rg.name.as_str(), rg.width, rg.height), ("rg", 2, 1));
-        assert_eq!(rg.rgba8, vec![[255, 0, 0, 255], [0, 255, 0, 128]]);
+        assert_eq!(*rg.rgba8, [[255, 0, 0, 255], [0, 255, 0, 128]]);
         assert_eq!((rg.wrap_s, rg.wrap_t), (WrapMode::ClampToEdge, WrapMode::MirroredRepeat));
         assert!(rg.srgb);
         let b = &s.textures[1];
-        assert_eq!(b.rgba8, vec![[0, 0, 188, 255]]);
+        assert_eq!(*b.rgba8, [[0, 0, 188, 255]]);
         assert_eq!((b.wrap_s, b.wrap_t), (WrapMode::Repeat, WrapMode::Repeat));
         let m = &s.materials[0];
         assert_eq!(m.base_color_texture.map(|t| (t.texture, t.tex_coord)), Some((0, 0)));
@@ -1245,9 +1245,12 @@ fn scene_selection() {
     doc.json["scene"] = json!(1);
     let path = doc.write_gltf(d.path(), "s1");
     assert_eq!(names(&load(&path).unwrap()), ["b/mesh1/0"]);
-    let s = load_gltf(&path, &LoadOptions { scene: Some(0) }).unwrap();
+    let s = load_gltf(&path, &LoadOptions { scene: Some(0), ..LoadOptions::default() }).unwrap();
     assert_eq!(names(&s), ["a/mesh0/0"]);
-    assert!(matches!(load_gltf(&path, &LoadOptions { scene: Some(7) }), Err(LoadError::Invalid { .. })));
+    assert!(matches!(
+        load_gltf(&path, &LoadOptions { scene: Some(7), ..LoadOptions::default() }),
+        Err(LoadError::Invalid { .. })
+    ));
     // No scenes at all: every root node (b only once, under c).
     let mut j = doc.json_with_buffer(Some("s1.bin".into()));
     j.as_object_mut().unwrap().remove("scenes");

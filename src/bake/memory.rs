@@ -30,8 +30,10 @@
 //! only known once the map is built, so a quarter of the texels is assumed: the rooms
 //! measured have 13–25%). Per
 //! thread, the fragment buffers and the hits kept for their turn ([`cpu_thread_bytes`]).
-//! What does not grow with the texels (scene, BVH, atlas)
-//! is already resident when the guard runs and is read from the process's resident set.
+//! What does not grow with the texels (scene, its decoded textures, BVH, atlas)
+//! is already resident when the guard runs and is read from the process's resident set,
+//! but for the alpha-only copies of masked materials' textures that the BVH makes after it
+//! (4 B a pixel, counted: [`SceneTraits::mask_texture_bytes`]).
 //!
 //! Before this model (and the changes it describes), the same bake held 253 B per texel plus
 //! 8 B per pixel: the texel map whole (60), punctual (12), carried (1), totals in seven f64
@@ -105,13 +107,25 @@ pub struct SceneTraits {
     /// base-colour texture: a LOD-0 bake holds those texels' albedo alone
     /// ([`crate::atlas::TexelMap::take_albedo`]).
     pub textured_share: f64,
+    /// Bytes of the alpha-only texture copies the scene's BVH makes for its masked
+    /// materials ([`crate::reference::AlphaMasks::texture_bytes`]), built after the guard
+    /// has looked at the resident set.
+    pub mask_texture_bytes: u64,
 }
 
 impl SceneTraits {
-    /// The most a scene can add: both kinds of light, every surface textured.
-    pub const MOST: SceneTraits = SceneTraits { light_pass: true, punctual: true, textured_share: 1.0 };
+    /// The most a scene can add per texel: both kinds of light, every surface textured (its
+    /// masked textures are the scene's own: [`SceneTraits::with_masks`]).
+    pub const MOST: SceneTraits =
+        SceneTraits { light_pass: true, punctual: true, textured_share: 1.0, mask_texture_bytes: 0 };
     /// The least.
-    pub const LEAST: SceneTraits = SceneTraits { light_pass: false, punctual: false, textured_share: 0.0 };
+    pub const LEAST: SceneTraits =
+        SceneTraits { light_pass: false, punctual: false, textured_share: 0.0, mask_texture_bytes: 0 };
+
+    /// These traits with `scene`'s masked textures.
+    pub fn with_masks(self, scene: &Scene) -> SceneTraits {
+        SceneTraits { mask_texture_bytes: crate::reference::AlphaMasks::texture_bytes(scene), ..self }
+    }
 
     /// The traits of `scene` unwrapped into `atlas`; `light_pass`: whether it has small
     /// emitters.
@@ -125,7 +139,8 @@ impl SceneTraits {
             }
         }
         let textured_share = if all > 0.0 { textured / all } else { 0.0 };
-        SceneTraits { light_pass, punctual: !scene.lights.is_empty(), textured_share }
+        SceneTraits { light_pass, punctual: !scene.lights.is_empty(), textured_share, mask_texture_bytes: 0 }
+            .with_masks(scene)
     }
 }
 
@@ -195,7 +210,9 @@ pub struct MemoryEstimate {
     pub thread_bytes: u64,
     /// Accumulation lanes of the finest LOD's bake ([`crate::bundle::Lanes::for_texels`]).
     pub lanes: u32,
-    /// Everything: `texel_bytes + thread_bytes`.
+    /// Bytes of the alpha-only copies of masked materials' textures (the BVH's).
+    pub texture_bytes: u64,
+    /// Everything: `texel_bytes + thread_bytes + texture_bytes`.
     pub bytes: u64,
     /// `bytes / texels`.
     pub bytes_per_texel: f64,
@@ -255,11 +272,13 @@ pub fn estimate_from_lod0(
         }
     };
     let texel_bytes = bytes.min(u64::MAX as f64 / 2.0) as u64;
-    let total = texel_bytes.saturating_add(thread_bytes);
+    let texture_bytes = traits.mask_texture_bytes;
+    let total = texel_bytes.saturating_add(thread_bytes).saturating_add(texture_bytes);
     MemoryEstimate {
         texels,
         texel_bytes,
         thread_bytes,
+        texture_bytes,
         lanes: if config.backend == BackendKind::Reference { 0 } else { lanes },
         bytes: total,
         bytes_per_texel: if texels > 0 { total as f64 / texels as f64 } else { 0.0 },
@@ -406,6 +425,40 @@ mod tests {
         assert_eq!(metres(0.25), "0.250");
         assert_eq!(metres(1.5), "1.50");
         assert_eq!(metres(12.0), "12.0");
+    }
+
+    /// A masked material's texture is copied once for the BVH, however many masked
+    /// materials share it, and the estimate counts that copy.
+    #[test]
+    fn masked_textures_are_counted_once() {
+        use crate::scene::{AlphaMode, Material, Texture, TextureRef};
+        let texture = Texture {
+            name: "leaves".into(),
+            width: 8,
+            height: 4,
+            rgba8: vec![[0; 4]; 32].into(),
+            srgb: true,
+            wrap_s: Default::default(),
+            wrap_t: Default::default(),
+        };
+        let masked = Material {
+            alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
+            base_color_texture: Some(TextureRef { texture: 0, tex_coord: 0 }),
+            ..Material::default()
+        };
+        let opaque = Material { alpha_mode: AlphaMode::Opaque, ..masked.clone() };
+        let scene = Scene {
+            materials: vec![masked.clone(), masked, opaque],
+            textures: vec![texture.clone(), texture],
+            ..Scene::default()
+        };
+        let traits = SceneTraits::LEAST.with_masks(&scene);
+        assert_eq!(traits.mask_texture_bytes, 32 * 4);
+        let config = BakeConfig::default();
+        let with = estimate_from_lod0(1000, None, &config, traits);
+        let without = estimate_from_lod0(1000, None, &config, SceneTraits::LEAST);
+        assert_eq!(with.bytes - without.bytes, 128);
+        assert_eq!(crate::reference::AlphaMasks::texture_bytes(&scene), 128);
     }
 
     #[test]

@@ -147,6 +147,11 @@ pub enum BakeError {
     )]
     UnplannedDirections { lod: u32, count: u64, directions: u64 },
     #[error(
+        "{count} of {texels} texels of LOD {lod} have non-finite irradiance (texel {first} is {value}): the light \
+         overflowed f32, as a point light almost touching a surface makes it; nothing was written"
+    )]
+    NonFiniteIrradiance { lod: u32, count: usize, texels: usize, first: usize, value: String },
+    #[error(
         "LOD {lod} would have {pixels} atlas pixels, more than texel ids can number ({max}); use fewer --lods or a larger --texel-size"
     )]
     LodTooLarge { lod: u32, pixels: u64, max: u64 },
@@ -242,7 +247,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
     let mut lods: Vec<BakedLod> = Vec::new();
     match config.backend {
         BackendKind::Reference => {
-            report.memory = check_memory(&atlas, config, memory::SceneTraits::LEAST)?;
+            report.memory = check_memory(&atlas, config, memory::SceneTraits::LEAST.with_masks(scene))?;
             let backend = reference::ReferenceBackend::new(scene, config);
             report.memory.resident_at_start = memory::resident_bytes();
             for lod in 0..config.lods {
@@ -250,6 +255,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 let texels = TexelMap::build(scene, &geom, &atlas, lod);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let (irradiance, stats) = backend.bake_lod(&texels, progress);
+                check_finite(lod, &irradiance)?;
                 report.lods.push(LodReport::new(&texels, texel_seconds, &stats, &irradiance, None));
                 lods.push(BakedLod { texels, irradiance });
             }
@@ -294,6 +300,7 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
                 ) else {
                     unreachable!("an offline bake is never cancelled")
                 };
+                check_finite(lod, &irradiance)?;
                 if bstats.pass.unplanned_directions > 0 {
                     let (count, directions) = (bstats.pass.unplanned_directions, bstats.directions);
                     return Err(BakeError::UnplannedDirections { lod, count, directions });
@@ -329,6 +336,15 @@ impl BakeConfig {
         self.bundle_config().validate()?;
         Ok(())
     }
+}
+
+/// Refuses a baked LOD with a non-finite texel: written out, it would poison every
+/// consumer of the map (a mean of infinity, NaN in an engine's shader).
+pub fn check_finite(lod: u32, irradiance: &[Rgb]) -> Result<(), BakeError> {
+    let mut bad = irradiance.iter().enumerate().filter(|(_, e)| !e.is_finite());
+    let Some((first, e)) = bad.next() else { return Ok(()) };
+    let count = 1 + bad.count();
+    Err(BakeError::NonFiniteIrradiance { lod, count, texels: irradiance.len(), first, value: format!("{e:?}") })
 }
 
 /// Refuses an atlas whose LODs 0 … `lods`−1 have more pixels than `u32` ids can number.
@@ -406,7 +422,8 @@ fn refuse_over_limit(
     if need > limit {
         // Texels scale as 1/texel size²: the size (or budget) that brings the texel part
         // within what is left, with 5% to spare.
-        let room = limit.saturating_sub(resident).saturating_sub(estimate.thread_bytes) as f64;
+        let fixed = estimate.thread_bytes.saturating_add(estimate.texture_bytes);
+        let room = limit.saturating_sub(resident).saturating_sub(fixed) as f64;
         let shrink = estimate.texel_bytes as f64 / room.max(1.0) * 1.05;
         let size = texel_size.map(|t| memory::metres(t as f64 * shrink.sqrt()));
         let mut advice = if room < 1.0 {
@@ -462,4 +479,30 @@ pub struct BackendStats {
     /// over directions (bundles).
     pub rays: u64,
     pub seconds: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The light ceiling (`scene::radiometry`) is derived for the most directions and
+    /// batches a bake can take.
+    #[test]
+    fn the_light_ceiling_covers_the_longest_bake() {
+        use crate::scene::radiometry::{MOST_BATCHES, MOST_DIRECTIONS};
+        assert_eq!(MAX_SAMPLES as f64, MOST_DIRECTIONS);
+        assert_eq!((MAX_SAMPLES / crate::bundle::MIN_BATCH_SIZE) as f64, MOST_BATCHES);
+    }
+
+    #[test]
+    fn non_finite_texels_are_counted_and_named() {
+        let mut e = vec![Rgb::ONE; 10];
+        assert!(check_finite(0, &e).is_ok());
+        e[3].y = f32::NAN;
+        e[7].x = f32::INFINITY;
+        let Err(BakeError::NonFiniteIrradiance { lod, count, texels, first, .. }) = check_finite(2, &e) else {
+            panic!("non-finite texels passed")
+        };
+        assert_eq!((lod, count, texels, first), (2, 2, 10, 3));
+    }
 }

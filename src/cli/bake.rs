@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use livebake::bake::{BakeConfig, BakeOutput, bake};
 use livebake::export::{ExportOptions, export_gltf};
 use livebake::output::{irradiance_image, write_json, write_lightmaps};
-use livebake::scene::{LoadOptions, Scene, load_gltf};
+use livebake::scene::{Scene, load_gltf};
 
 use super::SceneOptions;
 use super::progress::Ui;
@@ -24,10 +24,12 @@ fn default_samples(backend: Backend) -> u32 {
     }
 }
 
-pub fn load_scene(path: &Path, options: &SceneOptions) -> Result<(Arc<Scene>, f64)> {
+/// Loads the scene with the options' file and texture limits (`memory_limit`: `--memory-limit`,
+/// where the command has one) and their sky, refusing a sky too bright for the scene's sums.
+pub fn load_scene(path: &Path, options: &SceneOptions, memory_limit: Option<u64>) -> Result<(Arc<Scene>, f64)> {
     let t0 = Instant::now();
-    let mut scene = load_gltf(path, &LoadOptions::default()).context("cannot load the scene")?;
-    scene.sky = options.sky;
+    let mut scene = load_gltf(path, &options.load_options(memory_limit)).context("cannot load the scene")?;
+    scene.set_sky(options.sky).context("--sky")?;
     Ok((Arc::new(scene), t0.elapsed().as_secs_f64()))
 }
 
@@ -41,7 +43,7 @@ pub fn run(
 ) -> Result<()> {
     // The light maps, their previews and the export read no texel positions.
     let config = BakeConfig { memory_limit, keep_texel_positions: false, ..options.bake_config(default_samples)? };
-    let (scene, load_seconds) = load_scene(scene_path, options)?;
+    let (scene, load_seconds) = load_scene(scene_path, options, memory_limit)?;
     tracing::info!(
         "loaded {}: {} meshes, {} triangles, {} lights in {:.2} s",
         scene_path.display(),
@@ -56,7 +58,8 @@ pub fn run(
     if let Some(gltf) = export {
         // The finest level baked.
         let lod = baked.lods.last().context("the bake produced no light-map level")?;
-        let report = export_gltf(&scene, &baked.atlas, &irradiance_image(lod), gltf, &ExportOptions::default())
+        let export = ExportOptions { load: options.load_options(memory_limit) };
+        let report = export_gltf(&scene, &baked.atlas, &irradiance_image(lod), gltf, &export)
             .with_context(|| format!("cannot export {}", gltf.display()))?;
         files.extend([report.gltf, report.bin, report.hdr, report.png]);
     }

@@ -140,17 +140,18 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     let limits = Limits { until: converge.until, budget: converge.budget, max_directions: config.samples as u64 };
     // Files first: a bad one fails before any work.
     let file_reference = converge.reference.as_deref().map(read_reference).transpose()?;
-    let points = converge.points.as_deref().map(|p| read_points(p).map(|(_, q)| q)).transpose()?;
+    let points = converge.points.as_deref().map(|p| read_points(p).map(|f| f.queries)).transpose()?;
     if let (Some(reference), Some(points)) = (&file_reference, &points) {
         same_points(reference, converge.reference.as_deref(), points, converge.points.as_deref())?;
     }
 
-    let (scene, _) = load_scene(scene_path, options)?;
+    let (scene, _) = load_scene(scene_path, options, None)?;
     let geom = Arc::new(SceneGeometry::new(&scene));
     let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas).map_err(BakeError::from)?);
     check_lod_sizes(&atlas, 1)?;
     // As `bake` does (one LOD; a light pass assumed: the estimate bounds the bake's part).
-    check_memory(&atlas, &BakeConfig { lods: 1, ..config.clone() }, livebake::bake::memory::SceneTraits::MOST)?;
+    let traits = livebake::bake::memory::SceneTraits::MOST.with_masks(&scene);
+    check_memory(&atlas, &BakeConfig { lods: 1, ..config.clone() }, traits)?;
     let texels = TexelMap::build(&scene, &geom, &atlas, 0);
     let bvh = Bvh::for_scene(&scene, &geom);
     check_node_capacity(&bvh, &config.bundle_config())?;
@@ -238,6 +239,16 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     }
     let (steps, stop) = (run.steps, run.stop);
     let last = *steps.last().context("the bake ran no batch")?;
+    if let Some(s) = steps.iter().find(|s| !s.rel_rms.is_finite()) {
+        bail!(
+            "the error after {} directions is {} (the light overflowed f32); nothing was written",
+            s.directions,
+            s.rel_rms
+        );
+    }
+    if reference.e.iter().any(|e| !e.is_finite()) {
+        bail!("the reference has non-finite irradiance (the light overflowed f32); nothing was written");
+    }
 
     std::fs::create_dir_all(&converge.out)
         .with_context(|| format!("cannot create output directory {}", converge.out.display()))?;

@@ -7,7 +7,7 @@ use livebake::atlas::AtlasConfig;
 use livebake::bake::{BackendKind, BakeConfig};
 use livebake::bundle::tiles::TilingMode;
 use livebake::bundle::{BundleConfig, Lanes};
-use livebake::scene::Rgb;
+use livebake::scene::{DEFAULT_MAX_TEXTURE_PIXELS, LoadOptions, Rgb};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Backend {
@@ -61,6 +61,14 @@ pub struct SceneOptions {
     /// Ignore TEXCOORD_1 and unwrap every mesh.
     #[arg(long)]
     pub no_uv1: bool,
+    /// Let the scene read buffer and image files outside its folder (URIs with `..` leading
+    /// out, absolute paths, symbolic links pointing out). Without it such a URI is refused.
+    #[arg(long)]
+    pub allow_outside_files: bool,
+    /// Most pixels one texture may have, read from the image's header before it is decoded;
+    /// a larger texture is refused.
+    #[arg(long, value_name = "N", default_value_t = DEFAULT_MAX_TEXTURE_PIXELS)]
+    pub max_texture_pixels: u64,
     #[command(flatten)]
     pub bundle: BundleOptions,
 }
@@ -138,6 +146,8 @@ impl Default for SceneOptions {
             seed: 0,
             threads: None,
             no_uv1: false,
+            allow_outside_files: false,
+            max_texture_pixels: DEFAULT_MAX_TEXTURE_PIXELS,
             bundle: BundleOptions::default(),
         }
     }
@@ -157,6 +167,18 @@ fn parse_rgb(s: &str) -> Result<Rgb, String> {
 }
 
 impl SceneOptions {
+    /// How the scene is loaded: the files it may read and its textures' limits, their
+    /// decoded pixels held to `memory_limit` (`--memory-limit`; default 3/4 of the machine's
+    /// memory, the bake's own guard).
+    pub fn load_options(&self, memory_limit: Option<u64>) -> LoadOptions {
+        LoadOptions {
+            allow_outside_files: self.allow_outside_files,
+            max_texture_pixels: self.max_texture_pixels,
+            texture_memory_limit: Some(livebake::bake::memory::memory_limit(memory_limit).0),
+            ..LoadOptions::default()
+        }
+    }
+
     /// The bake config; `default_samples(backend)` gives the sample count when --samples is absent.
     pub fn bake_config(&self, default_samples: impl Fn(Backend) -> u32) -> Result<BakeConfig> {
         if let Some(t) = self.texel_size

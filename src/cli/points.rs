@@ -1,18 +1,32 @@
 //! Point files: `{"points":[{"p":[x,y,z],"n":[x,y,z]}, ...]}` in, the same list out with
 //! `"E":[r,g,b]` (or `"error"`) added to each point. Shared by `probe`, `run --points` and
 //! `converge`.
+//!
+//! Both directions stream: reading keeps each point's query (24 B) and nothing of the
+//! document, and is refused past [`MAX_POINTS`]; writing reads the file again, one point at a
+//! time, and writes it back with its result and every field the user gave. So a file costs
+//! its queries and results (~50 MB at the most), never a document tree of it (a 250 MB file
+//! of 10 million points had taken 11 GB).
 
-use std::path::Path;
+use std::fmt;
+use std::io::{BufReader, Write};
+use std::marker::PhantomData;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use glam::{DVec3, Vec3};
-use serde_json::{Value, json};
+use serde::Deserialize;
+use serde::de::{self, DeserializeSeed, Deserializer, MapAccess, SeqAccess, Visitor};
+use serde_json::{Map, Value, json};
 
 use livebake::probe::ProbeError;
 use livebake::reference::RelativeRmsError;
 use livebake::scene::Rgb;
 
 use super::progress::Ui;
+
+/// Most points a points file may hold: a dense probe grid (references have hundreds).
+pub const MAX_POINTS: usize = 1 << 20;
 
 /// A query point and the normal of the side it asks about.
 #[derive(Clone, Copy, Debug)]
@@ -21,35 +35,121 @@ pub struct Query {
     pub n: Vec3,
 }
 
+/// The fields of a point that are read; every other one is skipped while reading (and kept
+/// when writing back).
+#[derive(Deserialize)]
+struct RawPoint {
+    p: Option<Value>,
+    n: Option<Value>,
+    #[serde(rename = "E")]
+    e: Option<Value>,
+    #[serde(rename = "E_stderr")]
+    e_stderr: Option<Value>,
+    error: Option<Value>,
+}
+
 /// `"key": [a, b, c]` of a point; `None` when the point has no such key.
-fn triple_field(point: &Value, key: &str, index: usize) -> Result<Option<DVec3>> {
-    let Some(value) = point.get(key) else { return Ok(None) };
+fn triple(value: Option<&Value>, key: &str, index: usize) -> Result<Option<DVec3>, String> {
+    let Some(value) = value else { return Ok(None) };
     let numbers: Option<Vec<f64>> = value.as_array().and_then(|a| a.iter().map(Value::as_f64).collect());
     match numbers.as_deref() {
         Some(&[a, b, c]) => Ok(Some(DVec3::new(a, b, c))),
-        _ => bail!("point {index}: \"{key}\" must be three numbers, got {value}"),
+        _ => Err(format!("point {index}: \"{key}\" must be three numbers, got {value}")),
     }
 }
 
-fn vec3_field(point: &Value, key: &str, index: usize) -> Result<Vec3> {
-    let v = triple_field(point, key, index)?.with_context(|| format!("point {index}: missing \"{key}\": [x, y, z]"))?;
+fn vec3(value: Option<&Value>, key: &str, index: usize) -> Result<Vec3, String> {
+    let v = triple(value, key, index)?.ok_or_else(|| format!("point {index}: missing \"{key}\": [x, y, z]"))?;
     Ok(v.as_vec3())
 }
 
-/// The document (kept to write back with every field the user gave) and its queries.
-pub fn read_points(path: &Path) -> Result<(Value, Vec<Query>)> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read points file {}", path.display()))?;
-    let doc: Value = serde_json::from_str(&text).with_context(|| format!("{} is not valid JSON", path.display()))?;
-    let list = doc.get("points").and_then(Value::as_array).with_context(|| {
-        format!("{}: expected {{\"points\": [{{\"p\": [x,y,z], \"n\": [x,y,z]}}, ...]}}", path.display())
-    })?;
-    let queries = list
-        .iter()
-        .enumerate()
-        .map(|(i, pt)| Ok(Query { p: vec3_field(pt, "p", i)?, n: vec3_field(pt, "n", i)? }))
-        .collect::<Result<Vec<_>>>()
-        .with_context(|| format!("in {}", path.display()))?;
-    Ok((doc, queries))
+/// What one point of a file becomes.
+trait FromPoint: Sized {
+    fn from_point(raw: RawPoint, index: usize) -> Result<Self, String>;
+}
+
+impl FromPoint for Query {
+    fn from_point(raw: RawPoint, index: usize) -> Result<Self, String> {
+        Ok(Query { p: vec3(raw.p.as_ref(), "p", index)?, n: vec3(raw.n.as_ref(), "n", index)? })
+    }
+}
+
+/// A reference point: the query, E and its standard error.
+struct ReferencePoint {
+    query: Query,
+    e: DVec3,
+    stderr: DVec3,
+}
+
+impl FromPoint for ReferencePoint {
+    fn from_point(raw: RawPoint, index: usize) -> Result<Self, String> {
+        let e = triple(raw.e.as_ref(), "E", index)?.ok_or_else(|| match &raw.error {
+            Some(why) => format!("point {index} has no \"E\" (the reference reports {why})"),
+            None => format!("point {index}: missing \"E\": [r, g, b]"),
+        })?;
+        let stderr = triple(raw.e_stderr.as_ref(), "E_stderr", index)?.unwrap_or(DVec3::ZERO);
+        let query = Query::from_point(raw, index)?;
+        Ok(ReferencePoint { query, e, stderr })
+    }
+}
+
+/// The `points` array, read one element at a time.
+struct PointList<T>(Vec<T>);
+
+impl<'de, T: FromPoint> Deserialize<'de> for PointList<T> {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct List<T>(PhantomData<T>);
+        impl<'de, T: FromPoint> Visitor<'de> for List<T> {
+            type Value = PointList<T>;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a list of points")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+                let mut out = Vec::new();
+                while let Some(raw) = seq.next_element::<RawPoint>()? {
+                    if out.len() == MAX_POINTS {
+                        return Err(de::Error::custom(format!(
+                            "more than {MAX_POINTS} points, the most a points file may hold"
+                        )));
+                    }
+                    out.push(T::from_point(raw, out.len()).map_err(de::Error::custom)?);
+                }
+                Ok(PointList(out))
+            }
+        }
+        deserializer.deserialize_seq(List(PhantomData))
+    }
+}
+
+/// The document: its `points`, every other field skipped.
+#[derive(Deserialize)]
+#[serde(bound = "T: FromPoint")]
+struct PointsDoc<T> {
+    points: PointList<T>,
+}
+
+const FORMAT: &str = "expected {\"points\": [{\"p\": [x,y,z], \"n\": [x,y,z]}, ...]}";
+
+fn read_list<T: FromPoint>(path: &Path) -> Result<Vec<T>> {
+    let file = std::fs::File::open(path).with_context(|| format!("cannot read points file {}", path.display()))?;
+    let mut de = serde_json::Deserializer::from_reader(BufReader::new(file));
+    let doc = PointsDoc::<T>::deserialize(&mut de).and_then(|d| de.end().map(|()| d));
+    match doc {
+        Ok(doc) => Ok(doc.points.0),
+        Err(e) if e.is_data() => bail!("{}: {e} ({FORMAT})", path.display()),
+        Err(e) if e.is_io() => bail!("cannot read points file {}: {e}", path.display()),
+        Err(e) => bail!("{} is not valid JSON: {e}", path.display()),
+    }
+}
+
+/// A points file: where it is (its points are written back from it) and its queries.
+pub struct PointsFile {
+    pub path: PathBuf,
+    pub queries: Vec<Query>,
+}
+
+pub fn read_points(path: &Path) -> Result<PointsFile> {
+    Ok(PointsFile { path: path.to_path_buf(), queries: read_list(path)? })
 }
 
 /// A reference in probe's output format: points with `"E"` (W/m²) and optionally
@@ -61,24 +161,12 @@ pub struct ReferencePoints {
 }
 
 pub fn read_reference(path: &Path) -> Result<ReferencePoints> {
-    let (doc, queries) = read_points(path)?;
-    let list = doc.get("points").and_then(Value::as_array).map(Vec::as_slice).unwrap_or_default();
-    let mut reference = ReferencePoints { queries, e: Vec::new(), stderr: Vec::new() };
-    for (i, pt) in list.iter().enumerate() {
-        let (e, stderr) = reference_values(pt, i).with_context(|| format!("in reference {}", path.display()))?;
-        reference.e.push(e);
-        reference.stderr.push(stderr);
-    }
-    Ok(reference)
-}
-
-/// A reference point's E and its standard error.
-fn reference_values(point: &Value, index: usize) -> Result<(DVec3, DVec3)> {
-    let e = triple_field(point, "E", index)?.with_context(|| match point.get("error") {
-        Some(why) => format!("point {index} has no \"E\" (the reference reports {why})"),
-        None => format!("point {index}: missing \"E\": [r, g, b]"),
-    })?;
-    Ok((e, triple_field(point, "E_stderr", index)?.unwrap_or(DVec3::ZERO)))
+    let list: Vec<ReferencePoint> = read_list(path).with_context(|| format!("in reference {}", path.display()))?;
+    Ok(ReferencePoints {
+        queries: list.iter().map(|r| r.query).collect(),
+        e: list.iter().map(|r| r.e).collect(),
+        stderr: list.iter().map(|r| r.stderr).collect(),
+    })
 }
 
 impl ReferencePoints {
@@ -93,22 +181,127 @@ impl ReferencePoints {
     }
 }
 
-/// Adds each result to its point and writes the document to `out` (stdout when `None`).
-pub fn write_results(doc: &mut Value, results: &[Result<Rgb, ProbeError>], out: Option<&Path>, ui: &Ui) -> Result<()> {
-    if let Some(list) = doc.get_mut("points").and_then(Value::as_array_mut) {
-        for (pt, r) in list.iter_mut().zip(results) {
-            match r {
-                Ok(e) => pt["E"] = json!([e.x, e.y, e.z]),
-                Err(err) => pt["error"] = json!(err.to_string()),
-            }
-        }
+/// Writes the points file `points` back with each result added to its point (`"E"` or
+/// `"error"`), to `out` (stdout when `None`), one point at a time; nothing is written when a
+/// result is not finite.
+pub fn write_results(
+    points: &PointsFile,
+    results: &[Result<Rgb, ProbeError>],
+    out: Option<&Path>,
+    ui: &Ui,
+) -> Result<()> {
+    let non_finite = results.iter().filter(|r| r.as_ref().is_ok_and(|e| !e.is_finite())).count();
+    if non_finite > 0 {
+        bail!(
+            "{non_finite} of {} points have non-finite irradiance (the light overflowed f32); nothing was written",
+            results.len()
+        );
     }
+    let copy = |w: &mut dyn Write| copy_with_results(&points.path, results, w);
     match out {
         Some(path) => {
-            livebake::output::write_json(path, doc)?;
+            livebake::output::write_stream(path, |w| copy(w))?;
             ui.say(format!("wrote {} ({} points)", path.display(), results.len()));
         }
-        None => println!("{}", serde_json::to_string_pretty(doc)?),
+        None => {
+            let stdout = std::io::stdout();
+            let mut w = std::io::BufWriter::new(stdout.lock());
+            copy(&mut w)?;
+            w.flush()?;
+        }
     }
     Ok(())
+}
+
+/// Reads `path` again and writes it to `w` with the results added, one point in memory at a
+/// time (the document's other fields as they are).
+fn copy_with_results(path: &Path, results: &[Result<Rgb, ProbeError>], w: &mut dyn Write) -> std::io::Result<()> {
+    let file = std::fs::File::open(path)?;
+    let mut de = serde_json::Deserializer::from_reader(BufReader::new(file));
+    let seed = DocumentCopy { results, out: w };
+    seed.deserialize(&mut de)
+        .and_then(|()| de.end())
+        .map_err(|e| std::io::Error::other(format!("{} changed while it was read again: {e}", path.display())))
+}
+
+/// Copies the top-level object, the `points` list through [`PointsCopy`].
+struct DocumentCopy<'a> {
+    results: &'a [Result<Rgb, ProbeError>],
+    out: &'a mut dyn Write,
+}
+
+fn io_error<E: de::Error>(e: std::io::Error) -> E {
+    E::custom(e)
+}
+
+impl<'de> DeserializeSeed<'de> for DocumentCopy<'_> {
+    type Value = ();
+    fn deserialize<D: Deserializer<'de>>(self, deserializer: D) -> Result<(), D::Error> {
+        deserializer.deserialize_map(self)
+    }
+}
+
+impl<'de> Visitor<'de> for DocumentCopy<'_> {
+    type Value = ();
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a points document")
+    }
+    fn visit_map<A: MapAccess<'de>>(self, mut map: A) -> Result<(), A::Error> {
+        let out = self.out;
+        out.write_all(b"{").map_err(io_error)?;
+        let mut first = true;
+        while let Some(key) = map.next_key::<String>()? {
+            let sep: &[u8] = if first { b"\n  " } else { b",\n  " };
+            first = false;
+            out.write_all(sep).map_err(io_error)?;
+            serde_json::to_writer(&mut *out, &key).map_err(de::Error::custom)?;
+            out.write_all(b": ").map_err(io_error)?;
+            if key == "points" {
+                map.next_value_seed(PointsCopy { results: self.results, out: &mut *out })?;
+            } else {
+                let value: Value = map.next_value()?;
+                serde_json::to_writer(&mut *out, &value).map_err(de::Error::custom)?;
+            }
+        }
+        out.write_all(b"\n}\n").map_err(io_error)
+    }
+}
+
+/// Copies the `points` list, adding each point's result.
+struct PointsCopy<'a> {
+    results: &'a [Result<Rgb, ProbeError>],
+    out: &'a mut dyn Write,
+}
+
+impl<'de> DeserializeSeed<'de> for PointsCopy<'_> {
+    type Value = ();
+    fn deserialize<D: Deserializer<'de>>(self, deserializer: D) -> Result<(), D::Error> {
+        deserializer.deserialize_seq(self)
+    }
+}
+
+impl<'de> Visitor<'de> for PointsCopy<'_> {
+    type Value = ();
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a list of points")
+    }
+    fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+        let out = self.out;
+        out.write_all(b"[").map_err(io_error)?;
+        let mut k = 0;
+        while let Some(mut point) = seq.next_element::<Map<String, Value>>()? {
+            let result = self.results.get(k).ok_or_else(|| de::Error::custom("it has more points than were read"))?;
+            match result {
+                Ok(e) => point.insert("E".into(), json!([e.x, e.y, e.z])),
+                Err(err) => point.insert("error".into(), json!(err.to_string())),
+            };
+            out.write_all(if k == 0 { b"\n    " } else { b",\n    " }).map_err(io_error)?;
+            serde_json::to_writer(&mut *out, &point).map_err(de::Error::custom)?;
+            k += 1;
+        }
+        if k != self.results.len() {
+            return Err(de::Error::custom("it has fewer points than were read"));
+        }
+        out.write_all(b"\n  ]").map_err(io_error)
+    }
 }

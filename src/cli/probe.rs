@@ -27,8 +27,9 @@ fn default_samples(backend: Backend) -> u32 {
 
 pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &SceneOptions, ui: &Ui) -> Result<()> {
     let config = options.bake_config(default_samples)?;
-    let (mut doc, queries) = read_points(points_path)?;
-    let (scene, _) = load_scene(scene_path, options)?;
+    let points = read_points(points_path)?;
+    let queries = &points.queries;
+    let (scene, _) = load_scene(scene_path, options, None)?;
     let results: Vec<Result<Rgb, ProbeError>> = match options.backend {
         Backend::Cpu | Backend::Gpu | Backend::Auto => {
             let baked = bake(&scene, &config, ui).with_context(|| format!("cannot bake {}", scene_path.display()))?;
@@ -62,6 +63,6 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
             located.into_iter().map(|l| l.map(|_| e.next().unwrap_or(Rgb::ZERO))).collect()
         }
     };
-    write_results(&mut doc, &results, out, ui)?;
+    write_results(&points, &results, out, ui)?;
     Ok(())
 }

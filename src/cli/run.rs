@@ -259,7 +259,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     {
         bail!("--export-gltf {}: the export must be a .gltf file name", out.display());
     }
-    let (scene, load_seconds) = load_scene(scene_path, options)?;
+    let (scene, load_seconds) = load_scene(scene_path, options, None)?;
     let interrupted = Arc::new(AtomicBool::new(false));
     // Ctrl-C ends the run early; the outputs are still written.
     let _ = signal_hook::flag::register(signal_hook::consts::SIGINT, interrupted.clone());
@@ -267,7 +267,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     let mut runtime = start_runtime(scene.clone(), config, options.backend)
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
     if run.watch {
-        let watch = WatchConfig { sky: options.sky, ..WatchConfig::default() };
+        let watch = WatchConfig { sky: options.sky, load: options.load_options(None), ..WatchConfig::default() };
         runtime.watch(scene_path, watch).with_context(|| format!("cannot watch {}", scene_path.display()))?;
     }
     // Outputs are made once the scene and the options have proved good (events wait in the
@@ -352,7 +352,17 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         bail!("the runtime failed on {}: {error}", scene_path.display());
     }
 
-    // Outputs.
+    // Outputs, none of them with a non-finite value: a sample is a blend of each layer's
+    // published pixels, so finite pixels whose largest values sum to a finite one keep every
+    // written map, export and point finite.
+    let non_finite = shown.non_finite_pixels();
+    if non_finite > 0 || !shown.max_irradiance().is_finite() {
+        bail!(
+            "the light map as shown has {non_finite} non-finite pixel(s) or sums beyond f32 (the light overflowed f32, \
+             as a point light almost touching a surface makes it); nothing was written to {}",
+            run.out.display()
+        );
+    }
     let mut written = Vec::new();
     for lod in 0..shown.lods() {
         let Some(rect) = shown.published_rect(lod) else { continue };
@@ -381,7 +391,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     });
     write_json(&run.out.join("cells.json"), &cells_json)?;
     let export = match &run.export_gltf {
-        Some(out) => Some(export_shown(&world, &shown, out)?),
+        Some(out) => Some(export_shown(&world, &shown, out, &ExportOptions { load: options.load_options(None) })?),
         None => None,
     };
     let report = json!({
@@ -416,9 +426,10 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         })),
     });
     write_json(&run.out.join("report.json"), &report)?;
-    if let (Some((mut doc, queries)), Some(out)) = (points, run.points_out.as_deref()) {
+    if let (Some(points), Some(out)) = (points, run.points_out.as_deref()) {
         let locator = SurfaceLocator::new(&world.geom, &world.bvh);
-        let results: Vec<Result<Rgb, ProbeError>> = queries
+        let results: Vec<Result<Rgb, ProbeError>> = points
+            .queries
             .iter()
             .map(|q| {
                 let at = locator.locate(q.p, q.n)?;
@@ -427,7 +438,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
                 Ok(shown.irradiance(world.geom.point(at.tri, at.u, at.v), uv))
             })
             .collect();
-        write_results(&mut doc, &results, Some(out), ui)?;
+        write_results(&points, &results, Some(out), ui)?;
     }
     log.write(t_end, &json!({"event": "finished", "stats": stats}))?;
     log.flush()?;
@@ -440,7 +451,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
 
 /// The glTF export of the light map as shown at the end of the run: resampled at the finest
 /// LOD any cell shows, capped at [`resample::MAX_EXPORT_PIXELS`] (`runtime::resample`).
-fn export_shown(world: &World, shown: &ShownLightmap, out: &Path) -> Result<ExportReport> {
+fn export_shown(world: &World, shown: &ShownLightmap, out: &Path, options: &ExportOptions) -> Result<ExportReport> {
     let lod = resample::export_lod(shown, resample::MAX_EXPORT_PIXELS);
     let finest = shown.finest_lod();
     if lod < finest {
@@ -450,7 +461,7 @@ fn export_shown(world: &World, shown: &ShownLightmap, out: &Path) -> Result<Expo
         );
     }
     let image = resample::shown_image(world, shown, lod);
-    export_gltf(&world.scene, &world.atlas, &image, out, &ExportOptions::default())
+    export_gltf(&world.scene, &world.atlas, &image, out, options)
         .with_context(|| format!("cannot export {}", out.display()))
 }
 

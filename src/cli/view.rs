@@ -131,7 +131,7 @@ pub fn run_on(
         anyhow::bail!("--frames must be at least 1");
     }
     let config = runtime_config(options, &view.runtime)?;
-    let (scene, _) = load_scene(scene_path, options)?;
+    let (scene, _) = load_scene(scene_path, options, None)?;
     let display = match display {
         Some(d) => d,
         None => ViewerLoop::open()?,
@@ -139,7 +139,7 @@ pub fn run_on(
     let mut runtime = super::run::start_runtime(scene, config, options.backend)
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
     if !view.no_watch {
-        let watch = WatchConfig { sky: options.sky, ..WatchConfig::default() };
+        let watch = WatchConfig { sky: options.sky, load: options.load_options(None), ..WatchConfig::default() };
         runtime.watch(scene_path, watch).with_context(|| format!("cannot watch {}", scene_path.display()))?;
     }
     let mut source = RuntimeLight::new(runtime);

@@ -97,7 +97,7 @@ impl SceneGpu {
                 name: "white".into(),
                 width: 1,
                 height: 1,
-                rgba8: vec![[255; 4]],
+                rgba8: vec![[255; 4]].into(),
                 srgb: false,
                 wrap_s: WrapMode::Repeat,
                 wrap_t: WrapMode::Repeat,
@@ -209,7 +209,7 @@ fn mip_chain(t: &Texture) -> (u32, Vec<[u8; 4]>) {
         };
         [channel(c.x), channel(c.y), channel(c.z), (c.w.clamp(0.0, 1.0) * 255.0 + 0.5) as u8]
     };
-    let mut data = t.rgba8.clone();
+    let mut data = t.rgba8.to_vec();
     let mut level: Vec<Vec4> = (0..t.height).flat_map(|y| (0..t.width).map(move |x| t.texel(x, y))).collect();
     let (mut w, mut h, mut count) = (t.width, t.height, 1);
     while w > 1 || h > 1 {

@@ -39,17 +39,35 @@ fn alpha_only(t: &Texture) -> Texture {
 }
 
 impl AlphaMasks {
+    /// Bytes of the alpha-only textures [`AlphaMasks::new`] makes of `scene`: one copy of
+    /// each texture a masked material reads its alpha from.
+    pub fn texture_bytes(scene: &Scene) -> u64 {
+        let mut textures: Vec<usize> = scene
+            .materials
+            .iter()
+            .filter(|m| matches!(m.alpha_mode, AlphaMode::Mask { .. }))
+            .filter_map(|m| m.base_color_texture.map(|t| t.texture))
+            .collect();
+        textures.sort_unstable();
+        textures.dedup();
+        textures.iter().filter_map(|&t| scene.textures.get(t)).map(|t| t.rgba8.len() as u64 * 4).sum()
+    }
+
     /// Collects the masked triangles of `scene` (as laid out by `geom`).
     pub fn new(scene: &Scene, geom: &SceneGeometry) -> AlphaMasks {
         let mut out = AlphaMasks::default();
         let mut local_material = vec![NONE; scene.materials.len()];
+        // One alpha-only copy per texture, however many masked materials use it.
+        let mut local_texture = std::collections::HashMap::new();
         for (mi, m) in scene.materials.iter().enumerate() {
             let AlphaMode::Mask { cutoff } = m.alpha_mode else { continue };
             let mut material = m.clone();
             material.emissive_texture = None;
             if let Some(t) = material.base_color_texture.as_mut() {
-                out.textures.push(alpha_only(&scene.textures[t.texture]));
-                t.texture = out.textures.len() - 1;
+                t.texture = *local_texture.entry(t.texture).or_insert_with(|| {
+                    out.textures.push(alpha_only(&scene.textures[t.texture]));
+                    out.textures.len() - 1
+                });
             }
             local_material[mi] = out.materials.len() as u32;
             out.materials.push(MaskMaterial { material, cutoff });

@@ -440,6 +440,15 @@ impl ShownLightmap {
         }))
     }
 
+    /// Published pixels (of either layer, any LOD) holding a non-finite value.
+    pub fn non_finite_pixels(&self) -> usize {
+        let pages = self
+            .layers
+            .iter()
+            .flat_map(|l| l.levels.iter().flat_map(|level| level.rows.iter().flat_map(|row| row.iter().flatten())));
+        pages.flat_map(|p| p.texels.iter()).filter(|t| t[3] > 0.0 && !t[..3].iter().all(|v| v.is_finite())).count()
+    }
+
     /// Cells shown at each LOD in `layer`.
     pub fn cells_per_lod(&self, layer: Layer) -> Vec<usize> {
         let l = &self.layers[layer as usize];

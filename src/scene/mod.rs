@@ -7,6 +7,7 @@
 pub mod builder;
 pub mod geometry;
 pub mod gltf;
+pub mod radiometry;
 pub mod texture;
 
 use std::path::PathBuf;
@@ -16,8 +17,8 @@ use glam::{Quat, Vec2, Vec3, Vec4};
 pub use builder::SceneBuilder;
 pub use geometry::{SceneGeometry, TriangleId};
 pub use gltf::{
-    ExternalFile, ExternalKind, LoadError, LoadOptions, SourceDocument, SourceImage, external_files, load_gltf,
-    load_gltf_bytes, read_source,
+    DEFAULT_MAX_TEXTURE_PIXELS, ExternalFile, ExternalKind, LoadError, LoadOptions, SourceDocument, SourceImage,
+    external_files, load_gltf, load_gltf_bytes, read_scene_file, read_source,
 };
 pub use texture::{Texture, TextureRef, WrapMode};
 
@@ -337,6 +338,29 @@ impl Scene {
 
     pub fn material_of(&self, mesh: &Mesh) -> &Material {
         &self.materials[mesh.material as usize]
+    }
+
+    /// The area its triangles cover (one side each), m².
+    pub fn surface_area(&self) -> f64 {
+        let area = |m: &Mesh, t: usize| {
+            let [a, b, c] = m.corners(t).map(|p| p.as_dvec3());
+            (b - a).cross(c - a).length() / 2.0
+        };
+        self.meshes.iter().map(|m| (0..m.triangles.len()).map(|t| area(m, t)).sum::<f64>()).sum()
+    }
+
+    /// The brightest light its estimator's sums can hold ([`radiometry`]).
+    pub fn light_ceiling(&self) -> radiometry::LightCeiling {
+        radiometry::LightCeiling::for_area(self.surface_area())
+    }
+
+    /// Sets the sky radiance, refusing one too bright for the scene's sums (see
+    /// [`radiometry`]).
+    pub fn set_sky(&mut self, sky: Rgb) -> Result<(), radiometry::TooBright> {
+        let c = self.light_ceiling();
+        c.check(|| "the sky radiance".into(), sky.max_element() as f64, c.radiance(), "W/(sr·m²)")?;
+        self.sky = sky;
+        Ok(())
     }
 
     /// World-space bounds of all mesh vertices (`None` for an empty scene).

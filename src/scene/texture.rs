@@ -1,5 +1,7 @@
 //! Decoded material textures and bilinear sampling.
 
+use std::sync::Arc;
+
 use glam::{Vec2, Vec4};
 
 /// How texture coordinates outside [0, 1] are folded back (glTF sampler wrap modes).
@@ -27,8 +29,9 @@ pub struct Texture {
     pub name: String,
     pub width: u32,
     pub height: u32,
-    /// Row-major, top row first (glTF UV (0,0) is the top-left corner).
-    pub rgba8: Vec<[u8; 4]>,
+    /// Row-major, top row first (glTF UV (0,0) is the top-left corner). Shared by the
+    /// textures of one image (and by copies of the scene).
+    pub rgba8: Arc<[[u8; 4]]>,
     pub srgb: bool,
     pub wrap_s: WrapMode,
     pub wrap_t: WrapMode,
@@ -116,7 +119,7 @@ mod tests {
             name: "c".into(),
             width: 2,
             height: 2,
-            rgba8: vec![[255, 255, 255, 255], [0, 0, 0, 255], [0, 0, 0, 255], [255, 255, 255, 255]],
+            rgba8: vec![[255, 255, 255, 255], [0, 0, 0, 255], [0, 0, 0, 255], [255, 255, 255, 255]].into(),
             srgb: true,
             wrap_s: WrapMode::Repeat,
             wrap_t: WrapMode::Repeat,
@@ -130,7 +133,7 @@ mod tests {
         assert_eq!(t.sample(Vec2::new(0.75, 0.25)), Vec4::new(0.0, 0.0, 0.0, 1.0));
         // sRGB 188/255 decodes to ~0.5 linear.
         let mut g = checker();
-        g.rgba8 = vec![[188, 188, 188, 255]; 4];
+        g.rgba8 = vec![[188, 188, 188, 255]; 4].into();
         assert!((g.sample(Vec2::splat(0.5)).x - 0.5029).abs() < 1e-3);
     }
 

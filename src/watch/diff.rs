@@ -521,7 +521,7 @@ mod tests {
             name: "t".into(),
             width: 2,
             height: 1,
-            rgba8: vec![[255, 0, 0, 255], [0, 255, 0, 255]],
+            rgba8: vec![[255, 0, 0, 255], [0, 255, 0, 255]].into(),
             srgb: true,
             wrap_s: WrapMode::Repeat,
             wrap_t: WrapMode::Repeat,
@@ -531,7 +531,7 @@ mod tests {
         old.materials[1].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
         let mut new = old.clone();
         assert!(SceneDiff::between(&old, &new).is_empty());
-        new.textures[0].rgba8[1] = [0, 254, 0, 255];
+        new.textures[0].rgba8 = vec![[255, 0, 0, 255], [0, 254, 0, 255]].into();
         let d = SceneDiff::between(&old, &new);
         assert!(d.materials_changed);
         assert_eq!(d.changed.iter().map(|c| c.new).collect::<Vec<_>>(), vec![1]);

@@ -14,7 +14,7 @@ use notify_debouncer_full::notify::{self, EventKind, RecursiveMode};
 use notify_debouncer_full::{DebounceEventResult, Debouncer, RecommendedCache, new_debouncer};
 
 use super::files::{self, Mismatch, SceneFiles};
-use crate::scene::{LoadError, LoadOptions, Rgb, Scene, external_files, load_gltf_bytes};
+use crate::scene::{LoadError, LoadOptions, Rgb, Scene, external_files, load_gltf_bytes, read_scene_file};
 
 /// How the watcher waits before and while loading. See the module documentation.
 #[derive(Clone, Debug)]
@@ -127,8 +127,8 @@ impl SceneWatcher {
         std::fs::read_dir(&dir).map_err(|source| WatchError::Directory { path: dir.clone(), source })?;
         // The current document names the files to watch; when it cannot be read now, the
         // first good save will.
-        if let Ok(bytes) = std::fs::read(&files.scene)
-            && let Ok(external) = external_files(&files.scene, &bytes)
+        if let Ok(bytes) = read_scene_file(&files.scene)
+            && let Ok(external) = external_files(&files.scene, &bytes, &config.load)
         {
             files.set_external(external);
         }
@@ -440,14 +440,16 @@ fn look(files: &mut SceneFiles, config: &WatchConfig, settle_deadline: Instant) 
     };
 
     let scene_before = files::stamp(&files.scene);
-    let bytes = match std::fs::read(&files.scene) {
+    let bytes = match read_scene_file(&files.scene) {
         Ok(b) => b,
         Err(e) => {
-            let message = format!("{}: cannot read the scene file: {e}", files.scene.display());
+            let message = format!("cannot read the scene file: {}", error_chain(&e));
             return incomplete(Mismatch { path: files.scene.clone(), message });
         }
     };
-    match external_files(&files.scene, &bytes) {
+    // The same confinement as the load: a document naming a file outside the scene's folder
+    // fails here, before its directory would be watched.
+    match external_files(&files.scene, &bytes, &config.load) {
         Ok(external) => files.set_external(external),
         // Still being written: its next events will say when it is done.
         Err(_) if files::stamp(&files.scene) != scene_before => return retry_soon,

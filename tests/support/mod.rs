@@ -4,6 +4,7 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
 
 use serde_json::{Value, json};
 
@@ -251,4 +252,146 @@ pub fn cube(s: f32) -> (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u16>) {
         idx.extend([base, base + 1, base + 2, base, base + 2, base + 3]);
     }
     (p, n, idx)
+}
+
+/// A `width × height` PNG of one-bit grey pixels, all black: a decompression bomb (a few
+/// hundred kB that decode to `width × height` pixels). Written by hand: no encoder here
+/// writes one-bit PNGs. The pixel rows (a filter byte and `width / 8` zero bytes each) are
+/// one deflate block of fixed Huffman codes: a literal zero, then copies of 258 bytes at
+/// distance 1.
+pub fn png_bomb(width: u32, height: u32) -> Vec<u8> {
+    let raw_len = height as u64 * (1 + width.div_ceil(8) as u64);
+    let mut bits = BitWriter::default();
+    bits.put(1, 1); // last block
+    bits.put(1, 2); // fixed Huffman codes
+    let (literal_zero, length_258, distance_1, end) = ((0x30, 8), (0xC5, 8), (0, 5), (0, 7));
+    bits.code(literal_zero);
+    let mut left = raw_len - 1;
+    while left >= 258 {
+        bits.code(length_258);
+        bits.code(distance_1);
+        left -= 258;
+    }
+    for _ in 0..left {
+        bits.code(literal_zero);
+    }
+    bits.code(end);
+    let mut zlib = vec![0x78, 0x01];
+    zlib.extend(bits.finish());
+    // Adler-32 of zeros: a stays 1, b adds it once a byte.
+    let adler = ((raw_len % 65521) << 16 | 1) as u32;
+    zlib.extend(adler.to_be_bytes());
+
+    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = Vec::new();
+    ihdr.extend(width.to_be_bytes());
+    ihdr.extend(height.to_be_bytes());
+    ihdr.extend([1, 0, 0, 0, 0]); // bit depth 1, grey, deflate, adaptive filters, no interlace
+    png_chunk(&mut out, b"IHDR", &ihdr);
+    png_chunk(&mut out, b"IDAT", &zlib);
+    png_chunk(&mut out, b"IEND", &[]);
+    out
+}
+
+fn png_chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
+    out.extend((data.len() as u32).to_be_bytes());
+    let start = out.len();
+    out.extend(kind);
+    out.extend(data);
+    let crc = crc32(&out[start..]);
+    out.extend(crc.to_be_bytes());
+}
+
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in bytes {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 { 0xEDB8_8320 ^ (crc >> 1) } else { crc >> 1 };
+        }
+    }
+    !crc
+}
+
+/// Deflate's bit order: values least significant bit first, Huffman codes most significant
+/// bit first.
+#[derive(Default)]
+struct BitWriter {
+    bytes: Vec<u8>,
+    acc: u64,
+    count: u32,
+}
+
+impl BitWriter {
+    fn put(&mut self, value: u32, n: u32) {
+        self.acc |= (value as u64) << self.count;
+        self.count += n;
+        while self.count >= 8 {
+            self.bytes.push(self.acc as u8);
+            self.acc >>= 8;
+            self.count -= 8;
+        }
+    }
+
+    fn code(&mut self, (code, n): (u32, u32)) {
+        self.put(code.reverse_bits() >> (32 - n), n);
+    }
+
+    fn finish(mut self) -> Vec<u8> {
+        if self.count > 0 {
+            self.bytes.push(self.acc as u8);
+        }
+        self.bytes
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// the command, run as a process
+
+/// Runs `livebake args…` in `cwd` (no RUST_LOG from the environment: default logging).
+pub fn livebake(cwd: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_livebake"))
+        .args(args)
+        .current_dir(cwd)
+        .env_remove("RUST_LOG")
+        // No display: `livebake` without arguments runs headless.
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .expect("cannot run livebake")
+}
+
+pub fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// Runs and requires success; returns stdout.
+#[track_caller]
+pub fn ok(cwd: &Path, args: &[&str]) -> String {
+    let out = livebake(cwd, args);
+    let stderr = text(&out.stderr);
+    assert!(out.status.success(), "livebake {args:?} failed ({}):\n{stderr}", out.status);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    text(&out.stdout)
+}
+
+/// Runs and requires failure with an `error:` line containing every one of `needles`
+/// (case-insensitive), an exit code (not an abort) and no panic. Returns the exit code: 1, or
+/// 2 for what the argument parser refuses.
+#[track_caller]
+pub fn fails(cwd: &Path, args: &[&str], needles: &[&str]) -> i32 {
+    let out = livebake(cwd, args);
+    let stderr = text(&out.stderr);
+    assert!(!out.status.success(), "livebake {args:?} succeeded but should not have:\n{stderr}");
+    assert!(!stderr.contains("panicked"), "livebake {args:?} panicked:\n{stderr}");
+    let code = out.status.code().unwrap_or_else(|| panic!("livebake {args:?} was killed ({}):\n{stderr}", out.status));
+    assert!(code == 1 || code == 2, "livebake {args:?} exited with {code}:\n{stderr}");
+    let line = stderr
+        .lines()
+        .find(|l| l.starts_with("error:"))
+        .unwrap_or_else(|| panic!("livebake {args:?}: no `error:` line in\n{stderr}"));
+    for n in needles {
+        assert!(line.to_lowercase().contains(&n.to_lowercase()), "livebake {args:?}: {line:?} does not mention {n:?}");
+    }
+    code
 }

@@ -219,7 +219,7 @@ fn alpha_masked_occluders_cast_shadows_only_where_opaque() {
         name: "alpha".into(),
         width: 2,
         height: 1,
-        rgba8: vec![[255, 255, 255, 0], [255, 255, 255, 255]],
+        rgba8: vec![[255, 255, 255, 0], [255, 255, 255, 255]].into(),
         srgb: true,
         wrap_s: WrapMode::ClampToEdge,
         wrap_t: WrapMode::ClampToEdge,

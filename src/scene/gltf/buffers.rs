@@ -2,13 +2,12 @@
 //! slices.
 
 use std::borrow::Cow;
-use std::fs::File;
-use std::io::Read;
 use std::path::Path;
 
 use ::gltf::json;
 
 use super::LoadError;
+use super::files::{FileError, FileScope, read_regular};
 use super::uri::{self, UriSource};
 
 /// The bytes of every buffer, each exactly `byteLength` long.
@@ -16,12 +15,18 @@ pub(super) struct Buffers<'a> {
     data: Vec<Cow<'a, [u8]>>,
 }
 
-/// Loads every buffer of the document. `bin` is the GLB BIN chunk, if any.
-pub(super) fn load<'a>(file: &Path, root: &json::Root, bin: Option<&'a [u8]>) -> Result<Buffers<'a>, LoadError> {
+/// Loads every buffer of the document. `bin` is the GLB BIN chunk, if any; `scope`: where
+/// buffer files may be.
+pub(super) fn load<'a>(
+    file: &Path,
+    root: &json::Root,
+    bin: Option<&'a [u8]>,
+    scope: &FileScope,
+) -> Result<Buffers<'a>, LoadError> {
     let base_dir = file.parent().unwrap_or(Path::new("."));
     let mut data = Vec::with_capacity(root.buffers.len());
     for (index, buffer) in root.buffers.iter().enumerate() {
-        data.push(load_one(file, base_dir, index, buffer, bin)?);
+        data.push(load_one(file, base_dir, scope, index, buffer, bin)?);
     }
     Ok(Buffers { data })
 }
@@ -29,6 +34,7 @@ pub(super) fn load<'a>(file: &Path, root: &json::Root, bin: Option<&'a [u8]>) ->
 fn load_one<'a>(
     file: &Path,
     base_dir: &Path,
+    scope: &FileScope,
     index: usize,
     buffer: &json::Buffer,
     bin: Option<&'a [u8]>,
@@ -57,10 +63,17 @@ fn load_one<'a>(
         let bytes = prefix(bin, expected).ok_or_else(|| short("the GLB BIN chunk".into(), bin.len()))?;
         return Ok(Cow::Borrowed(bytes));
     };
-    let source = uri::resolve(base_dir, uri_text).map_err(|e| match e {
+    let refused = |reason: String| LoadError::FileRefused {
+        file: file.into(),
+        object: format!("buffer {index}"),
+        uri: uri_text.clone(),
+        reason,
+    };
+    let source = uri::resolve(base_dir, uri_text, scope).map_err(|e| match e {
         uri::UriError::Remote { .. } => {
             LoadError::Unsupported { file: file.into(), what: format!("buffer {index} uri '{uri_text}': {e}") }
         }
+        uri::UriError::Refused(r) => refused(r.to_string()),
         _ => LoadError::Invalid { file: file.into(), message: format!("buffer {index}: {e}") },
     })?;
     match source {
@@ -81,18 +94,14 @@ fn load_one<'a>(
                 resolved: path.clone(),
                 source,
             };
-            let f = File::open(&path).map_err(missing)?;
-            let actual = f.metadata().map_err(missing)?.len();
-            if actual < expected {
-                return Err(short(format!("file '{}'", path.display()), actual as usize));
+            // A longer file is fine (its first byteLength bytes are the buffer); the length
+            // is known to be the file's real size before anything is allocated.
+            match read_regular(&path, Some(scope), expected, u64::MAX, Some(expected)) {
+                Ok(bytes) => Ok(Cow::Owned(bytes)),
+                Err(FileError::Io(source)) => Err(missing(source)),
+                Err(FileError::TooShort { len, .. }) => Err(short(format!("file '{}'", path.display()), len as usize)),
+                Err(e) => Err(refused(e.to_string())),
             }
-            // `expected` is now known to be a real file size, so the allocation is honest.
-            let mut bytes = Vec::with_capacity(usize::try_from(expected).unwrap_or(0));
-            f.take(expected).read_to_end(&mut bytes).map_err(missing)?;
-            if (bytes.len() as u64) < expected {
-                return Err(short(format!("file '{}' (shrank while reading)", path.display()), bytes.len()));
-            }
-            Ok(Cow::Owned(bytes))
         }
     }
 }

@@ -21,6 +21,7 @@ pub(super) enum Kind {
     LightSkipped,
     LightParameter,
     CameraSkipped,
+    BaseColorClamped,
 }
 
 impl Kind {
@@ -60,6 +61,9 @@ impl Kind {
             Kind::LightSkipped => format!("{count} light(s) skipped"),
             Kind::LightParameter => format!("{count} light parameter(s) out of range were corrected"),
             Kind::CameraSkipped => format!("{count} camera(s) skipped"),
+            Kind::BaseColorClamped => {
+                format!("{count} baseColorFactor(s) outside [0, 1] clamped (an albedo above 1 would make light)")
+            }
         }
     }
 }

@@ -45,6 +45,27 @@ pub enum LoadError {
         source: std::io::Error,
     },
 
+    /// A buffer or image file that the scene may not read: its URI leaves the scene's folder
+    /// (`..`, an absolute path, a symbolic link out of it) without the user's opt-in, or it
+    /// is not a regular file (a device, FIFO, socket, directory).
+    #[error("{}: {object} ('{uri}') {reason}", file.display())]
+    FileRefused { file: PathBuf, object: String, uri: String, reason: String },
+
+    /// An image declares more pixels than one texture may have (checked from its header,
+    /// before it is decoded).
+    #[error(
+        "{}: {image} is {width}×{height} pixels, more than the {limit} a texture may have (--max-texture-pixels)",
+        file.display()
+    )]
+    TextureTooLarge { file: PathBuf, image: String, width: u32, height: u32, limit: u64 },
+
+    /// Decoding an image would take the scene's textures past the memory they may hold.
+    #[error(
+        "{}: {image} would take the decoded textures to {need} bytes, more than the {limit} they may hold (--memory-limit)",
+        file.display()
+    )]
+    TexturesOverMemory { file: PathBuf, image: String, need: u64, limit: u64 },
+
     /// A buffer has fewer bytes than its `byteLength` says.
     #[error("{}: buffer {buffer} ({origin}) has {actual} bytes but its byteLength is {expected}", file.display())]
     ShortBuffer { file: PathBuf, buffer: usize, origin: String, expected: u64, actual: u64 },
@@ -95,6 +116,9 @@ impl LoadError {
             | LoadError::Glb { file, .. }
             | LoadError::Invalid { file, .. }
             | LoadError::MissingBuffer { file, .. }
+            | LoadError::FileRefused { file, .. }
+            | LoadError::TextureTooLarge { file, .. }
+            | LoadError::TexturesOverMemory { file, .. }
             | LoadError::ShortBuffer { file, .. }
             | LoadError::ViewOutOfBounds { file, .. }
             | LoadError::AccessorOutOfBounds { file, .. }

@@ -1,31 +1,46 @@
 //! Textures: images from a file URI, a `data:` URI or a bufferView, decoded with `image` into
 //! RGBA8, with the sampler's wrap modes. Each glTF texture used by a material becomes one
-//! [`Texture`]; an image shared by several textures is decoded once.
+//! [`Texture`]; an image shared by several textures is decoded once and its pixels shared.
+//!
+//! Before an image is decoded its header's size is checked against
+//! [`LoadOptions::max_texture_pixels`](super::LoadOptions) and what decoding it would take (its
+//! native pixels, their RGBA8 conversion and the texture kept) against what the textures
+//! decoded so far leave of [`LoadOptions::texture_memory_limit`](super::LoadOptions): a few
+//! kB of PNG that declare 16384² pixels are refused, not decoded into a gigabyte.
 
 use std::collections::HashMap;
+use std::io::Cursor;
 use std::path::Path;
-use std::rc::Rc;
+use std::sync::Arc;
 
 use ::gltf::json;
+use image::ImageDecoder;
 use json::texture::WrappingMode;
 use json::validation::Checked;
 
+use super::files::{FileError, read_regular};
 use super::uri::{self, UriSource};
 use super::{Ctx, LoadError};
 use crate::scene::{Texture, WrapMode};
 
-/// Decoded pixels of one glTF image.
+/// Decoded pixels of one glTF image (shared by every texture that uses it).
+#[derive(Clone)]
 struct Pixels {
     width: u32,
     height: u32,
-    rgba8: Vec<[u8; 4]>,
+    rgba8: Arc<[[u8; 4]]>,
 }
+
+/// Bytes a decoder's output may take per pixel: RGBA of f32 (EXR, HDR), the widest format.
+const MOST_NATIVE_BYTES_PER_PIXEL: u64 = 16;
 
 /// glTF texture index → scene texture index, decoding on first use.
 #[derive(Default)]
 pub(super) struct TextureCache {
     by_texture: HashMap<usize, usize>,
-    images: HashMap<usize, Rc<Pixels>>,
+    images: HashMap<usize, Pixels>,
+    /// Bytes of the decoded pixels kept (each image once).
+    decoded_bytes: u64,
     pub textures: Vec<Texture>,
 }
 
@@ -40,10 +55,11 @@ impl TextureCache {
         })?;
         let image = tex.source.value();
         let pixels = match self.images.get(&image) {
-            Some(p) => Rc::clone(p),
+            Some(p) => p.clone(),
             None => {
-                let p = Rc::new(decode(ctx, image)?);
-                self.images.insert(image, Rc::clone(&p));
+                let p = decode(ctx, image, self.decoded_bytes)?;
+                self.decoded_bytes += p.rgba8.len() as u64 * 4;
+                self.images.insert(image, p.clone());
                 p
             }
         };
@@ -52,7 +68,7 @@ impl TextureCache {
             name: image_label(ctx, image),
             width: pixels.width,
             height: pixels.height,
-            rgba8: pixels.rgba8.clone(),
+            rgba8: pixels.rgba8,
             srgb: true,
             wrap_s,
             wrap_t,
@@ -102,16 +118,53 @@ fn describe(ctx: &Ctx, index: usize) -> String {
     s
 }
 
-fn decode(ctx: &Ctx, index: usize) -> Result<Pixels, LoadError> {
+/// `image 3 'wood'`: the image without its source, for messages that name the URI apart.
+fn describe_object(ctx: &Ctx, index: usize) -> String {
+    match ctx.root.images.get(index).and_then(|i| i.name.as_ref()) {
+        Some(name) => format!("image {index} '{name}'"),
+        None => format!("image {index}"),
+    }
+}
+
+/// Decodes image `index` after checking its header's size against the options; `kept`:
+/// bytes of the textures decoded before it.
+fn decode(ctx: &Ctx, index: usize, kept: u64) -> Result<Pixels, LoadError> {
     let error = |reason: String| LoadError::Image { file: ctx.file.into(), image: describe(ctx, index), reason };
     let bytes = encoded_bytes(ctx, index)?;
     let format = image::guess_format(&bytes)
         .map_err(|_| error("unrecognised image format (livebake decodes PNG and JPEG)".into()))?;
-    let decoded = image::load_from_memory_with_format(&bytes, format)
-        .map_err(|e| error(format!("cannot decode the {format:?} data: {e}")))?;
-    let rgba = decoded.to_rgba8();
+    let max_pixels = ctx.options.max_texture_pixels;
+    let mut reader = image::ImageReader::with_format(Cursor::new(&bytes[..]), format);
+    // The decoder's own allocations are held to what an image within the limit needs, so a
+    // header that lies about its size cannot take more.
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(max_pixels.saturating_mul(MOST_NATIVE_BYTES_PER_PIXEL).max(1 << 20));
+    reader.limits(limits);
+    let cannot = |e: image::ImageError| error(format!("cannot decode the {format:?} data: {e}"));
+    let decoder = reader.into_decoder().map_err(cannot)?;
+    let (width, height) = decoder.dimensions();
+    let pixels = width as u64 * height as u64;
+    if pixels > max_pixels {
+        return Err(LoadError::TextureTooLarge {
+            file: ctx.file.into(),
+            image: describe(ctx, index),
+            width,
+            height,
+            limit: max_pixels,
+        });
+    }
+    // At its peak: the native pixels, their RGBA8 conversion and the texture's copy.
+    let need = kept.saturating_add(decoder.total_bytes()).saturating_add(pixels * 8);
+    if let Some(limit) = ctx.options.texture_memory_limit
+        && need > limit
+    {
+        return Err(LoadError::TexturesOverMemory { file: ctx.file.into(), image: describe(ctx, index), need, limit });
+    }
+    let decoded = image::DynamicImage::from_decoder(decoder).map_err(cannot)?;
+    drop(bytes);
+    let rgba = decoded.into_rgba8();
     let (width, height) = rgba.dimensions();
-    let rgba8 = rgba.pixels().map(|p| p.0).collect();
+    let rgba8 = rgba.as_raw().chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]).collect();
     Ok(Pixels { width, height, rgba8 })
 }
 
@@ -122,19 +175,40 @@ pub(super) fn encoded_bytes(ctx: &Ctx, index: usize) -> Result<Vec<u8>, LoadErro
     match img.buffer_view {
         // A bad bufferView is reported as such (ViewOutOfBounds...).
         Some(view) => Ok(ctx.buffers.view(ctx.file, ctx.root, view.value())?.to_vec()),
-        None => image_bytes(ctx, img).map_err(error),
+        None => image_bytes(ctx, index, img),
     }
 }
 
 /// The encoded bytes of an image given by URI, or why they cannot be had.
-fn image_bytes(ctx: &Ctx, img: &json::Image) -> Result<Vec<u8>, String> {
+fn image_bytes(ctx: &Ctx, index: usize, img: &json::Image) -> Result<Vec<u8>, LoadError> {
+    let error = |reason: String| LoadError::Image { file: ctx.file.into(), image: describe(ctx, index), reason };
     let Some(uri_text) = &img.uri else {
-        return Err("has neither a uri nor a bufferView".into());
+        return Err(error("has neither a uri nor a bufferView".into()));
+    };
+    let refused = |reason: String| LoadError::FileRefused {
+        file: ctx.file.into(),
+        object: describe_object(ctx, index),
+        uri: uri_text.clone(),
+        reason,
     };
     let base_dir = ctx.file.parent().unwrap_or(Path::new("."));
-    match uri::resolve(base_dir, uri_text).map_err(|e| e.to_string())? {
+    let source = uri::resolve(base_dir, uri_text, &ctx.scope).map_err(|e| match e {
+        uri::UriError::Refused(r) => refused(r.to_string()),
+        e => error(e.to_string()),
+    })?;
+    match source {
         UriSource::Data { bytes, .. } => Ok(bytes),
-        UriSource::File(path) => std::fs::read(&path)
-            .map_err(|e| format!("cannot read '{}' (looked for at {}): {e}", uri_text, path.display())),
+        UriSource::File(path) => {
+            // No encoding of an image within the pixel limit needs more than its raw pixels
+            // at the widest format, and a header.
+            let most =
+                ctx.options.max_texture_pixels.saturating_mul(MOST_NATIVE_BYTES_PER_PIXEL).saturating_add(1 << 20);
+            read_regular(&path, Some(&ctx.scope), 0, most, None).map_err(|e| match e {
+                FileError::Io(e) => {
+                    error(format!("cannot read '{}' (looked for at {}): {e}", uri_text, path.display()))
+                }
+                e => refused(e.to_string()),
+            })
+        }
     }
 }

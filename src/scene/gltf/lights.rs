@@ -10,6 +10,7 @@ use json::validation::Checked;
 use super::diag::{Diagnostics, Kind};
 use super::nodes::{NodeInstance, node_name};
 use super::{Ctx, LoadError};
+use crate::scene::radiometry::LightCeiling;
 use crate::scene::{Camera, LightKind, Projection, PunctualLight};
 
 /// The light on node `inst`, if it has one.
@@ -60,6 +61,33 @@ pub(super) fn light_of(
         direction,
         range: range(light, kind, diag, &name),
     }))
+}
+
+/// Refuses the scene when a light is brighter than `ceiling` lets each of them be (the
+/// scene's surface area must keep the sums' weights finite first).
+pub(super) fn check_brightness(ctx: &Ctx, lights: &[PunctualLight], ceiling: &LightCeiling) -> Result<(), LoadError> {
+    if !ceiling.area_fits() {
+        return Err(ctx.invalid(format!(
+            "the scene's triangles cover {:.3e} m², more than the {:.2e} m² the estimator's f32 sums can weigh: its \
+             coordinates are too large",
+            ceiling.area,
+            LightCeiling::most_area()
+        )));
+    }
+    for (i, light) in lights.iter().enumerate() {
+        let directional = matches!(light.kind, LightKind::Directional);
+        let unit = if directional { "W/m²" } else { "W/sr" };
+        let value = light.intensity.max_element() as f64;
+        ceiling
+            .check(
+                || format!("light {i} '{}': intensity (colour × intensity)", light.name),
+                value,
+                ceiling.light_intensity(directional, lights.len()),
+                unit,
+            )
+            .map_err(|e| ctx.invalid(e.to_string()))?;
+    }
+    Ok(())
 }
 
 /// glTF `range` for point and spot lights; zero, negative or non-finite ranges are dropped

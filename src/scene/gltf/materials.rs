@@ -8,29 +8,41 @@ use json::validation::Checked;
 use super::diag::{Diagnostics, Kind};
 use super::images::TextureCache;
 use super::{Ctx, LoadError};
+use crate::scene::radiometry::LightCeiling;
 use crate::scene::{AlphaMode, Material, TextureRef};
 
 /// Every material of the file, in file order (so glTF material i is scene material i).
+/// `ceiling`: the brightest emission the scene's sums can hold.
 pub(super) fn convert_all(
     ctx: &Ctx,
     textures: &mut TextureCache,
     diag: &mut Diagnostics,
+    ceiling: &LightCeiling,
 ) -> Result<Vec<Material>, LoadError> {
-    ctx.root.materials.iter().enumerate().map(|(i, m)| convert(ctx, textures, diag, i, m)).collect()
+    ctx.root.materials.iter().enumerate().map(|(i, m)| convert(ctx, textures, diag, ceiling, i, m)).collect()
 }
 
 fn convert(
     ctx: &Ctx,
     textures: &mut TextureCache,
     diag: &mut Diagnostics,
+    ceiling: &LightCeiling,
     index: usize,
     m: &json::Material,
 ) -> Result<Material, LoadError> {
     let name = m.name.clone().unwrap_or_else(|| format!("material{index}"));
     let bad = |what: &str| ctx.invalid(format!("material {index} '{name}': {what}"));
-    let base_color = Vec4::from(m.pbr_metallic_roughness.base_color_factor.0);
-    if !base_color.is_finite() {
+    let factor = Vec4::from(m.pbr_metallic_roughness.base_color_factor.0);
+    if !factor.is_finite() {
         return Err(bad("baseColorFactor is not finite"));
+    }
+    // An albedo above 1 reflects more light than arrives (the bounces would grow without
+    // end), below 0 is meaningless; glTF allows neither.
+    let base_color = factor.clamp(Vec4::ZERO, Vec4::ONE);
+    if base_color != factor {
+        diag.note(Kind::BaseColorClamped, 1, || {
+            format!("'{name}' {:?} → {:?}", factor.to_array(), base_color.to_array())
+        });
     }
     let strength =
         m.extensions.as_ref().and_then(|e| e.emissive_strength.as_ref()).map_or(1.0, |s| s.emissive_strength.0);
@@ -38,6 +50,14 @@ fn convert(
     if !emission.is_finite() || emission.min_element() < 0.0 {
         return Err(bad("emissiveFactor × emissiveStrength is negative or not finite"));
     }
+    ceiling
+        .check(
+            || "emissiveFactor × emissiveStrength".into(),
+            emission.max_element() as f64,
+            ceiling.radiance(),
+            "W/(sr·m²)",
+        )
+        .map_err(|e| bad(&e.to_string()))?;
     let alpha_mode = match m.alpha_mode {
         Checked::Valid(JsonAlphaMode::Opaque) => AlphaMode::Opaque,
         Checked::Valid(JsonAlphaMode::Blend) => AlphaMode::Blend,

@@ -46,6 +46,7 @@ mod buffers;
 mod diag;
 mod document;
 mod error;
+mod files;
 mod images;
 mod lights;
 mod materials;
@@ -66,20 +67,50 @@ pub use source::{SourceDocument, SourceImage, read_source};
 use super::{Material, MaterialId, Scene};
 use buffers::Buffers;
 use diag::{Diagnostics, Kind};
+use files::FileScope;
 use primitive::Built;
 
 /// Options for [`load_gltf`].
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct LoadOptions {
     /// Load this scene (index into the file's `scenes`) instead of the default one.
     pub scene: Option<usize>,
+    /// Read buffer and image files outside the scene's folder: URIs with `..` leading out,
+    /// absolute paths, symbolic links whose target is outside. Off: such a URI is refused.
+    pub allow_outside_files: bool,
+    /// Most pixels one texture may have: its header's width × height, checked before it is
+    /// decoded ([`DEFAULT_MAX_TEXTURE_PIXELS`]).
+    pub max_texture_pixels: u64,
+    /// Most bytes the scene's decoded textures may hold together, the decode of the next
+    /// one included (`None`: no limit besides `max_texture_pixels`).
+    pub texture_memory_limit: Option<u64>,
 }
 
-/// What every part of the loader needs: the file (for messages), the document, the buffers.
+/// A texture of 4096 × 4096 pixels (64 MiB decoded) is the largest a glTF asset commonly
+/// ships; light maps sample albedo at their texels (centimetres), far coarser than any
+/// texture this size, so a larger one would only cost memory. A decompression bomb (a few
+/// kB of PNG declaring 16384² pixels) is refused from its header.
+pub const DEFAULT_MAX_TEXTURE_PIXELS: u64 = 4096 * 4096;
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        LoadOptions {
+            scene: None,
+            allow_outside_files: false,
+            max_texture_pixels: DEFAULT_MAX_TEXTURE_PIXELS,
+            texture_memory_limit: None,
+        }
+    }
+}
+
+/// What every part of the loader needs: the file (for messages), the document, the buffers,
+/// where files may be read and the options.
 struct Ctx<'a> {
     file: &'a Path,
     root: &'a json::Root,
     buffers: Buffers<'a>,
+    scope: FileScope,
+    options: &'a LoadOptions,
 }
 
 impl Ctx<'_> {
@@ -91,8 +122,22 @@ impl Ctx<'_> {
 /// Loads a `.gltf` or `.glb` file into a world-space [`Scene`]. See the module documentation
 /// for the conventions and [`LoadError`] for what can fail.
 pub fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Scene, LoadError> {
-    let bytes = std::fs::read(path).map_err(|source| LoadError::Io { file: path.to_path_buf(), source })?;
+    let bytes = read_scene_file(path)?;
     load_gltf_bytes(path, &bytes, options)
+}
+
+/// The bytes of the scene file at `path`, which must be a regular file (a FIFO or a device
+/// is refused without blocking or reading).
+pub fn read_scene_file(path: &Path) -> Result<Vec<u8>, LoadError> {
+    files::read_regular(path, None, 0, u64::MAX, None).map_err(|e| match e {
+        files::FileError::Io(source) => LoadError::Io { file: path.to_path_buf(), source },
+        e => LoadError::NotGltf { file: path.to_path_buf(), reason: format!("the file {e}") },
+    })
+}
+
+/// Where the files of the scene `path` may be, under `options`.
+fn file_scope(path: &Path, options: &LoadOptions) -> FileScope {
+    FileScope::new(path.parent().unwrap_or(Path::new(".")), options.allow_outside_files)
 }
 
 /// Like [`load_gltf`] with the file's bytes already in memory; `path` names the file in
@@ -100,8 +145,9 @@ pub fn load_gltf(path: &Path, options: &LoadOptions) -> Result<Scene, LoadError>
 pub fn load_gltf_bytes(path: &Path, bytes: &[u8], options: &LoadOptions) -> Result<Scene, LoadError> {
     let start = std::time::Instant::now();
     let parsed = document::parse(path, bytes)?;
-    let buffers = buffers::load(path, &parsed.root, parsed.bin)?;
-    let ctx = Ctx { file: path, root: &parsed.root, buffers };
+    let scope = file_scope(path, options);
+    let buffers = buffers::load(path, &parsed.root, parsed.bin, &scope)?;
+    let ctx = Ctx { file: path, root: &parsed.root, buffers, scope, options };
     let mut diag = Diagnostics::default();
     diag.note(Kind::UnsupportedExtensionUsed, parsed.ignored_extensions.len(), || parsed.ignored_extensions.join(", "));
 
@@ -125,8 +171,10 @@ pub fn load_gltf_bytes(path: &Path, bytes: &[u8], options: &LoadOptions) -> Resu
     if scene.meshes.is_empty() {
         return Err(no_triangles(path, &scene, &diag, &instances));
     }
+    let ceiling = scene.light_ceiling();
+    lights::check_brightness(&ctx, &scene.lights, &ceiling)?;
     let mut textures = images::TextureCache::default();
-    scene.materials = materials::convert_all(&ctx, &mut textures, &mut diag)?;
+    scene.materials = materials::convert_all(&ctx, &mut textures, &mut diag, &ceiling)?;
     if uses_default_material {
         scene.materials.push(Material::default());
     }

@@ -68,6 +68,15 @@ pub(super) fn build(ctx: &Ctx, diag: &mut Diagnostics, inst: &Instance) -> Resul
             t.swap(1, 2);
         }
     }
+    if let Some(t) = triangles.iter().position(|&t| overflows(corners(&positions, t))) {
+        let [a, b, c] = corners(&positions, triangles[t]);
+        let largest = a.abs().max(b.abs()).max(c.abs()).max_element();
+        return Err(ctx.invalid(format!(
+            "mesh instance '{}': the area of triangle {t} overflows f32 (coordinates up to {largest:e} m): \
+             positions this far out cannot be light-mapped",
+            inst.name
+        )));
+    }
     let before = triangles.len();
     triangles.retain(|&t| !is_degenerate(corners(&positions, t)));
     diag.note(Kind::DegenerateTriangles, before - triangles.len(), || inst.name.clone());
@@ -200,6 +209,13 @@ fn to_world(ctx: &Ctx, inst: &Instance, local: &[Vec3]) -> Result<Vec<Vec3>, Loa
 /// Positions of the corners of `t`; indices were checked against the vertex count.
 fn corners(positions: &[Vec3], t: [u32; 3]) -> [Vec3; 3] {
     t.map(|i| positions.get(i as usize).copied().unwrap_or(Vec3::ZERO))
+}
+
+/// Whether a triangle of finite corners has an area (or edge lengths squared) beyond f32.
+fn overflows([a, b, c]: [Vec3; 3]) -> bool {
+    let (ab, ac, bc) = (b - a, c - a, c - b);
+    let longest2 = ab.length_squared().max(ac.length_squared()).max(bc.length_squared());
+    !(ab.cross(ac).length().is_finite() && longest2.is_finite())
 }
 
 fn is_degenerate([a, b, c]: [Vec3; 3]) -> bool {

@@ -35,7 +35,7 @@ pub struct SourceImage {
 /// Reads `path` again as the loader would with `options` (the file must still be valid glTF
 /// that livebake loads); image bytes are read but not decoded.
 pub fn read_source(path: &Path, options: &LoadOptions) -> Result<SourceDocument, LoadError> {
-    let bytes = std::fs::read(path).map_err(|source| LoadError::Io { file: path.to_path_buf(), source })?;
+    let bytes = super::read_scene_file(path)?;
     let parsed = document::parse(path, &bytes)?;
     let json: serde_json::Value = serde_json::from_slice(parsed.json_text).map_err(|e| LoadError::Json {
         file: path.to_path_buf(),
@@ -43,8 +43,9 @@ pub fn read_source(path: &Path, options: &LoadOptions) -> Result<SourceDocument,
         column: e.column(),
         message: e.to_string(),
     })?;
-    let buffers = buffers::load(path, &parsed.root, parsed.bin)?;
-    let ctx = Ctx { file: path, root: &parsed.root, buffers };
+    let scope = super::file_scope(path, options);
+    let buffers = buffers::load(path, &parsed.root, parsed.bin, &scope)?;
+    let ctx = Ctx { file: path, root: &parsed.root, buffers, scope, options };
     let roots = nodes::scene_roots(&ctx, options)?;
     let nodes = nodes::traverse(&ctx, &roots, &mut Diagnostics::default())?.into_iter().map(|n| n.node).collect();
     let mut out_images = Vec::with_capacity(parsed.root.images.len());

@@ -1,7 +1,10 @@
 //! glTF URIs: `data:` URIs (base64 or percent-encoded) and relative file references
-//! (percent-decoded, resolved against the directory of the glTF file).
+//! (percent-decoded, resolved against the directory of the glTF file, and refused when
+//! their text leaves it: [`FileScope::admits_text`]).
 
 use std::path::{Path, PathBuf};
+
+use super::files::{FileScope, Refusal};
 
 /// Where the bytes behind a URI are.
 #[derive(Debug, PartialEq)]
@@ -21,6 +24,8 @@ pub(super) enum UriError {
     Base64 { offset: usize },
     /// A URI with a scheme other than `data:` (http, https, file...).
     Remote { scheme: String },
+    /// A file path that leaves the scene's folder.
+    Refused(Refusal),
 }
 
 impl std::fmt::Display for UriError {
@@ -31,12 +36,14 @@ impl std::fmt::Display for UriError {
             UriError::Remote { scheme } => {
                 write!(f, "'{scheme}:' URIs are not supported (only relative file paths and data: URIs)")
             }
+            UriError::Refused(r) => r.fmt(f),
         }
     }
 }
 
-/// Resolves `uri` (from a buffer or image) relative to `base_dir`.
-pub(super) fn resolve(base_dir: &Path, uri: &str) -> Result<UriSource, UriError> {
+/// Resolves `uri` (from a buffer or image) relative to `base_dir`, refusing a path whose
+/// text leaves the folder `scope` keeps the scene in.
+pub(super) fn resolve(base_dir: &Path, uri: &str, scope: &FileScope) -> Result<UriSource, UriError> {
     if let Some(scheme) = scheme_of(uri) {
         if scheme.eq_ignore_ascii_case("data") {
             return decode_data_uri(uri);
@@ -46,19 +53,25 @@ pub(super) fn resolve(base_dir: &Path, uri: &str) -> Result<UriSource, UriError>
     // Drop a query or fragment, then percent-decode ("my%20mesh.bin" → "my mesh.bin").
     let path_part = uri.split(['?', '#']).next().unwrap_or_default();
     let decoded = percent_decode(path_part);
-    let decoded = String::from_utf8_lossy(&decoded).into_owned();
+    let decoded = PathBuf::from(String::from_utf8_lossy(&decoded).into_owned());
+    scope.admits_text(&decoded).map_err(UriError::Refused)?;
     Ok(UriSource::File(base_dir.join(decoded)))
 }
 
-/// The local file a URI names, resolved as [`resolve`] does, or `None` for a `data:` URI or
-/// a remote one (neither is a file on this machine). Decodes nothing but the path.
-pub(super) fn file_path(base_dir: &Path, uri: &str) -> Option<PathBuf> {
+/// The local file a URI names, resolved as [`resolve`] does, `Ok(None)` for a `data:` URI or
+/// a remote one (neither is a file on this machine), or why the file is out of `scope`
+/// (its text, or where its symbolic links lead). Decodes nothing but the path.
+pub(super) fn file_path(base_dir: &Path, uri: &str, scope: &FileScope) -> Result<Option<PathBuf>, Refusal> {
     if scheme_of(uri).is_some() {
-        return None;
+        return Ok(None);
     }
-    match resolve(base_dir, uri) {
-        Ok(UriSource::File(path)) => Some(path),
-        _ => None,
+    match resolve(base_dir, uri, scope) {
+        Ok(UriSource::File(path)) => {
+            scope.admits_path(&path)?;
+            Ok(Some(path))
+        }
+        Err(UriError::Refused(r)) => Err(r),
+        _ => Ok(None),
     }
 }
 
@@ -185,9 +198,14 @@ mod tests {
         assert_eq!(base64_decode(b"Zm9vY"), Err(5));
     }
 
+    fn anywhere() -> FileScope {
+        FileScope::new(Path::new("/x"), true)
+    }
+
     #[test]
     fn data_uris_decode() {
         let base = Path::new("/x");
+        let resolve = |base: &Path, uri: &str| resolve(base, uri, &anywhere());
         assert_eq!(
             resolve(base, "data:application/octet-stream;base64,AAEC").unwrap(),
             UriSource::Data { mime: "application/octet-stream".into(), bytes: vec![0, 1, 2] }
@@ -203,6 +221,9 @@ mod tests {
     #[test]
     fn file_uris_are_percent_decoded_and_relative() {
         let base = Path::new("/scenes/room");
+        let scope = FileScope::new(base, false);
+        let resolve = |base: &Path, uri: &str| resolve(base, uri, &scope);
+        let file_path = |base: &Path, uri: &str| file_path(base, uri, &scope).unwrap();
         assert_eq!(resolve(base, "my%20mesh.bin").unwrap(), UriSource::File(PathBuf::from("/scenes/room/my mesh.bin")));
         assert_eq!(resolve(base, "tex/a.png?v=2").unwrap(), UriSource::File(PathBuf::from("/scenes/room/tex/a.png")));
         assert_eq!(percent_decode("100%"), b"100%");
@@ -211,5 +232,8 @@ mod tests {
         assert_eq!(file_path(base, "tex/a%20b.png"), Some(PathBuf::from("/scenes/room/tex/a b.png")));
         assert_eq!(file_path(base, "data:;base64,AAEC"), None);
         assert_eq!(file_path(base, "https://example.com/a.bin"), None);
+        // Percent-encoded dots climb out as well as written ones.
+        assert_eq!(resolve(base, "%2e%2e/x.bin"), Err(UriError::Refused(Refusal::ParentEscape)));
+        assert_eq!(resolve(base, "%2Fetc%2Fpasswd"), Err(UriError::Refused(Refusal::Absolute)));
     }
 }
