@@ -427,7 +427,12 @@ fn soak_of_rapid_saves() {
         (persistent as f64) < resident_at_start as f64 * 3.0,
         "memory grew from {resident_at_start} to {persistent} bytes (pages and scene)"
     );
-    assert!(stats.bake_bytes <= config().memory_budget, "bakes hold {} bytes", stats.bake_bytes);
+    assert!(
+        stats.bake_bytes <= stats.memory_budget,
+        "bakes hold {} bytes of {}",
+        stats.bake_bytes,
+        stats.memory_budget
+    );
     let (clean, other) = (clean_first_light(&path, 0), clean_first_light(&path, 1));
     let noise = relative_rms(&other, &clean);
     let diff = relative_rms(&reloaded, &clean);

@@ -436,7 +436,7 @@ fn stress_camera_moves_and_shutdown_mid_pass() {
     // Room for LOD 0's pages and a little more: refinement must evict to go on.
     let lod0_pages = first_light(&world_probe).page_bytes() as u64;
     let budget = lod0_pages + 3 * (1 << 20);
-    let config = RuntimeConfig { memory_budget: budget, min_directions: 8, max_directions: 16, ..room_config(2) };
+    let config = RuntimeConfig { memory_budget: Some(budget), min_directions: 8, max_directions: 16, ..room_config(2) };
     let runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new())).expect("start");
     runtime.wait_first_light(Duration::from_secs(60)).expect("first light");
     // Move the camera every few milliseconds until refinement has both published and

@@ -252,6 +252,84 @@ fn mirror_grows_its_pool_and_frees_removed_pages() {
     }
 }
 
+/// A map that outgrows the pool (capped at 24 pages: LOD 0 takes 10, LOD 1 would take 40)
+/// never fails to sync: LOD 0 stays whole, LOD 1 keeps what fits and the rest is left out,
+/// and where a page is left out the GPU samples what the CPU function samples in the same
+/// map without that page: the coarser level. A later publish of more LOD-0 pages takes
+/// slots from LOD 1.
+#[test]
+fn a_map_larger_than_the_pool_shows_coarser_levels_where_it_overflows() {
+    let grid = Grid { origin: Vec3::ZERO, cell_size: 1.0, dims: [1, 1, 1] };
+    let (w0, h0) = (5 * PAGE_SIDE, 2 * PAGE_SIDE);
+    let mut map = ShownLightmap::new(grid, w0, h0, 2, 0.0);
+    let gpu = GpuContext::headless().unwrap();
+    let layout = lightmap::bind_group_layout(&gpu.device);
+    let mut mirror = LightmapGpu::new(&gpu, &layout, &map).unwrap();
+    mirror.set_page_cap(24);
+    let mut w = PageWriter::new(&mut map);
+    for y in 0..h0 {
+        for x in 0..w0 {
+            w.write(Layer::Bundles, 0, x, y, Vec3::new(1.0, x as f32 / w0 as f32, 0.0));
+        }
+    }
+    for y in 0..2 * h0 {
+        for x in 0..2 * w0 {
+            w.write(Layer::Bundles, 1, x, y, Vec3::new(2.0, 0.0, y as f32 / h0 as f32));
+        }
+    }
+    w.set_cell_lod(Layer::Bundles, 0, 1);
+    w.finish();
+    let sync = mirror.sync(&gpu, &layout, &map).unwrap();
+    assert_eq!((sync.pages_uploaded, sync.pages_left_out), (24, 26), "{sync:?}");
+    assert_eq!(mirror.page_cap(), 24);
+    let resident = |mirror: &LightmapGpu, lod: usize, pages: usize| {
+        (0..pages).filter(|&i| mirror.read_page(&gpu, Layer::Bundles, lod, i).unwrap().is_some()).count()
+    };
+    assert_eq!(resident(&mirror, 0, 10), 10, "LOD 0 is whole");
+    assert_eq!(resident(&mirror, 1, 40), 14);
+    // What the GPU shows: the map without the LOD-1 pages it left out.
+    let mut seen = map.clone();
+    let level = map.layer(Layer::Bundles).levels[1].clone();
+    let mut w = PageWriter::new(&mut seen);
+    for py in 0..level.pages_y {
+        for px in 0..level.pages_x {
+            if mirror.read_page(&gpu, Layer::Bundles, 1, (py * level.pages_x + px) as usize).unwrap().is_none() {
+                for y in py * PAGE_SIDE..(py + 1) * PAGE_SIDE {
+                    for x in px * PAGE_SIDE..(px + 1) * PAGE_SIDE {
+                        w.clear(Layer::Bundles, 1, x, y);
+                    }
+                }
+            }
+        }
+    }
+    w.finish();
+    let mut rng = Rng(7);
+    let points: Vec<(Vec3, Vec2)> =
+        (0..2000).map(|_| (Vec3::splat(0.5), Vec2::new(rng.next() * w0 as f32, rng.next() * h0 as f32))).collect();
+    let probe = IrradianceProbe::new(&gpu, &layout).unwrap();
+    let on_gpu = probe.run(&gpu, &mirror, &points).unwrap();
+    let mut coarse = 0;
+    for (&(p, uv), got) in points.iter().zip(&on_gpu) {
+        let want = seen.irradiance(p, uv);
+        assert!((*got - want).length() <= 1e-5 * (1.0 + want.length()), "uv {uv}: {got} against {want}");
+        coarse += usize::from(want.x < 1.5);
+    }
+    assert!(coarse > 500, "{coarse} of 2000 points fell back to LOD 0");
+    // More LOD-0 pages (a taller atlas is another map; here: a second layer at LOD 0) take
+    // the slots of LOD-1 pages.
+    let mut more = map.clone();
+    let mut w = PageWriter::new(&mut more);
+    for y in 0..h0 {
+        for x in 0..w0 {
+            w.write(Layer::Punctual, 0, x, y, Vec3::splat(0.5));
+        }
+    }
+    w.finish();
+    let sync = mirror.sync(&gpu, &layout, &more).unwrap();
+    assert_eq!(sync.pages_given_up, 10, "{sync:?}");
+    assert_eq!(resident(&mirror, 1, 40), 4);
+}
+
 /// `livebake` without arguments, with a display (Xvfb): it opens the viewer on the default
 /// scene (the window's GPU device is set up: the headless run never makes one) instead of
 /// running headless (which would write ./out). The window stays until closed; the test kills it.

@@ -205,6 +205,17 @@ pub fn closest_barycentric(t: &[DVec2; 3], p: DVec2) -> (f64, f64, f64) {
     best
 }
 
+/// Barycentric weights `(u, v)` (of corners 1 and 2) of `p` in the plane of triangle `t`,
+/// outside it too (negative weights); `None` for a degenerate triangle.
+#[inline]
+pub fn barycentric(t: &[DVec2; 3], p: DVec2) -> Option<(f64, f64)> {
+    let [a, b, c] = *t;
+    let (e1, e2, d) = (b - a, c - a, p - a);
+    let det = e1.perp_dot(e2);
+    let scale = e1.length_squared().max(e2.length_squared());
+    (det.abs() > 1e-12 * scale).then(|| (d.perp_dot(e2) / det, e1.perp_dot(d) / det))
+}
+
 /// Edge function `(b − a) × (p − a)`, evaluated with the endpoints in a canonical order so
 /// that the two triangles sharing an edge get exactly opposite values.
 #[inline]

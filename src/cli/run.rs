@@ -39,7 +39,9 @@ pub struct RuntimeOptions {
     #[arg(long, value_name = "M")]
     pub cell_size: Option<f32>,
     /// Memory the shown pages and bakes in progress may use, bytes or with a K/M/G suffix
-    /// (default: a quarter of the machine's memory, at most 4G).
+    /// (default: what the scene and the view need: the scene's fixed structures, LOD 0, and
+    /// the pages of the texels a screen can tell apart all around the viewer; at most a
+    /// quarter of the machine's memory).
     #[arg(long, value_name = "BYTES", value_parser = livebake::bake::memory::parse_bytes)]
     pub memory_budget: Option<u64>,
     /// Directions a cell needs at least before it may swap to the next LOD (it swaps early,
@@ -187,7 +189,7 @@ pub fn runtime_config(options: &SceneOptions, runtime: &RuntimeOptions) -> Resul
     config.threads = options.threads;
     config.cell_size = runtime.cell_size;
     if let Some(b) = runtime.memory_budget {
-        config.memory_budget = b;
+        config.memory_budget = Some(b);
     }
     if let Some(d) = runtime.min_directions {
         config.min_directions = d;

@@ -6,7 +6,12 @@
 //! id: a page whose id changed is written over its own slot, a new page takes a free slot,
 //! a vanished one frees its slot; only those pages, the changed table entries and the
 //! changed cell LODs are uploaded, never the whole map. The pool grows by doubling, copying
-//! the old pool on the GPU (no upload).
+//! the old pool on the GPU (no upload), up to the most pages the device's largest texture
+//! holds (or [`LightmapGpu::set_page_cap`]'s cap). Beyond that the mirror never fails: the
+//! levels are synced coarsest first, and a page that finds no slot takes one from a page of
+//! a finer LOD or, if there is none, is left out. A page left out reads as unpublished, so
+//! the sampling function falls back to the coarser level there: the picture shows a coarser
+//! LOD where the map outgrew the GPU (the runtime's page limit keeps it from doing so).
 
 use std::sync::Arc;
 
@@ -34,6 +39,10 @@ pub struct SyncReport {
     pub bytes_uploaded: u64,
     /// Whether the map's shape changed (grid, atlas size, LOD count) and everything was rebuilt.
     pub rebuilt: bool,
+    /// Pages of the map left out of the pool (full): their level falls back to a coarser one.
+    pub pages_left_out: u64,
+    /// Resident pages given up for pages of coarser levels (the pool full).
+    pub pages_given_up: u64,
 }
 
 impl SyncReport {
@@ -43,6 +52,8 @@ impl SyncReport {
         self.cells_uploaded += other.cells_uploaded;
         self.bytes_uploaded += other.bytes_uploaded;
         self.rebuilt |= other.rebuilt;
+        self.pages_left_out += other.pages_left_out;
+        self.pages_given_up += other.pages_given_up;
     }
 }
 
@@ -121,8 +132,20 @@ pub struct LightmapGpu {
     cell_lod: Vec<u8>,
     free_slots: Vec<u32>,
     slots_used: u32,
+    /// Most pages the pool may hold.
+    page_cap: u32,
+    /// Per LOD: pages of either layer resident (the finest give way first when the pool is full).
+    resident_per_lod: Vec<u32>,
     /// Everything uploaded since creation.
     pub total: SyncReport,
+}
+
+/// Most pages a pool on `device` holds: as many 64×64 slots as its largest 2D texture has,
+/// in the pool's at most 64 columns.
+pub fn device_page_cap(device: &wgpu::Device) -> u32 {
+    let max_side = device.limits().max_texture_dimension_2d;
+    let columns = (max_side / PAGE_SIDE).clamp(1, 64);
+    columns * (max_side / PAGE_SIDE).max(1)
 }
 
 impl LightmapGpu {
@@ -176,8 +199,9 @@ impl LightmapGpu {
         let params_buffer = buffer("lightmap params", size_of::<LightmapParams>() as u64, wgpu::BufferUsages::UNIFORM);
         let cell_lod_buffer = buffer("cell lods", 4 * 2 * cells as u64, wgpu::BufferUsages::STORAGE);
         let page_table_buffer = buffer("page table", 4 * table_len as u64, wgpu::BufferUsages::STORAGE);
-        let pages = shown.layers.iter().map(|l| l.live_pages()).sum::<usize>() as u32;
-        let pool_rows = pages.div_ceil(pool_columns).max(1).next_power_of_two();
+        let page_cap = device_page_cap(device);
+        let pages = (shown.layers.iter().map(|l| l.live_pages()).sum::<usize>() as u32).min(page_cap);
+        let pool_rows = pages.div_ceil(pool_columns).max(1).next_power_of_two().min(page_cap / pool_columns);
         let pool = create_pool(device, pool_columns, pool_rows)?;
         let bind_group = create_bind_group(device, layout, &params_buffer, &cell_lod_buffer, &page_table_buffer, &pool);
         let mut mirror = LightmapGpu {
@@ -194,6 +218,8 @@ impl LightmapGpu {
             cell_lod: vec![u8::MAX; 2 * cells],
             free_slots: Vec::new(),
             slots_used: 0,
+            page_cap,
+            resident_per_lod: vec![0; lods],
             total: SyncReport::default(),
         };
         gpu.queue.write_buffer(&mirror.params_buffer, 0, bytemuck::bytes_of(&mirror.params));
@@ -235,35 +261,50 @@ impl LightmapGpu {
         shown: &ShownLightmap,
     ) -> Result<SyncReport, GpuError> {
         let mut report = SyncReport::default();
-        // Pages: compare ids entry by entry.
+        // Pages: compare ids entry by entry, the coarsest level of both layers first, so that
+        // a full pool keeps the coarse levels (see the module docs).
         let mut changed_entries = Vec::new();
         let mut uploads: Vec<(u32, Arc<Page>)> = Vec::new();
-        let mut entry = 0usize;
-        for level in shown.layers.iter().flat_map(|l| l.levels.iter()) {
-            for page in level.rows.iter().flat_map(|row| row.iter()) {
-                let held = self.resident[entry];
-                match (held, page) {
-                    (Some((id, _)), Some(p)) if id == p.id => {}
-                    (Some((_, slot)), Some(p)) => {
-                        self.resident[entry] = Some((p.id, slot));
-                        uploads.push((slot, p.clone()));
+        let lods = self.resident_per_lod.len();
+        for lod in 0..lods {
+            for (layer, pages) in shown.layers.iter().enumerate() {
+                let level = &pages.levels[lod];
+                let offset = self.params.levels[layer * MAX_LODS + lod].table_offset as usize;
+                for (i, page) in level.rows.iter().flat_map(|row| row.iter()).enumerate() {
+                    let entry = offset + i;
+                    match (self.resident[entry], page) {
+                        (Some((id, _)), Some(p)) if id == p.id => {}
+                        (Some((_, slot)), Some(p)) => {
+                            self.resident[entry] = Some((p.id, slot));
+                            uploads.push((slot, p.clone()));
+                        }
+                        (None, Some(p)) => {
+                            match self.allocate_slot(gpu, layout, lod, &mut changed_entries, &mut report)? {
+                                Some(slot) => {
+                                    self.resident[entry] = Some((p.id, slot));
+                                    self.resident_per_lod[lod] += 1;
+                                    uploads.push((slot, p.clone()));
+                                    changed_entries.push(entry);
+                                }
+                                None => report.pages_left_out += 1,
+                            }
+                        }
+                        (Some((_, slot)), None) => {
+                            self.free_slots.push(slot);
+                            self.resident[entry] = None;
+                            self.resident_per_lod[lod] -= 1;
+                            changed_entries.push(entry);
+                        }
+                        (None, None) => {}
                     }
-                    (None, Some(p)) => {
-                        let slot = self.allocate_slot(gpu, layout)?;
-                        self.resident[entry] = Some((p.id, slot));
-                        uploads.push((slot, p.clone()));
-                        changed_entries.push(entry);
-                    }
-                    (Some((_, slot)), None) => {
-                        self.free_slots.push(slot);
-                        self.resident[entry] = None;
-                        changed_entries.push(entry);
-                    }
-                    (None, None) => {}
                 }
-                entry += 1;
             }
         }
+        // A slot is given up only by a page of a finer LOD than the one taking it, which the
+        // loop reaches later: no queued upload loses its slot. Entries were visited level by
+        // level; the writes want them ascending.
+        changed_entries.sort_unstable();
+        changed_entries.dedup();
         for (slot, page) in &uploads {
             if page.texels.len() != (PAGE_SIDE * PAGE_SIDE) as usize {
                 return Err(GpuError::Lightmap(format!(
@@ -313,20 +354,58 @@ impl LightmapGpu {
         Ok(report)
     }
 
-    fn allocate_slot(&mut self, gpu: &GpuContext, layout: &wgpu::BindGroupLayout) -> Result<u32, GpuError> {
+    /// A slot for a page of LOD `lod`: a free one, a new one (the pool grown, within its
+    /// cap), or one a resident page of a finer LOD gives up (its table entry added to
+    /// `changed`); `None` when the pool is full of pages no finer than `lod`.
+    fn allocate_slot(
+        &mut self,
+        gpu: &GpuContext,
+        layout: &wgpu::BindGroupLayout,
+        lod: usize,
+        changed: &mut Vec<usize>,
+        report: &mut SyncReport,
+    ) -> Result<Option<u32>, GpuError> {
         if let Some(slot) = self.free_slots.pop() {
-            return Ok(slot);
+            return Ok(Some(slot));
         }
-        if self.slots_used == self.pool_columns * self.pool_rows {
-            self.grow_pool(gpu, layout)?;
+        if self.slots_used < self.page_cap {
+            if self.slots_used == self.pool_columns * self.pool_rows {
+                self.grow_pool(gpu, layout)?;
+            }
+            self.slots_used += 1;
+            return Ok(Some(self.slots_used - 1));
         }
-        self.slots_used += 1;
-        Ok(self.slots_used - 1)
+        let Some(finest) = (lod + 1..self.resident_per_lod.len()).rev().find(|&k| self.resident_per_lod[k] > 0) else {
+            return Ok(None);
+        };
+        for layer in 0..2 {
+            let level = self.params.levels[layer * MAX_LODS + finest];
+            let range = level.table_offset as usize..(level.table_offset + level.pages_x * level.pages_y) as usize;
+            if let Some(entry) = range.into_iter().find(|&e| self.resident[e].is_some()) {
+                let (_, slot) = self.resident[entry].take().expect("found resident");
+                self.resident_per_lod[finest] -= 1;
+                changed.push(entry);
+                report.pages_given_up += 1;
+                return Ok(Some(slot));
+            }
+        }
+        Ok(None)
     }
 
-    /// Doubles the pool's rows, copying the old pool on the GPU.
+    /// Caps the pool at `pages` (at most what the device holds, and at least the slots in
+    /// use): a smaller pool, for tests of a map that outgrows it.
+    pub fn set_page_cap(&mut self, pages: u32) {
+        self.page_cap = pages.clamp(self.slots_used.max(1), self.page_cap.max(self.slots_used.max(1)));
+    }
+
+    /// Most pages the pool may hold.
+    pub fn page_cap(&self) -> u32 {
+        self.page_cap
+    }
+
+    /// Doubles the pool's rows (within its cap), copying the old pool on the GPU.
     fn grow_pool(&mut self, gpu: &GpuContext, layout: &wgpu::BindGroupLayout) -> Result<(), GpuError> {
-        let rows = self.pool_rows * 2;
+        let rows = (self.pool_rows * 2).min(self.page_cap.div_ceil(self.pool_columns)).max(self.pool_rows + 1);
         let pool = create_pool(&gpu.device, self.pool_columns, rows)?;
         let mut encoder =
             gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("grow pool") });

@@ -5,7 +5,7 @@
 use glam::{DVec2, Vec3};
 
 use super::Bvh;
-use crate::atlas::raster::closest_barycentric;
+use crate::atlas::raster::{barycentric, closest_barycentric};
 use crate::atlas::{Atlas, FaceId};
 use crate::parallel::par_map;
 use crate::scene::{Rgb, Scene, SceneGeometry, Side};
@@ -69,10 +69,25 @@ pub fn punctual_irradiance_of_texels(
     if scene.lights.is_empty() || n == 0 {
         return (vec![Rgb::ZERO; n], Vec::new());
     }
+    // A sub-point in the plane of the texel's face: beyond the face's edge it lands on the
+    // neighbouring face of a flat chart, as the texel's area does (moved onto the face
+    // instead, points near a diagonal between two triangles would crowd onto it). A texel
+    // whose centre lies outside its face (a thin triangle's conservative texel) keeps its
+    // points on the face.
     let point = |i: usize, dx: f64, dy: f64| {
         let f = &atlas.faces[faces[i] as usize];
         let [x, y] = pixel(i);
-        let (u, v, _) = closest_barycentric(&f.uv_lod(lod), DVec2::new(x as f64 + dx, y as f64 + dy));
+        let uv = f.uv_lod(lod);
+        let (cu, cv, outside) = closest_barycentric(&uv, DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
+        let at = DVec2::new(x as f64 + dx, y as f64 + dy);
+        let (u, v) = match barycentric(&uv, at) {
+            Some(b) if outside == 0.0 => b,
+            _ if outside == 0.0 => (cu, cv),
+            _ => {
+                let (u, v, _) = closest_barycentric(&uv, at);
+                (u, v)
+            }
+        };
         (f.tri, geom.point(f.tri, u as f32, v as f32), geom.normals[f.tri as usize] * f.side.sign())
     };
     let centres: Vec<Vec3> = (0..n).map(|i| point(i, 0.5, 0.5).1).collect();
@@ -117,20 +132,20 @@ pub fn punctual_irradiance_of_texels(
 const SUBPIXELS: [(f64, f64); 4] = [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)];
 
 /// Whether the surface point `p` of triangle `tri` (on the side of unit normal `n`) lies
-/// inside closed geometry: the first surfaces straight out along `n` and straight back along
-/// `−n` both show it their backs, and neither back is a lit face (the insides of
-/// single-sided surfaces): the rule of the bundles' buried layers (`bundle::estimator`) on
-/// the line through `p` along its normal. A point on a floor under a wall's solid, or on the
-/// part of a face that runs through a box, sees the solid's inside both ways.
+/// inside closed geometry: the first surface straight out along `n` shows it its back, and
+/// that back is no lit face (the inside of a single-sided surface: closed geometry, as the
+/// bundles take it, `bundle::estimator`). A point on a floor under a resting box (whose
+/// bottom lies on the floor), under a wall's solid, or on the part of a face that runs
+/// through a box, sees the solid's inside straight above it; a point in open space sees the
+/// front of what faces it, or the sky.
 pub fn is_buried(scene: &Scene, geom: &SceneGeometry, bvh: &Bvh, tri: u32, p: Vec3, n: Vec3, epsilon: f32) -> bool {
-    let blind = |dir: Vec3| match bvh.intersect(p + dir * epsilon, dir, 0.0, f32::INFINITY) {
+    match bvh.intersect(p + n * epsilon, n, 0.0, f32::INFINITY) {
         Some(hit) if hit.tri != tri => {
-            let facing_away = geom.normals[hit.tri as usize].dot(dir) > 0.0;
+            let facing_away = geom.normals[hit.tri as usize].dot(n) > 0.0;
             facing_away && !scene.materials[geom.material[hit.tri as usize] as usize].has_side(Side::Back)
         }
         _ => false,
-    };
-    blind(n) && blind(-n)
+    }
 }
 
 /// Indices of `positions` sorted by the Morton code of their cell in a 1024³ grid over their

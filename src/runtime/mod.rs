@@ -24,6 +24,7 @@
 //! snapshot pointer (the shown light map), never held during tracing.
 
 pub mod cell_bake;
+pub mod memory;
 pub mod policy;
 pub mod punctual;
 mod reload;
@@ -76,8 +77,13 @@ pub struct RuntimeConfig {
     /// Grid cell side, metres; `None`: from the scene (a few thousand non-empty cells).
     pub cell_size: Option<f32>,
     /// Bytes the shown pages and the bakes in progress may hold; the finest pages of the
-    /// cells farthest from the camera are evicted beyond it.
-    pub memory_budget: u64,
+    /// cells farthest from the camera are evicted beyond it. `None`: derived from the scene
+    /// and the view ([`memory::derived_budget`]), at most a quarter of the machine's memory.
+    pub memory_budget: Option<u64>,
+    /// Most pages (of either layer, 64×64 pixels each) the shown map may hold: what the
+    /// front end can show (the viewer's GPU pool holds as many as its device's largest
+    /// texture). `None`: no limit beyond the budget.
+    pub page_limit: Option<u64>,
     /// A cell's bake at a finer LOD is published (settled) when it has at least
     /// `min_directions` and its estimated relative error is at most `error_bound`, or when it
     /// has `max_directions`; then the cell moves on to the next LOD. Before that it is
@@ -117,7 +123,8 @@ impl Default for RuntimeConfig {
             first_light_directions: 32,
             lods: None,
             cell_size: None,
-            memory_budget: default_memory_budget(),
+            memory_budget: None,
+            page_limit: None,
             min_directions: 32,
             max_directions: 512,
             error_bound: 0.03,
@@ -133,8 +140,9 @@ impl Default for RuntimeConfig {
     }
 }
 
-/// A quarter of the machine's memory, at most 4 GiB (1 GiB where it cannot be read).
-pub fn default_memory_budget() -> u64 {
+/// A quarter of the machine's memory, at most 4 GiB (1 GiB where it cannot be read): the
+/// most a derived budget may be.
+pub fn memory_ceiling() -> u64 {
     let total = std::fs::read_to_string("/proc/meminfo")
         .ok()
         .and_then(|m| m.lines().find(|l| l.starts_with("MemTotal:"))?.split_whitespace().nth(1)?.parse::<u64>().ok());
@@ -188,8 +196,13 @@ impl RuntimeConfig {
         if !(self.texel_pixels.is_finite() && self.texel_pixels > 0.0) {
             return bad("the texel size on screen", format!("must be positive, got {}", self.texel_pixels));
         }
-        if self.memory_budget < 1 << 20 {
-            return bad("--memory-budget", format!("must be at least 1 MiB, got {} bytes", self.memory_budget));
+        if let Some(b) = self.memory_budget
+            && b < 1 << 20
+        {
+            return bad("--memory-budget", format!("must be at least 1 MiB, got {b} bytes"));
+        }
+        if self.page_limit == Some(0) {
+            return bad("the page limit", "must be at least 1".into());
         }
         if self.threads == Some(0) {
             return bad("--threads", "must be at least 1".into());
@@ -350,6 +363,8 @@ pub struct RuntimeStats {
     pub baking: usize,
     /// Texels × directions traced per second, over the last stats interval.
     pub texel_samples_per_second: f64,
+    /// The memory budget in force (given, or derived from the scene and the view).
+    pub memory_budget: u64,
     /// Bytes: shown pages, bakes in progress, and what the scene's fixed structures hold.
     pub page_bytes: u64,
     /// Published pixels over the pixels of the pages held (see [`ShownLightmap::page_fill`]).
@@ -433,8 +448,12 @@ impl Runtime {
         let make_backend: MakeBackend = Arc::new(move |scene, threads| {
             provider.backend(scene, threads).map(|b| Box::new(b) as Box<dyn BundleBackend>)
         });
+        // Until a camera is set, the scene's default view sets the derived budget.
+        let budget = config.memory_budget.unwrap_or_else(|| {
+            memory::derived_budget(&config, &world, &shown, &CameraView::for_scene(&world.scene), memory_ceiling())
+        });
         let shared = Arc::new(Shared {
-            state: Mutex::new(State::new(world, config.start_paused)),
+            state: Mutex::new(State::new(world, config.start_paused, budget, config.page_limit)),
             config,
             wake: Condvar::new(),
             shown: RwLock::new(Arc::new(shown)),
@@ -491,6 +510,14 @@ impl Runtime {
             c.0 += 1;
             c.1 = Some(camera);
         }
+        self.shared.wake.notify_all();
+    }
+
+    /// Limits the shown map to `pages` pages (of either layer; `None`: no limit beyond the
+    /// budget): what the front end can show, as the viewer's GPU pool. Levels beyond it are
+    /// evicted before the next bake, the farthest first.
+    pub fn set_page_limit(&self, pages: Option<u64>) {
+        self.shared.lock().page_limit = pages.map(|p| p.max(1));
         self.shared.wake.notify_all();
     }
 

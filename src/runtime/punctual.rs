@@ -51,8 +51,8 @@ impl PunctualBake {
 }
 
 /// Bytes a punctual bake of a cell with `texels` texels holds while it runs (the texel map,
-/// ~68 B a texel, and the values), and its pages once published (as a bundle publish, 32 B a
-/// texel for partly filled pages).
+/// ~68 B a texel, and the values), and its pages once published (as a bundle publish,
+/// [`PAGE_BYTES_PER_TEXEL`](super::memory::PAGE_BYTES_PER_TEXEL) a texel).
 pub fn punctual_bake_bytes(texels: u64) -> u64 {
-    texels * (68 + 12 + 32)
+    texels * (68 + 12 + super::memory::PAGE_BYTES_PER_TEXEL)
 }

@@ -324,10 +324,13 @@ fn relight(
     lap(&mut steps.bake);
     // The bundles' part filtered within charts in the bundle layer, the exact punctual part
     // in the punctual layer (as first light publishes them).
-    let noisy: Vec<Rgb> = baked.irradiance.iter().zip(&baked.punctual).map(|(e, d)| *e - *d).collect();
+    // No punctual part (a scene without punctual lights) reads as zero.
+    let direct = |i: usize| baked.punctual.get(i).copied().unwrap_or(Rgb::ZERO);
+    let noisy: Vec<Rgb> = (0..baked.irradiance.len()).map(|i| baked.irradiance[i] - direct(i)).collect();
     let sampled = |i: usize| baked.unsampled.binary_search(&(i as u32)).is_err();
     let filtered = filter_within_charts(&texels.pixel, |i| texels.table_of(i), &noisy, sampled);
-    let layers = [(Layer::Bundles, &filtered), (Layer::Punctual, &baked.punctual)];
+    let punctual: Vec<Rgb> = (0..baked.irradiance.len()).map(direct).collect();
+    let layers = [(Layer::Bundles, &filtered), (Layer::Punctual, &punctual)];
     let lights = !world.scene.lights.is_empty();
     let mut owned = vec![Vec::new(); grid.len()];
     for (i, p) in texels.pixel.iter().enumerate() {

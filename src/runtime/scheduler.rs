@@ -13,11 +13,12 @@ use std::time::{Duration, Instant};
 use crossbeam_channel::Sender;
 
 use super::cell_bake::CellBake;
+use super::memory::{PAGE_BYTES_PER_TEXEL, bake_estimate, derived_budget, fixed_bytes, lod_texels};
 use super::policy::{
     CameraView, CellView, LayerLight, Step, Tier, Work, cell_view, priority, screen_weight, target_lod, urgency,
 };
 use super::punctual::{PunctualBake, punctual_bake_bytes};
-use super::shown::{Layer, PageWriter, ShownLightmap};
+use super::shown::{Layer, Page, PageWriter, ShownLightmap};
 use super::world::World;
 use super::{RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
 use crate::atlas::chart_filter::filter_within_charts;
@@ -145,6 +146,11 @@ pub(super) struct State {
     /// Directions of the LOD 0 shown.
     pub lod0_directions: u64,
     pub failed: Option<String>,
+    /// The memory budget in force: the given one, or derived from the scene and the view
+    /// (recomputed when the camera changes, [`update_views`]).
+    pub budget: u64,
+    /// Most pages the shown map may hold (see [`RuntimeConfig::page_limit`]).
+    pub page_limit: Option<u64>,
     pub bake_bytes: u64,
     /// Texel-samples traced since the last stats event.
     pub window_samples: u64,
@@ -152,8 +158,10 @@ pub(super) struct State {
 }
 
 impl State {
-    pub fn new(world: Arc<World>, paused: bool) -> State {
+    pub fn new(world: Arc<World>, paused: bool, budget: u64, page_limit: Option<u64>) -> State {
         State {
+            budget,
+            page_limit,
             cells: (0..world.grid.len()).map(|_| CellState::default()).collect(),
             world,
             generation: 0,
@@ -255,6 +263,9 @@ pub(super) fn take_camera(shared: &Shared, st: &mut State) -> bool {
 pub(super) fn update_views(shared: &Shared, st: &mut State) {
     let Some(camera) = st.camera else { return };
     let world = st.world.clone();
+    if shared.config.memory_budget.is_none() {
+        st.budget = derived_budget(&shared.config, &world, &shared.shown(), &camera, super::memory_ceiling());
+    }
     for c in world.non_empty_cells() {
         let view = cell_view(&camera, &world.grid, c);
         let cell = &mut st.cells[c as usize];
@@ -285,21 +296,10 @@ pub(super) fn current_stats(shared: &Shared, st: &mut State) -> RuntimeStats {
     s.page_fill = shown.page_fill();
     s.bake_bytes = st.bake_bytes;
     s.fixed_bytes = fixed_bytes(world);
+    s.memory_budget = st.budget;
     s.resident_bytes = s.page_bytes + s.bake_bytes + s.fixed_bytes;
     s.dropped_events = shared.dropped.load(Ordering::Relaxed);
     s
-}
-
-/// Bytes of what the runtime holds for the scene whatever the camera does: geometry, atlas,
-/// BVH, the LOD-0 texels and the grid's triangle lists.
-fn fixed_bytes(world: &World) -> u64 {
-    let tris = world.geom.len() as u64;
-    let lod0 = world.lod0.len() as u64 * (4 + 4 + 12 * 4 + 4) + world.lod0.gutter.len() as u64 * 8;
-    tris * (36 + 12 + 4 + 4 + 4 + 4) // geometry
-        + world.atlas.faces.len() as u64 * 36
-        + world.bvh.memory_bytes() as u64
-        + lod0
-        + world.cell_triangles.triangles.len() as u64 * 4
 }
 
 /// Light-map pixels (x, y) in lists: per cell, or per LOD.
@@ -348,9 +348,11 @@ pub fn bake_first_light_observed(
     let lights = !world.scene.lights.is_empty();
     let publish =
         |mut map: ShownLightmap, irradiance: &dyn Fn(usize) -> Rgb, direct: &[Rgb], sampled: &dyn Fn(usize) -> bool| {
-            let noisy: Vec<Rgb> = (0..pixels.len()).map(|i| irradiance(i) - direct[i]).collect();
+            // No punctual part (a scene without punctual lights) reads as zero.
+            let direct_of = |i: usize| direct.get(i).copied().unwrap_or(Rgb::ZERO);
+            let noisy: Vec<Rgb> = (0..pixels.len()).map(|i| irradiance(i) - direct_of(i)).collect();
             let filtered = filter_within_charts(&pixels, |_| &table, &noisy, sampled);
-            let layers = [(Layer::Bundles, filtered), (Layer::Punctual, direct.to_vec())];
+            let layers = [(Layer::Bundles, filtered), (Layer::Punctual, (0..pixels.len()).map(direct_of).collect())];
             let mut writer = PageWriter::new(&mut map);
             for (layer, values) in layers.iter().take(if lights { 2 } else { 1 }) {
                 for (i, p) in pixels.iter().enumerate() {
@@ -673,8 +675,9 @@ fn best_punctual(st: &State) -> Option<(JobKey, CellId)> {
 fn take_punctual(shared: &Shared, st: &mut State, c: CellId) -> Option<Job> {
     let world = st.world.clone();
     let levels = punctual_work(&world, &st.cells[c as usize])?;
-    let need: u64 = levels.iter().map(|&k| punctual_bake_bytes(lod_texels(&world, c, k))).sum();
-    if !make_room(shared, st, &[c], need, Work::Punctual) {
+    let texels: u64 = levels.iter().map(|&k| lod_texels(&world, c, k)).sum();
+    let need = punctual_bake_bytes(texels);
+    if !make_room(shared, st, &[c], need, texels, Work::Punctual) {
         return None;
     }
     st.cells[c as usize].punctual.busy = true;
@@ -742,7 +745,8 @@ fn take_bundles(shared: &Shared, st: &mut State, c: CellId) -> Option<Job> {
     let lod = next_lod(&st.cells[leader as usize])?;
     let cells = gather_group(shared, st, leader, lod);
     let need: u64 = cells.iter().map(|&m| bake_estimate(&world, m, lod)).sum();
-    if !make_room(shared, st, &cells, need, Work::Bundles) {
+    let texels: u64 = cells.iter().map(|&m| lod_texels(&world, m, lod)).sum();
+    if !make_room(shared, st, &cells, need, texels, Work::Bundles) {
         return None;
     }
     for &m in &cells {
@@ -766,7 +770,7 @@ fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<Ce
     if total >= want {
         return cells;
     }
-    let free = shared.config.memory_budget.saturating_sub(budgeted_bytes(shared, st));
+    let free = st.budget.saturating_sub(budgeted_bytes(shared, st));
     let mut bytes = bake_estimate(world, leader, lod);
     let l = &st.cells[leader as usize];
     let (shown, provisional, unsettled) = (l.shown, l.provisional, l.unsettled);
@@ -815,23 +819,6 @@ fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<Ce
 /// How far (cells, per axis) a group reaches from its leader.
 const GROUP_REACH: u32 = 3;
 
-/// Texels of `cell` at `lod`, estimated from its LOD-0 count (4^lod times as many).
-fn lod_texels(world: &World, cell: CellId, lod: u32) -> u64 {
-    world.lod0_texels[cell as usize] as u64 * (1u64 << (2 * lod))
-}
-
-/// Bytes a bake of `cell` at `lod` will hold while it runs and its pages once published, from
-/// the cell's LOD-0 texel count (4^lod times as many texels at LOD `lod`).
-fn bake_estimate(world: &World, cell: CellId, lod: u32) -> u64 {
-    lod_texels(world, cell, lod) * (BAKE_BYTES_PER_TEXEL + PAGE_BYTES_PER_TEXEL)
-}
-
-/// A cell bake holds its texels (~68 B), sums per lane (28 B × lanes, 2 by default, plus the
-/// reduced copy), the running totals (56 B), sources and variance (~40 B): ~250 B a texel.
-const BAKE_BYTES_PER_TEXEL: u64 = 256;
-/// A published texel is 16 B in a page; pages are partly filled (charts, other cells).
-const PAGE_BYTES_PER_TEXEL: u64 = 32;
-
 /// Bytes counted against the budget: shown pages and bakes in progress.
 fn budgeted_bytes(shared: &Shared, st: &State) -> u64 {
     shared.shown().page_bytes() as u64 + st.bake_bytes
@@ -850,14 +837,20 @@ fn budgeted_bytes(shared: &Shared, st: &State) -> u64 {
 /// punctual bake dropped it (0 bundle publishes in 240 s, 183 camera moves a second).
 /// Cells in a parked group bake are let alone (the group's leader stands for them: its
 /// bake goes first). Returns whether it fits.
-fn make_room(shared: &Shared, st: &mut State, for_cells: &[CellId], need: u64, work: Work) -> bool {
-    let budget = shared.config.memory_budget;
+fn make_room(shared: &Shared, st: &mut State, for_cells: &[CellId], need: u64, texels: u64, work: Work) -> bool {
+    let budget = st.budget;
+    // The front end's page limit, and the pages the work's `texels` will take.
+    let page_cap = st.page_limit.map_or(u64::MAX, |p| p.saturating_mul(Page::BYTES as u64));
+    let need_pages = texels * PAGE_BYTES_PER_TEXEL;
+    let over = |st: &State| {
+        budgeted_bytes(shared, st) + need > budget || shared.shown().page_bytes() as u64 + need_pages > page_cap
+    };
     let world = st.world.clone();
     let view = |st: &State, c: CellId| st.cells[c as usize].view;
     let distance = |st: &State, c: CellId| view(st, c).map_or(f32::MAX, |v| v.distance);
     let in_view = |st: &State, c: CellId| view(st, c).is_some_and(|v| v.in_frustum);
     let (mine, mine_in_view) = (distance(st, for_cells[0]), in_view(st, for_cells[0]));
-    while budgeted_bytes(shared, st) + need > budget {
+    while over(st) {
         // What matters least: beyond its cell's target first, then farthest.
         let mut victim: Option<((bool, f32, bool), CellId, Layer)> = None;
         for c in world.non_empty_cells().filter(|c| !for_cells.contains(c)) {
@@ -1307,27 +1300,19 @@ mod tests {
         assert_eq!(publish_due(&c, 0, provisional, full, 0.5), Due::Settled);
     }
 
-    /// A punctual bake makes the target and the LOD below, those not published yet; a stale
-    /// layer is made again from LOD 0; nothing while one is in flight or when shown at its
-    /// target.
+    /// A punctual bake makes the next finer LOD; a stale layer is made again at LOD 0 and
+    /// its two finest levels; nothing while one is in flight or when shown at its target.
     #[test]
-    fn a_punctual_bake_makes_the_target_and_the_lod_below() {
-        let state = |shown, target, published: &[u32], stale| {
-            let mut p = PunctualState { shown, target, stale, ..PunctualState::default() };
-            for &k in published {
-                p.published.resize(p.published.len().max(k as usize + 1), Vec::new());
-                p.published[k as usize] = vec![[0, 0]];
-            }
-            p
-        };
-        assert_eq!(state(0, 5, &[0], false).next_levels(), Some(vec![4, 5]));
-        assert_eq!(state(5, 6, &[0, 4, 5], false).next_levels(), Some(vec![6]));
-        assert_eq!(state(0, 1, &[0], false).next_levels(), Some(vec![1]));
-        assert_eq!(state(5, 5, &[0, 4, 5], true).next_levels(), Some(vec![0, 4, 5]));
-        assert_eq!(state(0, 0, &[0], true).next_levels(), Some(vec![0]));
-        assert_eq!(state(5, 5, &[0, 4, 5], false).next_levels(), None);
-        assert_eq!(state(6, 5, &[0, 5, 6], false).next_levels(), None);
-        let busy = PunctualState { busy: true, ..state(0, 5, &[0], false) };
+    fn a_punctual_bake_makes_the_next_finer_lod() {
+        let state = |shown, target, stale| PunctualState { shown, target, stale, ..PunctualState::default() };
+        assert_eq!(state(0, 5, false).next_levels(), Some(vec![1]));
+        assert_eq!(state(4, 6, false).next_levels(), Some(vec![5]));
+        assert_eq!(state(5, 5, true).next_levels(), Some(vec![0, 4, 5]));
+        assert_eq!(state(1, 3, true).next_levels(), Some(vec![0, 1]));
+        assert_eq!(state(0, 0, true).next_levels(), Some(vec![0]));
+        assert_eq!(state(5, 5, false).next_levels(), None);
+        assert_eq!(state(6, 5, false).next_levels(), None);
+        let busy = PunctualState { busy: true, ..state(0, 5, false) };
         assert_eq!(busy.next_levels(), None);
     }
 

@@ -292,6 +292,7 @@ impl App<'_, '_> {
         surface.configure(&gpu.device, &config);
         let depth = depth_texture(&gpu.device, config.width, config.height);
         let renderer = Renderer::new(gpu, &self.source.scene())?;
+        self.source.set_page_limit(renderer.lightmap.page_cap() as u64);
         self.state = Some(WindowState { window, surface, config, depth, renderer });
         Ok(())
     }

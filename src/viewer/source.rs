@@ -43,6 +43,8 @@ pub trait LightSource {
     fn shown(&self) -> Option<Arc<ShownLightmap>>;
     /// Where the viewer looks (a runtime refines what is seen first).
     fn set_camera(&mut self, camera: &Camera, aspect: f32, height_px: u32);
+    /// The most pages the viewer's GPU holds: a runtime keeps the shown map within it.
+    fn set_page_limit(&mut self, _pages: u64) {}
     fn status(&self) -> SourceStatus;
     /// Takes the source's news (events); called once a frame.
     fn poll(&mut self) {}
@@ -141,6 +143,12 @@ impl LightSource for RuntimeLight {
     fn shown(&self) -> Option<Arc<ShownLightmap>> {
         let runtime = self.runtime.as_ref()?;
         runtime.has_first_light().then(|| runtime.shown())
+    }
+
+    fn set_page_limit(&mut self, pages: u64) {
+        if let Some(runtime) = &self.runtime {
+            runtime.set_page_limit(Some(pages));
+        }
     }
 
     fn set_camera(&mut self, camera: &Camera, aspect: f32, height_px: u32) {
