@@ -21,7 +21,7 @@ use crate::bundle::target::{BakeTarget, Cancelled, SourceRadiance};
 use crate::bundle::tiles::{Tile, TilePlanner, TilingMode, bundle_resolution};
 use crate::bundle::window::{WindowSource, split_overflowed, tile_viewport, unplanned};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
-use crate::scene::Rgb;
+use crate::scene::{Rgb, Side};
 
 /// Read-only inputs shared by every thread of a batch.
 pub struct PassContext<'a> {
@@ -181,24 +181,22 @@ fn seen(
     if is_own(code) {
         return source.own[code as usize];
     }
-    seen_foreign(source, foreign, code, cx, cy, lookups)
+    debug_assert!(code >= FOREIGN);
+    seen_foreign(source, || foreign.locate(code, cx, cy), lookups)
 }
 
-/// [`seen`] of a foreign side, out of line: a whole LOD has none, a cell's bake a few.
+/// [`seen`] of a foreign side at the surface point `at` gives, out of line: a whole LOD has
+/// none, a cell's bake a few.
 #[inline(never)]
 fn seen_foreign(
     source: &SourceRadiance,
-    foreign: &ForeignSides,
-    code: u32,
-    cx: f32,
-    cy: f32,
+    at: impl FnOnce() -> (u32, Side, f32, f32),
     lookups: &mut ForeignLookups,
 ) -> Rgb {
-    debug_assert!(code >= FOREIGN);
     match source.foreign {
         Some(f) => {
             lookups.resolved += 1;
-            let (tri, side, u, v) = foreign.locate(code, cx, cy);
+            let (tri, side, u, v) = at();
             f.radiance(tri, side, u, v)
         }
         None => {
