@@ -161,7 +161,7 @@ impl Coincidence {
     /// Depth gaps beyond this are never a tie or a join, whatever the slope (up to 89.4°
     /// from the normal: |n_ω| ≥ 0.01; lines closer to grazing keep their depth order).
     #[inline]
-    fn reach(&self) -> f32 {
+    const fn reach(&self) -> f32 {
         self.rounding + 100.0 * (self.stacked + self.snap)
     }
 
@@ -175,55 +175,86 @@ impl Coincidence {
         (gap * cos, self.rounding * cos + self.snap * sin)
     }
 
-    /// Whether `a` and `b` are at one place along the line, for [`sort_by_depth`]: depths
-    /// within rounding, or parallel surfaces (facing either way) within rounding and
-    /// snapping.
-    #[inline]
-    fn same_place(&self, a: &Fragment, b: &Fragment) -> bool {
-        let gap = (b.depth - a.depth).abs();
-        if gap <= self.rounding {
-            return true;
-        }
-        if gap > self.reach() {
-            return false;
-        }
+    /// [`Layering::same_place`] for a gap within reach: a line that crosses two surfaces this
+    /// close is rare (a corner, a stack), so the normals are unpacked here, out of line, and
+    /// never for the fragments a pixel's sort merely moves past.
+    #[cold]
+    #[inline(never)]
+    fn parallel_within_slack(&self, a: &Fragment, b: &Fragment, gap: f32) -> bool {
         let (na, nb) = (unpack_normal(a.normal), unpack_normal(b.normal));
         let (along, slack) = self.normal_gap(gap, na);
         along <= slack && na.dot(nb).abs() >= COPLANAR_COS
     }
 
-    /// Whether `b`, which follows `a` in depth order, lies in `a`'s layer: same facing,
-    /// parallel, and closer along the normal than [`stacked`](Self::stacked) once rounding
-    /// and snapping are allowed for.
-    #[inline]
-    fn joins(&self, a: &Fragment, b: &Fragment) -> bool {
-        let gap = (b.depth - a.depth).abs();
-        if a.coincident_rank() != b.coincident_rank() || gap > self.reach() {
-            return false;
-        }
+    /// [`Layering::joins`] for a gap within reach, out of line (see
+    /// [`parallel_within_slack`](Self::parallel_within_slack)).
+    #[cold]
+    #[inline(never)]
+    fn stacked_within_slack(&self, a: &Fragment, b: &Fragment, gap: f32) -> bool {
         let (na, nb) = (unpack_normal(a.normal), unpack_normal(b.normal));
         let (along, slack) = self.normal_gap(gap, na);
         along <= slack + self.stacked && na.dot(nb) >= COPLANAR_COS
     }
 }
 
+/// A tile's [`Coincidence`] with its reach (the depth gap beyond which no two fragments are a
+/// tie or one layer) worked out once: what [`sort_by_depth`], [`exchange`] and [`emit`] read
+/// for every pixel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Layering {
+    c: Coincidence,
+    reach: f32,
+}
+
+impl Coincidence {
+    pub const fn layering(self) -> Layering {
+        Layering { c: self, reach: self.reach() }
+    }
+}
+
+impl Layering {
+    /// Whether `a` and `b` are at one place along the line, for [`sort_by_depth`]: depths
+    /// within rounding, or parallel surfaces (facing either way) within rounding and
+    /// snapping.
+    #[inline(always)]
+    fn same_place(&self, a: &Fragment, b: &Fragment) -> bool {
+        let gap = (b.depth - a.depth).abs();
+        if gap <= self.c.rounding {
+            return true;
+        }
+        gap <= self.reach && self.c.parallel_within_slack(a, b, gap)
+    }
+
+    /// Whether `b`, which follows `a` in depth order, lies in `a`'s layer: same facing,
+    /// parallel, and closer along the normal than [`stacked`](Coincidence::stacked) once
+    /// rounding and snapping are allowed for.
+    #[inline(always)]
+    fn joins(&self, a: &Fragment, b: &Fragment) -> bool {
+        let gap = (b.depth - a.depth).abs();
+        if a.coincident_rank() != b.coincident_rank() || gap > self.reach {
+            return false;
+        }
+        self.c.stacked_within_slack(a, b, gap)
+    }
+}
+
 /// Whether `a` lies before `b` along ω. Fragments at one place (see
-/// [`Coincidence::same_place`]) are ordered by facing: the surface whose front looks back
+/// [`Layering::same_place`]) are ordered by facing: the surface whose front looks back
 /// along −ω goes first (its room lies before it). Two rooms sharing a zero-thickness wall
 /// then never see each other, whatever order rounding or snapping would give their walls.
-#[inline]
-fn before(a: &Fragment, b: &Fragment, c: &Coincidence) -> bool {
-    if c.same_place(a, b) { a.coincident_rank() < b.coincident_rank() } else { a.depth < b.depth }
+#[inline(always)]
+fn before(a: &Fragment, b: &Fragment, l: &Layering) -> bool {
+    if l.same_place(a, b) { a.coincident_rank() < b.coincident_rank() } else { a.depth < b.depth }
 }
 
 /// Sorts one pixel's fragments along ω (see `before`). Insertion sort: lists are short
 /// (a few surfaces) and it is stable, so ties keep their deterministic build order.
 #[inline]
-pub fn sort_by_depth(frags: &mut [Fragment], c: Coincidence) {
+pub fn sort_by_depth(frags: &mut [Fragment], l: Layering) {
     for i in 1..frags.len() {
         let f = frags[i];
         let mut j = i;
-        while j > 0 && before(&f, &frags[j - 1], &c) {
+        while j > 0 && before(&f, &frags[j - 1], &l) {
             frags[j] = frags[j - 1];
             j -= 1;
         }
@@ -233,12 +264,20 @@ pub fn sort_by_depth(frags: &mut [Fragment], c: Coincidence) {
 
 /// The end (exclusive) of the layer that starts at `start` in depth-sorted `frags`.
 #[inline]
-fn layer_end(frags: &[Fragment], start: usize, c: Coincidence) -> usize {
+fn layer_end(frags: &[Fragment], start: usize, l: Layering) -> usize {
     let mut end = start + 1;
-    while end < frags.len() && c.joins(&frags[end - 1], &frags[end]) {
+    while end < frags.len() && l.joins(&frags[end - 1], &frags[end]) {
         end += 1;
     }
     end
+}
+
+/// Whether no two fragments adjacent in depth order are within [`Coincidence::reach`]: every
+/// layer is then one fragment, the common case (a line meets surfaces far apart), which
+/// [`exchange`] and [`emit`] take without looking for layers.
+#[inline(always)]
+fn all_apart(frags: &[Fragment], l: &Layering) -> bool {
+    frags.windows(2).all(|w| (w[1].depth - w[0].depth).abs() > l.reach)
 }
 
 /// The radiance a layer shows toward one side: the brightest (by r + g + b) of `radiance`
@@ -249,7 +288,7 @@ fn layer_end(frags: &[Fragment], start: usize, c: Coincidence) -> usize {
 #[inline]
 fn layer_face(
     layer: &[Fragment],
-    side: fn(&Fragment) -> u32,
+    side: impl Fn(&Fragment) -> u32,
     mut radiance: impl FnMut(&Fragment, u32) -> Option<Rgb>,
 ) -> Option<Rgb> {
     let mut best: Option<Rgb> = None;
@@ -267,10 +306,15 @@ fn layer_face(
     best
 }
 
+/// The side of a fragment seen from before its layer (a monomorphised argument of
+/// [`layer_face`], so its loop is inlined where a function pointer was called per fragment).
+#[inline(always)]
 fn minus_side(f: &Fragment) -> u32 {
     f.minus
 }
 
+/// The side of a fragment seen from after its layer.
+#[inline(always)]
 fn plus_side(f: &Fragment) -> u32 {
     f.plus
 }
@@ -278,10 +322,15 @@ fn plus_side(f: &Fragment) -> u32 {
 /// Receives hits. `texel` is a lit face's texel.
 pub trait HitSink {
     fn hit(&mut self, texel: u32, weighted_radiance: Rgb, weight: f32);
+
+    /// A hint that `texel` will be hit soon (a sink whose sums are far in memory may start
+    /// fetching them).
+    #[inline(always)]
+    fn prefetch(&self, _texel: u32) {}
 }
 
 /// Global-bundle exchange over one pixel's depth-sorted fragments (sorted with
-/// [`sort_by_depth`] and the same `c`): every target side receives the radiance of what it
+/// [`sort_by_depth`] and the same `l`): every target side receives the radiance of what it
 /// sees (the neighbouring layer's face, module docs). `seen(code)`
 /// is the outgoing radiance toward the bundle of the side with that code (target texel or
 /// foreign; never called for [`NO_SIDE`], which is black, and only for faces some target
@@ -289,37 +338,58 @@ pub trait HitSink {
 #[inline]
 pub fn exchange(
     frags: &[Fragment],
-    c: Coincidence,
+    l: Layering,
     a_px: f32,
     sky: Rgb,
     mut seen: impl FnMut(u32) -> Rgb,
     sink: &mut impl HitSink,
 ) {
-    let mut start = 0;
-    let mut end = if frags.is_empty() { 0 } else { layer_end(frags, 0, c) };
-    // The layer before the current one; `None` before the first (the sky).
-    let mut behind: Option<&[Fragment]> = None;
-    while start < frags.len() {
-        let next_end = if end < frags.len() { layer_end(frags, end, c) } else { end };
-        let ahead = (end < frags.len()).then(|| &frags[end..next_end]);
-        // What the layer's sides see, looked up once, when a target side needs it.
-        let (mut l_ahead, mut l_behind) = (None, None);
-        let mut look = |layer: Option<&[Fragment]>, side: fn(&Fragment) -> u32| match layer {
-            None => sky,
-            Some(layer) => layer_face(layer, side, |_, code| Some(seen(code))).unwrap_or(Rgb::ZERO),
+    if all_apart(frags, &l) {
+        // Every layer is one fragment, whose side toward the viewer is its face.
+        let mut face = |side: u32| match side & CODE_MASK {
+            NO_SIDE => Rgb::ZERO,
+            code => seen(code),
         };
-        if buried(behind, ahead) {
-            behind = Some(&frags[start..end]);
-            (start, end) = (end, next_end);
-            continue;
-        }
-        for f in &frags[start..end] {
+        for (i, f) in frags.iter().enumerate() {
+            // Buried (see [`buried`]): both neighbours show it backs of single-sided faces.
+            let blind = |side: Option<u32>| side.is_some_and(|s| s & CODE_MASK == NO_SIDE);
+            if blind(i.checked_sub(1).map(|b| frags[b].plus)) && blind(frags.get(i + 1).map(|a| a.minus)) {
+                continue;
+            }
             if let Some(t) = f.plus_texel() {
-                let l = *l_ahead.get_or_insert_with(|| look(ahead, minus_side));
+                let l = frags.get(i + 1).map_or(sky, |ahead| face(ahead.minus));
                 sink.hit(t, l * a_px, a_px);
             }
             if let Some(t) = f.minus_texel() {
-                let l = *l_behind.get_or_insert_with(|| look(behind, plus_side));
+                let l = if i == 0 { sky } else { face(frags[i - 1].plus) };
+                sink.hit(t, l * a_px, a_px);
+            }
+        }
+        return;
+    }
+    let mut start = 0;
+    let mut end = if frags.is_empty() { 0 } else { layer_end(frags, 0, l) };
+    // The layer before the current one; `None` before the first (the sky).
+    let mut behind: Option<&[Fragment]> = None;
+    while start < frags.len() {
+        let next_end = if end < frags.len() { layer_end(frags, end, l) } else { end };
+        let ahead = (end < frags.len()).then(|| &frags[end..next_end]);
+        // What the layer's sides see, looked up once, when a target side needs it.
+        let (mut l_ahead, mut l_behind) = (None, None);
+        let layer = if buried(behind, ahead) { &frags[start..start] } else { &frags[start..end] };
+        for f in layer {
+            if let Some(t) = f.plus_texel() {
+                let l = *l_ahead.get_or_insert_with(|| match ahead {
+                    None => sky,
+                    Some(layer) => layer_face(layer, minus_side, |_, code| Some(seen(code))).unwrap_or(Rgb::ZERO),
+                });
+                sink.hit(t, l * a_px, a_px);
+            }
+            if let Some(t) = f.minus_texel() {
+                let l = *l_behind.get_or_insert_with(|| match behind {
+                    None => sky,
+                    Some(layer) => layer_face(layer, plus_side, |_, code| Some(seen(code))).unwrap_or(Rgb::ZERO),
+                });
                 sink.hit(t, l * a_px, a_px);
             }
         }
@@ -347,28 +417,49 @@ fn buried(behind: Option<&[Fragment]>, ahead: Option<&[Fragment]>) -> bool {
 /// neighbouring layer facing it receives that emission. `emission(code)` is the emitted radiance of the side with that code
 /// (zero if it does not emit).
 #[inline]
-pub fn emit(
-    frags: &[Fragment],
-    c: Coincidence,
-    a_px: f32,
-    mut emission: impl FnMut(u32) -> Rgb,
-    sink: &mut impl HitSink,
-) {
-    let mut emitted = |layer: &[Fragment], side: fn(&Fragment) -> u32| {
+pub fn emit(frags: &[Fragment], l: Layering, a_px: f32, mut emission: impl FnMut(u32) -> Rgb, sink: &mut impl HitSink) {
+    // Where the layer's side facing the viewer (`side`) emits, its brightest emitter.
+    #[inline(always)]
+    fn emitted(
+        layer: &[Fragment],
+        side: impl Fn(&Fragment) -> u32,
+        emission: &mut impl FnMut(u32) -> Rgb,
+    ) -> Option<Rgb> {
         layer_face(layer, side, |f, code| f.is_emitter().then(|| emission(code)))
-    };
+    }
+    if all_apart(frags, &l) {
+        // Every layer is one fragment: an emitter's side toward its neighbour is its face.
+        let mut emitted = |f: &Fragment, side: u32| match side & CODE_MASK {
+            NO_SIDE => None,
+            code => f.is_emitter().then(|| emission(code)),
+        };
+        for pair in frags.windows(2) {
+            let (before, layer) = (&pair[0], &pair[1]);
+            if let Some(le) = emitted(before, before.plus)
+                && let Some(dst) = layer.minus_texel()
+            {
+                sink.hit(dst, le * a_px, a_px);
+            }
+            if let Some(le) = emitted(layer, layer.minus)
+                && let Some(dst) = before.plus_texel()
+            {
+                sink.hit(dst, le * a_px, a_px);
+            }
+        }
+        return;
+    }
     let mut start = 0;
     let mut previous: Option<&[Fragment]> = None;
     while start < frags.len() {
-        let end = layer_end(frags, start, c);
+        let end = layer_end(frags, start, l);
         let layer = &frags[start..end];
         if let Some(before) = previous {
-            if let Some(le) = emitted(before, plus_side) {
+            if let Some(le) = emitted(before, plus_side, &mut emission) {
                 for dst in layer.iter().filter_map(Fragment::minus_texel) {
                     sink.hit(dst, le * a_px, a_px);
                 }
             }
-            if let Some(le) = emitted(layer, minus_side) {
+            if let Some(le) = emitted(layer, minus_side, &mut emission) {
                 for dst in before.iter().filter_map(Fragment::plus_texel) {
                     sink.hit(dst, le * a_px, a_px);
                 }
@@ -392,7 +483,7 @@ mod tests {
     }
 
     /// Tolerances of the tests: rounding 1e-4, stacked copies within 1e-3, no snapping.
-    const C: Coincidence = Coincidence { rounding: 1e-4, stacked: 1e-3, snap: 0.0 };
+    const C: Layering = Coincidence { rounding: 1e-4, stacked: 1e-3, snap: 0.0 }.layering();
 
     /// A fragment of a surface whose normal is +ω's (every test surface is parallel to
     /// the others unless it says otherwise).
@@ -403,7 +494,7 @@ mod tests {
     #[test]
     fn sorting_is_stable_by_depth() {
         let mut f = vec![frag(3.0, 1, 1), frag(1.0, 2, 2), frag(3.0, 3, 3), frag(-1.0, 4, 4)];
-        sort_by_depth(&mut f, Coincidence { rounding: 0.0, stacked: 0.0, snap: 0.0 });
+        sort_by_depth(&mut f, Coincidence { rounding: 0.0, stacked: 0.0, snap: 0.0 }.layering());
         assert_eq!(f.iter().map(|f| f.plus).collect::<Vec<_>>(), vec![4, 2, 1, 3]);
     }
 

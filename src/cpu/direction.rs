@@ -11,9 +11,9 @@ use glam::Vec2;
 
 use super::analysis::Analysis;
 use super::emitter_rows::EmitterRows;
-use super::fragments::{ForeignSides, TileFragments};
+use super::fragments::{ForeignSides, TileFragments, Visit};
 use super::scene::CpuScene;
-use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own};
+use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own, side_code};
 use crate::bundle::mips::MipChain;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
@@ -21,7 +21,7 @@ use crate::bundle::target::{BakeTarget, Cancelled, SourceRadiance};
 use crate::bundle::tiles::{Tile, TilePlanner, TilingMode, bundle_resolution};
 use crate::bundle::window::{WindowSource, split_overflowed, tile_viewport, unplanned};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
-use crate::scene::Rgb;
+use crate::scene::{Rgb, Side};
 
 /// Read-only inputs shared by every thread of a batch.
 pub struct PassContext<'a> {
@@ -98,7 +98,22 @@ const SPLIT_TILE_SHARE: f64 = 0.25;
 /// Global-bundle hits added straight to the sums.
 pub struct BundleHits<'a>(pub &'a mut [[f32; 4]]);
 
+/// Asks the processor to start loading the cache line at `p` (never faults, whatever `p`).
+#[inline(always)]
+pub fn prefetch<T>(p: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch is a hint; it reads nothing and faults on no address.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p.cast())
+    };
+}
+
 impl HitSink for BundleHits<'_> {
+    #[inline]
+    fn prefetch(&self, texel: u32) {
+        prefetch(self.0.as_ptr().wrapping_add(texel as usize));
+    }
+
     #[inline]
     fn hit(&mut self, texel: u32, l: Rgb, a: f32) {
         let s = &mut self.0[texel as usize];
@@ -154,7 +169,7 @@ struct ForeignLookups {
 /// The radiance a bundle line sees of the side with code `code` at grid centre (cx, cy):
 /// a target texel's source, or a foreign side's radiance at its surface point (black, and
 /// counted lost, when the source has no foreign radiance).
-#[inline]
+#[inline(always)]
 fn seen(
     source: &SourceRadiance,
     foreign: &ForeignSides,
@@ -167,10 +182,21 @@ fn seen(
         return source.own[code as usize];
     }
     debug_assert!(code >= FOREIGN);
+    seen_foreign(source, || foreign.locate(code, cx, cy), lookups)
+}
+
+/// [`seen`] of a foreign side at the surface point `at` gives, out of line: a whole LOD has
+/// none, a cell's bake a few.
+#[inline(never)]
+fn seen_foreign(
+    source: &SourceRadiance,
+    at: impl FnOnce() -> (u32, Side, f32, f32),
+    lookups: &mut ForeignLookups,
+) -> Rgb {
     match source.foreign {
         Some(f) => {
             lookups.resolved += 1;
-            let (tri, side, u, v) = foreign.locate(code, cx, cy);
+            let (tri, side, u, v) = at();
             f.radiance(tri, side, u, v)
         }
         None => {
@@ -307,9 +333,21 @@ fn trace_tile(
 
         let t = Instant::now();
         let a_px = vp.pixel_area();
-        let (sky, source, coincidence) = (ctx.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel));
-        stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
-            exchange(f, coincidence, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), sink)
+        let (sky, source, layering) = (ctx.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel).layering());
+        stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, |visit| match visit {
+            // The row's pixels will add to their target sides' sums and read those sides'
+            // sources, both scattered over arrays of megabytes: fetching them while the
+            // row's first pixels are sorted and exchanged hides most of the misses (12%
+            // of a Cornell bake's CPU time).
+            Visit::Row(frags) => {
+                for code in frags.iter().flat_map(|f| [side_code(f.plus), side_code(f.minus)]).filter(|&c| is_own(c)) {
+                    sink.prefetch(code);
+                    prefetch(source.own.as_ptr().wrapping_add(code as usize));
+                }
+            }
+            Visit::Pixel(f, foreign, cx, cy) => {
+                exchange(f, layering, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), sink)
+            }
         });
         stats.resolve_seconds += seconds(t);
     }
@@ -419,13 +457,14 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
         stats.light_fragments += count;
         stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
         let a_px = vp.pixel_area();
-        let coincidence = ctx.scene.coincidence_at(vp.pixel);
+        let layering = ctx.scene.coincidence_at(vp.pixel).layering();
         let (own, source) = (ctx.target.emission, ctx.source);
-        s.fragments.resolve(ctx.scene, ctx.target, |f, foreign, cx, cy| {
+        s.fragments.resolve(ctx.scene, ctx.target, |visit| {
+            let Visit::Pixel(f, foreign, cx, cy) = visit else { return };
             stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
             emit(
                 f,
-                coincidence,
+                layering,
                 a_px,
                 |code| {
                     if is_own(code) {

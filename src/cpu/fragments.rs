@@ -211,18 +211,14 @@ impl TileFragments {
     /// pixel an emitter covers (at least) — and the pixel's grid centre, strip by strip, row
     /// by row. `foreign` locates the surface point of a foreign side code at that centre.
     /// Returns how many pixels it visited.
-    pub fn resolve(
-        &mut self,
-        scene: &CpuScene,
-        target: &BakeTarget,
-        mut visit: impl FnMut(&[Fragment], &ForeignSides, f32, f32),
-    ) -> u64 {
+    pub fn resolve(&mut self, scene: &CpuScene, target: &BakeTarget, mut visit: impl FnMut(Visit)) -> u64 {
         self.set_up_planes(scene, target);
-        let coincidence = scene.coincidence_at(self.pixel);
+        let layering = scene.coincidence_at(self.pixel).layering();
         let mut covered = 0;
         for bucket in 0..self.bucket_len.len() {
             let Some((lo, hi)) = self.window(bucket) else { continue };
             self.fill(target, bucket, lo, hi);
+            visit(Visit::Row(&self.frags[..self.ends[(hi - lo) as usize] as usize]));
             let cy = grid_centre(self.offset.1, bucket as u32 % self.height);
             let foreign = ForeignSides { tris: &self.tris, planes: &self.planes };
             for p in 0..(hi - lo) as usize {
@@ -230,9 +226,9 @@ impl TileFragments {
                 if b > a {
                     let frags = &mut self.frags[a..b];
                     if frags.len() > 1 {
-                        sort_by_depth(frags, coincidence);
+                        sort_by_depth(frags, layering);
                     }
-                    visit(frags, &foreign, grid_centre(self.offset.0, lo + p as u32), cy);
+                    visit(Visit::Pixel(frags, &foreign, grid_centre(self.offset.0, lo + p as u32), cy));
                     covered += 1;
                 }
             }
@@ -351,16 +347,18 @@ impl TileFragments {
                     SideLookup::Table { uv: a, table: ta, foreign: fa },
                     SideLookup::Table { uv: b, table: tb, foreign: fb },
                 ) => {
-                    let (ta, tb) = (&target.tables[*ta as usize], &target.tables[*tb as usize]);
-                    span.fill(|dx| (texel_at(ta, a, dx, dy, *fa), texel_at(tb, b, dx, dy, *fb)))
+                    let mut a = TexelCursor::new(&target.tables[*ta as usize], a, dy, *fa);
+                    let mut b = TexelCursor::new(&target.tables[*tb as usize], b, dy, *fb);
+                    span.fill(|dx| (a.at(dx), b.at(dx)))
                 }
                 (SideLookup::Table { uv, table, foreign }, other) => {
-                    let (t, m) = (&target.tables[*table as usize], code(other));
-                    span.fill(|dx| (texel_at(t, uv, dx, dy, *foreign), m))
+                    let (mut t, m) = (TexelCursor::new(&target.tables[*table as usize], uv, dy, *foreign), code(other));
+                    span.fill(|dx| (t.at(dx), m))
                 }
                 (other, SideLookup::Table { uv, table, foreign }) => {
-                    let (t, pl) = (&target.tables[*table as usize], code(other));
-                    span.fill(|dx| (pl, texel_at(t, uv, dx, dy, *foreign)))
+                    let (mut t, pl) =
+                        (TexelCursor::new(&target.tables[*table as usize], uv, dy, *foreign), code(other));
+                    span.fill(|dx| (pl, t.at(dx)))
                 }
                 (a, b) => {
                     let (a, b) = (code(a), code(b));
@@ -369,6 +367,16 @@ impl TileFragments {
             }
         }
     }
+}
+
+/// What [`TileFragments::resolve`] shows its caller: a row's fragments once they are built,
+/// before any of its pixels, then each covered pixel of the row in turn.
+pub enum Visit<'a> {
+    /// Every fragment of the row, in no particular order: what its pixels will read.
+    Row(&'a [Fragment]),
+    /// A pixel's depth-sorted fragments, how to locate their foreign sides, and the pixel's
+    /// grid centre.
+    Pixel(&'a [Fragment], &'a ForeignSides<'a>, f32, f32),
 }
 
 /// Where the surface point of a foreign side code lies, for the tile being resolved.
@@ -391,20 +399,47 @@ impl ForeignSides<'_> {
     }
 }
 
-/// The code of a side with table `table` and UV function `uv` at pixel centre (dx, dy)
-/// (relative to the triangle's anchor, see `Planes`): its texel, or `foreign` where the
-/// table holds none (a pixel of the chart owned by another region, or a UV that rounds
-/// outside every texel).
-#[inline]
-fn texel_at(table: &TexelTable, uv: &[Vec2; 3], dx: f32, dy: f32, foreign: u32) -> u32 {
-    let p = uv[0] * dx + uv[1] * dy + uv[2];
-    // ⌊p⌋ as integers; NaN and out-of-range values miss the table.
-    if !(p.x >= 0.0 && p.y >= 0.0 && p.x < 1.6e7 && p.y < 1.6e7) {
-        return foreign;
+/// The codes of one side along a span: its texel under each pixel centre, or `foreign`
+/// where its table holds none (a pixel of the chart owned by another region, or a UV that
+/// rounds outside every texel). Bundle pixels are about half a texel wide, so consecutive
+/// pixels often fall in the same atlas pixel: its code is remembered, not looked up again.
+struct TexelCursor<'a> {
+    table: &'a TexelTable,
+    /// The side's UV in LOD pixels as an affine function of the pixel centre (dx, dy)
+    /// relative to the triangle's anchor (see `Planes`), on this span's row.
+    uv: [Vec2; 3],
+    dy: f32,
+    foreign: u32,
+    /// The atlas pixel last looked up (its corner, as floats: compared before any
+    /// conversion) and its code.
+    last: Vec2,
+    code: u32,
+}
+
+impl<'a> TexelCursor<'a> {
+    #[inline(always)]
+    fn new(table: &'a TexelTable, uv: &[Vec2; 3], dy: f32, foreign: u32) -> Self {
+        TexelCursor { table, uv: *uv, dy, foreign, last: Vec2::NEG_ONE, code: foreign }
     }
-    match table.get(p.x as i64, p.y as i64) {
-        NO_TEXEL => foreign,
-        t => t,
+
+    /// The code at pixel centre x `dx` (relative to the anchor).
+    #[inline(always)]
+    fn at(&mut self, dx: f32) -> u32 {
+        let uv = &self.uv;
+        let p = uv[0] * dx + uv[1] * self.dy + uv[2];
+        // ⌊p⌋ as integers; NaN and out-of-range values miss the table.
+        if !(p.x >= 0.0 && p.y >= 0.0 && p.x < 1.6e7 && p.y < 1.6e7) {
+            return self.foreign;
+        }
+        let pixel = p.floor();
+        if pixel != self.last {
+            self.last = pixel;
+            self.code = match self.table.get(pixel.x as i64, pixel.y as i64) {
+                NO_TEXEL => self.foreign,
+                t => t,
+            };
+        }
+        self.code
     }
 }
 
