@@ -781,3 +781,73 @@ fn cell_bakes_on_the_gpu_backend_equal_the_cpu_backends() {
         }
     }
 }
+
+/// One order of work for both layers, by the on-screen error a job removes per unit of work
+/// (`policy::urgency`): under a porch around the camera, a floor lit by bounced light and the
+/// sky alone, whose LOD 0 (coarse texels straddling the porch's shadow line) is far off; out
+/// in the sun 6 m away, a post whose sharp shadow wants fine punctual texels. The porch's
+/// cells are refined in the bundle layer before the post's shadow gets its finer punctual
+/// levels (LOD 2 and up: each four times the texels of the one before, for an edge that
+/// halves). One worker thread: the jobs come one at a time in the order the policy gives,
+/// which depends on the seed and the scene alone, so two runs list the same publishes.
+#[test]
+fn bounced_light_near_the_camera_goes_before_a_finer_sun_shadow() {
+    let mut b = SceneBuilder::new();
+    let grey = b.material(diffuse(Rgb::splat(0.6), Rgb::ZERO, false));
+    b.grid_quad(
+        "ground",
+        [Vec3::new(-8.0, 0.0, 8.0), Vec3::new(8.0, 0.0, 8.0), Vec3::new(8.0, 0.0, -8.0), Vec3::new(-8.0, 0.0, -8.0)],
+        4,
+        grey,
+    );
+    b.cuboid("porch roof", Vec3::new(-3.0, 2.4, -3.0), Vec3::new(3.0, 2.6, 3.0), false, grey);
+    b.cuboid("post", Vec3::new(5.9, 0.0, -0.1), Vec3::new(6.1, 2.0, 0.1), false, grey);
+    b.directional_light(Vec3::new(-0.5, -1.0, 0.3).normalize(), Rgb::splat(3.0));
+    b.sky(Rgb::splat(0.3));
+    let scene = Arc::new(b.build());
+    let camera = CameraView::looking_at(Vec3::new(0.0, 1.6, 0.0), Vec3::new(6.0, 0.5, 0.0));
+    let run = || {
+        let config = RuntimeConfig {
+            threads: Some(1),
+            bundle: livebake::bundle::BundleConfig { seed: 3, directions: 64, ..RuntimeConfig::default().bundle },
+            ..RuntimeConfig::default()
+        };
+        let runtime = Runtime::start(scene.clone(), config, Arc::new(CpuProvider::new())).expect("start");
+        runtime.set_camera(camera);
+        let world = runtime.world();
+        let porch: Vec<u32> = world
+            .non_empty_cells()
+            .filter(|&c| {
+                let (lo, hi) = world.grid.bounds(c);
+                lo.x < 2.0 && hi.x > -2.0 && lo.z < 2.0 && hi.z > -2.0 && lo.y < 0.1
+            })
+            .collect();
+        let post = world.grid.cell_of(Vec3::new(6.0, 0.01, 0.5));
+        let mut log = Vec::new();
+        let (mut porch_refined, mut post_fine) = (None, None);
+        wait_for(&runtime, Duration::from_secs(240), "a porch cell refined and the post's shadow at LOD 2", |e| {
+            match &e.event {
+                RuntimeEvent::CellPublished { cell, lod, .. } if *lod >= 1 && porch.contains(cell) => {
+                    porch_refined.get_or_insert(log.len());
+                    log.push(format!("bundles {cell} {lod}"));
+                }
+                RuntimeEvent::PunctualPublished { cell, lod, .. } => {
+                    if *cell == post && *lod >= 2 {
+                        post_fine.get_or_insert(log.len());
+                    }
+                    log.push(format!("punctual {cell} {lod}"));
+                }
+                RuntimeEvent::CellPublished { cell, lod, .. } => log.push(format!("bundles {cell} {lod}")),
+                _ => {}
+            }
+            porch_refined.is_some() && post_fine.is_some()
+        });
+        runtime.shutdown().expect("no panic");
+        (porch_refined.unwrap(), post_fine.unwrap(), log)
+    };
+    let (porch_refined, post_fine, log) = run();
+    eprintln!("porch refined at publish {porch_refined}, the post's shadow at LOD 2 at {post_fine}: {log:?}");
+    assert!(porch_refined < post_fine, "publishes: {log:?}");
+    let (_, _, again) = run();
+    assert_eq!(again, log, "the order of work depends on the seed and the scene alone");
+}
