@@ -202,19 +202,65 @@ impl Footprint {
         for t in tris {
             super::raster::reached(&t, interior, FOOTPRINT_TOL, |x, y| reached.set(x as u32, y as u32));
         }
+        // The ring: each row grown by a pixel either way (bits carried across words), then
+        // each row ORed with its neighbours. Reached pixels are interior ones, so the ring
+        // stays inside the rectangle.
+        let words = reached.words;
+        let mut grown = vec![0u64; reached.bits.len()];
+        for (src, dst) in reached.bits.chunks(words.max(1)).zip(grown.chunks_mut(words.max(1))) {
+            for k in 0..words {
+                let left = src[k] << 1 | if k > 0 { src[k - 1] >> 63 } else { 0 };
+                let right = src[k] >> 1 | if k + 1 < words { src[k + 1] << 63 } else { 0 };
+                dst[k] = src[k] | left | right;
+            }
+        }
         let mut f = Footprint::empty(size);
-        for y in 0..size.1 {
-            for x in 0..size.0 {
-                if reached.get(x, y) {
-                    for yy in y.saturating_sub(1)..(y + 2).min(size.1) {
-                        for xx in x.saturating_sub(1)..(x + 2).min(size.0) {
-                            f.set(xx, yy);
-                        }
-                    }
+        let rows = size.1 as usize;
+        for y in 0..rows {
+            for k in 0..words {
+                let mut v = grown[y * words + k];
+                if y > 0 {
+                    v |= grown[(y - 1) * words + k];
                 }
+                if y + 1 < rows {
+                    v |= grown[(y + 1) * words + k];
+                }
+                f.bits[y * words + k] = v;
             }
         }
         f
+    }
+
+    /// Row `y`'s claimed columns as runs `[start, end)`, left to right.
+    fn runs(&self, y: u32) -> impl Iterator<Item = (u32, u32)> + '_ {
+        let row = &self.bits[y as usize * self.words..(y as usize + 1) * self.words];
+        let mut x = 0u32;
+        std::iter::from_fn(move || {
+            // Next set bit at or after x, then the next clear one.
+            let next = |x: u32, set: bool| -> u32 {
+                let mut k = x as usize / 64;
+                if k >= row.len() {
+                    return x;
+                }
+                let flip = |w: u64| if set { w } else { !w };
+                let mut w = flip(row[k]) & (u64::MAX << (x % 64));
+                while w == 0 {
+                    k += 1;
+                    if k == row.len() {
+                        return (k * 64) as u32;
+                    }
+                    w = flip(row[k]);
+                }
+                (k * 64) as u32 + w.trailing_zeros()
+            };
+            let start = next(x, true);
+            if start >= self.size.0 {
+                return None;
+            }
+            let end = next(start, false).min(self.size.0);
+            x = end;
+            Some((start, end))
+        })
     }
 
     #[inline]
@@ -333,13 +379,11 @@ impl Spans {
     fn of(f: &Footprint) -> Spans {
         let rows = (0..f.size.1)
             .map(|y| {
-                let mut span = (u32::MAX, 0);
-                for x in 0..f.size.0 {
-                    if f.get(x, y) {
-                        span = (span.0.min(x), x + 1);
-                    }
+                let mut runs = f.runs(y);
+                match runs.next() {
+                    Some((a, b)) => (a, runs.last().map_or(b, |r| r.1)),
+                    None => (0, 0),
                 }
-                if span.0 == u32::MAX { (0, 0) } else { span }
             })
             .collect::<Vec<(u32, u32)>>();
         let mut order: Vec<u32> = (0..f.size.1).filter(|&r| rows[r as usize].1 > rows[r as usize].0).collect();
@@ -446,19 +490,11 @@ impl FreeRuns {
         }
         for r in 0..f.size.1 {
             let row = &mut self.rows[(y + r) as usize];
-            let mut c = 0;
-            while c < f.size.0 {
-                if !f.get(c, r) {
-                    c += 1;
-                    continue;
-                }
-                let start = c;
-                while c < f.size.0 && f.get(c, r) {
-                    c += 1;
-                }
-                // Take [x + start, x + c) out of the run holding it.
-                let (a, b) = (x + start, x + c);
-                if let Some(k) = row.iter().position(|&(s0, e0)| s0 <= a && b <= e0) {
+            for (start, end) in f.runs(r) {
+                // Take [x + start, x + end) out of the free run holding it.
+                let (a, b) = (x + start, x + end);
+                let k = row.partition_point(|&(_, e0)| e0 < b);
+                if row.get(k).is_some_and(|&(s0, e0)| s0 <= a && b <= e0) {
                     let (s0, e0) = row[k];
                     let mut parts = Vec::with_capacity(2);
                     if s0 < a {
