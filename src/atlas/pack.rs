@@ -231,6 +231,29 @@ impl Footprint {
         f
     }
 
+    /// [`Footprint::oriented`] by a half turn, a word at a time: rows in reverse order, each
+    /// row's bits reversed (`x ↦ w − 1 − x`).
+    fn half_turned(&self) -> Footprint {
+        let mut f = Footprint::empty(self.size);
+        let words = self.words;
+        // Reversing a row of `words · 64` bits maps x to words·64 − 1 − x: shift down by the
+        // unused bits at the end to get w − 1 − x.
+        let pad = (words * 64) as u32 - self.size.0;
+        let mut reversed = vec![0u64; words];
+        for y in 0..self.size.1 as usize {
+            let src = &self.bits[y * words..(y + 1) * words];
+            for (k, r) in reversed.iter_mut().enumerate() {
+                *r = src[words - 1 - k].reverse_bits();
+            }
+            let dst = &mut f.bits[(self.size.1 as usize - 1 - y) * words..(self.size.1 as usize - y) * words];
+            for k in 0..words {
+                let hi = if pad == 0 { 0 } else { reversed.get(k + 1).map_or(0, |&w| w << (64 - pad)) };
+                dst[k] = reversed[k] >> pad | hi;
+            }
+        }
+        f
+    }
+
     /// Row `y`'s claimed columns as runs `[start, end)`, left to right.
     fn runs(&self, y: u32) -> impl Iterator<Item = (u32, u32)> + '_ {
         let row = &self.bits[y as usize * self.words..(y as usize + 1) * self.words];
@@ -281,9 +304,15 @@ impl Footprint {
     /// The footprint of the same chart turned by `o` (the footprint of the chart as placed
     /// unturned, pixel for pixel: turns are exact on the pixel grid).
     pub fn oriented(&self, o: Orient) -> Footprint {
-        if o == Orient::AsIs {
-            return self.clone();
+        match o {
+            Orient::AsIs => self.clone(),
+            Orient::Half => self.half_turned(),
+            _ => self.turned_by_pixels(o),
         }
+    }
+
+    /// [`Footprint::oriented`] pixel by pixel.
+    fn turned_by_pixels(&self, o: Orient) -> Footprint {
         let mut f = Footprint::empty(oriented(self.size, o));
         for y in 0..self.size.1 {
             for x in 0..self.size.0 {
@@ -536,14 +565,22 @@ fn first_fits(footprints: &[Footprint], order: &[usize], width: u32) -> Packing 
             &[Orient::Quarter, Orient::ThreeQuarters]
         };
         let mut best: Option<Fit> = None;
+        let mut tried: Option<Vec<(u32, u32)>> = None;
         for &o in turns {
             let f = footprints[id].oriented(o);
-            if f.size.0 > width || best.as_ref().is_some_and(|b| b.footprint == f) {
+            if f.size.0 > width {
+                continue;
+            }
+            // A turn with the same row spans has the same first fit.
+            let spans = Spans::of(&f);
+            if tried.as_ref().is_some_and(|t| *t == spans.rows) {
                 continue;
             }
             // Only a fit whose lowest row is no lower than the best one's can do better.
             let last_row = best.as_ref().map_or(usize::MAX, |b| b.score.0.saturating_sub(f.size.1) as usize);
-            let Some((x, y)) = free.first_fit(&Spans::of(&f), last_row) else { continue };
+            let fit = free.first_fit(&spans, last_row);
+            tried = Some(spans.rows);
+            let Some((x, y)) = fit else { continue };
             let score = (y + f.size.1, x);
             if best.as_ref().is_none_or(|b| score < b.score) {
                 best = Some(Fit { score, corner: (x, y), orient: o, footprint: f });
@@ -644,6 +681,24 @@ pub(crate) mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// The half turn a word at a time is the half turn pixel by pixel, across word
+    /// boundaries and whatever the padding of the last word.
+    #[test]
+    fn half_turn_by_words_is_the_turn_by_pixels() {
+        let mut r = crate::sampling::Rng::new(5, 0);
+        for w in [1, 2, 63, 64, 65, 127, 128, 130, 200] {
+            let mut f = Footprint::empty((w, 7));
+            for y in 0..7 {
+                for x in 0..w {
+                    if r.next_f64() < 0.3 {
+                        f.set(x, y);
+                    }
+                }
+            }
+            assert_eq!(f.half_turned(), f.turned_by_pixels(Orient::Half), "width {w}");
         }
     }
 
