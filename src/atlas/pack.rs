@@ -31,8 +31,10 @@
 //! turned by a half (whichever reaches less low, then leftmost): a large chart's holes and
 //! concave sides, a thin diagonal chart's corners and a triangle's empty half take smaller
 //! charts. A footprint wider than the atlas is turned by a quarter. The atlas width is
-//! `max(widest footprint's shorter side, ⌈√(total footprint area)⌉)`, aiming at a square.
-//! Integer arithmetic: deterministic.
+//! `max(widest footprint's shorter side, ⌈√(total footprint area)⌉)`, aiming at a square;
+//! an atlas more than 1.2 times taller than wide is packed again at the width of the square
+//! of its area and at one widest footprint wider, and the smallest kept. Integer
+//! arithmetic: deterministic.
 //!
 //! Updates of an existing atlas place footprints on a bitmap of the texels the kept charts
 //! claim ([`super::free`]).
@@ -358,7 +360,21 @@ pub fn pack(footprints: &[Footprint], max_size: u32) -> Result<Packing, (u32, u3
         return Err((w, h));
     }
     let too_large = (width as u32, long);
-    let p = pack_strip(footprints, width as u32).ok_or(too_large)?;
+    let mut p = pack_strip(footprints, width as u32).ok_or(too_large)?;
+    // Far taller than wide (a few large charts that do not tile the width, as a room's
+    // walls): packed again at the square's width and at room for one more of the widest
+    // footprint in a row, the smallest atlas kept.
+    if p.height as u64 * 5 > p.width as u64 * 6 {
+        let square = (p.width as f64 * p.height as f64).sqrt().ceil() as u32;
+        let widest = footprints.iter().map(|f| f.size.0.max(f.size.1)).max().unwrap_or(0);
+        for w in [square, p.width.saturating_add(widest)] {
+            if let Some(q) = pack_strip(footprints, w.min(max_size))
+                && (q.width as u64 * q.height as u64) < p.width as u64 * p.height as u64
+            {
+                p = q;
+            }
+        }
+    }
     if p.height <= max_size {
         return Ok(p);
     }
@@ -778,17 +794,20 @@ pub(crate) mod tests {
         assert_eq!((p.width, p.height), (60, 60));
     }
 
-    /// Long thin rectangles longer than the square side are turned by a quarter rather than
-    /// widening the atlas: three 150 × 3 strips among 10 × 10 squares (square side 86).
+    /// Long thin rectangles longer than the square side are turned by a quarter in a strip
+    /// narrower than they are long: three 150 × 3 strips among 10 × 10 squares (square side
+    /// 86). The atlas packed is no larger than that strip's.
     #[test]
     fn quarter_turns_fit_long_strips() {
         let mut footprints = vec![Footprint::full((150, 3)); 3];
         footprints.extend(vec![Footprint::full((10, 10)); 60]);
-        let p = pack(&footprints, 16384).unwrap();
-        let claimed = assert_disjoint_inside(&p, &footprints);
-        assert_eq!(p.width, 86);
-        assert!(p.orient[..3].iter().all(|&o| o.swaps()), "{:?}", &p.orient[..3]);
+        let narrow = pack_strip(&footprints, 86).unwrap();
+        let claimed = assert_disjoint_inside(&narrow, &footprints);
+        assert!(narrow.orient[..3].iter().all(|&o| o.swaps()), "{:?}", &narrow.orient[..3]);
         assert!(claimed > 0.5, "claimed {claimed}");
+        let p = pack(&footprints, 16384).unwrap();
+        assert_disjoint_inside(&p, &footprints);
+        assert!(p.width * p.height <= narrow.width * narrow.height, "{}×{}", p.width, p.height);
     }
 
     #[test]
