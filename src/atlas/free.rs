@@ -16,10 +16,6 @@ impl Rect {
     pub fn contains(&self, o: &Rect) -> bool {
         o.x >= self.x && o.y >= self.y && o.x + o.w <= self.x + self.w && o.y + o.h <= self.y + self.h
     }
-
-    pub fn intersects(&self, o: &Rect) -> bool {
-        o.x < self.x + self.w && self.x < o.x + o.w && o.y < self.y + self.h && self.y < o.y + o.h
-    }
 }
 
 /// Occupied texels of an atlas, one bit each, for finding free space.
@@ -36,17 +32,6 @@ impl FreeMap {
     pub fn new(width: u32, height: u32) -> Self {
         let words = (width as usize).div_ceil(64);
         FreeMap { width, height, words, bits: vec![0; words * height as usize] }
-    }
-
-    /// Marks `r` occupied (clipped to the map).
-    pub fn occupy(&mut self, r: Rect) {
-        let (x1, y1) = ((r.x + r.w).min(self.width), (r.y + r.h).min(self.height));
-        for y in r.y..y1 {
-            let row = &mut self.bits[y as usize * self.words..(y as usize + 1) * self.words];
-            for x in r.x..x1 {
-                row[x as usize / 64] |= 1 << (x % 64);
-            }
-        }
     }
 
     /// Marks the footprint `f` with its rectangle's corner at `corner` occupied (clipped to
@@ -77,17 +62,6 @@ impl FreeMap {
                 let ax = corner.0 + x;
                 !f.get(x, y) || self.bits[row + ax as usize / 64] & (1 << (ax % 64)) == 0
             })
-        })
-    }
-
-    /// Whether every texel of `r` is inside the map and free.
-    pub fn is_free(&self, r: Rect) -> bool {
-        if r.x + r.w > self.width || r.y + r.h > self.height {
-            return false;
-        }
-        (r.y..r.y + r.h).all(|y| {
-            let row = &self.bits[y as usize * self.words..(y as usize + 1) * self.words];
-            (r.x..r.x + r.w).all(|x| row[x as usize / 64] & (1 << (x % 64)) == 0)
         })
     }
 
@@ -207,7 +181,7 @@ mod tests {
         assert!(taken.iter().filter(|&&t| t).count() > 500, "the map filled up");
         for y in 0..40 {
             for x in 0..70 {
-                assert_eq!(m.is_free(Rect { x, y, w: 1, h: 1 }), !taken[(y * 70 + x) as usize]);
+                assert_eq!(m.fits((x, y), &Footprint::full((1, 1))), !taken[(y * 70 + x) as usize]);
             }
         }
     }
@@ -215,28 +189,31 @@ mod tests {
     #[test]
     fn free_map_finds_the_first_hole() {
         let mut m = FreeMap::new(130, 40);
-        m.occupy(Rect { x: 0, y: 0, w: 130, h: 10 });
-        m.occupy(Rect { x: 0, y: 10, w: 70, h: 30 });
-        m.occupy(Rect { x: 75, y: 10, w: 55, h: 5 });
+        m.occupy_footprint((0, 0), &Footprint::full((130, 10)));
+        m.occupy_footprint((0, 10), &Footprint::full((70, 30)));
+        m.occupy_footprint((75, 10), &Footprint::full((55, 5)));
         // A 5-wide column free from row 10, a 60-wide region from row 15.
         assert_eq!(m.first_fit(5, 30), Some((70, 10)));
         assert_eq!(m.first_fit(6, 2), Some((70, 15)));
         assert_eq!(m.first_fit(60, 25), Some((70, 15)));
         assert_eq!(m.first_fit(61, 1), None);
         assert_eq!(m.first_fit(60, 26), None);
-        assert!(m.is_free(Rect { x: 70, y: 15, w: 60, h: 25 }));
-        assert!(!m.is_free(Rect { x: 69, y: 15, w: 2, h: 2 }));
+        assert!(m.fits((70, 15), &Footprint::full((60, 25))));
+        assert!(!m.fits((69, 15), &Footprint::full((2, 2))));
         // Brute force agrees on random maps.
         let mut r = crate::sampling::Rng::new(5, 0);
         for _ in 0..40 {
             let mut m = FreeMap::new(150, 50);
             for _ in 0..30 {
                 let (x, y) = ((r.next_f64() * 150.0) as u32, (r.next_f64() * 50.0) as u32);
-                m.occupy(Rect { x, y, w: 1 + (r.next_f64() * 30.0) as u32, h: 1 + (r.next_f64() * 10.0) as u32 });
+                m.occupy_footprint(
+                    (x, y),
+                    &Footprint::full((1 + (r.next_f64() * 30.0) as u32, 1 + (r.next_f64() * 10.0) as u32)),
+                );
             }
             for (w, h) in [(1, 1), (3, 7), (20, 4), (70, 2), (9, 9)] {
-                let brute =
-                    (0..=50 - h).find_map(|y| (0..=150 - w).find(|&x| m.is_free(Rect { x, y, w, h })).map(|x| (x, y)));
+                let brute = (0..=50 - h)
+                    .find_map(|y| (0..=150 - w).find(|&x| m.fits((x, y), &Footprint::full((w, h)))).map(|x| (x, y)));
                 assert_eq!(m.first_fit(w, h), brute, "{w}×{h}");
             }
         }
