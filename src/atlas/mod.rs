@@ -16,14 +16,15 @@
 //! `uv / (width, height)`.
 //!
 //! Pieces: [`charts`] (unwrapper: welding, planar charts, hinge merges), [`uv1`]
-//! (TEXCOORD_1 validation), [`pack`] (chart rectangles, skyline packing with quarter turns,
-//! free space), [`update`] (incremental layout), [`raster`] (the conservative coverage rule
-//! every part shares: what a face touches at LOD k is what the packer reserved room for,
-//! what the TEXCOORD_1 check tested and what the texel map rasterises), [`texels`] (inverse
-//! mapping).
+//! (TEXCOORD_1 validation), [`pack`] (chart rectangles and footprints, first-fit packing),
+//! [`free`] (claimed texels, free space), [`update`] (incremental layout), [`raster`] (the
+//! conservative coverage rule every part shares: what a face touches at LOD k is what the
+//! packer reserved room for, what the TEXCOORD_1 check tested and what the texel map
+//! rasterises), [`texels`] (inverse mapping).
 
 pub mod chart_filter;
 pub mod charts;
+pub mod free;
 pub mod lookup;
 pub mod pack;
 pub mod raster;
@@ -147,7 +148,7 @@ pub enum ChartSource {
     Uv1,
 }
 
-/// A set of faces parametrised together, and the rectangle it occupies in the atlas.
+/// A set of faces parametrised together, and the rectangle it sits in in the atlas.
 #[derive(Clone, Debug)]
 pub struct Chart {
     /// Mesh the faces belong to (charts never span meshes, so a changed mesh can be
@@ -156,7 +157,8 @@ pub struct Chart {
     pub side: Side,
     pub source: ChartSource,
     /// Top-left corner and size of the chart's rectangle in LOD-0 texels, including its
-    /// one-texel dilation border.
+    /// one-texel dilation border. Rectangles of charts may overlap; what a chart claims in
+    /// its rectangle ([`Chart::footprint`]) never meets another's.
     pub rect_min: (u32, u32),
     pub rect_size: (u32, u32),
     pub faces: Vec<FaceId>,
@@ -171,6 +173,17 @@ impl Chart {
         let (x, y) = (self.rect_min.0 as i64, self.rect_min.1 as i64);
         let (w, h) = (self.rect_size.0 as i64, self.rect_size.1 as i64);
         raster::PixelRect::new((x + b) * s, (y + b) * s, (x + w - b) * s, (y + h - b) * s)
+    }
+
+    /// The LOD-0 pixels of its rectangle the chart claims ([`pack::Footprint`]), from its
+    /// faces as laid out: a TEXCOORD_1 block claims the whole rectangle.
+    pub fn footprint(&self, faces: &[AtlasFace]) -> pack::Footprint {
+        if self.source == ChartSource::Uv1 {
+            return pack::Footprint::full(self.rect_size);
+        }
+        let corner = DVec2::new(self.rect_min.0 as f64, self.rect_min.1 as f64);
+        let tris = self.faces.iter().map(|&f| faces[f as usize].uv_lod(0).map(|q| q - corner));
+        pack::Footprint::of_triangles(tris, self.rect_size)
     }
 
     /// The chart's whole rectangle in LOD-`lod` pixels.
@@ -326,8 +339,19 @@ impl TexelChart {
 
     /// Placement and local UVs in an orientation.
     fn oriented(&self, o: pack::Orient) -> (pack::Placement, impl Iterator<Item = [DVec2; 3]> + '_) {
-        let p = if o == pack::Orient::Turned { self.placement.turned(self.fixed()) } else { self.placement };
+        let p = self.placement.oriented(o, self.fixed());
         (p, self.uv.iter().map(move |t| t.map(|q| o.apply(q, self.extent))))
+    }
+
+    /// The pixels the chart claims in its rectangle, placed unturned ([`pack::Footprint`]): a
+    /// TEXCOORD_1 block claims its whole rectangle.
+    fn footprint(&self) -> pack::Footprint {
+        let size = self.placement.rect_size();
+        if self.fixed() {
+            return pack::Footprint::full(size);
+        }
+        let offset = self.placement.offset;
+        pack::Footprint::of_triangles(self.uv.iter().map(|t| t.map(|q| q + offset)), size)
     }
 }
 
@@ -752,9 +776,15 @@ impl Atlas {
         stats.unwrap_seconds = started.elapsed().as_secs_f64();
 
         let packing_started = Instant::now();
-        let sizes: Vec<(u32, u32)> = charts.iter().map(|c| c.placement.rect_size()).collect();
+        let footprints: Vec<pack::Footprint> = crate::parallel::par_map(charts.chunks(1024).collect(), threads, |cs| {
+            cs.iter().map(TexelChart::footprint).collect::<Vec<_>>()
+        })
+        .into_iter()
+        .flatten()
+        .collect();
         let max = config.max_size;
-        let packing = pack::pack(&sizes, max).map_err(|(width, height)| AtlasError::TooLarge { width, height, max })?;
+        let packing =
+            pack::pack(&footprints, max).map_err(|(width, height)| AtlasError::TooLarge { width, height, max })?;
         let charts: Vec<Chart> = charts
             .into_iter()
             .zip(packing.positions.iter().zip(&packing.orient))

@@ -90,21 +90,33 @@ fn slab_span(t: &[DVec2; 3], ya: f64, yb: f64) -> Option<(f64, f64)> {
 /// Visits the pixels of `bounds` that `t` touches (see the module docs), restricted to rows
 /// `rows_from..rows_to`, row by row, left to right. `f` returns `false` to stop early.
 /// Returns whether any pixel was visited.
-fn scan(t: &[DVec2; 3], bounds: PixelRect, rows_from: i64, rows_to: i64, mut f: impl FnMut(i64, i64) -> bool) -> bool {
+fn scan(t: &[DVec2; 3], bounds: PixelRect, rows_from: i64, rows_to: i64, f: impl FnMut(i64, i64) -> bool) -> bool {
+    scan_with(t, bounds, TOUCH_TOL, rows_from, rows_to, f)
+}
+
+/// [`scan`] with the pixel squares shrunk by `tol` instead of [`TOUCH_TOL`].
+fn scan_with(
+    t: &[DVec2; 3],
+    bounds: PixelRect,
+    tol: f64,
+    rows_from: i64,
+    rows_to: i64,
+    mut f: impl FnMut(i64, i64) -> bool,
+) -> bool {
     let ymin = t[0].y.min(t[1].y).min(t[2].y);
     let ymax = t[0].y.max(t[1].y).max(t[2].y);
     if !(ymin.is_finite() && ymax.is_finite()) {
         return false;
     }
-    let y0 = ceil_i64(ymin - 1.0 + TOUCH_TOL).max(bounds.y0).max(rows_from);
-    let y1 = floor_i64(ymax - TOUCH_TOL).min(bounds.y1 - 1).min(rows_to - 1);
+    let y0 = ceil_i64(ymin - 1.0 + tol).max(bounds.y0).max(rows_from);
+    let y1 = floor_i64(ymax - tol).min(bounds.y1 - 1).min(rows_to - 1);
     let mut any = false;
     for y in y0..=y1 {
-        let Some((lo, hi)) = slab_span(t, y as f64 + TOUCH_TOL, y as f64 + 1.0 - TOUCH_TOL) else {
+        let Some((lo, hi)) = slab_span(t, y as f64 + tol, y as f64 + 1.0 - tol) else {
             continue;
         };
-        let x0 = ceil_i64(lo - 1.0 + TOUCH_TOL).max(bounds.x0);
-        let x1 = floor_i64(hi - TOUCH_TOL).min(bounds.x1 - 1);
+        let x0 = ceil_i64(lo - 1.0 + tol).max(bounds.x0);
+        let x1 = floor_i64(hi - tol).min(bounds.x1 - 1);
         for x in x0..=x1 {
             any = true;
             if !f(x, y) {
@@ -160,6 +172,23 @@ pub fn conservative_in(t: &[DVec2; 3], bounds: PixelRect, clip: PixelRect, mut f
             f(x, y);
         }
     }
+}
+
+/// The pixels of `bounds` that triangle `t` reaches into by more than `tol` (pixels of this
+/// grid) and the pixel holding its centroid: with `tol` at most [`TOUCH_TOL`] / 2^k, a
+/// superset of the LOD-0 parents of every pixel [`conservative`] gives the triangle at LOD
+/// k (a touched LOD-k pixel's shrunk square lies in its parent's square shrunk by
+/// `TOUCH_TOL / 2^k`, and the centroid's LOD-k pixel lies in the centroid's LOD-0 pixel).
+pub fn reached(t: &[DVec2; 3], bounds: PixelRect, tol: f64, mut f: impl FnMut(i64, i64)) {
+    if bounds.is_empty() {
+        return;
+    }
+    scan_with(t, bounds, tol, i64::MIN, i64::MAX, |x, y| {
+        f(x, y);
+        true
+    });
+    let (x, y) = fallback_pixel(t, bounds);
+    f(x, y);
 }
 
 /// Every pixel of `bounds` that `t` touches (convenience for tests and small rasters).

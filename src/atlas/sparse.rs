@@ -14,8 +14,9 @@
 //! * a covered pixel is the region's texel when its surface point is inside the region; an
 //!   empty pixel is the region's gutter pixel when the gutter rule copies one of its texels.
 //!
-//! Faces of other charts never touch a chart's pixels (each face rasterises inside its own
-//! chart's interior), so charts are independent.
+//! Faces of other charts never touch a chart's texels or gutter pixels (charts' footprints
+//! never overlap, [`super::pack`]: covered pixels of two charts are three pixels apart), so
+//! charts are independent, though their rectangles may overlap.
 
 use std::collections::BTreeMap;
 

@@ -56,7 +56,7 @@ fn bary3(c: [Vec3; 3], p: Vec3) -> (f64, f64, f64) {
 /// compared with a texel, or alone in their chart).
 fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelMap> {
     let g = SceneGeometry::new(scene);
-    // Faces and charts agree; rectangles inside the atlas and disjoint.
+    // Faces and charts agree.
     for t in 0..g.len() {
         for side in Side::BOTH {
             if let Some(f) = atlas.face(t as u32, side) {
@@ -68,15 +68,33 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
             }
         }
     }
-    let mut owner = vec![u32::MAX; (atlas.width * atlas.height) as usize];
+    // Rectangles inside the atlas (they may overlap); covered LOD-0 pixels of two charts at
+    // least three pixels apart, as footprints keep them (the pixels they claim are computed
+    // from f64 UVs before placement; the faces store f32, so a footprint recomputed here may
+    // differ by a pixel reached within float noise of FOOTPRINT_TOL, never by a covered one).
+    let (w0, h0) = (atlas.width as i64, atlas.height as i64);
+    let mut owner = vec![u32::MAX; (w0 * h0) as usize];
+    let all = PixelRect::new(0, 0, w0, h0);
     for (ci, c) in atlas.charts.iter().enumerate() {
         let r = c.rect(0);
-        assert!(r.x1 <= atlas.width as i64 && r.y1 <= atlas.height as i64, "chart {ci} outside the atlas");
-        for y in r.y0..r.y1 {
-            for x in r.x0..r.x1 {
-                let o = &mut owner[(y * atlas.width as i64 + x) as usize];
-                assert_eq!(*o, u32::MAX, "rectangles of charts {} and {ci} overlap", *o);
-                *o = ci as u32;
+        assert!(r.x1 <= w0 && r.y1 <= h0, "chart {ci} outside the atlas");
+        for &f in &c.faces {
+            raster::conservative(&atlas.faces[f as usize].uv_lod(0), all, (i64::MIN, i64::MAX), |x, y| {
+                owner[(y * w0 + x) as usize] = ci as u32;
+            });
+        }
+    }
+    for y in 0..h0 {
+        for x in 0..w0 {
+            let o = owner[(y * w0 + x) as usize];
+            if o == u32::MAX {
+                continue;
+            }
+            for yy in (y - 2).max(0)..(y + 3).min(h0) {
+                for xx in (x - 2).max(0)..(x + 3).min(w0) {
+                    let p = owner[(yy * w0 + xx) as usize];
+                    assert!(p == u32::MAX || p == o, "charts {o} and {p} closer than 3 pixels at ({x},{y})");
+                }
             }
         }
     }
@@ -155,12 +173,27 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
             }
         }
         // No two faces of a chart overlap: every pixel centre lies in at most one face of
-        // each chart (top-left rule: a centre on a shared edge belongs to one side).
+        // each chart (top-left rule: a centre on a shared edge belongs to one side). The
+        // unwrapper lets faces overlap by up to OVERLAP_TOL texel, so slivers at most that
+        // thick (real meshes have them) may lie inside a neighbour and are left out.
         let mut centre_of: Vec<u32> = vec![u32::MAX; slot.len()];
         for (fi, face) in atlas.faces.iter().enumerate() {
-            raster::centres_inside(&face.uv_lod(lod), window, |x, y| {
+            let t = face.uv_lod(lod);
+            let longest = (t[1] - t[0]).length().max((t[2] - t[1]).length()).max((t[0] - t[2]).length());
+            if raster::area2(&t).abs() <= longest * charts::OVERLAP_TOL * s {
+                continue;
+            }
+            raster::centres_inside(&t, window, |x, y| {
                 let c = &mut centre_of[(y * w + x) as usize];
-                assert!(*c == u32::MAX, "faces {} and {fi} overlap at ({x},{y}) LOD {lod}", *c);
+                assert!(
+                    *c == u32::MAX,
+                    "faces {} and {fi} overlap at ({x},{y}) LOD {lod}: charts {} {}, uv {:?} {:?}",
+                    *c,
+                    atlas.faces[*c as usize].chart,
+                    face.chart,
+                    atlas.faces[*c as usize].uv,
+                    face.uv
+                );
                 *c = fi as u32;
             });
         }
@@ -700,4 +733,35 @@ fn rigid_copies_share_their_original_charts() {
     assert_eq!(per_mesh(2), per_mesh(0));
     assert_eq!(per_mesh(5), per_mesh(0));
     check(&s, &a, 1, false);
+}
+
+/// A real game map (zdm2, 57 612 lit triangles of thin, intersecting and degenerate pieces)
+/// at the two LOD-0 budgets of the issue: fill (covered texels over the atlas) at least the
+/// issue's goal of 0.5, charts no more than the 4 861 and 5 825 the rectangle packer's atlas
+/// had (the unwrap is the same; the packing must not pay for fill with smaller charts), the
+/// covered texels within the budget search's ±20 %, and the whole check at LOD 0 (and 1 at
+/// 500k): every face touches texels of its chart, footprints disjoint, gutters next to one
+/// chart only. The rectangle packer left 0.58 and 0.62 here; xatlas, given the same faces,
+/// texel size and gutter, 0.56 and 0.73.
+#[test]
+fn zdm2_game_map_fills_half_its_atlas() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/zdm2/zdm2.gltf");
+    let s = crate::scene::load_gltf(&path, &crate::scene::LoadOptions::default()).expect("zdm2 loads");
+    let g = SceneGeometry::new(&s);
+    for (budget, charts_before, lods) in [(500_000u64, 4861usize, 1u32), (2_000_000, 5825, 0)] {
+        let a = Atlas::build(&s, &g, &AtlasConfig { texel_budget: budget, ..AtlasConfig::default() }).expect("atlas");
+        eprintln!(
+            "zdm2 at {budget}: {} charts, {:.2} triangles a chart, fill {:.3}, {}×{}",
+            a.charts.len(),
+            g.len() as f64 / a.charts.len() as f64,
+            a.stats.fill_ratio,
+            a.width,
+            a.height
+        );
+        assert!(a.stats.fill_ratio >= 0.5, "fill {} at {budget}", a.stats.fill_ratio);
+        assert!(a.charts.len() <= charts_before, "{} charts at {budget}", a.charts.len());
+        let ratio = a.stats.covered_texels_lod0 as f64 / budget as f64;
+        assert!((ratio - 1.0).abs() <= 0.2, "covered {ratio} × the budget");
+        check(&s, &a, lods, false);
+    }
 }

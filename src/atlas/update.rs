@@ -1,8 +1,11 @@
 //! Stable, incremental atlas updates for hot reload: unchanged meshes keep their charts
 //! exactly where they are (their texels, and pages published from them, stay valid); a
 //! changed mesh is unwrapped anew and its charts go, in this order of preference:
-//! 1. into the space its old charts leave (best short-side fit over those rectangles);
-//! 2. into the first free place of the atlas (rows top to bottom, columns left to right);
+//! 1. into the space its old charts leave: at the corner of one of its old charts' rectangles
+//!    of the same size, where its footprint meets nothing kept (a moved mesh's charts take
+//!    their places again);
+//! 2. into the first free place of the atlas (rows top to bottom, columns left to right) for
+//!    its whole rectangle;
 //! 3. below the atlas, which grows taller (its width, and so every pixel index `y·width + x`,
 //!    stays), up to the size limit;
 //! 4. nowhere: then every chart of the scene is packed anew, as [`Atlas::build`] at the old
@@ -13,7 +16,8 @@
 
 use std::time::Instant;
 
-use super::pack::{self, FreeMap, Orient, Rect};
+use super::free::{FreeMap, Rect};
+use super::pack::{self, Footprint, Orient};
 use super::{
     Atlas, AtlasConfig, AtlasError, AtlasStats, Chart, ChartSource, MeshCharts, NO_FACE, SceneFaces, TexelChart,
     lay_out,
@@ -149,42 +153,47 @@ impl Atlas {
         let (width, mut height) = (old.width, old.height);
         let mut free = FreeMap::new(width, height);
         for (_, k) in &kept {
-            free.occupy(k.rect);
+            free.occupy_footprint((k.rect.x, k.rect.y), &k.chart.footprint(&old.faces));
         }
-        let sizes: Vec<(u32, u32)> = fresh.iter().map(|c| c.placement.rect_size()).collect();
+        let footprints: Vec<Footprint> = fresh.iter().map(TexelChart::footprint).collect();
+        let sizes: Vec<(u32, u32)> = footprints.iter().map(|f| f.size).collect();
+        let area = |s: (u32, u32)| s.0 as u64 * s.1 as u64;
         let mut spot: Vec<Option<((u32, u32), Orient)>> = vec![None; fresh.len()];
-        // 1. Each replaced mesh's charts into its old space.
+        // 1. Each replaced mesh's charts at its old charts' corners, largest first.
         let mut reused_space = Vec::new();
         for (mi, rects) in freed.iter().enumerate() {
-            let mine: Vec<usize> = (0..fresh.len()).filter(|&i| fresh[i].mesh == mi as u32).collect();
+            let mut mine: Vec<usize> = (0..fresh.len()).filter(|&i| fresh[i].mesh == mi as u32).collect();
             if rects.is_empty() || mine.is_empty() {
                 continue;
             }
-            let got = pack::pack_into_free(rects.clone(), &mine.iter().map(|&i| sizes[i]).collect::<Vec<_>>());
-            for (&i, g) in mine.iter().zip(&got) {
-                if let Some((corner, o)) = *g {
+            mine.sort_by(|&a, &b| area(sizes[b]).cmp(&area(sizes[a])).then(a.cmp(&b)));
+            for &i in &mine {
+                let fit = Orient::ALL.into_iter().find_map(|o| {
+                    let f = footprints[i].oriented(o);
+                    rects.iter().find(|r| (r.w, r.h) == f.size && free.fits((r.x, r.y), &f)).map(|r| ((r.x, r.y), o, f))
+                });
+                if let Some((corner, o, f)) = fit {
                     spot[i] = Some((corner, o));
-                    free.occupy(placed_rect(corner, sizes[i], o));
+                    free.occupy_footprint(corner, &f);
                 }
             }
-            if got.iter().all(Option::is_some) {
+            if mine.iter().all(|&i| spot[i].is_some()) {
                 reused_space.push(mi as u32);
             }
         }
         // 2. The rest into free space, largest first.
         let mut rest: Vec<usize> = (0..fresh.len()).filter(|&i| spot[i].is_none()).collect();
-        let area = |s: (u32, u32)| s.0 as u64 * s.1 as u64;
         rest.sort_by(|&a, &b| area(sizes[b]).cmp(&area(sizes[a])).then(a.cmp(&b)));
         let mut left = Vec::new();
         for i in rest {
-            let fit = [Orient::AsIs, Orient::Turned].into_iter().find_map(|o| {
+            let fit = [Orient::AsIs, Orient::Quarter].into_iter().find_map(|o| {
                 let (w, h) = pack::oriented(sizes[i], o);
                 free.first_fit(w, h).map(|corner| (corner, o))
             });
             match fit {
                 Some((corner, o)) => {
                     spot[i] = Some((corner, o));
-                    free.occupy(placed_rect(corner, sizes[i], o));
+                    free.occupy_footprint(corner, &footprints[i].oriented(o));
                 }
                 None => left.push(i),
             }
@@ -192,7 +201,7 @@ impl Atlas {
         // 3. Whatever is left in a strip below.
         let mut grown = false;
         if !left.is_empty() {
-            let strip = pack::pack_strip(&left.iter().map(|&i| sizes[i]).collect::<Vec<_>>(), width)
+            let strip = pack::pack_strip(&left.iter().map(|&i| footprints[i].clone()).collect::<Vec<_>>(), width)
                 .filter(|p| height as u64 + p.height as u64 <= config.max_size as u64);
             match strip {
                 Some(p) => {
@@ -277,11 +286,6 @@ enum Placed {
 
 fn rect_of(c: &Chart) -> Rect {
     Rect { x: c.rect_min.0, y: c.rect_min.1, w: c.rect_size.0, h: c.rect_size.1 }
-}
-
-fn placed_rect(corner: (u32, u32), size: (u32, u32), o: Orient) -> Rect {
-    let (w, h) = pack::oriented(size, o);
-    Rect { x: corner.0, y: corner.1, w, h }
 }
 
 /// Old chart `c` of old mesh `om`, for new mesh `mi`: the same rectangle and face UVs, faces
