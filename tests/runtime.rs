@@ -132,11 +132,13 @@ fn corner_camera() -> CameraView {
     CameraView::looking_at(Vec3::new(0.25, 1.0, 1.75), Vec3::new(1.75, 0.6, 0.25))
 }
 
-/// With one worker the runtime refines cells strictly in priority order: visible before
-/// hidden, the largest LOD deficit first, then nearest. Every cell starts at LOD 0 and wants LOD 1 here, so
-/// the first cells published are the visible ones in order of distance from the camera.
-/// (One cell a bake here: groups publish their leader's neighbours with it, see
-/// `a_group_bakes_exactly_its_cells_texels`.)
+/// With one worker the runtime refines cells in order of the on-screen error each bake
+/// removes per unit of work (`policy::urgency`): a cell out of view weighs a quarter, and the
+/// weight falls with the square of the distance, far more than light and detail differ
+/// between the room's cells. Every cell starts at LOD 0 and wants LOD 1 here, so the first
+/// cells published are visible ones, nearer than the visible cells are on average, and
+/// nearer than the farthest. (One cell a bake here: groups publish their leader's
+/// neighbours with it, see `a_group_bakes_exactly_its_cells_texels`.)
 #[test]
 fn cells_near_the_camera_reach_higher_lods_first() {
     let scene = load(ROOM);
@@ -157,16 +159,18 @@ fn cells_near_the_camera_reach_higher_lods_first() {
     });
     let world = runtime.world().clone();
     runtime.shutdown().expect("clean shutdown");
-    let mut expected: Vec<u32> =
-        world.non_empty_cells().filter(|&c| cell_view(&camera, &world.grid, c).in_frustum).collect();
-    expected.sort_by(|&a, &b| {
-        let (da, db) = (cell_view(&camera, &world.grid, a).distance, cell_view(&camera, &world.grid, b).distance);
-        da.total_cmp(&db).then(a.cmp(&b))
-    });
-    assert_eq!(published, expected[..6].to_vec(), "publication order");
-    let far = cell_view(&camera, &world.grid, expected[expected.len() - 1]).distance;
-    let near = cell_view(&camera, &world.grid, published[5]).distance;
-    assert!(near < far, "the sixth cell ({near} m) should be nearer than the farthest visible ({far} m)");
+    let view = |c: u32| cell_view(&camera, &world.grid, c);
+    let visible: Vec<u32> = world.non_empty_cells().filter(|&c| view(c).in_frustum).collect();
+    assert!(published.iter().all(|&c| view(c).in_frustum), "{published:?}: not all in view");
+    let mean = |cells: &[u32]| cells.iter().map(|&c| view(c).distance).sum::<f32>() / cells.len() as f32;
+    let far = visible.iter().map(|&c| view(c).distance).fold(0.0, f32::max);
+    assert!(
+        mean(&published) < mean(&visible),
+        "the first six ({} m on average) should be nearer than the visible cells ({} m)",
+        mean(&published),
+        mean(&visible)
+    );
+    assert!(published.iter().all(|&c| view(c).distance < far), "{published:?} include the farthest visible");
 }
 
 /// A cell publishes at the first unit where its directions reach the minimum and its error
@@ -597,8 +601,8 @@ fn block_shadows(p: Vec3, travel: Vec3) -> bool {
     far > near.max(0.0)
 }
 
-/// The punctual layer is baked straight at the LOD each cell wants and the one below
-/// (levels in between skipped), one bake per cell, and it is exact: on the floor, away from
+/// The punctual layer is baked a LOD a bake, from LOD 1 up to the LOD each cell wants, and it
+/// is exact: on the floor, away from
 /// the shadow's edge (the bilinear mixes lit and shadowed texels within a texel of it, and a
 /// border blend reads the coarser neighbour's texels: 2 of those), the layer reads `I·cos θ`
 /// or 0 as a slab test against the block says, to f32 rounding (renormalised bilinear weights
@@ -633,7 +637,8 @@ fn the_punctual_layer_is_exact_at_the_lod_the_camera_wants() {
     runtime.shutdown().expect("clean shutdown");
     for c in &cells {
         if c.target_lod > 0 {
-            assert_eq!(bakes.get(&c.cell).map(Vec::as_slice), Some(&[c.punctual_lod][..]), "cell {}", c.cell);
+            let steps: Vec<u32> = (1..=c.punctual_lod).collect();
+            assert_eq!(bakes.get(&c.cell), Some(&steps), "cell {}", c.cell);
         }
     }
     assert!(cells.iter().any(|c| c.punctual_lod == finest), "no cell at LOD {finest}");
@@ -672,8 +677,8 @@ fn the_punctual_layer_is_exact_at_the_lod_the_camera_wants() {
             } else {
                 in_light += 1
             }
-            // Its cell's levels: LOD 0, the shown one and the one below, nothing in between
-            // (looked up well inside the cell, where the pixels are the cell's own).
+            // Its cell's levels: every one from LOD 0 to the shown one (looked up well inside
+            // the cell, where the pixels are the cell's own).
             let (lo, hi) = world.grid.bounds(cell);
             let inside = (p - lo).min(hi - p);
             if k == finest && inside.x.min(inside.z) > 2.0 * world.texel_size(0) {
@@ -681,7 +686,7 @@ fn the_punctual_layer_is_exact_at_the_lod_the_camera_wants() {
                 for j in 1..=k {
                     let px = (uv * (1u32 << j) as f32).floor();
                     let has = punctual.levels[j as usize].texel(px.x as i64, px.y as i64).is_some();
-                    assert_eq!(has, j + 1 >= k, "LOD {j} at {p}");
+                    assert!(has, "LOD {j} at {p}");
                 }
             }
         }
