@@ -10,6 +10,7 @@ mod reference;
 mod reload;
 mod runtime;
 mod runtime_large;
+mod runtime_real;
 mod startup;
 mod throughput;
 mod tiling;
@@ -35,7 +36,7 @@ pub fn assets() -> PathBuf {
 type Bench = fn(bool, &Ui) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 14] = [
+pub const SECTIONS: [(&str, Bench); 15] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -45,6 +46,7 @@ pub const SECTIONS: [(&str, Bench); 14] = [
     ("gpu_backend", gpu_backend::run),
     ("viewer", viewer::run),
     ("runtime", runtime::run),
+    ("runtime_real", runtime_real::run),
     ("runtime_large", runtime_large::run),
     ("runtime_large_overcast", runtime_large::run_overcast),
     ("instanced_1m", instanced::run),

@@ -72,7 +72,7 @@ fn start_camera() -> CameraView {
 
 /// Resets the process's peak resident size to its current size (Linux ≥ 4.0); returns the
 /// resident bytes then.
-fn reset_peak() -> Option<u64> {
+pub(super) fn reset_peak() -> Option<u64> {
     std::fs::write("/proc/self/clear_refs", "5").ok()?;
     resident_bytes()
 }
