@@ -1,9 +1,9 @@
-// The shown light map on the GPU (gpu::lightmap): pages of 64×64 pixels in a pool texture,
+// The shown light map on the GPU (gpu::lightmap): pages of 16×16 pixels in a pool texture,
 // a page table per layer and LOD, one shown LOD per layer and world cell. The layers (0: the
 // bundles' light, 1: punctual lights' direct light) add up. `shown_irradiance` is the WGSL
 // twin of the CPU's ShownLightmap::irradiance (a test holds them equal).
 
-const PAGE_SIDE: i32 = 64;
+const PAGE_SIDE: i32 = 16;
 const NO_PAGE: u32 = 0xffffffffu;
 const MAX_LODS: u32 = 8u;
 

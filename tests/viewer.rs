@@ -171,6 +171,50 @@ fn view_command_writes_a_screenshot_under_xvfb() {
     assert!(stats["lightmap_bytes_uploaded"].as_u64().is_some_and(|b| b > 0), "{stats}");
 }
 
+/// `livebake view` with a GPU pool far smaller than the shown map grows (320 pages of 16×16:
+/// the Cornell box's LOD 0 fills ~200, its finer LODs want thousands):
+/// it opens, every frame (500) is lit, and it shows the room about as bright as a run with the
+/// device's whole pool (within a factor of 2 in mean brightness: the same view, one at
+/// coarser LODs), having uploaded less of the map (the runtime keeps the shown map within
+/// the pool; the mirror shows a coarser level where a page is left out).
+#[test]
+fn view_with_a_pool_smaller_than_the_map_keeps_drawing_lit_frames() {
+    let xvfb = xvfb();
+    let dir = tempfile::tempdir().unwrap();
+    let view = |pages: Option<&str>| {
+        let name = pages.unwrap_or("all");
+        let (shot, stats) = (dir.path().join(format!("{name}.png")), dir.path().join(format!("{name}.json")));
+        let mut cmd = livebake();
+        cmd.env("DISPLAY", &xvfb.display)
+            .arg("-q")
+            .arg("view")
+            .arg(cornell_path())
+            .args(["--frames", "500", "--size", "320x240", "--camera", "1,1,4.5,1,1,0"])
+            .arg("--screenshot")
+            .arg(&shot)
+            .arg("--stats")
+            .arg(&stats);
+        if let Some(p) = pages {
+            cmd.args(["--gpu-pages", p]);
+        }
+        let (code, stderr) = run_bounded(&mut cmd, 300);
+        assert_eq!(code, Some(0), "{stderr}");
+        let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(&stats).unwrap()).unwrap();
+        assert_eq!(stats["lit_frames"], 500, "{stats}");
+        let img = image::open(&shot).unwrap().to_rgb8();
+        let mean = img.pixels().map(|p| p.0.iter().map(|&c| c as f64).sum::<f64>() / 3.0).sum::<f64>()
+            / img.len() as f64
+            * 3.0;
+        (stats, mean)
+    };
+    let (capped, capped_mean) = view(Some("320"));
+    let (whole, whole_mean) = view(None);
+    assert_eq!(capped["gpu_page_cap"], 320, "{capped}");
+    assert!(capped_mean > 0.5 * whole_mean && whole_mean > 10.0, "mean {capped_mean:.1} against {whole_mean:.1}");
+    let uploaded = |s: &serde_json::Value| s["lightmap_bytes_uploaded"].as_u64().unwrap();
+    assert!(uploaded(&capped) < uploaded(&whole), "{capped} against {whole}");
+}
+
 /// Without a display the viewer says so (and what works without one) instead of panicking.
 #[test]
 fn view_without_a_display_is_a_clear_error() {
@@ -193,13 +237,16 @@ fn view_refuses_bad_options() {
 }
 
 /// The mirror grows its page pool on the GPU when a publish brings more pages than it holds
-/// (the first 64-page pool copied, not re-uploaded), and frees the slots of pages a publish
-/// removes: after each sync every page reads back as published and the GPU sampling still
-/// equals the CPU's.
+/// (the first pool, one row of page slots, copied, not re-uploaded), and frees the slots of
+/// pages a publish removes: after each sync every page reads back as published and the GPU
+/// sampling still equals the CPU's.
 #[test]
 fn mirror_grows_its_pool_and_frees_removed_pages() {
+    // 32 × 10 pages: more than the first pool's one row of at most 256 slots.
+    const PX: u32 = 32;
+    const PY: u32 = 10;
     let grid = Grid { origin: Vec3::ZERO, cell_size: 1.0, dims: [1, 1, 1] };
-    let mut map = ShownLightmap::new(grid, 1024, 640, 1, 0.0);
+    let mut map = ShownLightmap::new(grid, PX * PAGE_SIDE, PY * PAGE_SIDE, 1, 0.0);
     let mut w = PageWriter::new(&mut map);
     w.write(Layer::Bundles, 0, 5, 5, Vec3::splat(1.0));
     w.finish();
@@ -207,36 +254,42 @@ fn mirror_grows_its_pool_and_frees_removed_pages() {
     let layout = lightmap::bind_group_layout(&gpu.device);
     let mut mirror = LightmapGpu::new(&gpu, &layout, &map).unwrap();
     let first_capacity = mirror.capacity();
-    // One pixel in each of the 16 × 10 pages.
+    // One pixel in each page.
     let mut grown = map.clone();
     let mut w = PageWriter::new(&mut grown);
-    for py in 0..10 {
-        for px in 0..16 {
+    for py in 0..PY {
+        for px in 0..PX {
             w.write(Layer::Bundles, 0, px * PAGE_SIDE + 7, py * PAGE_SIDE + 9, Vec3::new(px as f32, py as f32, 1.0));
         }
     }
     w.finish();
     let sync = mirror.sync(&gpu, &layout, &grown).unwrap();
-    assert!(mirror.capacity() >= 160 && first_capacity < 160, "{first_capacity} -> {}", mirror.capacity());
-    // Page (0, 0) changed too (a second pixel): 160 pages, 159 new table entries.
-    assert_eq!((sync.pages_uploaded, sync.table_entries_uploaded), (160, 159));
+    let pages = (PX * PY) as u64;
+    assert!(
+        mirror.capacity() as u64 >= pages && (first_capacity as u64) < pages,
+        "{first_capacity} -> {}",
+        mirror.capacity()
+    );
+    // Page (0, 0) changed too (a second pixel): every page uploaded, all but one new table entries.
+    assert_eq!((sync.pages_uploaded, sync.table_entries_uploaded), (pages, pages - 1));
     // Remove the pages of the top row but one.
     let mut shrunk = grown.clone();
     let mut w = PageWriter::new(&mut shrunk);
-    for px in 1..16 {
+    for px in 1..PX {
         w.clear(Layer::Bundles, 0, px * PAGE_SIDE + 7, 9);
     }
     w.finish();
     let sync = mirror.sync(&gpu, &layout, &shrunk).unwrap();
-    assert_eq!((sync.pages_uploaded, sync.table_entries_uploaded, sync.bytes_uploaded), (0, 15, 15 * 4));
+    let removed = (PX - 1) as u64;
+    assert_eq!((sync.pages_uploaded, sync.table_entries_uploaded, sync.bytes_uploaded), (0, removed, removed * 4));
     let probe = IrradianceProbe::new(&gpu, &layout).unwrap();
     let level = &shrunk.layer(Layer::Bundles).levels[0];
     let mut points = Vec::new();
-    for py in 0..10 {
-        for px in 0..16u32 {
+    for py in 0..PY {
+        for px in 0..PX {
             let want = level.page(px, py).map(|p| p.texels.to_vec());
             assert_eq!(
-                mirror.read_page(&gpu, Layer::Bundles, 0, (py * 16 + px) as usize).unwrap(),
+                mirror.read_page(&gpu, Layer::Bundles, 0, (py * PX + px) as usize).unwrap(),
                 want,
                 "page ({px}, {py})"
             );

@@ -81,7 +81,7 @@ fn gpu_pages(ctx: &FrameContext, shown: &ShownLightmap) -> Vec<Option<Vec<[f32; 
 /// differ only by the surface format's rounding (at most 1 of 255 per channel, in under 1%
 /// of pixels). (2) A cell published while the window is open changes exactly that cell's
 /// texels on the GPU (every page read back and compared), and the upload is exactly the
-/// changed pages (64 KiB each), nothing else. (3) A capture run whose source fails ends with
+/// changed pages (a page each), nothing else. (3) A capture run whose source fails ends with
 /// the source's error instead of waiting for light forever.
 #[test]
 fn window_shows_the_room_and_a_publish_uploads_only_its_cell() {

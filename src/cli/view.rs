@@ -72,6 +72,11 @@ pub struct ViewOptions {
     /// running view; the title shows the last reload's milliseconds and the last error).
     #[arg(long)]
     pub no_watch: bool,
+    /// Most light-map pages (16×16 texels, 4 KiB each) the GPU may hold; the runtime keeps
+    /// the shown map within it, and where a level does not fit a coarser one is shown
+    /// (default: as many as the device's largest texture holds).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
+    pub gpu_pages: Option<u32>,
     #[command(flatten)]
     pub runtime: RuntimeOptions,
 }
@@ -90,6 +95,7 @@ impl Default for ViewOptions {
             stats: None,
             view: View::Lit,
             no_watch: false,
+            gpu_pages: None,
             runtime: RuntimeOptions::default(),
         }
     }
@@ -155,6 +161,7 @@ pub fn run_on(
         screenshot: view.screenshot.clone(),
         launched,
         auto_exposure: view.exposure.is_none(),
+        gpu_pages: view.gpu_pages,
     };
     let report = display.run(&mut source, viewer, None)?;
     if let Some(path) = &view.stats {

@@ -303,6 +303,28 @@ mod tests {
         (*span, members.iter().map(|m| (m.name.clone().unwrap_or_default(), m.offset)).collect())
     }
 
+    /// The integer constant `name` of pass `pass`.
+    fn wgsl_const(pass: &str, name: &str) -> i64 {
+        let module = naga::front::wgsl::parse_str(&shader::source(pass).unwrap()).unwrap();
+        let (_, c) = module
+            .constants
+            .iter()
+            .find(|(_, c)| c.name.as_deref() == Some(name))
+            .unwrap_or_else(|| panic!("no const {name} in {pass}"));
+        match module.global_expressions[c.init] {
+            naga::Expression::Literal(naga::Literal::I32(v)) => v as i64,
+            naga::Expression::Literal(naga::Literal::U32(v)) => v as i64,
+            ref e => panic!("{name} is {e:?}"),
+        }
+    }
+
+    /// The shader's page side and LOD count are the host's.
+    #[test]
+    fn lightmap_constants_match_the_host() {
+        assert_eq!(wgsl_const("irradiance_probe.wgsl", "PAGE_SIDE"), crate::runtime::shown::PAGE_SIDE as i64);
+        assert_eq!(wgsl_const("irradiance_probe.wgsl", "MAX_LODS"), MAX_LODS as i64);
+    }
+
     macro_rules! assert_layout {
         ($pass:expr, $ty:ty, $wgsl:expr, [$($field:ident),* $(,)?]) => {{
             let (size, members) = wgsl_layout($pass, $wgsl);

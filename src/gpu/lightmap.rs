@@ -1,6 +1,6 @@
 //! The shown light map's GPU mirror: pages in a pool texture, page tables, cell LODs.
 //!
-//! A page holds 64×64 pixels of one LOD of one layer (rgba32float: E and validity). Each
+//! A page holds 16×16 pixels of one LOD of one layer (rgba32float: E and validity). Each
 //! page-table entry (one per page position of each layer's LODs, layer by layer) names the
 //! pool slot holding that page, or `NO_PAGE`; the cell LODs are one array per layer. [`LightmapGpu::sync`] compares a new snapshot with the pages it holds by page
 //! id: a page whose id changed is written over its own slot, a new page takes a free slot,
@@ -140,11 +140,14 @@ pub struct LightmapGpu {
     pub total: SyncReport,
 }
 
-/// Most pages a pool on `device` holds: as many 64×64 slots as its largest 2D texture has,
-/// in the pool's at most 64 columns.
+/// Most columns of pages in the pool (its width: 4096 pixels).
+const POOL_COLUMNS: u32 = 256;
+
+/// Most pages a pool on `device` holds: as many page slots as its largest 2D texture has, in
+/// the pool's at most [`POOL_COLUMNS`] columns (1 GiB of rgba32f on a 16384² device).
 pub fn device_page_cap(device: &wgpu::Device) -> u32 {
     let max_side = device.limits().max_texture_dimension_2d;
-    let columns = (max_side / PAGE_SIDE).clamp(1, 64);
+    let columns = (max_side / PAGE_SIDE).clamp(1, POOL_COLUMNS);
     columns * (max_side / PAGE_SIDE).max(1)
 }
 
@@ -154,6 +157,17 @@ impl LightmapGpu {
         gpu: &GpuContext,
         layout: &wgpu::BindGroupLayout,
         shown: &ShownLightmap,
+    ) -> Result<LightmapGpu, GpuError> {
+        LightmapGpu::with_page_cap(gpu, layout, shown, u32::MAX)
+    }
+
+    /// [`LightmapGpu::new`] with the pool capped at `page_cap` pages (see
+    /// [`LightmapGpu::set_page_cap`]).
+    pub fn with_page_cap(
+        gpu: &GpuContext,
+        layout: &wgpu::BindGroupLayout,
+        shown: &ShownLightmap,
+        page_cap: u32,
     ) -> Result<LightmapGpu, GpuError> {
         let lods = shown.lods() as usize;
         if lods > MAX_LODS || lods == 0 {
@@ -173,7 +187,7 @@ impl LightmapGpu {
         let cells = shown.grid.len();
         let table_len = offset as usize;
         let max_side = device.limits().max_texture_dimension_2d;
-        let pool_columns = (max_side / PAGE_SIDE).clamp(1, 64);
+        let pool_columns = (max_side / PAGE_SIDE).clamp(1, POOL_COLUMNS);
         let params = LightmapParams {
             grid_origin: shown.grid.origin.to_array(),
             cell_size: shown.grid.cell_size,
@@ -199,9 +213,10 @@ impl LightmapGpu {
         let params_buffer = buffer("lightmap params", size_of::<LightmapParams>() as u64, wgpu::BufferUsages::UNIFORM);
         let cell_lod_buffer = buffer("cell lods", 4 * 2 * cells as u64, wgpu::BufferUsages::STORAGE);
         let page_table_buffer = buffer("page table", 4 * table_len as u64, wgpu::BufferUsages::STORAGE);
-        let page_cap = device_page_cap(device);
+        let page_cap = device_page_cap(device).min(page_cap.max(1));
         let pages = (shown.layers.iter().map(|l| l.live_pages()).sum::<usize>() as u32).min(page_cap);
-        let pool_rows = pages.div_ceil(pool_columns).max(1).next_power_of_two().min(page_cap / pool_columns);
+        let pool_rows =
+            pages.div_ceil(pool_columns).max(1).next_power_of_two().min(page_cap.div_ceil(pool_columns)).max(1);
         let pool = create_pool(device, pool_columns, pool_rows)?;
         let bind_group = create_bind_group(device, layout, &params_buffer, &cell_lod_buffer, &page_table_buffer, &pool);
         let mut mirror = LightmapGpu {
@@ -244,7 +259,7 @@ impl LightmapGpu {
     ) -> Result<SyncReport, GpuError> {
         if Shape::of(shown) != self.shape {
             let total = self.total;
-            *self = LightmapGpu::new(gpu, layout, shown)?;
+            *self = LightmapGpu::with_page_cap(gpu, layout, shown, self.page_cap)?;
             let report = self.total;
             self.total.add(total);
             return Ok(report);
@@ -308,7 +323,7 @@ impl LightmapGpu {
         for (slot, page) in &uploads {
             if page.texels.len() != (PAGE_SIDE * PAGE_SIDE) as usize {
                 return Err(GpuError::Lightmap(format!(
-                    "page {} has {} texels, not 64×64",
+                    "page {} has {} texels, not {PAGE_SIDE}×{PAGE_SIDE}",
                     page.id,
                     page.texels.len()
                 )));

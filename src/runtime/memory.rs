@@ -7,9 +7,10 @@
 //! pixels a texel ([`RuntimeConfig::texel_pixels`]); a head that turns sees the rest of the
 //! sphere too, the cells out of view one LOD coarser (a quarter of the texels each): about
 //! 8 frusta of a 60° camera, 1 + 7/4 ≈ 2.75 screens of texels, for each of the two layers.
-//! Pages hold their texels at a fill of ~15% at the finer LODs (charts scattered over the
-//! atlas: measured on zdm2), so a shown texel costs ~16 B / 0.15 ≈ 107 B of pages (128
-//! counted). The bakes in progress get the rest of what the budget allows.
+//! Pages hold their texels at a fill of ~37% (16×16-pixel pages; charts scattered over the
+//! atlas: measured over a 60 s run on zdm2 beside another game map), so a shown texel costs
+//! ~16 B / 0.37 ≈ 43 B of pages (48 counted). The bakes in progress get the rest of what the
+//! budget allows.
 
 use super::RuntimeConfig;
 use super::policy::CameraView;
@@ -44,8 +45,8 @@ pub(super) fn bake_estimate(world: &World, cell: CellId, lod: u32) -> u64 {
 /// reduced copy), the running totals (56 B), sources and variance (~40 B): ~250 B a texel.
 pub(super) const BAKE_BYTES_PER_TEXEL: u64 = 256;
 /// A published texel is 16 B in a page; pages are partly filled (charts scattered over the
-/// atlas, other cells' texels not published): ~15% at the finer LODs (module docs).
-pub(super) const PAGE_BYTES_PER_TEXEL: u64 = 128;
+/// atlas, other cells' texels not published): ~37% (module docs).
+pub(super) const PAGE_BYTES_PER_TEXEL: u64 = 48;
 
 /// Screens of texels a turning head sees, per layer (module docs).
 const SURROUND: f64 = 2.75;
@@ -53,7 +54,7 @@ const SURROUND: f64 = 2.75;
 const LEAST_BUDGET: u64 = 256 << 20;
 
 /// The budget for `world` seen through `camera` when the user gave none (module docs), at
-/// most `ceiling` (a quarter of the machine's memory); `shown` holds LOD 0 (first light).
+/// most `ceiling` (a quarter of the machine's memory); `shown`'s LOD-0 pages are counted.
 pub fn derived_budget(
     config: &RuntimeConfig,
     world: &World,
@@ -64,7 +65,8 @@ pub fn derived_budget(
     let pixels = camera.height_px as f64 * (camera.height_px as f64 * camera.aspect as f64);
     let screen_texels = pixels / (config.texel_pixels as f64).powi(2);
     let view = SURROUND * screen_texels * 2.0 * PAGE_BYTES_PER_TEXEL as f64;
-    let lod0_pages = shown.live_pages() as u64 * Page::BYTES as u64;
+    let lod0_pages = shown.layers.iter().filter_map(|l| l.levels.first()).map(|l| l.live_pages()).sum::<usize>() as u64
+        * Page::BYTES as u64;
     let bakes = config.threads() as u64 * 2 * bake_estimate_of(config.group_texels as u64);
     let derived = fixed_bytes(world) + lod0_pages + view as u64 + bakes;
     derived.max(LEAST_BUDGET).min(ceiling.max(LEAST_BUDGET))

@@ -80,7 +80,7 @@ pub struct RuntimeConfig {
     /// cells farthest from the camera are evicted beyond it. `None`: derived from the scene
     /// and the view ([`memory::derived_budget`]), at most a quarter of the machine's memory.
     pub memory_budget: Option<u64>,
-    /// Most pages (of either layer, 64×64 pixels each) the shown map may hold: what the
+    /// Most pages (of either layer, [`shown::PAGE_SIDE`]² pixels each) the shown map may hold: what the
     /// front end can show (the viewer's GPU pool holds as many as its device's largest
     /// texture). `None`: no limit beyond the budget.
     pub page_limit: Option<u64>,

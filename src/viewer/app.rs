@@ -59,6 +59,9 @@ pub struct ViewerOptions {
     pub launched: Instant,
     /// Set the exposure from the first light map shown (`settings.exposure` until then).
     pub auto_exposure: bool,
+    /// Most light-map pages the GPU pool may hold (`None`: what the device's largest texture
+    /// holds); the source keeps its map within it.
+    pub gpu_pages: Option<u32>,
 }
 
 impl Default for ViewerOptions {
@@ -71,6 +74,7 @@ impl Default for ViewerOptions {
             screenshot: None,
             launched: Instant::now(),
             auto_exposure: false,
+            gpu_pages: None,
         }
     }
 }
@@ -91,6 +95,11 @@ pub struct ViewerReport {
     pub adapter: String,
     /// Bytes uploaded to the light map's GPU mirror over the run.
     pub lightmap_bytes_uploaded: u64,
+    /// Most pages the GPU pool held, and the pages left out of it (a coarser level shown
+    /// there) or given up for coarser ones, over the run.
+    pub gpu_page_cap: u32,
+    pub gpu_pages_left_out: u64,
+    pub gpu_pages_given_up: u64,
 }
 
 impl ViewerReport {
@@ -114,6 +123,9 @@ impl ViewerReport {
             "lit_frame_ms": { "median": self.lit_frame_ms(0.5), "p99": self.lit_frame_ms(0.99) },
             "first_lit_frame_seconds": self.first_lit_frame_seconds,
             "lightmap_bytes_uploaded": self.lightmap_bytes_uploaded,
+            "gpu_page_cap": self.gpu_page_cap,
+            "gpu_pages_left_out": self.gpu_pages_left_out,
+            "gpu_pages_given_up": self.gpu_pages_given_up,
         })
     }
 }
@@ -257,7 +269,11 @@ fn run_loop(
     stopped.map_err(ViewerError::Source)?;
     result?;
     if let Some(s) = &app.state {
-        app.report.lightmap_bytes_uploaded = s.renderer.lightmap.total.bytes_uploaded;
+        let total = &s.renderer.lightmap.total;
+        app.report.lightmap_bytes_uploaded = total.bytes_uploaded;
+        app.report.gpu_page_cap = s.renderer.lightmap.page_cap();
+        app.report.gpu_pages_left_out = total.pages_left_out;
+        app.report.gpu_pages_given_up = total.pages_given_up;
     }
     Ok(app.report)
 }
@@ -291,7 +307,10 @@ impl App<'_, '_> {
         config.present_mode = wgpu::PresentMode::AutoVsync;
         surface.configure(&gpu.device, &config);
         let depth = depth_texture(&gpu.device, config.width, config.height);
-        let renderer = Renderer::new(gpu, &self.source.scene())?;
+        let mut renderer = Renderer::new(gpu, &self.source.scene())?;
+        if let Some(cap) = self.options.gpu_pages {
+            renderer.lightmap.set_page_cap(cap);
+        }
         self.source.set_page_limit(renderer.lightmap.page_cap() as u64);
         self.state = Some(WindowState { window, surface, config, depth, renderer });
         Ok(())
