@@ -13,9 +13,10 @@
 //!   (`reload_refined` when none is left). Every other cell keeps its LOD but is marked
 //!   stale: its indirect light predates the change; a stale cell is refreshed (re-baked at
 //!   its shown LOD) when no refinement is waiting, or refined (which refreshes it too);
-//! * a light, the sky or a material changed, or nothing fitted in the atlas (a full repack):
-//!   everything is affected; LOD 0 is re-baked everywhere at once with first light's
-//!   directions, keeping the grid.
+//! * a light, the sky or a material changed (a moved sun too: [`reload_thread`] applies new
+//!   surroundings as it applies a save), or nothing fitted in the atlas (a full repack):
+//!   everything is affected; LOD 0 is re-baked everywhere as first light bakes it, keeping
+//!   the grid, and served after first light's `first_light_directions`.
 //!
 //! The new world is served (`reload_applied`) once its LOD 0 is published where it was
 //! invalidated (`reload_relit`); until then the old one is, so nothing is ever half applied.
