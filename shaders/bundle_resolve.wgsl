@@ -80,7 +80,9 @@ struct ResolveParams {
     pixel_area: f32,
     dir: vec3<f32>,
     capacity: u32,
-    sky: vec3<f32>,
+    // Seen looking along +ω at a line's end (the sky in direction ω), and looking along −ω at
+    // its start (the sky in direction −ω).
+    sky_ahead: vec3<f32>,
     rounding: f32,
     origin: vec2<f32>,
     offset: vec2<u32>,
@@ -97,9 +99,11 @@ struct ResolveParams {
     // Fixed-point units per m² of weight, and per m²·(W/m²/sr) of weighted radiance.
     weight_scale: f32,
     radiance_scale: f32,
+    _pad0: u32,
+    _pad1: u32,
+    sky_behind: vec3<f32>,
     // Always 0 (see `mul`).
     opaque_zero: u32,
-    _pad: u32,
 }
 
 // A triangle's sides as the resolve needs them (set once per scene).
@@ -581,7 +585,7 @@ fn exchange(n: u32) {
                     if end < n {
                         l_ahead = layer_face(end, next_end, true);
                     } else {
-                        l_ahead = params.sky;
+                        l_ahead = params.sky_ahead;
                     }
                     have_ahead = true;
                 }
@@ -593,7 +597,7 @@ fn exchange(n: u32) {
                     if has_behind {
                         l_behind = layer_face(behind_start, behind_end, false);
                     } else {
-                        l_behind = params.sky;
+                        l_behind = params.sky_behind;
                     }
                     have_behind = true;
                 }

@@ -494,3 +494,69 @@ fn viewer_light_follows_a_save() {
     assert!(e1.x > 0.0 && e0.x < 0.05 * e1.x, "before {e0}, after {e1}");
     light.shutdown().expect("shutdown");
 }
+
+/// Moving the sun is a light change applied through hot reload's path: the sun's light in
+/// the room (through its open window) moves, LOD 0 is re-baked everywhere with the grid
+/// kept, shown after first light's directions (`reload_relit`) and again at all of them
+/// (`reload_refined`); a save of the scene's file afterwards keeps the moved sun. The room
+/// is the bundled living room (its window an open frame, grass outside).
+#[test]
+fn moving_the_sun_relights_through_the_reload_path() {
+    use livebake::scene::sun::SunPosition;
+    use livebake::scene::{SunPlacement, SurroundingsSpec};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("living_room.glb");
+    let source = concat!(env!("CARGO_MANIFEST_DIR"), "/assets/living_room/living_room.glb");
+    std::fs::copy(source, &path).unwrap();
+    let place = |elevation, azimuth| SunPlacement::Fixed(SunPosition { elevation, azimuth });
+    let mut spec = SurroundingsSpec { sun: Some(place(35.0, 150.0)), ..SurroundingsSpec::default() };
+    let mut scene = (*load(&path)).clone();
+    scene.set_surroundings(&spec.build().unwrap()).unwrap();
+    let mut config = config();
+    config.cell_size = None;
+    config.first_light_directions = 16;
+    let surroundings = scene.surroundings();
+    let mut runtime = Runtime::start(Arc::new(scene), config.clone(), Arc::new(CpuProvider::new())).expect("start");
+    runtime.watch(&path, WatchConfig { surroundings, ..WatchConfig::default() }).expect("watch");
+    runtime.wait_first_light(PATIENCE).expect("first light");
+    let before = runtime.world();
+    // Every LOD-0 texel's light as shown (both layers, at its pixel's centre).
+    let punctual = |runtime: &Runtime| {
+        let (shown, world) = (runtime.shown(), runtime.world());
+        let lod0 = &world.lod0;
+        let uv = |p: u32| Vec2::new((p % lod0.width) as f32 + 0.5, (p / lod0.width) as f32 + 0.5);
+        lod0.pixel.iter().map(|&p| shown.bilinear(0, uv(p))).collect::<Vec<_>>()
+    };
+    let lit_before = punctual(&runtime);
+    spec.sun = Some(place(35.0, 330.0));
+    runtime.set_surroundings(spec.build().unwrap());
+    let (mut relit, mut applied) = (None, None);
+    wait_for(&runtime, "the sun's relight", |e| {
+        match e {
+            RuntimeEvent::ReloadApplied { invalidated_cells, repacked, .. } => {
+                applied = Some((*invalidated_cells, *repacked))
+            }
+            RuntimeEvent::ReloadRelit { directions, .. } => relit = Some(*directions),
+            _ => {}
+        }
+        matches!(e, RuntimeEvent::ReloadRefined { .. })
+    });
+    let after = runtime.world();
+    assert_eq!(relit, Some(config.first_light_directions), "shown first after first light's directions");
+    assert_eq!(applied, Some((after.non_empty_cells().count(), false)), "every cell re-baked, the atlas kept");
+    assert_eq!(before.grid, after.grid, "the grid is kept");
+    let sun = |w: &World| w.scene.lights.last().map(|l| l.direction).unwrap();
+    assert!(sun(&before).dot(sun(&after)) < 0.0, "the sun moved");
+    let lit_after = punctual(&runtime);
+    let moved = lit_before.iter().zip(&lit_after).filter(|(a, b)| (**a - **b).abs().max_element() > 1e-3).count();
+    assert!(moved > lit_before.len() / 100, "the sunlit texels did not change ({moved} of {})", lit_before.len());
+    // A save of the file keeps the sun where it was moved.
+    std::fs::copy(source, &path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    save(&path, &bytes, true);
+    wait_for(&runtime, "the save", |e| {
+        matches!(e, RuntimeEvent::ReloadApplied { .. } | RuntimeEvent::ReloadFailed { .. })
+    });
+    assert_eq!(sun(&runtime.world()), sun(&after));
+    runtime.shutdown().expect("clean shutdown");
+}

@@ -3,7 +3,7 @@
 //! A pixel's fragments, ordered by depth along ω, are the surfaces one bundle line crosses.
 //! Between two consecutive fragments, each sees the other: the side of fragment i that looks
 //! along +ω sees the side of fragment i+1 that looks along −ω, and vice versa; the first and
-//! last sides see the sky. A side that is not a lit face (the back of a single-sided surface:
+//! last sides see the sky (the first side looking −ω sees it behind, the last looking +ω ahead). A side that is not a lit face (the back of a single-sided surface:
 //! the inside of closed geometry) is black and receives nothing — that is what stops leaks.
 //!
 //! **Layers.** Coplanar surfaces facing the same way at the same depth along a line are
@@ -46,6 +46,7 @@
 
 use glam::Vec3;
 
+use super::sky::SkySeen;
 use crate::scene::Rgb;
 
 /// "No texel": the side is not a lit face.
@@ -340,7 +341,7 @@ pub fn exchange(
     frags: &[Fragment],
     l: Layering,
     a_px: f32,
-    sky: Rgb,
+    sky: SkySeen,
     mut seen: impl FnMut(u32) -> Rgb,
     sink: &mut impl HitSink,
 ) {
@@ -357,11 +358,11 @@ pub fn exchange(
                 continue;
             }
             if let Some(t) = f.plus_texel() {
-                let l = frags.get(i + 1).map_or(sky, |ahead| face(ahead.minus));
+                let l = frags.get(i + 1).map_or(sky.ahead, |ahead| face(ahead.minus));
                 sink.hit(t, l * a_px, a_px);
             }
             if let Some(t) = f.minus_texel() {
-                let l = if i == 0 { sky } else { face(frags[i - 1].plus) };
+                let l = if i == 0 { sky.behind } else { face(frags[i - 1].plus) };
                 sink.hit(t, l * a_px, a_px);
             }
         }
@@ -380,14 +381,14 @@ pub fn exchange(
         for f in layer {
             if let Some(t) = f.plus_texel() {
                 let l = *l_ahead.get_or_insert_with(|| match ahead {
-                    None => sky,
+                    None => sky.ahead,
                     Some(layer) => layer_face(layer, minus_side, |_, code| Some(seen(code))).unwrap_or(Rgb::ZERO),
                 });
                 sink.hit(t, l * a_px, a_px);
             }
             if let Some(t) = f.minus_texel() {
                 let l = *l_behind.get_or_insert_with(|| match behind {
-                    None => sky,
+                    None => sky.behind,
                     Some(layer) => layer_face(layer, plus_side, |_, code| Some(seen(code))).unwrap_or(Rgb::ZERO),
                 });
                 sink.hit(t, l * a_px, a_px);
@@ -513,7 +514,14 @@ mod tests {
             assert_eq!(f[1], a_wall);
             let mut log = Log::default();
             // Room A's texels (1, 3) glow; room B's (2, 4) must see nothing of them.
-            exchange(&f, C, 1.0, Rgb::ZERO, |t| if t == 1 || t == 3 { Rgb::ONE } else { Rgb::ZERO }, &mut log);
+            exchange(
+                &f,
+                C,
+                1.0,
+                SkySeen::uniform(Rgb::ZERO),
+                |t| if t == 1 || t == 3 { Rgb::ONE } else { Rgb::ZERO },
+                &mut log,
+            );
             for (t, l, _) in log.0 {
                 if t == 2 || t == 4 {
                     assert_eq!(l, Rgb::ZERO, "texel {t} of the dark room sees light");
@@ -529,7 +537,7 @@ mod tests {
         let frags = [frag(0.0, 10, NO_SIDE), frag(2.0, NO_SIDE, 20)];
         let source = |t: u32| Rgb::splat(t as f32);
         let mut log = Log::default();
-        exchange(&frags, C, 0.5, Rgb::splat(7.0), source, &mut log);
+        exchange(&frags, C, 0.5, SkySeen::uniform(Rgb::splat(7.0)), source, &mut log);
         assert_eq!(log.0, vec![(10, Rgb::splat(10.0), 0.5), (20, Rgb::splat(5.0), 0.5)]);
     }
 
@@ -540,8 +548,18 @@ mod tests {
         // A double-sided panel (texels 1 and 2) in front of a wall seen from behind.
         let frags = [frag(0.0, 1, 2), frag(1.0, 3, NO_SIDE)];
         let mut log = Log::default();
-        exchange(&frags, C, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32 * 100.0), &mut log);
+        exchange(&frags, C, 1.0, SkySeen::uniform(Rgb::splat(4.0)), |t| Rgb::splat(t as f32 * 100.0), &mut log);
         assert_eq!(log.0, vec![(1, Rgb::ZERO, 1.0), (2, Rgb::splat(4.0), 1.0), (3, Rgb::splat(4.0), 1.0)]);
+    }
+
+    /// An environment is seen by direction: the last side looking +ω sees the sky ahead (in
+    /// direction ω), the first looking −ω the sky behind (in direction −ω).
+    #[test]
+    fn the_ends_see_the_sky_in_their_own_direction() {
+        let sky = SkySeen { ahead: Rgb::splat(4.0), behind: Rgb::splat(9.0) };
+        let mut log = Log::default();
+        exchange(&[frag(0.0, 1, 2)], C, 1.0, sky, |_| Rgb::ZERO, &mut log);
+        assert_eq!(log.0, vec![(1, Rgb::splat(4.0), 1.0), (2, Rgb::splat(9.0), 1.0)]);
     }
 
     /// A floor (texel 5, looks +ω) running through a closed box (bottom texel 8 looks −ω,
@@ -555,11 +573,11 @@ mod tests {
         let floor = frag(0.5, 5, NO_SIDE | FRONT_LOOKS_PLUS);
         let top = frag(1.0, 9, NO_SIDE | FRONT_LOOKS_PLUS);
         let mut log = Log::default();
-        exchange(&[bottom, floor, top], C, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32), &mut log);
+        exchange(&[bottom, floor, top], C, 1.0, SkySeen::uniform(Rgb::splat(4.0)), |t| Rgb::splat(t as f32), &mut log);
         assert_eq!(log.0, vec![(8, Rgb::splat(4.0), 1.0), (9, Rgb::splat(4.0), 1.0)]);
         let wall_back = frag(1.0, NO_SIDE, NO_SIDE | FRONT_LOOKS_PLUS);
         let mut log = Log::default();
-        exchange(&[floor, wall_back], C, 1.0, Rgb::splat(4.0), |t| Rgb::splat(t as f32), &mut log);
+        exchange(&[floor, wall_back], C, 1.0, SkySeen::uniform(Rgb::splat(4.0)), |t| Rgb::splat(t as f32), &mut log);
         assert_eq!(log.0, vec![(5, Rgb::ZERO, 1.0)]);
     }
 
@@ -612,7 +630,7 @@ mod tests {
         let radiance = |t: u32| Rgb::splat(t as f32);
         for f in orders(&[floor, tile, ceiling]) {
             let mut log = Log::default();
-            exchange(&f, C, 1.0, Rgb::splat(0.5), radiance, &mut log);
+            exchange(&f, C, 1.0, SkySeen::uniform(Rgb::splat(0.5)), radiance, &mut log);
             log.0.sort_by_key(|h| h.0);
             assert_eq!(
                 log.0,
@@ -630,7 +648,7 @@ mod tests {
         let mut f = vec![floor, frag(2e-3, 2, 3 | FRONT_LOOKS_PLUS), ceiling];
         sort_by_depth(&mut f, C);
         let mut log = Log::default();
-        exchange(&f, C, 1.0, Rgb::ZERO, radiance, &mut log);
+        exchange(&f, C, 1.0, SkySeen::uniform(Rgb::ZERO), radiance, &mut log);
         assert_eq!(log.0[0], (1, Rgb::splat(3.0), 1.0));
     }
 
@@ -642,7 +660,7 @@ mod tests {
         let up = frag(0.0, 1, NO_SIDE | FRONT_LOOKS_PLUS); // front looks +ω
         let down = frag(5e-4, NO_SIDE, 2); // front looks −ω
         let mut log = Log::default();
-        exchange(&[up, down], C, 1.0, Rgb::splat(7.0), |t| Rgb::splat(t as f32), &mut log);
+        exchange(&[up, down], C, 1.0, SkySeen::uniform(Rgb::splat(7.0)), |t| Rgb::splat(t as f32), &mut log);
         assert_eq!(log.0, vec![(1, Rgb::splat(2.0), 1.0), (2, Rgb::splat(1.0), 1.0)]);
     }
 
@@ -660,7 +678,7 @@ mod tests {
             &[lit_room, lit_wall, dark_floor],
             C,
             1.0,
-            Rgb::ZERO,
+            SkySeen::uniform(Rgb::ZERO),
             |t| Rgb::splat((t == 9) as u32 as f32),
             &mut log,
         );

@@ -19,6 +19,7 @@ pub mod estimator;
 pub mod mips;
 pub mod progressive;
 pub mod raster;
+pub mod sky;
 pub mod stats;
 pub mod target;
 pub mod tiles;

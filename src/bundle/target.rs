@@ -13,6 +13,7 @@ use glam::Vec3;
 
 use super::emitters::{EmitterPlan, plan_emitters};
 use super::progressive::BatchSums;
+use super::sky::BundleSky;
 use super::stats::PassStats;
 use super::{BundleConfig, DirectionJob};
 use crate::atlas::lookup::TexelTable;
@@ -32,6 +33,8 @@ pub struct BundleScene {
     pub emitters: EmitterPlan,
     /// Per triangle: its light-pass group or [`NO_GROUP`].
     pub group_of: Vec<u32>,
+    /// What lines leaving the scene see (the environment filtered for `config.directions`).
+    pub sky: BundleSky,
 }
 
 impl BundleScene {
@@ -43,7 +46,8 @@ impl BundleScene {
                 group_of[t as usize] = g as u32;
             }
         }
-        BundleScene { scene, geom, atlas, config, emitters, group_of }
+        let sky = BundleSky::new(&scene, config.directions);
+        BundleScene { scene, geom, atlas, config, emitters, group_of, sky }
     }
 
     /// Light-pass bundle pixel side (metres) at LOD `lod`.

@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use livebake::bake::{BakeConfig, BakeOutput, bake};
 use livebake::export::{ExportOptions, export_gltf};
 use livebake::output::{irradiance_image, write_json, write_lightmaps};
-use livebake::scene::{Scene, load_gltf};
+use livebake::scene::{Scene, SurroundingsSpec, load_gltf};
 
 use super::SceneOptions;
 use super::progress::Ui;
@@ -25,12 +25,26 @@ fn default_samples(backend: Backend) -> u32 {
 }
 
 /// Loads the scene with the options' file and texture limits (`memory_limit`: `--memory-limit`,
-/// where the command has one) and their sky, refusing a sky too bright for the scene's sums.
+/// where the command has one) and their surroundings (sky, environment map, sun), refusing
+/// light too bright for the scene's sums.
 pub fn load_scene(path: &Path, options: &SceneOptions, memory_limit: Option<u64>) -> Result<(Arc<Scene>, f64)> {
+    load_scene_with(path, options, memory_limit).map(|(scene, seconds, _)| (scene, seconds))
+}
+
+/// [`load_scene`], with how its surroundings are made (for front ends that move the sun).
+pub fn load_scene_with(
+    path: &Path,
+    options: &SceneOptions,
+    memory_limit: Option<u64>,
+) -> Result<(Arc<Scene>, f64, SurroundingsSpec)> {
     let t0 = Instant::now();
-    let mut scene = load_gltf(path, &options.load_options(memory_limit)).context("cannot load the scene")?;
-    scene.set_sky(options.sky).context("--sky")?;
-    Ok((Arc::new(scene), t0.elapsed().as_secs_f64()))
+    let load = options.load_options(memory_limit);
+    // The options first: a bad one fails before the scene loads.
+    let spec = options.outdoors.spec(options.sky, &load)?;
+    let surroundings = spec.build().map_err(anyhow::Error::msg)?;
+    let mut scene = load_gltf(path, &load).context("cannot load the scene")?;
+    scene.set_surroundings(&surroundings).context("--sky, --environment or --sun")?;
+    Ok((Arc::new(scene), t0.elapsed().as_secs_f64(), spec))
 }
 
 pub fn run(

@@ -1,13 +1,18 @@
 //! Options every scene command shares. Same options, same result.
 
-use anyhow::{Result, bail};
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
 use clap::{Args, ValueEnum};
 
 use livebake::atlas::AtlasConfig;
 use livebake::bake::{BackendKind, BakeConfig};
 use livebake::bundle::tiles::TilingMode;
 use livebake::bundle::{BundleConfig, Lanes};
-use livebake::scene::{DEFAULT_MAX_TEXTURE_PIXELS, LoadOptions, Rgb};
+use livebake::scene::daylight::DaylightOptions;
+use livebake::scene::environment::{EnvironmentOptions, load_environment};
+use livebake::scene::sun::{Instant, SunPosition, parse_time};
+use livebake::scene::{DEFAULT_MAX_TEXTURE_PIXELS, LoadOptions, Rgb, SunPlacement, SurroundingsSpec};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Backend {
@@ -49,6 +54,8 @@ pub struct SceneOptions {
     /// Uniform sky radiance W/(sr·m²) seen by rays leaving the scene.
     #[arg(long, value_name = "R,G,B", default_value = "0,0,0", value_parser = parse_rgb, allow_hyphen_values = true)]
     pub sky: Rgb,
+    #[command(flatten)]
+    pub outdoors: OutdoorOptions,
     /// Estimator that computes irradiance.
     #[arg(long, value_enum, default_value_t = Backend::Cpu)]
     pub backend: Backend,
@@ -71,6 +78,154 @@ pub struct SceneOptions {
     pub max_texture_pixels: u64,
     #[command(flatten)]
     pub bundle: BundleOptions,
+}
+
+/// Light from around the scene: an environment map, the sun, a physical sky.
+#[derive(Args, Debug, Clone)]
+pub struct OutdoorOptions {
+    /// Equirectangular environment map (.hdr or .exr), radiance W/(sr·m²) seen by rays leaving
+    /// the scene (u = 0.5 + atan2(x, −z)/2π, v = acos(y)/π, row 0 up, the centre −Z).
+    #[arg(long, value_name = "FILE")]
+    pub environment: Option<PathBuf>,
+    /// Multiplies the environment map.
+    #[arg(long, value_name = "S", default_value_t = 1.0, allow_negative_numbers = true)]
+    pub environment_scale: f32,
+    /// Turns the environment map about +Y, degrees (positive: counter-clockwise seen from above).
+    #[arg(long, value_name = "DEG", default_value_t = 0.0, allow_negative_numbers = true)]
+    pub environment_rotation: f32,
+    /// What becomes of a sun in the environment map: `split` (its brightest compact region is
+    /// a directional light, the rest the sky) or `keep` (all of it is sky).
+    #[arg(long, value_enum, default_value_t = EnvironmentSun::Split)]
+    pub environment_sun: EnvironmentSun,
+    /// The sun: elevation and azimuth in degrees (azimuth from −Z toward +X: −Z north, +X
+    /// east) and its irradiance in W/m² (default: a clear sky's at --turbidity).
+    #[arg(long, value_name = "ELEVATION,AZIMUTH[,IRRADIANCE]", value_parser = parse_sun, allow_hyphen_values = true)]
+    pub sun: Option<(SunPosition, Option<f32>)>,
+    /// A sun study: latitude and longitude in degrees (north, east positive), with --time.
+    #[arg(long, value_name = "LAT,LON", value_parser = parse_location, allow_hyphen_values = true)]
+    pub location: Option<(f64, f64)>,
+    /// A sun study's date and time, ISO 8601 with an offset (2026-06-21T12:00:00Z).
+    #[arg(long, value_name = "ISO-8601", value_parser = parse_time)]
+    pub time: Option<Instant>,
+    /// A physical sky lit by the sun (--sun, or --location and --time): `preetham`.
+    #[arg(long, value_enum)]
+    pub sky_model: Option<SkyModel>,
+    /// Atmospheric turbidity of the sky model and the clear-sky sun (2: very clear, 10: hazy).
+    #[arg(long, value_name = "T", default_value_t = DaylightOptions::default().turbidity)]
+    pub turbidity: f64,
+    /// Albedo of the ground the sky model puts below the horizon.
+    #[arg(long, value_name = "A", default_value_t = DaylightOptions::default().ground_albedo)]
+    pub ground_albedo: f64,
+}
+
+impl Default for OutdoorOptions {
+    fn default() -> Self {
+        OutdoorOptions {
+            environment: None,
+            environment_scale: 1.0,
+            environment_rotation: 0.0,
+            environment_sun: EnvironmentSun::Split,
+            sun: None,
+            location: None,
+            time: None,
+            sky_model: None,
+            turbidity: DaylightOptions::default().turbidity,
+            ground_albedo: DaylightOptions::default().ground_albedo,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum EnvironmentSun {
+    Split,
+    Keep,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum SkyModel {
+    /// Preetham, Shirley & Smits 1999.
+    Preetham,
+}
+
+fn parse_numbers(s: &str, least: usize, most: usize, what: &str) -> Result<Vec<f64>, String> {
+    let values: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|_| format!("{what}: {p:?} is not a number")))
+        .collect::<Result<_, _>>()?;
+    if values.len() < least || values.len() > most || values.iter().any(|v| !v.is_finite()) {
+        return Err(format!("{what}: expected {least} to {most} finite numbers separated by commas, got {s:?}"));
+    }
+    Ok(values)
+}
+
+fn parse_sun(s: &str) -> Result<(SunPosition, Option<f32>), String> {
+    let v = parse_numbers(s, 2, 3, "--sun ELEVATION,AZIMUTH[,IRRADIANCE]")?;
+    if !(-90.0..=90.0).contains(&v[0]) {
+        return Err(format!("--sun: elevation must be between -90 and 90 degrees, got {}", v[0]));
+    }
+    if v.get(2).is_some_and(|e| *e < 0.0) {
+        return Err(format!("--sun: irradiance must be ≥ 0 W/m², got {}", v[2]));
+    }
+    Ok((SunPosition { elevation: v[0], azimuth: v[1].rem_euclid(360.0) }, v.get(2).map(|e| *e as f32)))
+}
+
+fn parse_location(s: &str) -> Result<(f64, f64), String> {
+    let v = parse_numbers(s, 2, 2, "--location LAT,LON")?;
+    if !(-90.0..=90.0).contains(&v[0]) || !(-180.0..=180.0).contains(&v[1]) {
+        return Err(format!("--location: latitude in [-90, 90] and longitude in [-180, 180] degrees, got {s:?}"));
+    }
+    Ok((v[0], v[1]))
+}
+
+impl OutdoorOptions {
+    /// How the surroundings are made: the environment map loaded (its sun split off unless
+    /// `keep`), the sun placed, the options checked against each other.
+    pub fn spec(&self, sky: Rgb, load: &LoadOptions) -> Result<SurroundingsSpec> {
+        if self.sun.is_some() && (self.location.is_some() || self.time.is_some()) {
+            bail!("--sun and --location/--time both place the sun: give one of them");
+        }
+        if self.location.is_some() != self.time.is_some() {
+            bail!("a sun study needs both --location and --time");
+        }
+        if self.environment.is_some() && self.sky_model.is_some() {
+            bail!("--environment and --sky-model are both the sky: give one of them");
+        }
+        if sky.max_element() > 0.0 && (self.environment.is_some() || self.sky_model.is_some()) {
+            bail!("--sky and --environment/--sky-model are both the sky: give one of them");
+        }
+        let daylight = DaylightOptions { turbidity: self.turbidity, ground_albedo: self.ground_albedo };
+        daylight.validate().map_err(anyhow::Error::msg)?;
+        let sun = match (self.sun, self.location, self.time) {
+            (Some((p, _)), _, _) => Some(SunPlacement::Fixed(p)),
+            (None, Some((latitude, longitude)), Some(time)) => Some(SunPlacement::Study { latitude, longitude, time }),
+            _ => None,
+        };
+        let mut spec = SurroundingsSpec {
+            sky,
+            sun,
+            sun_irradiance: self.sun.and_then(|(_, e)| e).map(Rgb::splat),
+            daylight: self.sky_model.map(|SkyModel::Preetham| daylight),
+            turbidity: self.turbidity,
+            ..SurroundingsSpec::default()
+        };
+        if let Some(path) = &self.environment {
+            let options = EnvironmentOptions {
+                scale: self.environment_scale,
+                rotation_degrees: self.environment_rotation,
+                max_pixels: load.max_texture_pixels,
+                memory_limit: load.texture_memory_limit,
+            };
+            let map = load_environment(path, &options).context("--environment")?;
+            if self.environment_sun == EnvironmentSun::Keep {
+                spec.environment = Some(std::sync::Arc::new(map));
+            } else {
+                let (map, sun, _) = SurroundingsSpec::take_sun_from(map);
+                spec.environment = Some(map);
+                spec.environment_sun = sun;
+            }
+        }
+        Ok(spec)
+    }
 }
 
 /// Ray-bundle parameters (paper notation: W, N, α, R).
@@ -142,6 +297,7 @@ impl Default for SceneOptions {
             lods: None,
             samples: None,
             sky: Rgb::ZERO,
+            outdoors: OutdoorOptions::default(),
             backend: Backend::Cpu,
             seed: 0,
             threads: None,

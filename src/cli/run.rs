@@ -23,11 +23,12 @@ use livebake::probe::{ProbeError, SurfaceLocator};
 use livebake::runtime::shown::ShownLightmap;
 use livebake::runtime::world::World;
 use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent, resample};
-use livebake::scene::{Rgb, Scene};
+use livebake::scene::sun::{SunPosition, parse_time};
+use livebake::scene::{Rgb, Scene, SunPlacement, SurroundingsSpec};
 use livebake::watch::WatchConfig;
 
 use super::SceneOptions;
-use super::bake::load_scene;
+use super::bake::load_scene_with;
 use super::options::Backend;
 use super::points::{read_points, write_results};
 use super::progress::Ui;
@@ -77,6 +78,11 @@ pub struct RunOptions {
     /// its last key.
     #[arg(long, value_name = "PATH.json")]
     pub camera_path: Option<PathBuf>,
+    /// Sun moves: [{"t":s,"sun":[elevation,azimuth]} or {"t":s,"time":"ISO-8601"} (a sun
+    /// study's, with --location)...]; each applied once, t seconds after first light, as a
+    /// light change (reload_* events).
+    #[arg(long, value_name = "PATH.json")]
+    pub sun_path: Option<PathBuf>,
     /// How long to run, seconds after first light.
     #[arg(long, value_name = "S", default_value_t = 10.0, allow_negative_numbers = true)]
     pub seconds: f64,
@@ -109,6 +115,7 @@ impl Default for RunOptions {
         RunOptions {
             camera: None,
             camera_path: None,
+            sun_path: None,
             seconds: 10.0,
             events: None,
             out: PathBuf::from("out"),
@@ -171,6 +178,68 @@ impl CameraPath {
         let (a, b) = (k[next - 1], k[next]);
         let s = ((t - a.0) / (b.0 - a.0).max(1e-9)) as f32;
         (a.1.lerp(b.1, s), a.2.lerp(b.2, s))
+    }
+}
+
+/// One key of a sun path.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SunKey {
+    t: f64,
+    sun: Option<[f64; 2]>,
+    time: Option<String>,
+}
+
+/// Sun moves at times after first light, each applied once.
+pub struct SunPath {
+    keys: Vec<(f64, SunPlacement)>,
+    next: usize,
+}
+
+impl SunPath {
+    /// Reads `path`; `spec` is how the surroundings are made (a time key needs a sun study's
+    /// place).
+    pub fn read(path: &Path, spec: &SurroundingsSpec) -> Result<SunPath> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read sun path {}", path.display()))?;
+        let expected = "expected [{\"t\":s,\"sun\":[elevation,azimuth]} or {\"t\":s,\"time\":\"ISO-8601\"},...]";
+        let keys: Vec<SunKey> =
+            serde_json::from_str(&text).with_context(|| format!("{}: {expected}", path.display()))?;
+        let mut out: Vec<(f64, SunPlacement)> = Vec::with_capacity(keys.len());
+        for (i, k) in keys.iter().enumerate() {
+            let bad = |why: String| anyhow::anyhow!("{}: key {i}: {why}", path.display());
+            if !k.t.is_finite() || out.last().is_some_and(|l| l.0 > k.t) {
+                return Err(bad(format!("t = {} is not finite or goes back in time", k.t)));
+            }
+            let placement = match (&k.sun, &k.time, spec.sun) {
+                (Some([elevation, azimuth]), None, _) => {
+                    if !(elevation.is_finite() && azimuth.is_finite() && (-90.0..=90.0).contains(elevation)) {
+                        return Err(bad(format!(
+                            "sun [{elevation}, {azimuth}] is not an elevation in [-90, 90] and an azimuth"
+                        )));
+                    }
+                    SunPlacement::Fixed(SunPosition { elevation: *elevation, azimuth: azimuth.rem_euclid(360.0) })
+                }
+                (None, Some(time), Some(SunPlacement::Study { latitude, longitude, .. })) => {
+                    SunPlacement::Study { latitude, longitude, time: parse_time(time).map_err(bad)? }
+                }
+                (None, Some(_), _) => return Err(bad("a time key needs a sun study (--location and --time)".into())),
+                _ => return Err(bad(format!("give either \"sun\" or \"time\"; {expected}"))),
+            };
+            out.push((k.t, placement));
+        }
+        Ok(SunPath { keys: out, next: 0 })
+    }
+
+    /// The placements due by `t` that were not handed out yet (the last of them).
+    fn due(&mut self, t: f64) -> Option<SunPlacement> {
+        let mut last = None;
+        while let Some(&(at, p)) = self.keys.get(self.next)
+            && at <= t
+        {
+            last = Some(p);
+            self.next += 1;
+        }
+        last
     }
 }
 
@@ -261,7 +330,8 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     {
         bail!("--export-gltf {}: the export must be a .gltf file name", out.display());
     }
-    let (scene, load_seconds) = load_scene(scene_path, options, None)?;
+    let (scene, load_seconds, mut spec) = load_scene_with(scene_path, options, None)?;
+    let mut sun_path = run.sun_path.as_deref().map(|p| SunPath::read(p, &spec)).transpose()?;
     let interrupted = Arc::new(AtomicBool::new(false));
     // Ctrl-C ends the run early; the outputs are still written.
     let _ = signal_hook::flag::register(signal_hook::consts::SIGINT, interrupted.clone());
@@ -269,7 +339,11 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     let mut runtime = start_runtime(scene.clone(), config, options.backend)
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
     if run.watch {
-        let watch = WatchConfig { sky: options.sky, load: options.load_options(None), ..WatchConfig::default() };
+        let watch = WatchConfig {
+            surroundings: scene.surroundings(),
+            load: options.load_options(None),
+            ..WatchConfig::default()
+        };
         runtime.watch(scene_path, watch).with_context(|| format!("cannot watch {}", scene_path.display()))?;
     }
     // Outputs are made once the scene and the options have proved good (events wait in the
@@ -300,6 +374,14 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         }
         // The path's clock starts at first light, when refinement starts.
         runtime.set_camera(camera_at(since_light.unwrap_or(0.0)));
+        if let (Some(t), Some(path)) = (since_light, sun_path.as_mut())
+            && let Some(placement) = path.due(t)
+        {
+            spec.sun = Some(placement);
+            let surroundings = spec.build().map_err(anyhow::Error::msg).context("--sun-path")?;
+            tracing::info!("the sun moves to {}", placement.describe());
+            runtime.set_surroundings(surroundings);
+        }
         match runtime.events().recv_timeout(Duration::from_millis(20)) {
             Ok(TimedEvent { t, event }) => {
                 log.write(t, &event)?;

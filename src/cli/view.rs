@@ -13,7 +13,6 @@ use livebake::viewer::{DrawSettings, RuntimeLight, ViewerLoop, ViewerOptions, Vi
 use livebake::watch::WatchConfig;
 
 use super::SceneOptions;
-use super::bake::load_scene;
 use super::progress::Ui;
 use super::run::{RuntimeOptions, runtime_config};
 
@@ -137,18 +136,19 @@ pub fn run_on(
         anyhow::bail!("--frames must be at least 1");
     }
     let config = runtime_config(options, &view.runtime)?;
-    let (scene, _) = load_scene(scene_path, options, None)?;
+    let (scene, _, spec) = super::bake::load_scene_with(scene_path, options, None)?;
     let display = match display {
         Some(d) => d,
         None => ViewerLoop::open()?,
     };
+    let surroundings = scene.surroundings();
     let mut runtime = super::run::start_runtime(scene, config, options.backend)
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
     if !view.no_watch {
-        let watch = WatchConfig { sky: options.sky, load: options.load_options(None), ..WatchConfig::default() };
+        let watch = WatchConfig { surroundings, load: options.load_options(None), ..WatchConfig::default() };
         runtime.watch(scene_path, watch).with_context(|| format!("cannot watch {}", scene_path.display()))?;
     }
-    let mut source = RuntimeLight::new(runtime);
+    let mut source = RuntimeLight::new(runtime).with_sun(spec);
     let viewer = ViewerOptions {
         pose: view.camera,
         settings: DrawSettings {

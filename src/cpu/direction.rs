@@ -16,6 +16,7 @@ use super::scene::CpuScene;
 use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own, side_code};
 use crate::bundle::mips::MipChain;
 use crate::bundle::raster::{BundleFrame, Viewport};
+use crate::bundle::sky::{BundleSky, SkySeen};
 use crate::bundle::stats::PassStats;
 use crate::bundle::target::{BakeTarget, Cancelled, SourceRadiance};
 use crate::bundle::tiles::{Tile, TilePlanner, TilingMode, bundle_resolution};
@@ -32,7 +33,8 @@ pub struct PassContext<'a> {
     /// Per triangle: rays needed per m² of bundle (the target's texel density ×
     /// oversampling²; 0 for triangles holding no target texel).
     pub importance: &'a [f32],
-    pub sky: Rgb,
+    /// What lines leaving the scene see.
+    pub sky: &'a BundleSky,
     /// Light-pass bundle pixel side, metres.
     pub light_pixel: f32,
     pub cancel: &'a AtomicBool,
@@ -67,6 +69,8 @@ pub struct Worker {
 /// A planned direction: what its units read.
 pub struct DirectionPlan {
     frame: BundleFrame,
+    /// What the two ends of the direction's lines see.
+    sky: SkySeen,
     /// The analysis window the tiles are cut from.
     global: Viewport,
     /// Its triangle bins (the tiles gather their candidates from them).
@@ -213,8 +217,14 @@ pub fn plan_direction(ctx: &PassContext, job: &DirectionJob, w: &mut Worker) -> 
     let cfg = ctx.config;
     let frame = BundleFrame::new(job.dir);
     let global = window(ctx).analysis_viewport(cfg, &frame, job.jitter);
-    let mut plan =
-        DirectionPlan { frame, global, analysis: Analysis::default(), tiles: Vec::new(), lights: job.lights.len() };
+    let mut plan = DirectionPlan {
+        frame,
+        sky: ctx.sky.seen(frame.dir),
+        global,
+        analysis: Analysis::default(),
+        tiles: Vec::new(),
+        lights: job.lights.len(),
+    };
     if !ctx.global {
         return Ok(plan);
     }
@@ -333,7 +343,7 @@ fn trace_tile(
 
         let t = Instant::now();
         let a_px = vp.pixel_area();
-        let (sky, source, layering) = (ctx.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel).layering());
+        let (sky, source, layering) = (plan.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel).layering());
         stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, |visit| match visit {
             // The row's pixels will add to their target sides' sums and read those sides'
             // sources, both scattered over arrays of megabytes: fetching them while the

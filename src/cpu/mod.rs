@@ -116,7 +116,7 @@ impl CpuBundleBackend {
             target,
             source,
             importance: &self.importance,
-            sky: bundle.scene.sky,
+            sky: &bundle.sky,
             light_pixel: bundle.light_pixel(target.lod),
             cancel,
             global,

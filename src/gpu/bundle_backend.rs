@@ -274,12 +274,12 @@ impl GpuBundleBackend {
     ) -> Result<PassStats, BatchError> {
         let bundle = &self.scene.bundle;
         let texel = bundle.atlas.texel_size / (1u64 << target.lod) as f32;
-        let sky = bundle.scene.sky;
         let foreign_brightest = match (&self.foreign, foreign) {
             (Some(f), true) => f.brightest(),
             _ => 0.0,
         };
-        let brightest = source.own.iter().fold(sky.max_element().max(foreign_brightest), |m, l| m.max(l.max_element()));
+        let brightest =
+            source.own.iter().fold(bundle.sky.brightest().max(foreign_brightest), |m, l| m.max(l.max_element()));
         let mut scales = FixedPoint::for_batch(batch.len(), texel * texel, brightest);
         #[cfg(test)]
         {
@@ -430,7 +430,7 @@ impl GpuBundleBackend {
                     frame,
                     viewport: vp,
                     coincidence: scene.coincidence_at(vp.pixel),
-                    sky: bundle.scene.sky,
+                    sky: bundle.sky.seen(frame.dir),
                     scales,
                 };
                 let foreign = self.foreign.as_ref().filter(|_| foreign);
@@ -753,6 +753,45 @@ mod tests {
         eprintln!("Van Gogh room: {} texels, worst relative difference {worst:e} (bound {bound:e})", texels.len());
         assert_eq!(beyond, 0, "texels whose sums differ beyond the summation bound");
         assert_eq!(cpu.light, gpu.light, "the light pass is the CPU's on both");
+    }
+
+    /// Under an environment map that differs in every direction (a sky brighter toward +X
+    /// and up, an octant 50× brighter, turned by 30°) the ends of each line see the sky in
+    /// their own direction, ω and −ω, read from the map filtered for the bake's directions:
+    /// both backends take those values from one function (`BundleSky::seen`) per direction,
+    /// so on the bundled living room (an open window frame: lines leave the room through it,
+    /// and the outside walls and the grass see the sky) every texel's sums still agree within
+    /// the summation bound, and the sky shows in them (the sums differ from a black sky's).
+    #[test]
+    fn gpu_sums_equal_the_cpu_backends_under_an_environment_map() {
+        use crate::scene::Environment;
+        let black = crate::gpu::bundle_analysis::tests::bundled("living_room/living_room.glb");
+        let (w, h) = (128u32, 64u32);
+        let probe = Environment::uniform(Rgb::ZERO);
+        let texels = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let d = probe.direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+                let octant = if d.x > 0.0 && d.y > 0.0 && d.z > 0.0 { 50.0 } else { 1.0 };
+                Rgb::new(1.0 + d.x as f32, 0.5 + d.y.max(0.0) as f32, 0.25) * octant
+            })
+            .collect();
+        let map = Environment::new("test sky", w, h, texels, 30f32.to_radians()).expect("a map");
+        let b = &black.bundle;
+        let mut scene = (*b.scene).clone();
+        scene.environment = Some(Arc::new(map));
+        let bundle = BundleScene::new(Arc::new(scene), b.geom.clone(), b.atlas.clone(), b.config.clone());
+        let lit = Arc::new(CpuScene::new(Arc::new(bundle)));
+        let (texels, cpu, gpu, stats, cpu_stats) = both(&lit, 0, 0, 8);
+        assert_eq!((stats.cpu_fallback_batches, stats.unresolved_pixels, stats.saturated_sums), (0, 0, 0));
+        assert_eq!(stats.covered_pixels, cpu_stats.covered_pixels);
+        let bound = summation_bound(&lit, 8);
+        let (worst, beyond) = compare(&cpu, &gpu, bound);
+        eprintln!("living room: {} texels, worst relative difference {worst:e} (bound {bound:e})", texels.len());
+        assert_eq!(beyond, 0, "texels whose sums differ beyond the summation bound");
+        let (_, dark, _, _, _) = both(&black, 0, 0, 8);
+        let total = |s: &BatchSums| s.bundle.iter().map(|t| (t[0] + t[1] + t[2]) as f64).sum::<f64>();
+        assert!(total(&cpu) > 1.05 * total(&dark), "the sky does not show: {} vs {}", total(&cpu), total(&dark));
     }
 
     /// Tiles that overflow the node buffer: with a small buffer planned to its full size

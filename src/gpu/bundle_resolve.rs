@@ -9,7 +9,6 @@
 //! from a bound on what one batch can add to a texel; an addition that would reach 2^63 is
 //! counted as saturated, and the backend then redoes the batch with smaller scales.
 
-use glam::Vec3;
 use wgpu::util::DeviceExt;
 
 use super::GpuError;
@@ -22,6 +21,7 @@ use super::shader;
 use super::surface_radiance::{ForeignBindings, ForeignRadiance};
 use crate::bundle::estimator::Coincidence;
 use crate::bundle::raster::{BundleFrame, Viewport};
+use crate::bundle::sky::SkySeen;
 use crate::bundle::target::{BakeTarget, BundleScene};
 use crate::scene::{Rgb, Side};
 
@@ -284,7 +284,8 @@ pub struct Rectangle<'a> {
     pub frame: &'a BundleFrame,
     pub viewport: &'a Viewport,
     pub coincidence: Coincidence,
-    pub sky: Vec3,
+    /// What the ends of the direction's lines see.
+    pub sky: SkySeen,
     pub scales: FixedPoint,
 }
 
@@ -391,7 +392,7 @@ impl ResolvePass {
             pixel_area: vp.pixel_area(),
             dir: frame.dir.to_array(),
             capacity: lists.capacity,
-            sky: rect.sky.to_array(),
+            sky_ahead: rect.sky.ahead.to_array(),
             rounding: c.rounding,
             origin: vp.origin.to_array(),
             offset: [vp.offset.0, vp.offset.1],
@@ -405,8 +406,10 @@ impl ResolvePass {
             texel_count: target.texels,
             weight_scale: rect.scales.weight,
             radiance_scale: rect.scales.radiance,
+            _pad0: 0,
+            _pad1: 0,
+            sky_behind: rect.sky.behind.to_array(),
             opaque_zero: 0,
-            _pad: 0,
         };
         let device = &gpu.device;
         // The rectangle's parameters in buffers of its own (a storage buffer, not a uniform

@@ -170,7 +170,8 @@ pub struct ResolveParams {
     pub pixel_area: f32,
     pub dir: [f32; 3],
     pub capacity: u32,
-    pub sky: [f32; 3],
+    /// Seen by lines' last sides looking along +ω (the sky in direction ω).
+    pub sky_ahead: [f32; 3],
     pub rounding: f32,
     pub origin: [f32; 2],
     pub offset: [u32; 2],
@@ -184,8 +185,11 @@ pub struct ResolveParams {
     pub texel_count: u32,
     pub weight_scale: f32,
     pub radiance_scale: f32,
+    pub _pad0: u32,
+    pub _pad1: u32,
+    /// Seen by lines' first sides looking along −ω (the sky in direction −ω).
+    pub sky_behind: [f32; 3],
     pub opaque_zero: u32,
-    pub _pad: u32,
 }
 
 /// `ResolveTriangle` (bundle_resolve.wgsl): a triangle's normal and faces.
@@ -390,7 +394,7 @@ mod tests {
                 pixel_area,
                 dir,
                 capacity,
-                sky,
+                sky_ahead,
                 rounding,
                 origin,
                 offset,
@@ -404,8 +408,10 @@ mod tests {
                 texel_count,
                 weight_scale,
                 radiance_scale,
-                opaque_zero,
-                _pad
+                _pad0,
+                _pad1,
+                sky_behind,
+                opaque_zero
             ]
         );
         assert_layout!("bundle_resolve.wgsl", SurfaceTriangle, "SurfaceTriangle", [uv0, material, carried]);

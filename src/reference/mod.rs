@@ -18,6 +18,7 @@ pub mod bvh;
 mod bvh_build;
 pub mod compare;
 pub mod emitters;
+pub mod environment;
 pub mod punctual;
 pub mod scenes;
 pub mod tracer;

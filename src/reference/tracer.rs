@@ -6,7 +6,9 @@
 //!   towards one emissive triangle (chosen by power, uniform point) **and** by the
 //!   cosine-sampled continuation ray, the two combined with the power heuristic; punctual
 //!   lights add their direct irradiance (`PunctualLight::unoccluded_irradiance` + a shadow
-//!   ray); rays that escape see the uniform sky (`Scene::sky`, whole sphere).
+//!   ray); rays that escape see the uniform sky (`Scene::sky`, whole sphere) and the
+//!   environment map (`Scene::environment`), which next-event estimation also samples by its
+//!   luminance ([`EnvironmentSampler`]), combined with the cosine rays by the power heuristic.
 //! * The query vertex has "BSDF" 1 (we integrate L·cos), later vertices are Lambertian with
 //!   `albedo/π`, so a cosine-sampled bounce multiplies the throughput by π at the query and
 //!   by the albedo afterwards.
@@ -34,6 +36,7 @@ use glam::{DVec3, Vec3};
 
 use super::bvh::Bvh;
 use super::emitters::EmitterTable;
+use super::environment::EnvironmentSampler;
 use crate::sampling::{Rng, cosine_hemisphere};
 use crate::scene::luminance;
 use crate::scene::{Material, Rgb, Scene, SceneGeometry, Side};
@@ -78,6 +81,8 @@ pub struct ReferenceTracer<'s> {
     pub(crate) emitters: EmitterTable,
     pub(crate) eps: f32,
     pub(crate) options: TracerOptions,
+    /// Importance sampling of the scene's environment map (`None` without a lit one).
+    environment: Option<EnvironmentSampler>,
 }
 
 /// Power heuristic (β = 2) weight of a strategy with density `a` against one with `b`.
@@ -106,7 +111,8 @@ impl<'s> ReferenceTracer<'s> {
         let geom = SceneGeometry::new(scene);
         let bvh = Bvh::for_scene(scene, &geom);
         let emitters = EmitterTable::new(scene, &geom);
-        ReferenceTracer { scene, geom, bvh, emitters, eps: ray_epsilon(scene), options }
+        let environment = scene.environment.as_deref().and_then(EnvironmentSampler::new);
+        ReferenceTracer { scene, geom, bvh, emitters, eps: ray_epsilon(scene), options, environment }
     }
 
     /// Overrides the batch worker count (`None` = available parallelism).
@@ -181,7 +187,10 @@ impl<'s> ReferenceTracer<'s> {
         for bounce in 0..=self.options.max_bounces {
             let xo = x + nx * self.eps;
             let bf = beta * f;
-            e += bf * (self.punctual(x, xo, nx, rng, rays) + self.next_event(xo, nx, rng, rays));
+            e += bf
+                * (self.punctual(x, xo, nx, rng, rays)
+                    + self.next_event(xo, nx, rng, rays)
+                    + self.environment_event(xo, nx, rng, rays));
             let wi = cosine_hemisphere(nx, rng.next_vec2());
             let cos = nx.dot(wi);
             if cos <= 0.0 {
@@ -197,7 +206,7 @@ impl<'s> ReferenceTracer<'s> {
             }
             *rays += 1;
             let Some(hit) = self.bvh.intersect(xo, wi, 0.0, f32::INFINITY) else {
-                e += beta * self.scene.sky;
+                e += beta * (self.scene.sky + self.environment_seen(wi, cos));
                 break;
             };
             let ng = self.geom.normals[hit.tri as usize];
@@ -255,6 +264,39 @@ impl<'s> ReferenceTracer<'s> {
         }
         let pdf_l = EmitterTable::solid_angle_pdf(s.area_pdf, dist2, cos_y);
         le * (cos_x / pdf_l * power_heuristic(pdf_l, cos_x / PI))
+    }
+
+    /// The environment's radiance along an escaping cosine-sampled ray `wi` (cosine `cos` to
+    /// the vertex's normal), MIS-weighted against the environment's own sampling.
+    fn environment_seen(&self, wi: Vec3, cos: f32) -> Rgb {
+        let Some(map) = self.scene.environment.as_deref() else { return Rgb::ZERO };
+        let l = map.radiance(wi);
+        match &self.environment {
+            Some(s) => l * power_heuristic(cos / PI, s.pdf(map, wi)),
+            None => l,
+        }
+    }
+
+    /// Next-event estimation toward one direction drawn from the environment map,
+    /// MIS-weighted against the cosine sampling of the same vertex.
+    fn environment_event(&self, xo: Vec3, nx: Vec3, rng: &mut Rng, rays: &mut u64) -> Rgb {
+        let (Some(map), Some(sampler)) = (self.scene.environment.as_deref(), &self.environment) else {
+            return Rgb::ZERO;
+        };
+        let Some(s) = sampler.sample(map, rng.next_vec2()) else { return Rgb::ZERO };
+        let cos = nx.dot(s.direction);
+        if cos <= 0.0 {
+            return Rgb::ZERO;
+        }
+        let l = map.radiance(s.direction);
+        if l.max_element() <= 0.0 {
+            return Rgb::ZERO;
+        }
+        *rays += 1;
+        if self.bvh.occluded(xo, s.direction, f32::INFINITY) {
+            return Rgb::ZERO;
+        }
+        l * (cos / s.pdf * power_heuristic(s.pdf, cos / PI))
     }
 
     /// Direct irradiance from punctual lights at surface point `x` (normal `nx`), shadow rays

@@ -46,7 +46,7 @@ use serde::Serialize;
 use crate::atlas::{Atlas, AtlasConfig, AtlasError};
 use crate::bundle::{BackendProvider, BundleBackend, BundleConfig, BundleConfigError};
 use crate::grid::{CellId, GridError};
-use crate::scene::{Scene, SceneGeometry};
+use crate::scene::{Scene, SceneGeometry, Surroundings};
 use crate::watch::{WatchConfig, WatchError};
 use scheduler::{Shared, State, clock_thread, current_stats, first_light, next_lod, sync_camera, worker};
 use shown::ShownLightmap;
@@ -423,6 +423,10 @@ pub struct Runtime {
     shared: Arc<Shared>,
     events: Receiver<TimedEvent>,
     threads: Vec<JoinHandle<()>>,
+    /// Requests to the reload thread (hot reload's watcher, new surroundings).
+    reload: crossbeam_channel::Sender<reload::ReloadRequest>,
+    /// Raised to cut the reload thread's full re-bake short (a newer request, shutdown).
+    reload_cancel: Arc<AtomicBool>,
 }
 
 /// Capacity of the event channel; events beyond it are dropped (and counted) rather than
@@ -465,7 +469,15 @@ impl Runtime {
             make_backend,
             camera: Mutex::new((0, None)),
         });
-        let mut runtime = Runtime { shared: shared.clone(), events: rx, threads: Vec::new() };
+        let (reload, requests) = crossbeam_channel::unbounded();
+        let reload_cancel = Arc::new(AtomicBool::new(false));
+        let mut runtime = Runtime {
+            shared: shared.clone(),
+            events: rx,
+            threads: Vec::new(),
+            reload,
+            reload_cancel: reload_cancel.clone(),
+        };
         for w in 0..shared.config.threads() {
             let shared = shared.clone();
             runtime.spawn(&format!("livebake-worker-{w}"), move || {
@@ -477,6 +489,8 @@ impl Runtime {
         }
         let clock = shared.clone();
         runtime.spawn("livebake-clock", move || clock_thread(&clock))?;
+        let reloader = shared.clone();
+        runtime.spawn("livebake-reload", move || reload::reload_thread(&reloader, requests, &reload_cancel))?;
         Ok(runtime)
     }
 
@@ -492,8 +506,20 @@ impl Runtime {
     /// [`RuntimeEvent::ReloadFailed`]. `path` is the file the scene was loaded from.
     pub fn watch(&mut self, path: &Path, config: WatchConfig) -> Result<(), RuntimeError> {
         let watcher = crate::watch::SceneWatcher::start(path, config)?;
-        let shared = self.shared.clone();
-        self.spawn("livebake-reload", move || reload::watch_thread(&shared, watcher))
+        // The reload thread lives as long as the runtime.
+        let _ = self.reload.send(reload::ReloadRequest::Watch(watcher));
+        Ok(())
+    }
+
+    /// Lights the scene with `surroundings` (sky, environment map, sun) instead of its own:
+    /// a light change, applied as hot reload applies one (LOD 0 re-baked everywhere, the grid
+    /// kept, shown after first light's directions: `reload_applied`, `reload_relit`, then
+    /// `reload_refined` at all of them). Returns at once. A newer call cuts the re-bake of an
+    /// earlier one short; of several waiting, only the last is applied. A scene reloaded from
+    /// its files keeps the surroundings set last.
+    pub fn set_surroundings(&self, surroundings: Surroundings) {
+        self.reload_cancel.store(true, Ordering::SeqCst);
+        let _ = self.reload.send(reload::ReloadRequest::Surroundings(surroundings, Instant::now()));
     }
 
     /// The camera the runtime refines for. Accumulated work is kept when it moves; only the
@@ -607,6 +633,7 @@ impl Runtime {
     /// Stops and joins every thread; returns how many had panicked.
     fn stop(&mut self) -> usize {
         self.shared.shutdown.store(true, Ordering::SeqCst);
+        self.reload_cancel.store(true, Ordering::SeqCst);
         self.shared.wake.notify_all();
         // A panic is a bug; the panic hook reported it. Shutting down goes on for the others.
         self.threads.drain(..).map(|h| h.join()).filter(Result::is_err).count()

@@ -13,9 +13,10 @@
 //!   (`reload_refined` when none is left). Every other cell keeps its LOD but is marked
 //!   stale: its indirect light predates the change; a stale cell is refreshed (re-baked at
 //!   its shown LOD) when no refinement is waiting, or refined (which refreshes it too);
-//! * a light, the sky or a material changed, or nothing fitted in the atlas (a full repack):
-//!   everything is affected; LOD 0 is re-baked everywhere at once with first light's
-//!   directions, keeping the grid.
+//! * a light, the sky or a material changed (a moved sun too: [`reload_thread`] applies new
+//!   surroundings as it applies a save), or nothing fitted in the atlas (a full repack):
+//!   everything is affected; LOD 0 is re-baked everywhere as first light bakes it, keeping
+//!   the grid, and served after first light's `first_light_directions`.
 //!
 //! The new world is served (`reload_applied`) once its LOD 0 is published where it was
 //! invalidated (`reload_relit`); until then the old one is, so nothing is ever half applied.
@@ -23,12 +24,14 @@
 
 use std::collections::BTreeSet;
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use glam::Vec3;
 
-use super::scheduler::{CellState, Refining, Shared, bake_first_light, empty_shown, take_camera, update_views};
+use super::scheduler::{
+    CellState, PixelLists, Refining, Shared, bake_first_light_observed, empty_shown, take_camera, update_views,
+};
 use super::shown::{Layer, PageWriter, ShownLightmap};
 use super::source::ShownSource;
 use super::world::World;
@@ -41,8 +44,9 @@ use crate::bake::bundle::{PunctualPass, Region, bake_region};
 use crate::bundle::{BundleConfig, BundleScene};
 use crate::grid::CellId;
 use crate::progress::NoProgress;
-use crate::scene::{Rgb, Scene, SceneGeometry};
+use crate::scene::{Rgb, Scene, SceneGeometry, Surroundings};
 use crate::watch::{Aabb, SceneDiff, SceneWatcher, WatchEvent};
+use crossbeam_channel::Receiver;
 
 /// How far around a changed mesh's bounds (old or new) the cells re-baked with it reach,
 /// metres: the mesh's own size (the largest side of those bounds), at least
@@ -70,34 +74,99 @@ pub fn invalidation_margin(bounds: &Aabb, texel0: f32) -> f32 {
 /// re-baked even for a flat or tiny mesh.
 pub const MIN_MARGIN_TEXELS: f32 = 2.0;
 
-pub(super) fn watch_thread(shared: &Shared, watcher: SceneWatcher) {
+/// What the reload thread is asked to do.
+pub(super) enum ReloadRequest {
+    /// Follow this watcher's scenes (hot reload).
+    Watch(SceneWatcher),
+    /// Light the scene with these surroundings (a moved sun), asked for at that instant.
+    Surroundings(Surroundings, Instant),
+}
+
+/// The one thread that replaces the world: scenes from the watcher (once one is given) and
+/// new surroundings from the front end, one at a time, in the order they come. Of several
+/// surroundings waiting only the last is applied (a sun dragged across the sky re-lights for
+/// where it is, not for every step of the way); one arriving while the previous is still
+/// being baked at full quality cuts that bake short (`cancel`, raised by
+/// [`Runtime::set_surroundings`](super::Runtime::set_surroundings)).
+pub(super) fn reload_thread(shared: &Shared, requests: Receiver<ReloadRequest>, cancel: &AtomicBool) {
+    let mut watcher: Option<SceneWatcher> = None;
     loop {
         if shared.shutdown.load(Ordering::SeqCst) {
             return;
         }
-        let event = match watcher.events().recv_timeout(std::time::Duration::from_millis(100)) {
-            Ok(e) => e,
-            Err(crossbeam_channel::RecvTimeoutError::Timeout) => continue,
-            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => return,
-        };
-        match event {
-            WatchEvent::Started { paths, .. } => shared
-                .emit(RuntimeEvent::ReloadStarted { paths: paths.iter().map(|p| p.display().to_string()).collect() }),
-            WatchEvent::Failed { path, error, .. } => {
-                shared.emit(RuntimeEvent::ReloadFailed { path: path.display().to_string(), error })
-            }
-            WatchEvent::Loaded { scene, seen_at, .. } => {
-                if let Err(e) = apply(shared, scene, seen_at) {
-                    let path = shared.lock().world.scene.source.as_ref().map(|p| p.display().to_string());
-                    shared.emit(RuntimeEvent::ReloadFailed { path: path.unwrap_or_default(), error: e.to_string() });
+        let never = crossbeam_channel::never();
+        let events = watcher.as_ref().map_or(&never, |w| w.events());
+        let timeout = crossbeam_channel::after(std::time::Duration::from_millis(100));
+        crossbeam_channel::select! {
+            recv(requests) -> r => match r {
+                Ok(ReloadRequest::Watch(w)) => watcher = Some(w),
+                Ok(ReloadRequest::Surroundings(mut surroundings, mut asked)) => {
+                    // Only the latest of those waiting.
+                    while let Ok(next) = requests.try_recv() {
+                        match next {
+                            ReloadRequest::Surroundings(s, t) => (surroundings, asked) = (s, t),
+                            ReloadRequest::Watch(w) => watcher = Some(w),
+                        }
+                    }
+                    cancel.store(false, Ordering::SeqCst);
+                    relight_with(shared, &surroundings, asked, cancel);
                 }
+                Err(_) => return,
+            },
+            recv(events) -> e => match e {
+                Ok(event) => on_watch_event(shared, event, cancel),
+                Err(_) => watcher = None,
+            },
+            recv(timeout) -> _ => {}
+        }
+    }
+}
+
+fn on_watch_event(shared: &Shared, event: WatchEvent, cancel: &AtomicBool) {
+    match event {
+        WatchEvent::Started { paths, .. } => {
+            shared.emit(RuntimeEvent::ReloadStarted { paths: paths.iter().map(|p| p.display().to_string()).collect() })
+        }
+        WatchEvent::Failed { path, error, .. } => {
+            shared.emit(RuntimeEvent::ReloadFailed { path: path.display().to_string(), error })
+        }
+        WatchEvent::Loaded { scene, seen_at, .. } => {
+            // The file's scene under the surroundings shown now (a moved sun stays moved).
+            let current = shared.lock().world.scene.surroundings();
+            let mut scene = Arc::unwrap_or_clone(scene);
+            let result = scene
+                .set_surroundings(&current)
+                .map_err(|e| RuntimeError::BadOption(e.to_string()))
+                .and_then(|()| apply(shared, Arc::new(scene), seen_at, cancel));
+            if let Err(e) = result {
+                let path = shared.lock().world.scene.source.as_ref().map(|p| p.display().to_string());
+                shared.emit(RuntimeEvent::ReloadFailed { path: path.unwrap_or_default(), error: e.to_string() });
             }
         }
     }
 }
 
+/// The served scene with `surroundings` instead of its own, applied as a light change.
+fn relight_with(shared: &Shared, surroundings: &Surroundings, asked: Instant, cancel: &AtomicBool) {
+    let old = shared.lock().world.scene.clone();
+    let mut scene = (*old).clone();
+    let result = scene
+        .set_surroundings(surroundings)
+        .map_err(|e| RuntimeError::BadOption(e.to_string()))
+        .and_then(|()| apply(shared, Arc::new(scene), asked, cancel));
+    if let Err(e) = result {
+        let path = old.source.as_ref().map(|p| p.display().to_string());
+        shared.emit(RuntimeEvent::ReloadFailed { path: path.unwrap_or_default(), error: e.to_string() });
+    }
+}
+
 /// Replaces the world with `scene`'s (see the module docs).
-pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Result<(), RuntimeError> {
+pub(super) fn apply(
+    shared: &Shared,
+    scene: Arc<Scene>,
+    seen_at: Instant,
+    cancel: &AtomicBool,
+) -> Result<(), RuntimeError> {
     let ms = || seen_at.elapsed().as_secs_f64() * 1e3;
     let mut steps = ReloadSteps { load: ms(), ..ReloadSteps::default() };
     let mut clock = Instant::now();
@@ -137,8 +206,9 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
     let grid = world.grid;
     lap(&mut steps.world);
 
+    let full = everything || relaid;
     // The cells to re-bake at LOD 0.
-    let invalid: BTreeSet<CellId> = if everything || relaid {
+    let invalid: BTreeSet<CellId> = if full {
         world.non_empty_cells().collect()
     } else {
         let texel0 = world.texel_size(0);
@@ -154,14 +224,17 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
         set.retain(|&c| world.lod0_texels[c as usize] > 0);
         set
     };
+    let swap = Swap { world: &world, invalid: &invalid, full, seen_at, changed_meshes, relaid };
 
     let threads = shared.config.threads();
-    let full = everything || relaid;
+    let full_directions = shared.config.bundle.directions;
+    if full {
+        return relight_everything(shared, &swap, threads, &mut lap, steps, cancel);
+    }
     // The invalidated cells are first re-baked quickly, with `reload_directions`, and marked
     // provisional: the workers re-bake them with first light's directions before anything
-    // else. A change to everything re-bakes LOD 0 everywhere at full quality at once.
-    let full_directions = shared.config.bundle.directions;
-    let directions = if full { full_directions } else { shared.config.reload_directions.min(full_directions) };
+    // else.
+    let directions = shared.config.reload_directions.min(full_directions);
     let provisional = directions < full_directions;
     let quick = if directions == full_directions {
         world.bundle.clone()
@@ -173,87 +246,214 @@ pub(super) fn apply(shared: &Shared, scene: Arc<Scene>, seen_at: Instant) -> Res
     // Pause the workers: the re-bake takes every core, and nothing may be published into
     // the map being rebuilt.
     shared.lock().relighting = true;
-    let result = if everything || relaid {
-        let r = bake_first_light(&world, backend.as_mut(), threads, empty_shown(&world), &shared.shutdown)
-            .map(|(map, owned, _)| (map, owned));
-        lap(&mut steps.bake);
-        r
-    } else {
-        relight(shared, &world, &quick, backend.as_mut(), &invalid, threads, &mut lap, &mut steps)
-    };
-    let mut st = shared.lock();
-    st.relighting = false;
+    let result = relight(shared, &world, &quick, backend.as_mut(), &invalid, threads, &mut lap, &mut steps);
     let (map, owned) = match result {
         Ok(r) => r,
         Err(e) => {
-            drop(st);
+            shared.lock().relighting = false;
             shared.wake.notify_all();
             return Err(RuntimeError::FirstLight(e));
         }
     };
-    // Swap: the new world, its map, the cell table.
-    st.generation += 1;
-    st.world = world.clone();
-    // Every bake in progress is of the old scene: parked ones are dropped here, those a worker
-    // holds when it brings them back (their generation is old).
-    for s in st.cells.iter_mut() {
-        s.bake = None;
-        s.member_of = None;
-        s.baking_directions = 0;
+    swap.publish(shared, map, &owned, directions, provisional, &mut lap, steps);
+    Ok(())
+}
+
+/// A light, the sky, a material or the whole atlas changed: LOD 0 is re-baked everywhere as
+/// first light bakes it, one progressive bake, and the new world is served as soon as it has
+/// first light's `first_light_directions` (`reload_relit`); it is published again as its
+/// directions double, the workers waiting, until it has all of them (`reload_refined`). A
+/// newer request or shutdown (`cancel`) cuts the bake short; if the new world was shown
+/// already, its cells are then provisional, re-baked by the workers unless the next request
+/// re-bakes them first.
+fn relight_everything(
+    shared: &Shared,
+    swap: &Swap,
+    threads: usize,
+    lap: &mut impl FnMut(&mut f64),
+    steps: ReloadSteps,
+    cancel: &AtomicBool,
+) -> Result<(), RuntimeError> {
+    let world = swap.world;
+    let total = shared.config.bundle.directions as u64;
+    let mut early = Vec::new();
+    let mut d = (shared.config.first_light_directions as u64).clamp(1, total);
+    while d < total {
+        early.push(d);
+        d *= 2;
     }
-    st.bake_bytes = 0;
-    let lights = !world.scene.lights.is_empty();
-    for c in 0..grid.len() as u32 {
-        let s = &mut st.cells[c as usize];
-        if full || invalid.contains(&c) {
-            let (busy, punctual_busy) = (s.busy, s.punctual.busy);
-            *s = CellState { busy, provisional, ..CellState::default() };
-            s.punctual.busy = punctual_busy;
-            s.history = vec![(directions as u64, f32::NAN)];
-            s.published = vec![owned[c as usize].clone()];
-            s.set_light(Layer::Bundles, 0, map.layer_light(Layer::Bundles, 0, &owned[c as usize]));
-            if lights {
-                s.punctual.published = vec![owned[c as usize].clone()];
-                s.set_light(Layer::Punctual, 0, map.layer_light(Layer::Punctual, 0, &owned[c as usize]));
+    let mut backend =
+        (shared.make_backend)(&world.bundle, threads).map_err(|e| RuntimeError::Backend(e.to_string()))?;
+    shared.lock().relighting = true;
+    let mut shown_at: Option<u64> = None;
+    let mut first_steps = Some(steps);
+    let mut show = |map: ShownLightmap, owned: &PixelLists, directions: u64| match first_steps.take() {
+        Some(mut steps) => {
+            lap(&mut steps.bake);
+            swap.publish(shared, map, owned, directions as u32, false, lap, steps);
+            // The workers wait for the rest of the bake.
+            shared.lock().relighting = true;
+            shown_at = Some(directions);
+        }
+        None => swap.republish(shared, map, owned, directions),
+    };
+    // `cancel` is raised by a newer request and by shutdown.
+    let result =
+        bake_first_light_observed(world, backend.as_mut(), threads, empty_shown(world), cancel, &early, &mut show);
+    match result {
+        Ok((map, owned, _)) => {
+            match first_steps.take() {
+                // Fewer directions than first light shows first: one publish.
+                Some(mut steps) => {
+                    lap(&mut steps.bake);
+                    swap.publish(shared, map, &owned, total as u32, false, lap, steps);
+                }
+                None => {
+                    swap.republish(shared, map, &owned, total);
+                    shared.lock().relighting = false;
+                    shared.wake.notify_all();
+                    shared.emit(RuntimeEvent::ReloadRefined {
+                        ms: swap.seen_at.elapsed().as_secs_f64() * 1e3,
+                        directions: total as u32,
+                    });
+                }
             }
-        } else if world.lod0_texels[c as usize] > 0 {
-            s.stale = true;
-            // Its shadows may have changed too (a long shadow reaches past the margin): the
-            // punctual layer is re-baked, LOD 0 and the LOD wanted (cheap and exact).
-            s.punctual.stale = lights;
+            Ok(())
+        }
+        Err(e) => {
+            let mut st = shared.lock();
+            st.relighting = false;
+            if shown_at.is_some() {
+                // Cut short after the new world was served: its cells are re-baked later.
+                for c in world.non_empty_cells() {
+                    st.cells[c as usize].provisional = true;
+                }
+                let left = world.non_empty_cells().count();
+                st.refining = (left > 0).then_some(Refining { seen_at: swap.seen_at, left });
+            }
+            drop(st);
+            shared.wake.notify_all();
+            if shared.shutdown.load(Ordering::SeqCst) || cancel.load(Ordering::SeqCst) {
+                return Ok(());
+            }
+            Err(RuntimeError::FirstLight(e))
         }
     }
-    // Provisional cells an earlier reload left (not invalidated this time) are still so.
-    let left = world.non_empty_cells().filter(|&c| st.cells[c as usize].provisional).count();
-    st.refining = (left > 0).then_some(Refining { seen_at, left });
-    take_camera(shared, &mut st);
-    update_views(shared, &mut st);
-    shared.set_shown(map);
-    drop(st);
-    shared.wake.notify_all();
-    let t = ms();
-    lap(&mut steps.publish);
-    tracing::debug!(
-        "reload: {} cells re-baked in {t:.0} ms: load {:.0}, diff {:.0}, atlas {:.0}, world {:.0}, region {:.0}, \
-         bake {:.0}, publish {:.0} ms",
-        invalid.len(),
-        steps.load,
-        steps.diff,
-        steps.atlas,
-        steps.world,
-        steps.region,
-        steps.bake,
-        steps.publish
-    );
-    shared.emit(RuntimeEvent::ReloadApplied {
-        changed_meshes,
-        invalidated_cells: invalid.len(),
-        repacked: relaid,
-        ms: t,
-        steps_ms: steps,
-    });
-    shared.emit(RuntimeEvent::ReloadRelit { ms: t, directions });
-    Ok(())
+}
+
+/// What publishing a reload's re-bake needs to know.
+struct Swap<'a> {
+    world: &'a Arc<World>,
+    invalid: &'a BTreeSet<CellId>,
+    /// Every cell was re-baked.
+    full: bool,
+    seen_at: Instant,
+    changed_meshes: usize,
+    relaid: bool,
+}
+
+impl Swap<'_> {
+    /// Serves the new world with `map` (its re-baked cells' LOD 0 at `directions`):
+    /// `reload_applied` and `reload_relit`.
+    #[allow(clippy::too_many_arguments)]
+    fn publish(
+        &self,
+        shared: &Shared,
+        map: ShownLightmap,
+        owned: &PixelLists,
+        directions: u32,
+        provisional: bool,
+        lap: &mut impl FnMut(&mut f64),
+        mut steps: ReloadSteps,
+    ) {
+        let (world, grid) = (self.world, self.world.grid);
+        let mut st = shared.lock();
+        st.relighting = false;
+        // Swap: the new world, its map, the cell table.
+        st.generation += 1;
+        st.world = world.clone();
+        // Every bake in progress is of the old scene: parked ones are dropped here, those a
+        // worker holds when it brings them back (their generation is old).
+        for s in st.cells.iter_mut() {
+            s.bake = None;
+            s.member_of = None;
+            s.baking_directions = 0;
+        }
+        st.bake_bytes = 0;
+        let lights = !world.scene.lights.is_empty();
+        for c in 0..grid.len() as u32 {
+            let s = &mut st.cells[c as usize];
+            if self.full || self.invalid.contains(&c) {
+                let (busy, punctual_busy) = (s.busy, s.punctual.busy);
+                *s = CellState { busy, provisional, ..CellState::default() };
+                s.punctual.busy = punctual_busy;
+                s.history = vec![(directions as u64, f32::NAN)];
+                s.published = vec![owned[c as usize].clone()];
+                s.set_light(Layer::Bundles, 0, map.layer_light(Layer::Bundles, 0, &owned[c as usize]));
+                if lights {
+                    s.punctual.published = vec![owned[c as usize].clone()];
+                    s.set_light(Layer::Punctual, 0, map.layer_light(Layer::Punctual, 0, &owned[c as usize]));
+                }
+            } else if world.lod0_texels[c as usize] > 0 {
+                s.stale = true;
+                // Its shadows may have changed too (a long shadow reaches past the margin): the
+                // punctual layer is re-baked, LOD 0 and the LOD wanted (cheap and exact).
+                s.punctual.stale = lights;
+            }
+        }
+        // Provisional cells an earlier reload left (not invalidated this time) are still so.
+        let left = world.non_empty_cells().filter(|&c| st.cells[c as usize].provisional).count();
+        st.refining = (left > 0).then_some(Refining { seen_at: self.seen_at, left });
+        take_camera(shared, &mut st);
+        update_views(shared, &mut st);
+        shared.set_shown(map);
+        drop(st);
+        shared.wake.notify_all();
+        let t = self.seen_at.elapsed().as_secs_f64() * 1e3;
+        lap(&mut steps.publish);
+        tracing::debug!(
+            "reload: {} cells re-baked in {t:.0} ms: load {:.0}, diff {:.0}, atlas {:.0}, world {:.0}, region {:.0}, \
+             bake {:.0}, publish {:.0} ms",
+            self.invalid.len(),
+            steps.load,
+            steps.diff,
+            steps.atlas,
+            steps.world,
+            steps.region,
+            steps.bake,
+            steps.publish
+        );
+        shared.emit(RuntimeEvent::ReloadApplied {
+            changed_meshes: self.changed_meshes,
+            invalidated_cells: self.invalid.len(),
+            repacked: self.relaid,
+            ms: t,
+            steps_ms: steps,
+        });
+        shared.emit(RuntimeEvent::ReloadRelit { ms: t, directions });
+    }
+
+    /// Shows a later state of the full re-bake (LOD 0 of every cell at `directions`), as
+    /// first light shows its doubling counts: LOD 0 only, punctual levels kept.
+    fn republish(&self, shared: &Shared, map: ShownLightmap, owned: &PixelLists, directions: u64) {
+        let mut st = shared.lock();
+        let mut shown = (*shared.shown()).clone();
+        shown.adopt_level(&map, 0);
+        let lights = !self.world.scene.lights.is_empty();
+        for (c, pixels) in owned.iter().enumerate() {
+            let cell = &mut st.cells[c];
+            cell.history = vec![(directions, f32::NAN)];
+            if !pixels.is_empty() {
+                cell.set_light(Layer::Bundles, 0, shown.layer_light(Layer::Bundles, 0, pixels));
+                if lights {
+                    cell.set_light(Layer::Punctual, 0, shown.layer_light(Layer::Punctual, 0, pixels));
+                }
+            }
+        }
+        shared.set_shown(shown);
+        drop(st);
+        shared.emit(RuntimeEvent::Lod0Published { directions });
+    }
 }
 
 /// Re-bakes LOD 0 of the `invalid` cells of the new `world` together and returns the shown
@@ -269,7 +469,7 @@ fn relight(
     threads: usize,
     lap: &mut impl FnMut(&mut f64),
     steps: &mut ReloadSteps,
-) -> Result<(ShownLightmap, super::scheduler::PixelLists), String> {
+) -> Result<(ShownLightmap, PixelLists), String> {
     let grid = world.grid;
     let mut map = (*shared.shown()).clone();
     map.resize(world.atlas.width, world.atlas.height);

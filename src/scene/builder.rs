@@ -36,6 +36,12 @@ impl SceneBuilder {
         self
     }
 
+    /// Radiance by direction around the scene (added to the uniform sky).
+    pub fn environment(&mut self, map: super::Environment) -> &mut Self {
+        self.scene.environment = Some(std::sync::Arc::new(map));
+        self
+    }
+
     /// Adds a mesh from world-space positions and CCW triangles; normals are the face normals
     /// averaged per vertex.
     pub fn mesh(

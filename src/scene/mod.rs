@@ -1,25 +1,33 @@
-//! The CPU scene: world-space triangle meshes, materials, punctual lights, cameras and the sky.
+//! The CPU scene: world-space triangle meshes, materials, punctual lights, cameras, and the
+//! sky, environment and sun around it.
 //!
 //! Everything here is plain data in world space (metres). Loading from glTF lives in
 //! [`gltf`]; programmatic construction (tests, analytic scenes) in [`builder`].
 //! No GPU types: the GPU mirror of a scene is built from this elsewhere.
 
 pub mod builder;
+pub mod daylight;
+pub mod environment;
 pub mod geometry;
 pub mod gltf;
 pub mod radiometry;
+pub mod sun;
+mod surroundings;
 pub mod texture;
 
 use std::path::PathBuf;
+use std::sync::Arc;
 
 use glam::{Quat, Vec2, Vec3, Vec4};
 
 pub use builder::SceneBuilder;
+pub use environment::Environment;
 pub use geometry::{SceneGeometry, TriangleId};
 pub use gltf::{
     DEFAULT_MAX_TEXTURE_PIXELS, ExternalFile, ExternalKind, LoadError, LoadOptions, SourceDocument, SourceImage,
     external_files, load_gltf, load_gltf_bytes, read_scene_file, read_source,
 };
+pub use surroundings::{SunPlacement, Surroundings, SurroundingsSpec};
 pub use texture::{Texture, TextureRef, WrapMode};
 
 /// Linear RGB triple (radiance, irradiance, albedo...). Units are given where it is used.
@@ -325,9 +333,15 @@ pub struct Scene {
     pub textures: Vec<Texture>,
     pub lights: Vec<PunctualLight>,
     pub cameras: Vec<Camera>,
-    /// Uniform sky / environment radiance, W/(sr·m²), seen by rays that leave the scene.
-    /// Comes from configuration, not the file; black by default.
+    /// Uniform sky radiance, W/(sr·m²), seen by rays that leave the scene (added to the
+    /// environment's). Comes from configuration, not the file; black by default.
     pub sky: Rgb,
+    /// Radiance by direction seen by rays that leave the scene (see [`environment`]); from
+    /// configuration, not the file.
+    pub environment: Option<Arc<Environment>>,
+    /// How many of the last [`lights`](Self::lights) came from the surroundings (the sun of
+    /// [`Surroundings`]) rather than the file.
+    pub surrounding_lights: usize,
     pub stats: LoadStats,
 }
 

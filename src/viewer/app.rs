@@ -346,6 +346,11 @@ impl App<'_, '_> {
             }
             KeyCode::Equal | KeyCode::NumpadAdd => settings.exposure *= 1.25,
             KeyCode::Minus | KeyCode::NumpadSubtract => settings.exposure /= 1.25,
+            // The sun: azimuth (or a sun study's time of day) and elevation (or its day).
+            KeyCode::BracketLeft => self.source.move_sun(-1, 0),
+            KeyCode::BracketRight => self.source.move_sun(1, 0),
+            KeyCode::PageUp => self.source.move_sun(0, 1),
+            KeyCode::PageDown => self.source.move_sun(0, -1),
             KeyCode::KeyP | KeyCode::F12 => {
                 self.shots += 1;
                 self.screenshot_key = Some(PathBuf::from(format!("livebake-screenshot-{}.png", self.shots)));
@@ -493,6 +498,9 @@ impl App<'_, '_> {
         }
         if let Some(ms) = status.last_reload_ms {
             t += &format!(" | reload {ms:.0} ms");
+        }
+        if let Some(sun) = &status.sun {
+            t += &format!(" | sun {sun} ([ ] PgUp PgDn)");
         }
         if let Some(e) = &status.last_error {
             t += &format!(" | error: {e}");

@@ -15,7 +15,7 @@ use crate::bake::BakeOutput;
 use crate::grid::{Grid, GridError};
 use crate::runtime::shown::{Layer, PageWriter, ShownLightmap};
 use crate::runtime::{CameraView, Runtime, RuntimeEvent, TimedEvent};
-use crate::scene::Scene;
+use crate::scene::{Scene, SunPlacement, SurroundingsSpec};
 
 /// The scene a source lights and its atlas; `generation` changes when either is replaced.
 #[derive(Clone)]
@@ -35,6 +35,8 @@ pub struct SourceStatus {
     pub last_error: Option<String>,
     /// A short state word ("baking", "refining", "done").
     pub state: String,
+    /// Where the sun is, when it can be moved.
+    pub sun: Option<String>,
 }
 
 pub trait LightSource {
@@ -48,6 +50,9 @@ pub trait LightSource {
     fn status(&self) -> SourceStatus;
     /// Takes the source's news (events); called once a frame.
     fn poll(&mut self) {}
+    /// Moves the sun by key steps (see [`SunPlacement::moved`]), when the source has one to
+    /// move.
+    fn move_sun(&mut self, _steps: i32, _elevation_steps: i32) {}
     /// Stops background work; called once when the viewer closes. An error is what went
     /// wrong in the background (a worker that panicked).
     fn shutdown(&mut self) -> Result<(), String>;
@@ -100,6 +105,8 @@ pub struct RuntimeLight {
     reload_error: Option<String>,
     last_reload_ms: Option<f64>,
     reloads: u64,
+    /// How the scene's surroundings are made, when its sun can be moved.
+    sun: Option<SurroundingsSpec>,
 }
 
 impl RuntimeLight {
@@ -113,7 +120,14 @@ impl RuntimeLight {
             reload_error: None,
             last_reload_ms: None,
             reloads: 0,
+            sun: None,
         }
+    }
+
+    /// Lets the viewer move the sun of `spec` (the surroundings the scene was lit with).
+    pub fn with_sun(mut self, spec: SurroundingsSpec) -> RuntimeLight {
+        self.sun = spec.movable().then_some(spec);
+        self
     }
 
     /// Hot reloads applied so far.
@@ -202,6 +216,16 @@ impl LightSource for RuntimeLight {
             last_reload_ms: self.last_reload_ms,
             last_error: self.failed.clone().or_else(|| self.reload_error.clone()),
             state,
+            sun: self.sun.as_ref().and_then(|s| s.sun.map(|p| p.describe())),
+        }
+    }
+
+    fn move_sun(&mut self, steps: i32, elevation_steps: i32) {
+        let (Some(runtime), Some(spec)) = (&self.runtime, &mut self.sun) else { return };
+        spec.sun = spec.sun.map(|p: SunPlacement| p.moved(steps, elevation_steps));
+        match spec.build() {
+            Ok(surroundings) => runtime.set_surroundings(surroundings),
+            Err(e) => self.reload_error = Some(e),
         }
     }
 

@@ -65,8 +65,9 @@ pub struct MeshAt {
     pub bounds: Aabb,
 }
 
-/// The difference between an old and a new scene. The sky is an input, like the rest: set
-/// each scene's `sky` from the configuration before diffing (a loaded scene's is black).
+/// The difference between an old and a new scene. The surroundings (sky, environment, sun)
+/// are an input, like the rest: set each scene's from the configuration before diffing (a
+/// loaded scene has none).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SceneDiff {
     /// `(old index, new index)` of every mesh whose content is the same, by new index.
@@ -78,6 +79,8 @@ pub struct SceneDiff {
     /// By old index.
     pub removed: Vec<MeshAt>,
     pub lights_changed: bool,
+    /// The uniform sky's radiance or the environment map (compared as the same map or not:
+    /// maps are shared, never edited).
     pub sky_changed: bool,
     /// Some mesh kept (paired as changed) has a material of different content.
     pub materials_changed: bool,
@@ -155,7 +158,11 @@ impl SceneDiff {
             added,
             removed,
             lights_changed: light_keys(&old.lights) != light_keys(&new.lights),
-            sky_changed: old.sky.to_array().map(f32::to_bits) != new.sky.to_array().map(f32::to_bits),
+            sky_changed: old.sky.to_array().map(f32::to_bits) != new.sky.to_array().map(f32::to_bits)
+                || match (&old.environment, &new.environment) {
+                    (Some(a), Some(b)) => !std::sync::Arc::ptr_eq(a, b),
+                    (a, b) => a.is_some() != b.is_some(),
+                },
             materials_changed,
         }
     }

@@ -14,7 +14,7 @@ use notify_debouncer_full::notify::{self, EventKind, RecursiveMode};
 use notify_debouncer_full::{DebounceEventResult, Debouncer, RecommendedCache, new_debouncer};
 
 use super::files::{self, Mismatch, SceneFiles};
-use crate::scene::{LoadError, LoadOptions, Rgb, Scene, external_files, load_gltf_bytes, read_scene_file};
+use crate::scene::{LoadError, LoadOptions, Scene, Surroundings, external_files, load_gltf_bytes, read_scene_file};
 
 /// How the watcher waits before and while loading. See the module documentation.
 #[derive(Clone, Debug)]
@@ -28,8 +28,9 @@ pub struct WatchConfig {
     /// reported as a failure once this long has passed since the change was first seen.
     pub settle: Duration,
     pub load: LoadOptions,
-    /// Sky radiance set on every loaded scene (the sky comes from configuration, not the file).
-    pub sky: Rgb,
+    /// The sky, environment and sun set on every loaded scene (they come from configuration,
+    /// not the file).
+    pub surroundings: Surroundings,
 }
 
 impl Default for WatchConfig {
@@ -38,7 +39,7 @@ impl Default for WatchConfig {
             debounce: Duration::from_millis(100),
             settle: Duration::from_secs(2),
             load: LoadOptions::default(),
-            sky: Rgb::ZERO,
+            surroundings: Surroundings::default(),
         }
     }
 }
@@ -54,7 +55,8 @@ pub enum WatchEvent {
         /// When the first event of the change reached the watcher.
         seen_at: Instant,
     },
-    /// The files form a consistent set again and loaded: the new scene, with the configured sky.
+    /// The files form a consistent set again and loaded: the new scene, with the configured
+    /// surroundings.
     Loaded {
         scene: Arc<Scene>,
         seen_at: Instant,
@@ -381,9 +383,8 @@ impl Worker {
                 self.watch.update(&self.files);
                 true
             }
-            Attempt::Loaded(mut scene) => {
+            Attempt::Loaded(scene) => {
                 self.watch.update(&self.files);
-                scene.sky = self.config.sky;
                 let Some(e) = self.episode.take() else { return true };
                 tracing::info!(
                     "{}: reloaded ({} meshes) {:.0} ms after the change was seen",
@@ -474,7 +475,10 @@ fn look(files: &mut SceneFiles, config: &WatchConfig, settle_deadline: Instant) 
         return retry_soon;
     }
     match loaded {
-        Ok(scene) => Attempt::Loaded(Box::new(scene)),
+        Ok(mut scene) => match scene.set_surroundings(&config.surroundings) {
+            Ok(()) => Attempt::Loaded(Box::new(scene)),
+            Err(e) => Attempt::Failed { path: files.scene.clone(), error: e.to_string(), kind: FailureKind::Load },
+        },
         Err(e) => load_failed(e),
     }
 }

@@ -17,7 +17,7 @@ use std::path::{Component, Path, PathBuf};
 
 /// Why a file could not be read.
 #[derive(Debug)]
-pub(super) enum FileError {
+pub(crate) enum FileError {
     /// The URI leaves the scene's folder (see [`Refusal`]).
     Refused(Refusal),
     /// Not a regular file: a device, FIFO, socket or directory.
@@ -39,7 +39,7 @@ pub(super) enum FileError {
 
 /// How a file URI leaves the scene's folder.
 #[derive(Clone, Debug, PartialEq, Eq)]
-pub(super) enum Refusal {
+pub(crate) enum Refusal {
     Absolute,
     ParentEscape,
     LinksOut { target: PathBuf },
@@ -80,7 +80,7 @@ impl std::fmt::Display for FileError {
 /// Where a scene's files may be: inside its folder (canonical), or anywhere when the user
 /// opted in.
 #[derive(Clone, Debug)]
-pub(super) struct FileScope {
+pub(crate) struct FileScope {
     folder: Option<PathBuf>,
 }
 
@@ -141,7 +141,7 @@ impl FileScope {
 /// Reads the regular file at `path`: at least `least` and at most `most` bytes long (else an
 /// error before anything is read); returns its first `take` bytes (or all of it when `None`).
 /// Under `scope`, the opened file must really be inside the scene's folder.
-pub(super) fn read_regular(
+pub(crate) fn read_regular(
     path: &Path,
     scope: Option<&FileScope>,
     least: u64,

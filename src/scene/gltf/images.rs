@@ -131,41 +131,88 @@ fn describe_object(ctx: &Ctx, index: usize) -> String {
 fn decode(ctx: &Ctx, index: usize, kept: u64) -> Result<Pixels, LoadError> {
     let error = |reason: String| LoadError::Image { file: ctx.file.into(), image: describe(ctx, index), reason };
     let bytes = encoded_bytes(ctx, index)?;
-    let format = image::guess_format(&bytes)
-        .map_err(|_| error("unrecognised image format (livebake decodes PNG and JPEG)".into()))?;
     let max_pixels = ctx.options.max_texture_pixels;
-    let mut reader = image::ImageReader::with_format(Cursor::new(&bytes[..]), format);
-    // The decoder's own allocations are held to what an image within the limit needs, so a
-    // header that lies about its size cannot take more.
-    let mut limits = image::Limits::default();
-    limits.max_alloc = Some(max_pixels.saturating_mul(MOST_NATIVE_BYTES_PER_PIXEL).max(1 << 20));
-    reader.limits(limits);
-    let cannot = |e: image::ImageError| error(format!("cannot decode the {format:?} data: {e}"));
-    let decoder = reader.into_decoder().map_err(cannot)?;
-    let (width, height) = decoder.dimensions();
-    let pixels = width as u64 * height as u64;
-    if pixels > max_pixels {
-        return Err(LoadError::TextureTooLarge {
-            file: ctx.file.into(),
-            image: describe(ctx, index),
-            width,
-            height,
-            limit: max_pixels,
-        });
-    }
     // At its peak: the native pixels, their RGBA8 conversion and the texture's copy.
-    let need = kept.saturating_add(decoder.total_bytes()).saturating_add(pixels * 8);
-    if let Some(limit) = ctx.options.texture_memory_limit
-        && need > limit
-    {
-        return Err(LoadError::TexturesOverMemory { file: ctx.file.into(), image: describe(ctx, index), need, limit });
-    }
-    let decoded = image::DynamicImage::from_decoder(decoder).map_err(cannot)?;
+    let decoded =
+        decode_bounded(&bytes, max_pixels, kept, 8, ctx.options.texture_memory_limit).map_err(|e| match e {
+            DecodeError::Format => error("unrecognised image format (livebake decodes PNG and JPEG)".into()),
+            DecodeError::TooLarge { width, height } => LoadError::TextureTooLarge {
+                file: ctx.file.into(),
+                image: describe(ctx, index),
+                width,
+                height,
+                limit: max_pixels,
+            },
+            DecodeError::OverMemory { need, limit } => {
+                LoadError::TexturesOverMemory { file: ctx.file.into(), image: describe(ctx, index), need, limit }
+            }
+            DecodeError::Decode { format, reason } => error(format!("cannot decode the {format:?} data: {reason}")),
+        })?;
     drop(bytes);
     let rgba = decoded.into_rgba8();
     let (width, height) = rgba.dimensions();
     let rgba8 = rgba.as_raw().chunks_exact(4).map(|p| [p[0], p[1], p[2], p[3]]).collect();
     Ok(Pixels { width, height, rgba8 })
+}
+
+/// Why [`decode_bounded`] decoded nothing.
+#[derive(Debug)]
+pub(crate) enum DecodeError {
+    /// Not an image format livebake decodes.
+    Format,
+    /// The header declares more pixels than allowed.
+    TooLarge {
+        width: u32,
+        height: u32,
+    },
+    /// Decoding would take what is held past the memory limit.
+    OverMemory {
+        need: u64,
+        limit: u64,
+    },
+    Decode {
+        format: image::ImageFormat,
+        reason: String,
+    },
+}
+
+/// Decodes an encoded image after checking its header: at most `max_pixels` pixels, and
+/// `kept` bytes already held plus the decoder's output plus `kept_per_pixel` bytes a pixel
+/// that the caller makes of it at most `limit`. The decoder's own allocations are held to
+/// what an image within the pixel limit needs, so a header that lies about its size cannot
+/// take more. One rule for material textures and environment maps.
+pub(crate) fn decode_bounded(
+    bytes: &[u8],
+    max_pixels: u64,
+    kept: u64,
+    kept_per_pixel: u64,
+    limit: Option<u64>,
+) -> Result<image::DynamicImage, DecodeError> {
+    let format = image::guess_format(bytes).map_err(|_| DecodeError::Format)?;
+    let mut reader = image::ImageReader::with_format(Cursor::new(bytes), format);
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(max_pixels.saturating_mul(MOST_NATIVE_BYTES_PER_PIXEL).max(1 << 20));
+    reader.limits(limits);
+    let cannot = |e: image::ImageError| DecodeError::Decode { format, reason: e.to_string() };
+    let decoder = reader.into_decoder().map_err(cannot)?;
+    let (width, height) = decoder.dimensions();
+    let pixels = width as u64 * height as u64;
+    if pixels > max_pixels {
+        return Err(DecodeError::TooLarge { width, height });
+    }
+    let need = kept.saturating_add(decoder.total_bytes()).saturating_add(pixels.saturating_mul(kept_per_pixel));
+    if let Some(limit) = limit
+        && need > limit
+    {
+        return Err(DecodeError::OverMemory { need, limit });
+    }
+    image::DynamicImage::from_decoder(decoder).map_err(cannot)
+}
+
+/// The most bytes an encoded image within `max_pixels` pixels may have: its raw pixels at
+/// the widest format, and a header.
+pub(crate) fn most_encoded_bytes(max_pixels: u64) -> u64 {
+    max_pixels.saturating_mul(MOST_NATIVE_BYTES_PER_PIXEL).saturating_add(1 << 20)
 }
 
 /// The encoded bytes (PNG, JPEG...) of image `index`, from its bufferView or its URI.
@@ -201,8 +248,7 @@ fn image_bytes(ctx: &Ctx, index: usize, img: &json::Image) -> Result<Vec<u8>, Lo
         UriSource::File(path) => {
             // No encoding of an image within the pixel limit needs more than its raw pixels
             // at the widest format, and a header.
-            let most =
-                ctx.options.max_texture_pixels.saturating_mul(MOST_NATIVE_BYTES_PER_PIXEL).saturating_add(1 << 20);
+            let most = most_encoded_bytes(ctx.options.max_texture_pixels);
             read_regular(&path, Some(&ctx.scope), 0, most, None).map_err(|e| match e {
                 FileError::Io(e) => {
                     error(format!("cannot read '{}' (looked for at {}): {e}", uri_text, path.display()))

@@ -1,0 +1,238 @@
+//! Light from around the scene that the command line gives rather than the file: a uniform
+//! sky, an environment map and a sun (docs/ARCHITECTURE.md "Light from around the scene"),
+//! and how they are made ([`SurroundingsSpec`]) so that a front end can move the sun and
+//! make them again.
+
+use std::sync::Arc;
+
+use super::daylight::{DaylightOptions, daylight};
+use super::environment::Environment;
+use super::environment::split::{SunSplit, split_sun};
+use super::radiometry::TooBright;
+use super::sun::{Instant, SunPosition, clear_sky_sun, solar_position};
+use super::{LightKind, PunctualLight, Rgb, Scene};
+
+/// What lights a scene from outside it. Rays that leave the scene see `sky +
+/// environment(d)`; the sun is a directional light of the punctual layer.
+#[derive(Clone, Debug, Default)]
+pub struct Surroundings {
+    /// Uniform radiance, W/(sr·m²).
+    pub sky: Rgb,
+    /// Radiance by direction, W/(sr·m²).
+    pub environment: Option<Arc<Environment>>,
+    /// A directional light (`--sun`, a sun study, the sky model's sun, an environment map's
+    /// split-off sun).
+    pub sun: Option<PunctualLight>,
+}
+
+impl Scene {
+    /// Replaces the scene's surroundings (those set before are taken away, the file's lights
+    /// kept), refusing light too bright for the scene's sums (see
+    /// [`radiometry`](super::radiometry)).
+    pub fn set_surroundings(&mut self, s: &Surroundings) -> Result<(), TooBright> {
+        let c = self.light_ceiling();
+        let brightest = s.sky.max_element() + s.environment.as_ref().map_or(0.0, |e| e.brightest());
+        c.check(|| "the sky and environment radiance".into(), brightest as f64, c.radiance(), "W/(sr·m²)")?;
+        let file_lights = self.lights.len() - self.surrounding_lights;
+        if let Some(sun) = &s.sun {
+            let most = c.light_intensity(true, file_lights + 1);
+            c.check(|| format!("the sun '{}'", sun.name), sun.intensity.max_element() as f64, most, "W/m²")?;
+        }
+        self.lights.truncate(file_lights);
+        self.lights.extend(s.sun.clone());
+        self.surrounding_lights = s.sun.is_some() as usize;
+        self.sky = s.sky;
+        self.environment = s.environment.clone();
+        Ok(())
+    }
+
+    /// The surroundings set with [`set_surroundings`](Self::set_surroundings) (or `sky`).
+    pub fn surroundings(&self) -> Surroundings {
+        let first = self.lights.len() - self.surrounding_lights;
+        Surroundings { sky: self.sky, environment: self.environment.clone(), sun: self.lights.get(first).cloned() }
+    }
+
+    /// Whether rays leaving the scene see any light.
+    pub fn has_sky(&self) -> bool {
+        self.sky.max_element() > 0.0 || self.environment.as_ref().is_some_and(|e| e.brightest() > 0.0)
+    }
+}
+
+/// Where the sun is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SunPlacement {
+    /// Elevation and azimuth (`--sun`).
+    Fixed(SunPosition),
+    /// A sun study (`--location`, `--time`): latitude, longitude (degrees) and an instant.
+    Study { latitude: f64, longitude: f64, time: Instant },
+}
+
+impl SunPlacement {
+    pub fn position(&self) -> SunPosition {
+        match *self {
+            SunPlacement::Fixed(p) => p,
+            SunPlacement::Study { latitude, longitude, time } => solar_position(latitude, longitude, time),
+        }
+    }
+
+    /// The sun moved by one step of a front end's key: `steps` × 15 minutes of a sun study,
+    /// or × 5° of azimuth (`elevation_steps` × 5° of elevation, within ±90°).
+    pub fn moved(&self, steps: i32, elevation_steps: i32) -> SunPlacement {
+        match *self {
+            SunPlacement::Fixed(p) => SunPlacement::Fixed(SunPosition {
+                elevation: (p.elevation + 5.0 * elevation_steps as f64).clamp(-90.0, 90.0),
+                azimuth: (p.azimuth + 5.0 * steps as f64).rem_euclid(360.0),
+            }),
+            SunPlacement::Study { latitude, longitude, time } => SunPlacement::Study {
+                latitude,
+                longitude,
+                time: Instant(time.0 + 900.0 * steps as f64 + 86_400.0 * elevation_steps as f64),
+            },
+        }
+    }
+
+    /// For titles and events: `elevation 30.0°, azimuth 120.0°` (and the time of a study).
+    pub fn describe(&self) -> String {
+        let p = self.position();
+        let at = format!("elevation {:.1}°, azimuth {:.1}°", p.elevation, p.azimuth);
+        match self {
+            SunPlacement::Fixed(_) => at,
+            SunPlacement::Study { time, .. } => format!("{} UTC, {at}", super::sun::format_time(*time)),
+        }
+    }
+}
+
+/// How the surroundings are made from the command line's options.
+#[derive(Clone, Debug)]
+pub struct SurroundingsSpec {
+    /// `--sky`.
+    pub sky: Rgb,
+    /// `--environment` as loaded (its sun already split off, see `environment_sun`).
+    pub environment: Option<Arc<Environment>>,
+    /// The directional light split off the environment map (the sun when no other is placed).
+    pub environment_sun: Option<PunctualLight>,
+    /// `--sun` or a sun study.
+    pub sun: Option<SunPlacement>,
+    /// The sun's irradiance when given (`--sun`'s third number); else the clear-sky sun's.
+    pub sun_irradiance: Option<Rgb>,
+    /// `--sky-model preetham`.
+    pub daylight: Option<DaylightOptions>,
+    /// The clear-sky sun's turbidity when there is no sky model (`--turbidity`).
+    pub turbidity: f64,
+}
+
+impl Default for SurroundingsSpec {
+    fn default() -> Self {
+        SurroundingsSpec {
+            sky: Rgb::ZERO,
+            environment: None,
+            environment_sun: None,
+            sun: None,
+            sun_irradiance: None,
+            daylight: None,
+            turbidity: DaylightOptions::default().turbidity,
+        }
+    }
+}
+
+impl SurroundingsSpec {
+    /// Splits the sun off an environment map (see [`split_sun`]); logs what it did.
+    pub fn take_sun_from(map: Environment) -> (Arc<Environment>, Option<PunctualLight>, Option<SunSplit>) {
+        match split_sun(&map) {
+            Some(split) => {
+                let toward = split.toward;
+                let elevation = toward.y.asin().to_degrees();
+                let azimuth = toward.x.atan2(-toward.z).to_degrees().rem_euclid(360.0);
+                tracing::info!(
+                    "{}: its sun ({} pixels, {:.2e} sr above {:.3e} W/(sr·m²), the sky around it at {:.3e}; {:.0}% of the \
+                     map's light) is a directional light at elevation {elevation:.2}°, azimuth {azimuth:.2}°, {} W/m²",
+                    map.name,
+                    split.pixels,
+                    split.solid_angle,
+                    split.threshold,
+                    split.sky_level,
+                    split.share * 100.0,
+                    split.sun.intensity,
+                );
+                (Arc::new(split.sky.clone()), Some(split.sun.clone()), Some(split))
+            }
+            None => (Arc::new(map), None, None),
+        }
+    }
+
+    /// The surroundings this makes.
+    pub fn build(&self) -> Result<Surroundings, String> {
+        let position = self.sun.map(|s| s.position());
+        let mut out = Surroundings { sky: self.sky, environment: self.environment.clone(), sun: None };
+        match (self.daylight, position) {
+            (Some(options), Some(p)) => {
+                let day = daylight(p, &options, self.sun_irradiance)?;
+                out.environment = Some(day.sky);
+                out.sun = day.sun;
+            }
+            (Some(_), None) => return Err("--sky-model needs the sun: --sun or --location with --time".into()),
+            (None, Some(p)) => {
+                let e = self.sun_irradiance.unwrap_or_else(|| clear_sky_sun(p.elevation, self.turbidity));
+                out.sun = (p.elevation > 0.0 || self.sun_irradiance.is_some()).then(|| p.light("sun", e));
+            }
+            (None, None) => out.sun = self.environment_sun.clone(),
+        }
+        if out.sun.as_ref().is_some_and(|s| s.kind != LightKind::Directional) {
+            return Err("the sun must be a directional light".into());
+        }
+        Ok(out)
+    }
+
+    /// Whether a front end can move the sun.
+    pub fn movable(&self) -> bool {
+        self.sun.is_some()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::SceneBuilder;
+
+    /// Setting surroundings twice replaces the first sun, keeps the file's lights, and a sun
+    /// or sky beyond the ceiling is refused with the scene unchanged.
+    #[test]
+    fn surroundings_replace_each_other_and_keep_the_files_lights() {
+        let mut b = SceneBuilder::new();
+        let m = b.material(crate::scene::Material::default());
+        b.floor("floor", glam::Vec3::ZERO, 1.0, m);
+        b.point_light(glam::Vec3::Y, Rgb::ONE);
+        let mut scene = b.build();
+        let sun = |e| SunPosition { elevation: e, azimuth: 0.0 }.light("sun", Rgb::splat(3.0));
+        let first = Surroundings { sky: Rgb::splat(0.5), environment: None, sun: Some(sun(30.0)) };
+        scene.set_surroundings(&first).expect("fits");
+        scene.set_surroundings(&Surroundings { sun: Some(sun(60.0)), ..first.clone() }).expect("fits");
+        assert_eq!(scene.lights.len(), 2);
+        assert_eq!(scene.lights[0].name, "point");
+        assert!((scene.lights[1].direction.y + 60f32.to_radians().sin()).abs() < 1e-6);
+        let blinding = Surroundings {
+            sun: Some(SunPosition { elevation: 30.0, azimuth: 0.0 }.light("sun", Rgb::splat(1e30))),
+            ..first
+        };
+        assert!(scene.set_surroundings(&blinding).is_err());
+        assert_eq!(scene.lights.len(), 2);
+        scene.set_surroundings(&Surroundings::default()).expect("nothing");
+        assert_eq!(scene.lights.len(), 1);
+        assert!(!scene.has_sky());
+    }
+
+    #[test]
+    fn a_sky_model_needs_a_sun_and_a_set_sun_needs_no_model() {
+        let model = SurroundingsSpec { daylight: Some(DaylightOptions::default()), ..Default::default() };
+        assert!(model.build().is_err());
+        let placed = SunPlacement::Fixed(SunPosition { elevation: 45.0, azimuth: 90.0 });
+        let sun_only = SurroundingsSpec { sun: Some(placed), ..Default::default() };
+        let s = sun_only.build().expect("a sun");
+        assert!(s.environment.is_none());
+        assert_eq!(s.sun.expect("a sun").intensity, clear_sky_sun(45.0, 3.0));
+        let with_sky = SurroundingsSpec { daylight: Some(DaylightOptions::default()), ..sun_only };
+        assert!(with_sky.build().expect("a sky").environment.is_some());
+        let moved = placed.moved(2, -1).position();
+        assert_eq!((moved.elevation, moved.azimuth), (40.0, 100.0));
+    }
+}
