@@ -1,6 +1,7 @@
 //! The documentation stays true to the tree: every relative link of README.md and docs/*.md
 //! reaches a file (and, with `#anchor`, a heading of it), every option the command line's
-//! `--help` lists is in docs/CLI.md, and every livebake option docs/CLI.md names still exists.
+//! `--help` lists is in docs/CLI.md, every livebake option docs/CLI.md names still exists, and
+//! the benchmark tables are what `scripts/bench-tables` makes of the recorded bench JSON.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -178,8 +179,9 @@ fn option_words(text: &str) -> BTreeSet<String> {
 }
 
 /// Options docs/CLI.md names that belong to other programs: `scripts/bench-compare`'s
-/// (`--runs`; its `--out` is livebake's too) and `cargo`'s.
-const OTHER_PROGRAMS_OPTIONS: [&str; 4] = ["--runs", "--release", "--locked", "--test"];
+/// (`--runs`; its `--out` is livebake's too), `scripts/bench-tables`' and `cargo`'s.
+const OTHER_PROGRAMS_OPTIONS: [&str; 8] =
+    ["--runs", "--date", "--machine", "--note", "--check", "--release", "--locked", "--test"];
 
 #[test]
 fn cli_md_names_every_option_of_every_command_and_no_other() {
@@ -215,4 +217,21 @@ fn slugs_follow_github() {
     assert_eq!(slug("Units and conventions (W/m²)"), "units-and-conventions-wm²");
     let a = anchors("# A\n## A\n```\n# not a heading\n```\n#nospace\n");
     assert_eq!(a, ["a", "a-1"].iter().map(|s| s.to_string()).collect());
+}
+
+/// docs/BENCHMARKS.md's tables and the README's headline table are what `scripts/bench-tables`
+/// makes of the bench JSON and arguments BENCHMARKS.md records: regenerated, never retyped.
+#[test]
+fn benchmark_tables_are_made_from_the_recorded_bench_json() {
+    let out = Command::new("python3")
+        .arg(root().join("scripts/bench-tables"))
+        .arg("--check")
+        .output()
+        .expect("python3 runs (scripts/test installs it)");
+    assert!(
+        out.status.success(),
+        "scripts/bench-tables --check: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
 }
