@@ -420,7 +420,7 @@ fn run_streams_events_and_writes_what_it_showed() {
         assert!(c["bounds"]["min"].as_array().unwrap().len() == 3 && c["shown_lod"].as_u64().is_some(), "{c}");
     }
     // Cells published (a cell may be published more than once: early at a finer level, then
-    // again as that level refines in place, see README "Refinement near the camera"). Every
+    // again as that level refines in place, see docs/CLI.md, `livebake run`). Every
     // one shows in the cell table (no eviction at this size). The table may show more: a
     // publish emits its event just after it changes the map, so one that lands as the run
     // takes its final snapshot is in the table while its event comes too late for the log.

@@ -693,9 +693,9 @@ fn cli_bake_exports_gltf() {
 }
 
 // ---------------------------------------------------------------------------------------
-// Engines: the README's snippets, run on an export
+// Engines: docs/EXPORT.md's snippets, run on an export
 
-/// Runs `tests/engines/HARNESS` (with the README's snippet files beside it and the npm tools as
+/// Runs `tests/engines/HARNESS` (with docs/EXPORT.md's snippet files beside it and the npm tools as
 /// its node_modules) on an export and the samples; returns its JSON.
 fn run_harness(harness: &str, gltf: &Path, samples: &[Sample]) -> Value {
     let work = tempfile::tempdir().unwrap();
@@ -746,7 +746,7 @@ fn check_engine_values(engine: &str, values: &Value, rt: &RoundTrip, intensity: 
     eprintln!("{engine}: {} points, worst error {:.2} of the bound", values.len(), worst);
 }
 
-/// three.js (the pinned `three` of scripts/test) with the README's `MozLightmap` plugin: every
+/// three.js (the pinned `three` of scripts/test) with docs/EXPORT.md's `MozLightmap` plugin: every
 /// material gets the PNG as `lightMap` on channel 1 (TEXCOORD_1 = three's `uv1`), sRGB, with
 /// `lightMapIntensity` = the file's intensity; the installed shader adds `lightMap ×
 /// lightMapIntensity` to the irradiance it shades with; and that irradiance, computed from
@@ -778,7 +778,7 @@ fn engines_three_js_reads_the_light_map_as_irradiance() {
 }
 
 /// Babylon.js (the pinned `@babylonjs/core` + `@babylonjs/loaders`, NullEngine) with the
-/// README's MOZ_lightmap extension: every PBR material gets the PNG as `lightmapTexture` on
+/// MOZ_lightmap extension of docs/EXPORT.md: every PBR material gets the PNG as `lightmapTexture` on
 /// coordinates index 1 (UV2 = TEXCOORD_1), as a colour (sRGB) texture, `level` = intensity/π,
 /// `useLightmapAsShadowmap` with white ambient; the installed shaders multiply the final
 /// colour by `lightmap × level` and make the ambient term `ambient × albedo`, so the surface
@@ -818,29 +818,29 @@ fn engines_babylon_js_reads_the_light_map_as_irradiance_over_pi() {
     check_engine_values("Babylon.js", &out["values"], &rt, report.png_intensity);
 }
 
-/// The README's engine snippets are the files the engine tests run (and the Bevy one the
-/// file the Bevy test reads), word for word.
+/// The engine snippets of docs/EXPORT.md are the files the engine tests run (and the Bevy one
+/// the file the Bevy test reads), word for word.
 #[test]
-fn readme_snippets_are_the_tested_files() {
+fn export_doc_snippets_are_the_tested_files() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let readme = std::fs::read_to_string(root.join("README.md")).unwrap();
+    let doc = std::fs::read_to_string(root.join("docs/EXPORT.md")).unwrap();
     for (file, lang) in
         [("three_moz_lightmap.mjs", "js"), ("babylon_moz_lightmap.mjs", "js"), ("bevy_lightmap.rs", "rust")]
     {
         let text = std::fs::read_to_string(root.join("tests/engines").join(file)).unwrap();
         assert!(
-            readme.contains(&format!("```{lang}\n{text}```")),
-            "README.md does not show tests/engines/{file} as it is"
+            doc.contains(&format!("```{lang}\n{text}```")),
+            "docs/EXPORT.md does not show tests/engines/{file} as it is"
         );
     }
 }
 
 /// Bevy is not built here (a full Bevy build is far too heavy for this project's CI). What the
-/// README's Bevy snippet relies on is checked on an export named as in the snippet: the image
+/// Bevy snippet of docs/EXPORT.md relies on is checked on an export named as in the snippet: the image
 /// it loads exists and `intensity × ` its sRGB-decoded texels is E (the EXR) at every texel
 /// within the PNG's rounding; its `intensity` is `MOZ_lightmap.intensity`; and TEXCOORD_1 of
 /// every primitive lies in [0, 1] over the whole image, so `uv_rect` is the full rectangle.
-/// The snippet's Bevy calls and Bevy's shader arithmetic (README) are read, not run.
+/// The snippet's Bevy calls and Bevy's shader arithmetic (docs/EXPORT.md) are read, not run.
 #[test]
 fn engines_bevy_snippet_matches_the_files() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));

@@ -241,7 +241,7 @@ type Published = (u32, u64, f32, bool);
 /// the same bake goes on into the same sums and is published again at LOD 1 each time its
 /// directions double, until it is settled (here at `max_directions`). The expected
 /// publishes come from an offline replay of the group's bake against the same shown map
-/// with the rule as the README states it, and each published map holds exactly that bake's
+/// with the rule as docs/CLI.md states it, and each published map holds exactly that bake's
 /// texels at those directions: the same snapshot, seed and directions give the same sums
 /// (results depend on the lanes, not on the threads), so they are bit-equal and no
 /// tolerance applies. One worker, so nothing is published before the first bake starts: its

@@ -1,5 +1,5 @@
 //! glTF export for other engines: the loaded scene with the light map attached, in a form
-//! three.js, Babylon.js and Bevy load (README "Using the light map in other engines").
+//! three.js, Babylon.js and Bevy load (docs/EXPORT.md).
 //!
 //! `export_gltf(scene, atlas, map, "dir/room.gltf", options)` writes
 //!

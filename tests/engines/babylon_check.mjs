@@ -1,4 +1,4 @@
-// Loads an export with Babylon.js's glTF loader (NullEngine: no GPU in Node) and the README's
+// Loads an export with Babylon.js's glTF loader (NullEngine: no GPU in Node) and docs/EXPORT.md's
 // MOZ_lightmap extension (babylon_moz_lightmap.mjs), and prints as JSON what Babylon then
 // shades with: per sample point, π × level × (the lightmap texel, sRGB-decoded and filtered at
 // the point's interpolated UV2), i.e. E if the PBR shader makes albedo × map × level; plus the

@@ -1,4 +1,4 @@
-// Loads an export with three.js's GLTFLoader and the README's MozLightmap plugin
+// Loads an export with three.js's GLTFLoader and docs/EXPORT.md's MozLightmap plugin
 // (three_moz_lightmap.mjs), and prints as JSON what three.js then shades with: per sample
 // point, lightMapIntensity × (the lightMap texel, sRGB-decoded and bilinearly filtered at the
 // point's interpolated uv1), i.e. the irradiance three.js adds; plus the material settings.

@@ -228,7 +228,7 @@ mod tests {
         Environment::new("test", width, height, texels, rotation).expect("a map")
     }
 
-    /// The README's landmarks: straight up is v = 0, −Z the image centre, +X at u = 0.75,
+    /// docs/CLI.md's landmarks (`--environment`): straight up is v = 0, −Z the image centre, +X at u = 0.75,
     /// −X at u = 0.25; a rotation of +90° brings what was toward +X to −Z.
     #[test]
     fn directions_land_where_the_convention_puts_them() {
