@@ -39,9 +39,9 @@ use livebake::scene::SceneGeometry;
 use super::SceneOptions;
 use super::bake::load_scene;
 use super::options::Backend;
-use super::plot;
-use super::points::{Query, ReferencePoints, read_points, read_reference};
 use super::progress::Ui;
+use livebake::plot;
+use livebake::points::{Query, ReferencePoints, read_points, read_reference};
 
 /// LOD-0 texels the in-crate reference is traced at when no `--points` are given: the
 /// error figure then averages 768 channel values, a few per cent noise on the figure itself.

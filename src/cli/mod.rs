@@ -5,8 +5,6 @@ mod bake;
 mod bench;
 mod converge;
 mod options;
-mod plot;
-mod points;
 mod probe;
 mod progress;
 mod run;

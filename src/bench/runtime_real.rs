@@ -19,23 +19,23 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use crate::glam::Vec3;
 use anyhow::{Context, Result, bail};
-use livebake::glam::Vec3;
 use serde_json::{Value, json};
 
-use livebake::bake::memory::peak_resident_bytes;
-use livebake::bake::{BakeConfig, bake};
-use livebake::cpu::CpuProvider;
-use livebake::progress::NoProgress;
-use livebake::runtime::shown::Layer;
-use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
-use livebake::scene::{LoadOptions, Rgb, load_gltf};
+use crate::bake::memory::peak_resident_bytes;
+use crate::bake::{BakeConfig, bake};
+use crate::cpu::CpuProvider;
+use crate::progress::NoProgress;
+use crate::runtime::shown::Layer;
+use crate::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
+use crate::scene::{LoadOptions, Rgb, load_gltf};
 
 use super::assets;
 use super::runtime::{ShownReader, next_event, quantile, wait_first_light};
 use super::runtime_large::reset_peak;
-use crate::cli::points::read_reference;
-use crate::cli::progress::Ui;
+use super::{Bench, Narrator};
+use crate::points::read_reference;
 
 /// A real scene, its eye and the reference irradiance at points seen from it.
 struct RealScene {
@@ -79,12 +79,13 @@ fn turning(eye: Vec3, t: f64) -> CameraView {
     CameraView::looking_at(eye, eye + Vec3::new(a.cos(), -0.15, a.sin()))
 }
 
-pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let (quick, ui) = (bench.quick, bench.ui);
     let horizon = if quick { 12.0 } else { 30.0 };
     SCENES.iter().map(|s| scene(s, horizon, ui)).collect::<Result<Vec<_>>>().map(Value::Array)
 }
 
-fn scene(s: &RealScene, horizon: f64, ui: &Ui) -> Result<Value> {
+fn scene(s: &RealScene, horizon: f64, ui: &dyn Narrator) -> Result<Value> {
     let path = assets().join(s.scene);
     let mut loaded = load_gltf(&path, &LoadOptions::default()).with_context(|| format!("{}", path.display()))?;
     loaded.sky = s.sky;
@@ -145,7 +146,7 @@ fn scene(s: &RealScene, horizon: f64, ui: &Ui) -> Result<Value> {
     let texel = world.texel_size(lod);
     ui.say(format!("  {}: whole-scene bake at {texel:.3} m texels ({WHOLE_DIRECTIONS} directions) ...", s.name));
     let bake_config = BakeConfig {
-        atlas: livebake::atlas::AtlasConfig { texel_size: Some(texel), ..config.atlas.clone() },
+        atlas: crate::atlas::AtlasConfig { texel_size: Some(texel), ..config.atlas.clone() },
         samples: WHOLE_DIRECTIONS,
         ..BakeConfig::default()
     };

@@ -1,5 +1,6 @@
-//! `livebake bench`: the measurements the issues ask for, written as JSON. Medians and
-//! ratios are measured side by side in one run; nothing here is a pass/fail test.
+//! The benchmarks: the measurements the issues ask for, written as JSON. Medians and ratios
+//! are measured side by side in one run; nothing here is a pass/fail test. Two front ends
+//! run them: `cargo bench` (`benches/livebake.rs`) and `livebake bench` (scripts call it).
 
 mod atlas;
 mod bake_memory;
@@ -22,8 +23,6 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 
-use super::progress::Ui;
-
 /// Embree's incoherent rays/s per core on this kind of machine: the anchor of the issues'
 /// throughput targets.
 pub const EMBREE_RAYS_PER_CORE: f64 = 2.3e6;
@@ -32,11 +31,37 @@ pub fn assets() -> PathBuf {
     PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/assets"))
 }
 
-/// One bench: `quick` trades precision for time (smaller sample sets, fewer repeats).
-type Bench = fn(bool, &Ui) -> Result<Value>;
+/// Where the benches' lines go: the command's progress display, or standard output under
+/// `cargo bench`.
+pub trait Narrator: Sync {
+    /// A line of the summary.
+    fn line(&self, line: &str);
+    /// A status shown beside the current phase, replaced by the next one.
+    fn status(&self, _line: &str) {}
+}
+
+impl dyn Narrator + '_ {
+    pub fn say(&self, line: impl AsRef<str>) {
+        self.line(line.as_ref())
+    }
+}
+
+/// What a bench section is given.
+pub struct Bench<'a> {
+    /// Trade precision for time (smaller sample sets, fewer repeats): a smoke run.
+    pub quick: bool,
+    pub ui: &'a dyn Narrator,
+    /// The `livebake` binary, for the sections that time whole commands.
+    pub livebake: PathBuf,
+    /// The report being written; pictures go beside it.
+    out: &'a Path,
+}
+
+/// One bench section.
+type Section = fn(&Bench) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Bench); 15] = [
+pub const SECTIONS: [(&str, Section); 15] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -65,28 +90,37 @@ pub fn seconds(t: Instant) -> f64 {
     t.elapsed().as_secs_f64()
 }
 
-pub fn run(out: &Path, only: &[String], quick: bool, ui: &Ui) -> Result<()> {
+/// Refuses a section name that is not one of [`SECTIONS`].
+pub fn check_sections(only: &[String]) -> Result<()> {
     if let Some(unknown) = only.iter().find(|s| !SECTIONS.iter().any(|(name, _)| name == s)) {
         let names: Vec<&str> = SECTIONS.iter().map(|(name, _)| *name).collect();
         anyhow::bail!("unknown bench section {unknown:?} (sections: {})", names.join(", "));
     }
+    Ok(())
+}
+
+/// Runs the sections named in `only` (every one when empty) and writes their report to `out`.
+/// `livebake` is the binary the whole-command sections run.
+pub fn run(out: &Path, only: &[String], quick: bool, livebake: PathBuf, ui: &dyn Narrator) -> Result<()> {
+    check_sections(only)?;
     let mut report = json!({
         "livebake_version": env!("CARGO_PKG_VERSION"),
-        "threads": livebake::parallel::available_threads(),
+        "threads": crate::parallel::available_threads(),
         "quick": quick,
     });
-    for (section, bench) in SECTIONS {
+    let bench = Bench { quick, ui, livebake, out };
+    for (section, measure) in SECTIONS {
         if !only.is_empty() && !only.iter().any(|s| s == section) {
             continue;
         }
         ui.say(format!("bench {section} ..."));
         let t = Instant::now();
-        let value = bench(quick, ui).with_context(|| format!("bench {section}"))?;
+        let value = measure(&bench).with_context(|| format!("bench {section}"))?;
         ui.say(format!("  {}", serde_json::to_string(&value)?));
         ui.say(format!("  ({:.1} s)", seconds(t)));
         report[section] = value;
     }
-    livebake::output::write_json(out, &report).with_context(|| format!("cannot write {}", out.display()))?;
+    crate::output::write_json(out, &report).with_context(|| format!("cannot write {}", out.display()))?;
     ui.say(format!("wrote {}", out.display()));
     Ok(())
 }
