@@ -57,7 +57,7 @@ fn main() -> ExitCode {
     }
     let out = args.out.unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_TARGET_TMPDIR"), "/bench.json")));
     let livebake = PathBuf::from(env!("CARGO_BIN_EXE_livebake"));
-    match livebake::bench::run(&out, &args.only, args.quick, livebake, &Stdout) {
+    match livebake::bench::run(&out, &args.only, args.quick, &livebake, &Stdout) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");

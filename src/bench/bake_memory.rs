@@ -38,7 +38,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
             .map(|&budget| {
                 let budget = budget >> (2 * (lods - 1));
                 ui.say(format!("  {name}: {budget} texels at LOD 0, {lods} LODs"));
-                bake(&bench.livebake, &room.join(file), budget, samples, lods)
+                bake(bench.livebake, &room.join(file), budget, samples, lods)
             })
             .collect::<Result<_>>()?;
         let figure = |r: &Value, key: &str| r[key].as_f64().unwrap_or(f64::NAN);

@@ -135,7 +135,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
     let spps: &[u32] = if quick { &[1, 4] } else { &[1, 2, 4, 8, 16, 32] };
 
     ui.say("  whole command (livebake probe) ...");
-    let cmd = whole_command(&bench.livebake, &scene_path, &points_path, &reference, directions)?;
+    let cmd = whole_command(bench.livebake, &scene_path, &points_path, &reference, directions)?;
     let cmd_curve: Vec<(f64, f64)> = cmd.iter().map(|&(_, t, e)| (t, e)).collect();
     let targets: Vec<Value> = CYCLES_SECONDS
         .iter()

@@ -18,10 +18,13 @@ mod tiling;
 mod viewer;
 
 use std::path::{Path, PathBuf};
+use std::sync::Mutex;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
+
+use crate::plot;
 
 /// Embree's incoherent rays/s per core on this kind of machine: the anchor of the issues'
 /// throughput targets.
@@ -52,9 +55,28 @@ pub struct Bench<'a> {
     pub quick: bool,
     pub ui: &'a dyn Narrator,
     /// The `livebake` binary, for the sections that time whole commands.
-    pub livebake: PathBuf,
+    pub livebake: &'a Path,
     /// The report being written; pictures go beside it.
     out: &'a Path,
+    section: &'static str,
+    /// The file name of the section's plot, once drawn.
+    plot: Mutex<Option<String>>,
+}
+
+impl Bench<'_> {
+    /// Draws the section's relative error against time (`series`: seconds since the runtime
+    /// started, error) as a PNG beside the report (`bench.json` → `bench.SECTION.png`), named
+    /// in the report's `plots`.
+    pub fn plot_error(&self, title: &str, series: &[plot::Series]) -> Result<()> {
+        let stem = self.out.file_stem().map_or("bench".into(), |s| s.to_string_lossy());
+        let file = format!("{stem}.{}.png", self.section);
+        let path = self.out.with_file_name(&file);
+        let image = plot::error_curves(title, "seconds since the runtime started", series, None)?;
+        crate::output::write_rgb8_png(&path, image)?;
+        self.ui.say(format!("  wrote {}", path.display()));
+        *self.plot.lock().map_err(|_| anyhow::anyhow!("a section's plot lock was poisoned"))? = Some(file);
+        Ok(())
+    }
 }
 
 /// One bench section.
@@ -101,24 +123,27 @@ pub fn check_sections(only: &[String]) -> Result<()> {
 
 /// Runs the sections named in `only` (every one when empty) and writes their report to `out`.
 /// `livebake` is the binary the whole-command sections run.
-pub fn run(out: &Path, only: &[String], quick: bool, livebake: PathBuf, ui: &dyn Narrator) -> Result<()> {
+pub fn run(out: &Path, only: &[String], quick: bool, livebake: &Path, ui: &dyn Narrator) -> Result<()> {
     check_sections(only)?;
     let mut report = json!({
         "livebake_version": env!("CARGO_PKG_VERSION"),
         "threads": crate::parallel::available_threads(),
         "quick": quick,
     });
-    let bench = Bench { quick, ui, livebake, out };
     for (section, measure) in SECTIONS {
         if !only.is_empty() && !only.iter().any(|s| s == section) {
             continue;
         }
         ui.say(format!("bench {section} ..."));
         let t = Instant::now();
+        let bench = Bench { quick, ui, livebake, out, section, plot: Mutex::new(None) };
         let value = measure(&bench).with_context(|| format!("bench {section}"))?;
         ui.say(format!("  {}", serde_json::to_string(&value)?));
         ui.say(format!("  ({:.1} s)", seconds(t)));
         report[section] = value;
+        if let Some(file) = bench.plot.into_inner().ok().flatten() {
+            report["plots"][section] = file.into();
+        }
     }
     crate::output::write_json(out, &report).with_context(|| format!("cannot write {}", out.display()))?;
     ui.say(format!("wrote {}", out.display()));

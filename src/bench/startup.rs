@@ -34,7 +34,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
     })?;
     let out = last.context("no bake ran")?;
     let dir = tempfile_dir()?;
-    let exe = &bench.livebake;
+    let exe = bench.livebake;
     let command_seconds = median(runs, || {
         let t = Instant::now();
         let status = Command::new(exe)

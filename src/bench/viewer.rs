@@ -32,7 +32,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
     let quick = bench.quick;
     let (runs, frames) = if quick { (1, 20) } else { (3, 120) };
     let xvfb = Xvfb::start()?;
-    let exe = &bench.livebake;
+    let exe = bench.livebake;
     let dir = std::env::temp_dir().join(format!("livebake-bench-viewer-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let mut scenes = Vec::new();

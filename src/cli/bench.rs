@@ -19,5 +19,5 @@ impl livebake::bench::Narrator for Ui {
 
 pub fn run(out: &Path, only: &[String], quick: bool, ui: &Ui) -> Result<()> {
     let livebake = std::env::current_exe().context("cannot find the livebake binary")?;
-    livebake::bench::run(out, only, quick, livebake, ui)
+    livebake::bench::run(out, only, quick, &livebake, ui)
 }
