@@ -64,14 +64,15 @@ pub struct Bench<'a> {
 }
 
 impl Bench<'_> {
-    /// Draws the section's relative error against time (`series`: seconds since the runtime
-    /// started, error) as a PNG beside the report (`bench.json` → `bench.SECTION.png`), named
-    /// in the report's `plots`.
-    pub fn plot_error(&self, title: &str, series: &[plot::Series]) -> Result<()> {
+    /// Draws the section's relative error against time (`series`: seconds since the runtime or
+    /// the whole-scene bake started, error; `target`: a goal line) as a PNG beside the report
+    /// (`bench.json` → `bench.SECTION.png`), named in the report's `plots`.
+    pub fn plot_error(&self, title: &str, series: &[plot::Series], target: Option<f64>) -> Result<()> {
         let stem = self.out.file_stem().map_or("bench".into(), |s| s.to_string_lossy());
         let file = format!("{stem}.{}.png", self.section);
         let path = self.out.with_file_name(&file);
-        let image = plot::error_curves(title, "seconds since the runtime started", series, None)?;
+        let x_desc = "seconds since the runtime (or the whole-scene bake) started";
+        let image = plot::error_curves(title, x_desc, series, target)?;
         crate::output::write_rgb8_png(&path, image)?;
         self.ui.say(format!("  wrote {}", path.display()));
         *self.plot.lock().map_err(|_| anyhow::anyhow!("a section's plot lock was poisoned"))? = Some(file);
@@ -106,6 +107,12 @@ pub fn median(runs: usize, mut f: impl FnMut() -> Result<f64>) -> Result<f64> {
     let mut v = (0..runs.max(1)).map(|_| f()).collect::<Result<Vec<f64>>>()?;
     v.sort_by(f64::total_cmp);
     Ok(v[v.len() / 2])
+}
+
+/// (seconds, error) of a curve as the reports write it: `[{"seconds": s, "error": e, ...}]`.
+pub fn curve_points(curve: &Value) -> Vec<(f64, f64)> {
+    let points = curve.as_array().map(Vec::as_slice).unwrap_or_default();
+    points.iter().filter_map(|c| Some((c["seconds"].as_f64()?, c["error"].as_f64()?))).collect()
 }
 
 pub fn seconds(t: Instant) -> f64 {

@@ -20,6 +20,7 @@
 
 use std::collections::HashMap;
 use std::ops::ControlFlow;
+use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -43,8 +44,8 @@ use crate::runtime::world::World;
 use crate::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
 use crate::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 
-use super::{Bench, Narrator};
-use super::{assets, seconds};
+use super::{Bench, Narrator, assets, curve_points, seconds};
+use crate::plot::Series;
 use crate::points::{Query, ReferencePoints};
 
 pub const ROOMS: [&str; 3] = [
@@ -635,6 +636,20 @@ fn room(name: &str, quick: bool, ui: &dyn Narrator) -> Result<Value> {
 pub fn run(bench: &Bench) -> Result<Value> {
     let (quick, ui) = (bench.quick, bench.ui);
     let rooms = ROOMS.iter().map(|r| room(r, quick, ui).with_context(|| r.to_string())).collect::<Result<Vec<_>>>()?;
+    let curves: Vec<(String, Vec<(f64, f64)>)> = ROOMS
+        .iter()
+        .zip(&rooms)
+        .flat_map(|(file, room)| {
+            let name = Path::new(file).file_stem().map_or(file.to_string(), |s| s.to_string_lossy().into_owned());
+            let near = &room["near_camera_error"];
+            [
+                (format!("{name}: runtime"), curve_points(&near["runtime_curve"])),
+                (format!("{name}: whole-scene bake"), curve_points(&near["whole_bake_runtime_lod0_layout"]["curve"])),
+            ]
+        })
+        .collect();
+    let series: Vec<Series> = curves.iter().map(|(label, points)| Series { label, points }).collect();
+    bench.plot_error("Near-camera error: the runtime and a whole-scene bake", &series, None)?;
     Ok(json!({
         "config": "RuntimeConfig::default(), CPU bundle backend",
         "clock": "seconds since Runtime::start (or, for whole-scene bakes, since before their atlas); the scene load and the reference are on neither",

@@ -49,7 +49,8 @@ use super::runtime::{
     ShownLods, ShownReader, TooLarge, median_point_error, next_event, quantile, reference_at, view_hits,
     wait_first_light, whole_bake, worst_points,
 };
-use super::{Bench, Narrator};
+use super::{Bench, curve_points};
+use crate::plot::Series;
 use crate::points::{Query, ReferencePoints};
 
 /// The error goal near the camera (relative RMS).
@@ -79,22 +80,20 @@ pub(super) fn reset_peak() -> Option<u64> {
 
 /// The sunlit temple.
 pub fn run(bench: &Bench) -> Result<Value> {
-    let (quick, ui) = (bench.quick, bench.ui);
     temple(
         "temple_courtyard_sunlit (synthetic temple, open to a sun and a uniform sky)",
         temple_courtyard_sunlit,
-        quick,
-        ui,
+        bench,
     )
 }
 
 /// The overcast temple.
 pub fn run_overcast(bench: &Bench) -> Result<Value> {
-    let (quick, ui) = (bench.quick, bench.ui);
-    temple("temple_courtyard (synthetic temple, open to a uniform sky)", temple_courtyard, quick, ui)
+    temple("temple_courtyard (synthetic temple, open to a uniform sky)", temple_courtyard, bench)
 }
 
-fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &dyn Narrator) -> Result<Value> {
+fn temple(name: &str, make: fn() -> Scene, bench: &Bench) -> Result<Value> {
+    let (quick, ui) = (bench.quick, bench.ui);
     let (horizon, spp, tick_seconds, swap_patience) =
         if quick { (30.0, 512, 4.0, 30.0) } else { (120.0, 2048, 10.0, 120.0) };
     let t_build = Instant::now();
@@ -319,6 +318,13 @@ fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &dyn Narrator) -> Re
             })
         })
         .collect();
+
+    let mut series = vec![("runtime", curve.iter().map(|c| (c.0, c.1)).collect::<Vec<_>>())];
+    if let Some(points) = whole.get("curve") {
+        series.push(("whole-scene bake", curve_points(points)));
+    }
+    let series: Vec<Series> = series.iter().map(|(label, points)| Series { label, points }).collect();
+    bench.plot_error(&format!("Error at the points: {name}"), &series, Some(GOAL))?;
 
     Ok(json!({
         "scene": name,

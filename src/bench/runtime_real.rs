@@ -91,7 +91,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
     let curves: Vec<Vec<(f64, f64)>> =
         measured.iter().map(|(_, curve)| curve.iter().map(|c| (c.0, c.1)).collect()).collect();
     let series: Vec<Series> = SCENES.iter().zip(&curves).map(|(s, points)| Series { label: s.short, points }).collect();
-    bench.plot_error("Near-camera error while turning at the eye (against Mitsuba 3)", &series)?;
+    bench.plot_error("Near-camera error while turning at the eye (against Mitsuba 3)", &series, None)?;
     Ok(Value::Array(measured.into_iter().map(|(v, _)| v).collect()))
 }
 
