@@ -1,6 +1,8 @@
 //! The benchmarks: the measurements the issues ask for, written as JSON. Medians and ratios
 //! are measured side by side in one run; nothing here is a pass/fail test. Two front ends
 //! run them: `cargo bench` (`benches/livebake.rs`) and `livebake bench` (scripts call it).
+//! The sections live here, in the library, because a bench target's code cannot be called by
+//! the binary: one implementation serves both, compiled once.
 
 mod atlas;
 mod bake_memory;
