@@ -11,22 +11,22 @@ use super::weld::FxMap;
 /// Uniform grid over some faces of a mesh (a chart), for overlap and clearance tests. Cells
 /// hold singly linked lists in one node array, so clearing it frees nothing.
 pub(super) struct FaceGrid {
-    pub(super) inv_cell: f64,
-    pub(super) heads: FxMap<(i64, i64), u32>,
+    inv_cell: f64,
+    heads: FxMap<(i64, i64), u32>,
     /// (face, next node or u32::MAX)
-    pub(super) nodes: Vec<(u32, u32)>,
+    nodes: Vec<(u32, u32)>,
     /// Faces covering too many cells: tested against every query.
-    pub(super) big: Vec<u32>,
-    pub(super) members: Vec<u32>,
+    big: Vec<u32>,
+    members: Vec<u32>,
 }
 
 /// Most cells a face may be listed in before it goes to the grid's `big` list.
-pub(super) const MAX_CELLS: i64 = 64;
+const MAX_CELLS: i64 = 64;
 
 /// Marks of the faces a query has already tested (one per mesh, shared by all its grids).
 pub(super) struct Visited {
-    pub(super) stamp: Vec<u32>,
-    pub(super) now: u32,
+    stamp: Vec<u32>,
+    now: u32,
 }
 
 impl Visited {
@@ -34,7 +34,7 @@ impl Visited {
         Visited { stamp: vec![0; faces], now: 0 }
     }
 
-    pub(super) fn next(&mut self) {
+    fn next(&mut self) {
         self.now = self.now.wrapping_add(1);
         if self.now == 0 {
             self.stamp.fill(0);
@@ -43,7 +43,7 @@ impl Visited {
     }
 
     /// Whether `f` is seen for the first time in this query.
-    pub(super) fn first(&mut self, f: u32) -> bool {
+    fn first(&mut self, f: u32) -> bool {
         let s = &mut self.stamp[f as usize];
         let fresh = *s != self.now;
         *s = self.now;
@@ -69,7 +69,7 @@ impl FaceGrid {
         self.members.clear();
     }
 
-    pub(super) fn cell_range(&self, lo: DVec2, hi: DVec2) -> Option<(i64, i64, i64, i64)> {
+    fn cell_range(&self, lo: DVec2, hi: DVec2) -> Option<(i64, i64, i64, i64)> {
         let (lo, hi) = (lo * self.inv_cell, hi * self.inv_cell);
         let r = (floor_i64(lo.x), floor_i64(lo.y), floor_i64(hi.x), floor_i64(hi.y));
         ((r.2 - r.0 + 1) * (r.3 - r.1 + 1) <= MAX_CELLS).then_some(r)

@@ -10,7 +10,7 @@ use super::weld::{edge_adjacency, weld, weld_tolerance};
 /// The welded, flattened view of one mesh's lit triangles the unwrapper works on (texel
 /// units of the hint).
 pub(super) struct MeshFaces<'a> {
-    pub(super) tris: &'a [TriangleId],
+    tris: &'a [TriangleId],
     /// Welded corner ids per face.
     pub(super) corners: Vec<[u32; 3]>,
     /// Welded corner positions per face, in texels.
@@ -18,8 +18,8 @@ pub(super) struct MeshFaces<'a> {
     pub(super) normal: Vec<DVec3>,
     pub(super) area: Vec<f32>,
     pub(super) degenerate: Vec<bool>,
-    pub(super) adj_start: Vec<u32>,
-    pub(super) adj: Vec<u32>,
+    adj_start: Vec<u32>,
+    adj: Vec<u32>,
     /// Grid cell size (texels): the median longest edge, so a typical face covers a few cells.
     pub(super) cell: f64,
 }

@@ -15,7 +15,7 @@ use super::{MERGE_CLEARANCE, OVERLAP_TOL};
 
 /// The packer's rectangle for a chart whose convex hull is `hull` (LOD-0 texels of the hint):
 /// its area, border included, and its shorter interior side.
-pub(super) fn rect_cost(hull: &[DVec2]) -> (f64, u32) {
+fn rect_cost(hull: &[DVec2]) -> (f64, u32) {
     let u = min_area_rect_axis(hull);
     let v = u.perp();
     let (mut lo, mut hi) = (DVec2::INFINITY, DVec2::NEG_INFINITY);
@@ -37,15 +37,15 @@ pub(super) fn rect_cost(hull: &[DVec2]) -> (f64, u32) {
 /// A rigid motion of the plane, possibly mirrored: `p ↦ o + R(p − c)`, with `R` a rotation
 /// by the angle of `rot` (unit complex number), after a reflection across x when `mirror`.
 #[derive(Clone, Copy)]
-pub(super) struct Rigid {
-    pub(super) c: DVec2,
-    pub(super) rot: DVec2,
-    pub(super) mirror: bool,
-    pub(super) o: DVec2,
+struct Rigid {
+    c: DVec2,
+    rot: DVec2,
+    mirror: bool,
+    o: DVec2,
 }
 
 impl Rigid {
-    pub(super) fn apply(&self, p: DVec2) -> DVec2 {
+    fn apply(&self, p: DVec2) -> DVec2 {
         let mut d = p - self.c;
         if self.mirror {
             d.y = -d.y;
@@ -57,23 +57,23 @@ impl Rigid {
 /// One shared welded edge between two charts: the face on each side (`a` in the chart that
 /// moves) and the edge's welded endpoints.
 #[derive(Clone, Copy, Debug)]
-pub(super) struct Hinge {
-    pub(super) a: u32,
-    pub(super) b: u32,
-    pub(super) v: [u32; 2],
-    pub(super) len2: f64,
+struct Hinge {
+    a: u32,
+    b: u32,
+    v: [u32; 2],
+    len2: f64,
 }
 
 impl Hinge {
     /// The longer edge ([`coarse`] lengths; ties: the lower face pair).
-    pub(super) fn longer_than(&self, o: &Hinge) -> bool {
+    fn longer_than(&self, o: &Hinge) -> bool {
         (coarse(self.len2), std::cmp::Reverse((self.a, self.b))) > (coarse(o.len2), std::cmp::Reverse((o.a, o.b)))
     }
 }
 
 /// The hinge moving face `h.a`'s chart so that its copy of the edge lies on face `h.b`'s,
 /// unfolded (the moved face on the other side of the edge); `None` for a zero-length edge.
-pub(super) fn hinge_motion(faces: &MeshFaces, uv: &[[DVec2; 3]], h: &Hinge) -> Option<Rigid> {
+fn hinge_motion(faces: &MeshFaces, uv: &[[DVec2; 3]], h: &Hinge) -> Option<Rigid> {
     let at = |f: u32, v: u32| {
         let k = faces.corners[f as usize].iter().position(|&c| c == v)?;
         Some(uv[f as usize][k])
@@ -99,17 +99,17 @@ pub(super) fn hinge_motion(faces: &MeshFaces, uv: &[[DVec2; 3]], h: &Hinge) -> O
 }
 
 /// A chart during merging.
-pub(super) struct Cluster {
-    pub(super) faces: Vec<u32>,
-    pub(super) hull: Vec<DVec2>,
+struct Cluster {
+    faces: Vec<u32>,
+    hull: Vec<DVec2>,
     /// Its rectangle's area and shorter interior side ([`rect_cost`]).
-    pub(super) cost: f64,
-    pub(super) short_side: u32,
+    cost: f64,
+    short_side: u32,
     /// Neighbouring clusters: the longest shared edge with each.
-    pub(super) links: FxMap<u32, Hinge>,
+    links: FxMap<u32, Hinge>,
     /// Bumped on every merge, to drop stale candidates.
-    pub(super) version: u32,
-    pub(super) alive: bool,
+    version: u32,
+    alive: bool,
 }
 
 /// Only charts whose rectangle's shorter interior side is at most this many texels (at the
@@ -120,7 +120,7 @@ pub const MOVABLE_SIDE: u32 = 4;
 
 /// Merges whose two charts have at most this many face pairs are tested pair by pair; larger
 /// ones through a grid of the target chart, kept between merges.
-pub(super) const BRUTE_FORCE_PAIRS: usize = 2048;
+const BRUTE_FORCE_PAIRS: usize = 2048;
 
 /// Step 3 of the [unwrapper](super).
 pub(super) fn merge(

@@ -86,7 +86,7 @@ pub(super) fn make_room(
 }
 
 /// Drops the bake parked at `leader` (its group's with it): its work is lost.
-pub(super) fn drop_parked(st: &mut State, leader: CellId) {
+fn drop_parked(st: &mut State, leader: CellId) {
     let Some(bake) = st.cells[leader as usize].bake.take() else { return };
     st.bake_bytes -= bake.bytes() as u64;
     for &m in &bake.cells {
@@ -98,7 +98,7 @@ pub(super) fn drop_parked(st: &mut State, leader: CellId) {
 
 /// Withdraws a cell's finest shown level of the bundle layer (its pixels at that LOD) and
 /// shows the next coarser.
-pub(super) fn evict(shared: &Shared, st: &mut State, cell: CellId) {
+fn evict(shared: &Shared, st: &mut State, cell: CellId) {
     let s = &mut st.cells[cell as usize];
     let lod = s.shown;
     if lod == 0 {
@@ -117,7 +117,7 @@ pub(super) fn evict(shared: &Shared, st: &mut State, cell: CellId) {
 
 /// Withdraws a cell's finest punctual level and shows the next coarser one it has (LOD 0 at
 /// least: levels in between are skipped, [`PunctualState`](super::PunctualState)).
-pub(super) fn evict_punctual(shared: &Shared, st: &mut State, cell: CellId) {
+fn evict_punctual(shared: &Shared, st: &mut State, cell: CellId) {
     let p = &mut st.cells[cell as usize].punctual;
     let lod = p.shown;
     if lod == 0 {
@@ -133,7 +133,7 @@ pub(super) fn evict_punctual(shared: &Shared, st: &mut State, cell: CellId) {
 
 /// Clears `pixels` of `layer` at `lod` and shows `cell` at `shown` in that layer, in a new
 /// snapshot.
-pub(super) fn withdraw(shared: &Shared, layer: Layer, cell: CellId, lod: u32, pixels: &[[u32; 2]], shown: u32) {
+fn withdraw(shared: &Shared, layer: Layer, cell: CellId, lod: u32, pixels: &[[u32; 2]], shown: u32) {
     let mut map = (*shared.shown()).clone();
     let mut writer = PageWriter::new(&mut map);
     for p in pixels {

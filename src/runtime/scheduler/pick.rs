@@ -81,7 +81,7 @@ pub(super) fn pick(shared: &Shared, st: &mut State) -> Option<Job> {
 /// gets at least a third of the jobs, and most of the time (a punctual bake is one shadow
 /// ray a texel, a bundle unit many directions). With 8, the stress test's spinning camera
 /// saw 3 bundle publishes in 30 s.
-pub(super) const PUNCTUAL_STREAK: u32 = 2;
+const PUNCTUAL_STREAK: u32 = 2;
 
 /// A job's place in the order of work ([`priority`]).
 pub(super) type JobKey = ((Tier, std::cmp::Reverse<u32>), CellId);
@@ -100,7 +100,7 @@ pub(super) fn weight_of(world: &World, s: &CellState, c: CellId) -> f32 {
 /// [`urgency`] (a finer level: the detail of the shown one, over the work until it swaps in;
 /// an early-published level: its noise, over the work until it is published again), then
 /// refreshing stale light.
-pub(super) fn best_bundles(config: &RuntimeConfig, st: &State) -> Option<(JobKey, CellId)> {
+fn best_bundles(config: &RuntimeConfig, st: &State) -> Option<(JobKey, CellId)> {
     let world = &st.world;
     let leader_of = |c: CellId| st.cells[c as usize].member_of.unwrap_or(c);
     world
@@ -135,7 +135,7 @@ pub(super) fn best_bundles(config: &RuntimeConfig, st: &State) -> Option<(JobKey
 }
 
 /// Takes the bundle bake of `c` (see [`pick`]): its group's parked bake, or a new one.
-pub(super) fn take_bundles(shared: &Shared, st: &mut State, c: CellId) -> Option<Job> {
+fn take_bundles(shared: &Shared, st: &mut State, c: CellId) -> Option<Job> {
     let world = st.world.clone();
     let leader = st.cells[c as usize].member_of.unwrap_or(c);
     if let Some(bake) = st.cells[leader as usize].bake.take() {
@@ -171,7 +171,7 @@ pub(super) fn take_bundles(shared: &Shared, st: &mut State, c: CellId) -> Option
 /// [`CellState::unsettled`]: a group follows one swap rule) and are free (no bake of
 /// their own, not in a group), until the group has `config.group_texels` texels at `lod` (estimated from LOD 0's); never more than twice that,
 /// nor more than the memory budget has free.
-pub(super) fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<CellId> {
+fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32) -> Vec<CellId> {
     let world = &st.world;
     let want = shared.config.group_texels as u64;
     let texels = |c: CellId| (world.lod0_texels[c as usize] as u64) << (2 * lod);
@@ -227,7 +227,7 @@ pub(super) fn gather_group(shared: &Shared, st: &State, leader: CellId, lod: u32
 }
 
 /// How far (cells, per axis) a group reaches from its leader.
-pub(super) const GROUP_REACH: u32 = 3;
+const GROUP_REACH: u32 = 3;
 
 #[cfg(test)]
 mod tests {

@@ -9,7 +9,7 @@ use super::{Shared, State};
 
 /// What a bake's cells show, as the swap rule reads it.
 #[derive(Clone, Copy, Debug)]
-pub(in crate::runtime) struct ShownNow {
+pub(super) struct ShownNow {
     /// Their shown LOD (a group's cells share it: they are gathered from one shown LOD and
     /// are neither evicted nor re-baked apart while the group is).
     pub lod: u32,
@@ -26,7 +26,7 @@ pub(in crate::runtime) struct ShownNow {
 
 /// Whether a bake may be published after its latest unit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(in crate::runtime) enum Due {
+pub(super) enum Due {
     /// Not yet.
     Wait,
     /// Published, and the bake goes on at this LOD into the same sums (no restart).
@@ -47,13 +47,7 @@ pub(in crate::runtime) enum Due {
 ///   level until `max_directions`;
 /// * early again, at the LOD an unsettled cell shows, each time its directions double (a
 ///   refresh of stale cells waits until settled, as it always has).
-pub(in crate::runtime) fn publish_due(
-    config: &RuntimeConfig,
-    lod: u32,
-    shown: ShownNow,
-    directions: u64,
-    error: f32,
-) -> Due {
+pub(super) fn publish_due(config: &RuntimeConfig, lod: u32, shown: ShownNow, directions: u64, error: f32) -> Due {
     let d = directions;
     let min = config.min_directions as u64;
     if shown.provisional {
@@ -94,7 +88,7 @@ pub fn publish_bake(map: &mut ShownLightmap, bake: &CellBake, values: &[Rgb]) ->
 
 /// [`publish_bake`], withdrawing first the pixels `replaced` of the cells' previous bakes at
 /// that LOD (a refresh).
-pub(super) fn publish_texels(
+fn publish_texels(
     map: &mut ShownLightmap,
     bake: &CellBake,
     values: &[Rgb],

@@ -16,7 +16,7 @@ use super::{CellState, Shared, State};
 
 /// The LODs a cell's punctual layer is to be baked at next, if the scene has punctual lights
 /// and the cell has such work waiting (see [`PunctualState::next_levels`](super::PunctualState::next_levels)).
-pub(in crate::runtime) fn punctual_work(world: &World, s: &CellState) -> Option<Vec<u32>> {
+pub(super) fn punctual_work(world: &World, s: &CellState) -> Option<Vec<u32>> {
     if world.scene.lights.is_empty() || s.view.is_none() {
         return None;
     }

@@ -132,7 +132,7 @@ pub(in crate::runtime) fn worker(shared: &Shared) {
 }
 
 /// Puts a bake back between units: in its leader's slot, its cells free for the next unit.
-pub(super) fn park(st: &mut State, bake: Box<CellBake>) {
+fn park(st: &mut State, bake: Box<CellBake>) {
     let leader = bake.leader();
     for &m in &bake.cells {
         let s = &mut st.cells[m as usize];
