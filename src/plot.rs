@@ -13,9 +13,17 @@ const HEIGHT: u32 = 600;
 /// style plotters picks by itself (there are no system fonts behind it).
 const FONT: &str = "sans-serif";
 
-/// Series colours, in the order the series come.
-const COLOURS: [RGBColor; 4] =
-    [RGBColor(31, 90, 180), RGBColor(230, 130, 20), RGBColor(40, 150, 70), RGBColor(130, 60, 170)];
+/// Series colours, in the order the series come (the target line is red).
+const COLOURS: [RGBColor; 8] = [
+    RGBColor(31, 90, 180),
+    RGBColor(230, 130, 20),
+    RGBColor(40, 150, 70),
+    RGBColor(130, 60, 170),
+    RGBColor(0, 160, 170),
+    RGBColor(140, 90, 40),
+    RGBColor(220, 90, 170),
+    RGBColor(90, 90, 90),
+];
 
 #[derive(Debug, thiserror::Error)]
 pub enum PlotError {
