@@ -10,6 +10,7 @@
 pub mod analytic;
 pub mod atlas;
 pub mod bake;
+pub mod bench;
 pub mod bundle;
 pub mod cpu;
 pub mod export;
@@ -18,6 +19,8 @@ pub mod grid;
 pub mod lod;
 pub mod output;
 pub mod parallel;
+pub mod plot;
+pub mod points;
 pub mod probe;
 pub mod progress;
 pub mod reference;

@@ -6,7 +6,7 @@ mod cli;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    return_large_buffers_to_the_system();
+    livebake::bake::memory::return_large_buffers_to_the_system();
     // Bad input is an `Err`; a panic can only be a bug. Say so in one line, exit 1 like any
     // other failure, and leave earlier results alone (outputs are written atomically).
     std::panic::set_hook(Box::new(|info| {
@@ -28,21 +28,3 @@ fn main() -> ExitCode {
         Err(_) => ExitCode::FAILURE,
     }
 }
-
-/// Serves every allocation of 1 MiB or more with its own mapping, unmapped when freed. glibc's
-/// default raises that threshold after the first large free (up to 32 MiB), so later buffers
-/// of up to 32 MiB come from the heap and, once freed, stay in the resident set: on a
-/// 4 M-texel bake that kept ~7 B a texel of freed temporaries resident at the bake's peak,
-/// above what the memory estimate counts. Requests this large are few (per-texel and
-/// per-pixel arrays, fragment buffers), so a mapping each costs nothing measurable.
-#[cfg(all(target_os = "linux", target_env = "gnu"))]
-fn return_large_buffers_to_the_system() {
-    // SAFETY: mallopt only sets an allocator parameter; it is called before any other thread
-    // exists, and a refusal (return 0) leaves glibc's default in place, which is still correct.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
-    }
-}
-
-#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
-fn return_large_buffers_to_the_system() {}

@@ -52,7 +52,7 @@
 //! the emitting texels alone, and no punctual array where the scene has no punctual light:
 //! 95 B a texel in the plain Van Gogh room and 140 B in the lit one (light pass, point
 //! light), by the same slope (`livebake bench --only bake_memory`; the binary returns freed buffers of 1 MiB or more to the system, see
-//! `main.rs`; glibc's default kept ~7 B a texel of freed temporaries resident).
+//! [`return_large_buffers_to_the_system`]; glibc's default kept ~7 B a texel of freed temporaries resident).
 //! Then a LOD read from a coarser one stopped holding its albedo while its bundles run, and
 //! the backend's lane sums go before the texel map is made whole again: a two-LOD bake
 //! holds 7 B less a texel of LOD 1 in the plain Van Gogh room (slope 113.5 → 106.4 B), and
@@ -329,6 +329,25 @@ pub fn resident_bytes() -> Option<u64> {
 pub fn peak_resident_bytes() -> Option<u64> {
     process_kib("VmHWM:")
 }
+
+/// Serves every allocation of 1 MiB or more with its own mapping, unmapped when freed. glibc's
+/// default raises that threshold after the first large free (up to 32 MiB), so later buffers
+/// of up to 32 MiB come from the heap and, once freed, stay in the resident set: on a
+/// 4 M-texel bake that kept ~7 B a texel of freed temporaries resident at the bake's peak,
+/// above what the memory estimate counts. Requests this large are few (per-texel and
+/// per-pixel arrays, fragment buffers), so a mapping each costs nothing measurable.
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+pub fn return_large_buffers_to_the_system() {
+    // SAFETY: mallopt only sets an allocator parameter; its callers (the binary, the benches)
+    // call it before any other thread exists, and a refusal (return 0) leaves glibc's default
+    // in place, which is still correct.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
+    }
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+pub fn return_large_buffers_to_the_system() {}
 
 /// A length in metres with three significant digits: `0.0129`, `0.250`, `1.50`.
 pub fn metres(m: f64) -> String {

@@ -39,9 +39,9 @@ use livebake::scene::SceneGeometry;
 use super::SceneOptions;
 use super::bake::load_scene;
 use super::options::Backend;
-use super::plot;
-use super::points::{Query, ReferencePoints, read_points, read_reference};
 use super::progress::Ui;
+use livebake::plot;
+use livebake::points::{Query, ReferencePoints, read_points, read_reference};
 
 /// LOD-0 texels the in-crate reference is traced at when no `--points` are given: the
 /// error figure then averages 768 channel values, a few per cent noise on the figure itself.
@@ -391,7 +391,9 @@ fn write_curve(dir: &Path, doc: &Value, steps: &[Step], title: &str, until: Opti
     write_text(&csv_path, &csv)?;
     let curve: Vec<(f64, f64)> = steps.iter().map(|s| (s.seconds, s.rel_rms)).collect();
     let png_path = dir.join("convergence.png");
-    write_rgb8_png(&png_path, plot::error_curve(title, &curve, until)?)?;
+    let series = [plot::Series { label: "bundle bake", points: &curve }];
+    let x_desc = "seconds since the command started (load included)";
+    write_rgb8_png(&png_path, plot::error_curves(title, x_desc, &series, until)?)?;
     Ok([json_path, csv_path, png_path])
 }
 

@@ -5,8 +5,6 @@ mod bake;
 mod bench;
 mod converge;
 mod options;
-mod plot;
-mod points;
 mod probe;
 mod progress;
 mod run;
@@ -108,8 +106,8 @@ enum Command {
         /// Output JSON.
         #[arg(long, default_value = "bench.json")]
         out: PathBuf,
-        /// Only these sections (atlas, reference, startup, throughput, convergence, tiling, viewer,
-        /// runtime, reload).
+        /// Only these sections, comma-separated (an unknown name is refused with the list of
+        /// them); every one when not given.
         #[arg(long, value_delimiter = ',')]
         only: Vec<String>,
         /// Smaller sample sets and fewer repeats (a smoke run, not a measurement).

@@ -13,8 +13,8 @@ use livebake::scene::{Rgb, SceneGeometry};
 use super::SceneOptions;
 use super::bake::load_scene;
 use super::options::Backend;
-use super::points::{read_points, write_results};
 use super::progress::Ui;
+use livebake::points::{read_points, write_results};
 
 /// Default samples: 1024 paths per point for the reference backend (~1% noise on a lit
 /// interior); 256 directions for bundle backends.
@@ -63,6 +63,9 @@ pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &
             located.into_iter().map(|l| l.map(|_| e.next().unwrap_or(Rgb::ZERO))).collect()
         }
     };
-    write_results(&points, &results, out, ui)?;
+    write_results(&points, &results, out)?;
+    if let Some(path) = out {
+        ui.say(format!("wrote {} ({} points)", path.display(), results.len()));
+    }
     Ok(())
 }

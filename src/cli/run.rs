@@ -30,8 +30,8 @@ use livebake::watch::WatchConfig;
 use super::SceneOptions;
 use super::bake::load_scene_with;
 use super::options::Backend;
-use super::points::{read_points, write_results};
 use super::progress::Ui;
+use livebake::points::{read_points, write_results};
 
 /// Options of the runtime (with the scene options of `bake`).
 #[derive(Args, Debug, Clone, Default)]
@@ -522,7 +522,8 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
                 Ok(shown.irradiance(world.geom.point(at.tri, at.u, at.v), uv))
             })
             .collect();
-        write_results(&points, &results, Some(out), ui)?;
+        write_results(&points, &results, Some(out))?;
+        ui.say(format!("wrote {} ({} points)", out.display(), results.len()));
     }
     log.write(t_end, &json!({"event": "finished", "stats": stats}))?;
     log.flush()?;

@@ -30,27 +30,28 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use crate::glam::{DVec3, Vec3};
+use crate::reference::punctual::punctual_irradiance;
 use anyhow::{Context, Result, bail};
-use livebake::glam::{DVec3, Vec3};
-use livebake::reference::punctual::punctual_irradiance;
 use serde_json::{Value, json};
 
-use livebake::atlas::{Atlas, AtlasConfig};
-use livebake::bake::memory::{peak_resident_bytes, resident_bytes};
-use livebake::cpu::CpuProvider;
-use livebake::reference::scenes::{temple_courtyard, temple_courtyard_sunlit};
-use livebake::runtime::shown::{Layer, ShownLightmap};
-use livebake::runtime::world::World;
-use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
-use livebake::scene::Scene;
-use livebake::scene::SceneGeometry;
+use crate::atlas::{Atlas, AtlasConfig};
+use crate::bake::memory::{peak_resident_bytes, resident_bytes};
+use crate::cpu::CpuProvider;
+use crate::reference::scenes::{temple_courtyard, temple_courtyard_sunlit};
+use crate::runtime::shown::{Layer, ShownLightmap};
+use crate::runtime::world::World;
+use crate::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
+use crate::scene::Scene;
+use crate::scene::SceneGeometry;
 
 use super::runtime::{
     ShownLods, ShownReader, TooLarge, median_point_error, next_event, quantile, reference_at, view_hits,
     wait_first_light, whole_bake, worst_points,
 };
-use crate::cli::points::{Query, ReferencePoints};
-use crate::cli::progress::Ui;
+use super::{Bench, curve_points};
+use crate::plot::Series;
+use crate::points::{Query, ReferencePoints};
 
 /// The error goal near the camera (relative RMS).
 const GOAL: f64 = 0.05;
@@ -78,21 +79,21 @@ pub(super) fn reset_peak() -> Option<u64> {
 }
 
 /// The sunlit temple.
-pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
     temple(
         "temple_courtyard_sunlit (synthetic temple, open to a sun and a uniform sky)",
         temple_courtyard_sunlit,
-        quick,
-        ui,
+        bench,
     )
 }
 
 /// The overcast temple.
-pub fn run_overcast(quick: bool, ui: &Ui) -> Result<Value> {
-    temple("temple_courtyard (synthetic temple, open to a uniform sky)", temple_courtyard, quick, ui)
+pub fn run_overcast(bench: &Bench) -> Result<Value> {
+    temple("temple_courtyard (synthetic temple, open to a uniform sky)", temple_courtyard, bench)
 }
 
-fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &Ui) -> Result<Value> {
+fn temple(name: &str, make: fn() -> Scene, bench: &Bench) -> Result<Value> {
+    let (quick, ui) = (bench.quick, bench.ui);
     let (horizon, spp, tick_seconds, swap_patience) =
         if quick { (30.0, 512, 4.0, 30.0) } else { (120.0, 2048, 10.0, 120.0) };
     let t_build = Instant::now();
@@ -192,7 +193,7 @@ fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &Ui) -> Result<Value
     ui.say("  temple: camera jump ...");
     let jump_at = runtime.elapsed();
     runtime.set_camera(jumped);
-    let near_jump = |c: &livebake::runtime::CellInfo| {
+    let near_jump = |c: &crate::runtime::CellInfo| {
         let (lo, hi) = (Vec3::from(c.min), Vec3::from(c.max));
         (jumped.eye.clamp(lo, hi) - jumped.eye).length() <= 2.0
     };
@@ -206,7 +207,7 @@ fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &Ui) -> Result<Value
             }
         }
         near_cells = runtime.cells().into_iter().filter(|c| near_jump(c)).collect();
-        let at_target = |lod: fn(&livebake::runtime::CellInfo) -> u32| {
+        let at_target = |lod: fn(&crate::runtime::CellInfo) -> u32| {
             !near_cells.is_empty() && near_cells.iter().all(|c| lod(c) >= c.target_lod)
         };
         if punctual_latency.is_none() && !scene.lights.is_empty() && at_target(|c| c.punctual_lod) {
@@ -317,6 +318,13 @@ fn temple(name: &str, make: fn() -> Scene, quick: bool, ui: &Ui) -> Result<Value
             })
         })
         .collect();
+
+    let mut series = vec![("runtime", curve.iter().map(|c| (c.0, c.1)).collect::<Vec<_>>())];
+    if let Some(points) = whole.get("curve") {
+        series.push(("whole-scene bake", curve_points(points)));
+    }
+    let series: Vec<Series> = series.iter().map(|(label, points)| Series { label, points }).collect();
+    bench.plot_error(&format!("Error at the points: {name}"), &series, Some(GOAL))?;
 
     Ok(json!({
         "scene": name,

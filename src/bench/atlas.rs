@@ -11,12 +11,12 @@ use std::time::Instant;
 use anyhow::Result;
 use serde_json::{Value, json};
 
-use livebake::atlas::{Atlas, AtlasConfig, TexelMap};
-use livebake::reference::scenes::{temple, temple_instanced, temple_soup};
-use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
+use crate::atlas::{Atlas, AtlasConfig, TexelMap};
+use crate::reference::scenes::{temple, temple_instanced, temple_soup};
+use crate::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 
+use super::Bench;
 use super::{assets, median, seconds};
-use crate::cli::progress::Ui;
 
 pub const SCENES: [&str; 3] = [
     "cornell_box/cornellBox-2.79-Cycles-gltf.gltf",
@@ -30,7 +30,8 @@ const GAME_MAP: (&str, [u64; 2]) = ("zdm2/zdm2.gltf", [500_000, 2_000_000]);
 /// Builds a synthetic scene.
 type SceneMaker = fn() -> Scene;
 
-pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let (quick, ui) = (bench.quick, bench.ui);
     let runs = if quick { 3 } else { 7 };
     let mut out = Vec::new();
     let scenes = SCENES.map(|name| (name, 500_000)).into_iter().chain(GAME_MAP.1.map(|budget| (GAME_MAP.0, budget)));

@@ -17,14 +17,14 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 
-use livebake::bake::memory::{peak_resident_bytes, resident_bytes};
-use livebake::cpu::CpuProvider;
-use livebake::runtime::{Runtime, RuntimeConfig};
-use livebake::scene::{LoadOptions, load_gltf};
+use crate::bake::memory::{peak_resident_bytes, resident_bytes};
+use crate::cpu::CpuProvider;
+use crate::runtime::{Runtime, RuntimeConfig};
+use crate::scene::{LoadOptions, load_gltf};
 
 use super::runtime::{PATIENCE, wait_first_light};
+use super::{Bench, Narrator};
 use super::{assets, seconds};
-use crate::cli::progress::Ui;
 
 /// Copies of the room, and the grid they stand in (columns along x).
 const COPIES: usize = 90;
@@ -35,7 +35,8 @@ const GAP: f64 = 1.0;
 const GOAL_SECONDS: f64 = 15.0;
 const GOAL_BYTES: u64 = 2_000_000_000;
 
-pub fn run(_quick: bool, ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let ui = bench.ui;
     let dir = std::env::temp_dir().join(format!("livebake-bench-instanced-{}", std::process::id()));
     let path = write_scene(&dir).context("writing the instanced scene")?;
     let result = measure(&path, ui);
@@ -81,7 +82,7 @@ fn write_scene(dir: &Path) -> Result<PathBuf> {
     Ok(path)
 }
 
-fn measure(path: &Path, ui: &Ui) -> Result<Value> {
+fn measure(path: &Path, ui: &dyn Narrator) -> Result<Value> {
     // Peak resident bytes from here (Linux ≥ 4.0: "5" resets VmHWM to VmRSS).
     let _ = std::fs::write("/proc/self/clear_refs", "5");
     let before = resident_bytes();

@@ -5,19 +5,20 @@
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 
-use livebake::bake::{BakeConfig, bake};
-use livebake::progress::NoProgress;
-use livebake::scene::{LoadOptions, load_gltf};
+use crate::bake::{BakeConfig, bake};
+use crate::progress::NoProgress;
+use crate::scene::{LoadOptions, load_gltf};
 
+use super::Bench;
 use super::atlas::SCENES;
 use super::{EMBREE_RAYS_PER_CORE, assets, median};
-use crate::cli::progress::Ui;
 
 const TEXEL_SIZE: f32 = 0.012;
 
-pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let quick = bench.quick;
     let (runs, samples) = if quick { (1, 64) } else { (3, 256) };
-    let cores = livebake::parallel::available_threads() as f64;
+    let cores = crate::parallel::available_threads() as f64;
     let mut out = Vec::new();
     for name in SCENES {
         let scene = std::sync::Arc::new(load_gltf(&assets().join(name), &LoadOptions::default())?);

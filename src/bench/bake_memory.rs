@@ -13,13 +13,14 @@ use std::process::Command;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 
+use super::Bench;
 use super::assets;
-use crate::cli::progress::Ui;
 
 /// The goal.
 const GOAL_BYTES_PER_TEXEL: f64 = 64.0;
 
-pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let (quick, ui) = (bench.quick, bench.ui);
     // Few directions: memory does not depend on them, and the bake's peak is reached in the
     // first batch.
     let (budgets, samples) = if quick { ([500_000u64, 1_000_000], 16) } else { ([2_000_000, 4_000_000], 32) };
@@ -37,7 +38,7 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
             .map(|&budget| {
                 let budget = budget >> (2 * (lods - 1));
                 ui.say(format!("  {name}: {budget} texels at LOD 0, {lods} LODs"));
-                bake(&room.join(file), budget, samples, lods)
+                bake(bench.livebake, &room.join(file), budget, samples, lods)
             })
             .collect::<Result<_>>()?;
         let figure = |r: &Value, key: &str| r[key].as_f64().unwrap_or(f64::NAN);
@@ -51,10 +52,9 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
 
 /// One `livebake bake` of `lods` LODs of `scene` at a texel budget (LOD 0's); its memory
 /// figures and bake time.
-fn bake(scene: &Path, budget: u64, samples: u32, lods: u32) -> Result<Value> {
+fn bake(livebake: &Path, scene: &Path, budget: u64, samples: u32, lods: u32) -> Result<Value> {
     let dir = std::env::temp_dir().join(format!("livebake-bench-bake-memory-{}", std::process::id()));
-    let exe = std::env::current_exe().context("cannot find the livebake binary")?;
-    let status = Command::new(exe)
+    let status = Command::new(livebake)
         .arg("bake")
         .arg(scene)
         .args(["--texel-budget", &budget.to_string(), "--samples", &samples.to_string()])

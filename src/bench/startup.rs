@@ -8,16 +8,17 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 
-use livebake::bake::{BakeConfig, bake};
-use livebake::progress::NoProgress;
-use livebake::scene::{LoadOptions, load_gltf};
+use crate::bake::{BakeConfig, bake};
+use crate::progress::NoProgress;
+use crate::scene::{LoadOptions, load_gltf};
 
+use super::Bench;
 use super::{EMBREE_RAYS_PER_CORE, assets, median, seconds};
-use crate::cli::progress::Ui;
 
 const ROOM: &str = "van_gogh_room/van_gogh_room_lit.gltf";
 
-pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let quick = bench.quick;
     let runs = if quick { 1 } else { 3 };
     let path = assets().join(ROOM);
     let scene = std::sync::Arc::new(load_gltf(&path, &LoadOptions::default())?);
@@ -33,10 +34,10 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     })?;
     let out = last.context("no bake ran")?;
     let dir = tempfile_dir()?;
-    let exe = std::env::current_exe()?;
+    let exe = bench.livebake;
     let command_seconds = median(runs, || {
         let t = Instant::now();
-        let status = Command::new(&exe)
+        let status = Command::new(exe)
             .args(["-q", "bake"])
             .arg(&path)
             .args(["--texel-size", "0.05", "--samples", "256", "--out"])
@@ -50,7 +51,7 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
     let _ = std::fs::remove_dir_all(&dir);
     let lod = &out.report.lods[0];
     let bundle = lod.bundle.as_ref().context("bundle report")?;
-    let cores = livebake::parallel::available_threads() as f64;
+    let cores = crate::parallel::available_threads() as f64;
     let per_core = bundle.effective_rays_per_second / cores;
     let with_light_pass_per_core = bundle.effective_rays_per_second_with_light_pass / cores;
     Ok(json!({

@@ -19,27 +19,30 @@
 use std::sync::Arc;
 use std::time::Duration;
 
+use crate::glam::Vec3;
 use anyhow::{Context, Result, bail};
-use livebake::glam::Vec3;
 use serde_json::{Value, json};
 
-use livebake::bake::memory::peak_resident_bytes;
-use livebake::bake::{BakeConfig, bake};
-use livebake::cpu::CpuProvider;
-use livebake::progress::NoProgress;
-use livebake::runtime::shown::Layer;
-use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
-use livebake::scene::{LoadOptions, Rgb, load_gltf};
+use crate::bake::memory::peak_resident_bytes;
+use crate::bake::{BakeConfig, bake};
+use crate::cpu::CpuProvider;
+use crate::progress::NoProgress;
+use crate::runtime::shown::Layer;
+use crate::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
+use crate::scene::{LoadOptions, Rgb, load_gltf};
 
 use super::assets;
 use super::runtime::{ShownReader, next_event, quantile, wait_first_light};
 use super::runtime_large::reset_peak;
-use crate::cli::points::read_reference;
-use crate::cli::progress::Ui;
+use super::{Bench, Narrator};
+use crate::plot::Series;
+use crate::points::read_reference;
 
 /// A real scene, its eye and the reference irradiance at points seen from it.
 struct RealScene {
     name: &'static str,
+    /// The name in the plot's legend.
+    short: &'static str,
     scene: &'static str,
     /// Uniform sky radiance (W/(sr·m²)) the reference was computed with.
     sky: Rgb,
@@ -50,6 +53,7 @@ struct RealScene {
 const SCENES: [RealScene; 2] = [
     RealScene {
         name: "zdm2 (real game map) under a sun and a sky",
+        short: "zdm2, sun and sky",
         scene: "zdm2/zdm2_sun.gltf",
         sky: Rgb::new(0.4, 0.45, 0.5),
         eye: Vec3::new(0.0, 10.9, 0.0),
@@ -57,6 +61,7 @@ const SCENES: [RealScene; 2] = [
     },
     RealScene {
         name: "Van Gogh room, lit (ceiling panel and lamp)",
+        short: "Van Gogh room, lit",
         scene: "van_gogh_room/van_gogh_room_lit.gltf",
         sky: Rgb::ZERO,
         eye: Vec3::new(-0.1, 1.6, 2.6),
@@ -79,12 +84,21 @@ fn turning(eye: Vec3, t: f64) -> CameraView {
     CameraView::looking_at(eye, eye + Vec3::new(a.cos(), -0.15, a.sin()))
 }
 
-pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let (quick, ui) = (bench.quick, bench.ui);
     let horizon = if quick { 12.0 } else { 30.0 };
-    SCENES.iter().map(|s| scene(s, horizon, ui)).collect::<Result<Vec<_>>>().map(Value::Array)
+    let measured = SCENES.iter().map(|s| scene(s, horizon, ui)).collect::<Result<Vec<_>>>()?;
+    let curves: Vec<Vec<(f64, f64)>> =
+        measured.iter().map(|(_, curve)| curve.iter().map(|c| (c.0, c.1)).collect()).collect();
+    let series: Vec<Series> = SCENES.iter().zip(&curves).map(|(s, points)| Series { label: s.short, points }).collect();
+    bench.plot_error("Near-camera error while turning at the eye (against Mitsuba 3)", &series, None)?;
+    Ok(Value::Array(measured.into_iter().map(|(v, _)| v).collect()))
 }
 
-fn scene(s: &RealScene, horizon: f64, ui: &Ui) -> Result<Value> {
+/// (seconds, error, median LOD of the bundle and punctual layers at the points).
+type Score = (f64, f64, f64, f64);
+
+fn scene(s: &RealScene, horizon: f64, ui: &dyn Narrator) -> Result<(Value, Vec<Score>)> {
     let path = assets().join(s.scene);
     let mut loaded = load_gltf(&path, &LoadOptions::default()).with_context(|| format!("{}", path.display()))?;
     loaded.sky = s.sky;
@@ -100,8 +114,7 @@ fn scene(s: &RealScene, horizon: f64, ui: &Ui) -> Result<Value> {
     let (t_light, texels, _) = wait_first_light(&runtime)?;
     let world = runtime.world();
     let reader = ShownReader::new(&world, &reference.queries)?;
-    // (seconds, error, median LOD of each layer at the points)
-    let score = |t: f64| {
+    let score = |t: f64| -> Score {
         let shown = runtime.shown();
         let median = |layer: Layer| {
             let lods: Vec<f64> =
@@ -132,7 +145,9 @@ fn scene(s: &RealScene, horizon: f64, ui: &Ui) -> Result<Value> {
     let peak = peak_resident_bytes().zip(rss_start).map(|(p, start)| p.saturating_sub(start));
     let end = runtime.stats();
     runtime.shutdown()?;
-    let at = |mark: f64| curve.iter().rev().find(|c| c.0 <= mark).map(|c| c.1);
+    // None past the curve's end (a quick run stops before the last mark).
+    let reached = curve.last().map_or(0.0, |c| c.0);
+    let at = |mark: f64| curve.iter().rev().find(|c| c.0 <= mark && mark <= reached).map(|c| c.1);
     let refining: Vec<f64> = stats
         .iter()
         .filter(|(_, st)| st.texel_samples_per_second > 0.0)
@@ -145,7 +160,7 @@ fn scene(s: &RealScene, horizon: f64, ui: &Ui) -> Result<Value> {
     let texel = world.texel_size(lod);
     ui.say(format!("  {}: whole-scene bake at {texel:.3} m texels ({WHOLE_DIRECTIONS} directions) ...", s.name));
     let bake_config = BakeConfig {
-        atlas: livebake::atlas::AtlasConfig { texel_size: Some(texel), ..config.atlas.clone() },
+        atlas: crate::atlas::AtlasConfig { texel_size: Some(texel), ..config.atlas.clone() },
         samples: WHOLE_DIRECTIONS,
         ..BakeConfig::default()
     };
@@ -154,7 +169,7 @@ fn scene(s: &RealScene, horizon: f64, ui: &Ui) -> Result<Value> {
     let bundle_seconds = lod0.bundle.as_ref().map_or(lod0.bake_seconds, |b| b.stats.bundle_seconds);
     let whole_rate = lod0.texels as f64 * WHOLE_DIRECTIONS as f64 / bundle_seconds.max(1e-9);
 
-    Ok(json!({
+    let value = json!({
         "scene": s.name,
         "file": s.scene,
         "triangles": scene.triangle_count(),
@@ -184,5 +199,6 @@ fn scene(s: &RealScene, horizon: f64, ui: &Ui) -> Result<Value> {
             "whole_bake_texel_samples_per_second": whole_rate,
             "ratio_runtime_over_whole_bake": runtime_rate.map(|r| r / whole_rate),
         },
-    }))
+    });
+    Ok((value, curve))
 }

@@ -13,23 +13,23 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 
-use livebake::atlas::{Atlas, AtlasConfig, TexelMap};
-use livebake::bundle::progressive::BatchSums;
-use livebake::bundle::stats::PassStats;
-use livebake::bundle::target::WholeLod;
-use livebake::bundle::{
+use crate::atlas::{Atlas, AtlasConfig, TexelMap};
+use crate::bundle::progressive::BatchSums;
+use crate::bundle::stats::PassStats;
+use crate::bundle::target::WholeLod;
+use crate::bundle::{
     BackendProvider, BundleBackend, BundleConfig, BundleScene, DirectionJob, JobSequence, SourceRadiance,
 };
-use livebake::cpu::CpuProvider;
-use livebake::gpu::{GpuContext, GpuProvider};
-use livebake::reference::scenes::temple_courtyard;
-use livebake::runtime::cell_bake::CellBake;
-use livebake::runtime::world::World;
-use livebake::runtime::{RuntimeConfig, bake_first_light, empty_shown};
-use livebake::scene::{LoadOptions, Rgb, Scene, SceneGeometry, load_gltf};
+use crate::cpu::CpuProvider;
+use crate::gpu::{GpuContext, GpuProvider};
+use crate::reference::scenes::temple_courtyard;
+use crate::runtime::cell_bake::CellBake;
+use crate::runtime::world::World;
+use crate::runtime::{RuntimeConfig, bake_first_light, empty_shown};
+use crate::scene::{LoadOptions, Rgb, Scene, SceneGeometry, load_gltf};
 
+use super::{Bench, Narrator};
 use super::{assets, median, seconds};
-use crate::cli::progress::Ui;
 
 /// Per direction, ms: (analysis, mips, subdivision, build, resolve, light).
 fn phases(stats: &PassStats) -> Value {
@@ -44,7 +44,14 @@ fn phases(stats: &PassStats) -> Value {
     })
 }
 
-fn one(name: &str, scene: Arc<Scene>, directions: u64, runs: usize, gpu: &GpuContext, ui: &Ui) -> Result<Value> {
+fn one(
+    name: &str,
+    scene: Arc<Scene>,
+    directions: u64,
+    runs: usize,
+    gpu: &GpuContext,
+    ui: &dyn Narrator,
+) -> Result<Value> {
     let geom = Arc::new(SceneGeometry::new(&scene));
     let atlas = Arc::new(Atlas::build(&scene, &geom, &AtlasConfig::default())?);
     let bundle = Arc::new(BundleScene::new(scene.clone(), geom.clone(), atlas.clone(), BundleConfig::default()));
@@ -57,7 +64,7 @@ fn one(name: &str, scene: Arc<Scene>, directions: u64, runs: usize, gpu: &GpuCon
     let jobs = JobSequence::new(0, bundle.emitters.small.len(), bundle.config.light_directions);
     let batch: Vec<DirectionJob> = (0..directions).map(|i| jobs.job(i)).collect();
     let never = AtomicBool::new(false);
-    let threads = livebake::parallel::available_threads();
+    let threads = crate::parallel::available_threads();
     let timed = |backend: &mut dyn BundleBackend| -> Result<(f64, PassStats)> {
         let mut sums = BatchSums::default();
         // One untimed batch first: lavapipe compiles pipelines on first use, and both
@@ -123,12 +130,19 @@ fn one(name: &str, scene: Arc<Scene>, directions: u64, runs: usize, gpu: &GpuCon
 /// The runtime's cell bakes at LOD 1 on both backends: the largest cells of `scene`, each
 /// one unit of `directions` against first light (median wall time of `runs` units, each a
 /// fresh bake of the same cell, so every run does the same work).
-fn cells(name: &str, scene: Arc<Scene>, directions: u32, runs: usize, gpu: &GpuContext, ui: &Ui) -> Result<Value> {
+fn cells(
+    name: &str,
+    scene: Arc<Scene>,
+    directions: u32,
+    runs: usize,
+    gpu: &GpuContext,
+    ui: &dyn Narrator,
+) -> Result<Value> {
     let config = RuntimeConfig::default();
     let geom = Arc::new(SceneGeometry::new(&scene));
     let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas)?);
     let world = World::new(scene.clone(), geom, atlas, &config)?;
-    let threads = livebake::parallel::available_threads();
+    let threads = crate::parallel::available_threads();
     let never = AtomicBool::new(false);
     ui.say(format!("  {name}: first light for the cell bakes ..."));
     let mut cpu = CpuProvider::new().backend(&world.bundle, threads)?;
@@ -183,7 +197,8 @@ fn cells(name: &str, scene: Arc<Scene>, directions: u32, runs: usize, gpu: &GpuC
     Ok(json!({ "scene": name, "triangles": scene.triangle_count(), "lod": 1, "runs": runs, "cells": out }))
 }
 
-pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let (quick, ui) = (bench.quick, bench.ui);
     let (directions, runs) = if quick { (4, 1) } else { (8, 3) };
     let gpu = GpuContext::headless().context("the GPU backend bench needs a Vulkan adapter (lavapipe)")?;
     let cornell =

@@ -14,19 +14,19 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
+use crate::glam::DVec3;
 use anyhow::{Context, Result, bail};
-use livebake::glam::DVec3;
 use serde_json::{Value, json};
 
-use livebake::bake::{BackendKind, BakeConfig, bake};
-use livebake::probe::{LightmapSampler, SurfaceLocator};
-use livebake::progress::NoProgress;
-use livebake::reference::Bvh;
-use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
+use crate::bake::{BackendKind, BakeConfig, bake};
+use crate::probe::{LightmapSampler, SurfaceLocator};
+use crate::progress::NoProgress;
+use crate::reference::Bvh;
+use crate::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 
+use super::Bench;
 use super::{assets, seconds};
-use crate::cli::points::{ReferencePoints, read_reference};
-use crate::cli::progress::Ui;
+use crate::points::{ReferencePoints, read_reference};
 
 const TEXEL: f32 = 0.012;
 /// Blender Cycles (CPU, 2 threads, this machine) on a 2 m Cornell-style room at ~1.2 cm
@@ -73,17 +73,17 @@ fn error_at(curve: &[(f64, f64)], t: f64) -> Option<f64> {
 }
 
 fn whole_command(
+    livebake: &Path,
     scene: &Path,
     points: &Path,
     reference: &ReferencePoints,
     directions: &[u32],
 ) -> Result<Vec<(u32, f64, f64)>> {
-    let exe = std::env::current_exe()?;
     let out = std::env::temp_dir().join(format!("livebake-bench-probe-{}.json", std::process::id()));
     let mut curve = Vec::new();
     for &d in directions {
         let t = Instant::now();
-        let status = Command::new(&exe)
+        let status = Command::new(livebake)
             .args(["-q", "probe"])
             .arg(scene)
             .arg("--points")
@@ -126,7 +126,8 @@ fn bake_and_probe(
     Ok((secs, error_of(reference, &e)?))
 }
 
-pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let (quick, ui) = (bench.quick, bench.ui);
     let dir = assets().join("cornell_2m");
     let (scene_path, points_path) = (dir.join("cornell_2m.gltf"), dir.join("points.json"));
     let reference = read_reference(&dir.join("mitsuba_reference.json"))?;
@@ -134,7 +135,7 @@ pub fn run(quick: bool, ui: &Ui) -> Result<Value> {
     let spps: &[u32] = if quick { &[1, 4] } else { &[1, 2, 4, 8, 16, 32] };
 
     ui.say("  whole command (livebake probe) ...");
-    let cmd = whole_command(&scene_path, &points_path, &reference, directions)?;
+    let cmd = whole_command(bench.livebake, &scene_path, &points_path, &reference, directions)?;
     let cmd_curve: Vec<(f64, f64)> = cmd.iter().map(|&(_, t, e)| (t, e)).collect();
     let targets: Vec<Value> = CYCLES_SECONDS
         .iter()

@@ -1,8 +1,8 @@
-//! The plot `converge` writes: a falling error curve on log-log axes, with the target line.
+//! Falling error curves on log-log axes, with a target line: the plot `converge` writes, and
+//! the runtime benches' near-camera error against time.
 
 use std::ops::Range;
 
-use anyhow::{Context, Result, anyhow};
 use image::RgbImage;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
@@ -13,21 +13,65 @@ const HEIGHT: u32 = 600;
 /// style plotters picks by itself (there are no system fonts behind it).
 const FONT: &str = "sans-serif";
 
-/// `curve` as (seconds, relative error) points, and the target error when there is one.
-/// Points that cannot sit on log axes (error 0 after the reference's noise is removed, say)
-/// are left out of the drawing; the JSON and CSV keep them.
-pub fn error_curve(title: &str, curve: &[(f64, f64)], target: Option<f64>) -> Result<RgbImage> {
-    register_font(FONT, FontStyle::Normal, epaint_default_fonts::HACK_REGULAR)
-        .map_err(|_| anyhow!("the plot's compiled-in font cannot be read"))?;
+/// Series colours, in the order the series come (the target line is red).
+const COLOURS: [RGBColor; 8] = [
+    RGBColor(31, 90, 180),
+    RGBColor(230, 130, 20),
+    RGBColor(40, 150, 70),
+    RGBColor(130, 60, 170),
+    RGBColor(0, 160, 170),
+    RGBColor(140, 90, 40),
+    RGBColor(220, 90, 170),
+    RGBColor(90, 90, 90),
+];
+
+#[derive(Debug, thiserror::Error)]
+pub enum PlotError {
+    #[error("the plot's compiled-in font cannot be read")]
+    Font,
+    #[error("cannot draw the plot: {0}")]
+    Draw(String),
+}
+
+/// One curve: its legend and its (seconds, relative error) points.
+pub struct Series<'a> {
+    pub label: &'a str,
+    pub points: &'a [(f64, f64)],
+}
+
+/// `series` (the first in blue), the target error when there is one, `x_desc` under the
+/// time axis. Points that cannot sit on log axes (error 0 after the reference's noise is
+/// removed, say) are left out of the drawing; the JSON and CSV keep them.
+pub fn error_curves(title: &str, x_desc: &str, series: &[Series], target: Option<f64>) -> Result<RgbImage, PlotError> {
+    register_font(FONT, FontStyle::Normal, epaint_default_fonts::HACK_REGULAR).map_err(|_| PlotError::Font)?;
     let positive = |v: f64| v.is_finite() && v > 0.0;
-    let shown: Vec<(f64, f64)> = curve.iter().copied().filter(|&(t, e)| positive(t) && positive(e)).collect();
+    let shown: Vec<(&str, Vec<(f64, f64)>)> = series
+        .iter()
+        .map(|s| (s.label, s.points.iter().copied().filter(|&(t, e)| positive(t) && positive(e)).collect()))
+        .collect();
     let target = target.filter(|&t| positive(t));
-    let xs = decades(shown.iter().map(|p| p.0));
-    let ys = decades(shown.iter().map(|p| p.1).chain(target));
+    let xs = decades(shown.iter().flat_map(|s| s.1.iter().map(|p| p.0)));
+    let ys = decades(shown.iter().flat_map(|s| s.1.iter().map(|p| p.1)).chain(target));
 
     let mut pixels = vec![0u8; (WIDTH * HEIGHT * 3) as usize];
+    draw(&mut pixels, title, x_desc, &shown, target, xs, ys).map_err(|e| PlotError::Draw(e.to_string()))?;
+    RgbImage::from_raw(WIDTH, HEIGHT, pixels)
+        .ok_or_else(|| PlotError::Draw("the pixel buffer has the wrong size".into()))
+}
+
+type DrawResult = Result<(), DrawingAreaErrorKind<<BitMapBackend<'static> as DrawingBackend>::ErrorType>>;
+
+fn draw(
+    pixels: &mut [u8],
+    title: &str,
+    x_desc: &str,
+    shown: &[(&str, Vec<(f64, f64)>)],
+    target: Option<f64>,
+    xs: Range<f64>,
+    ys: Range<f64>,
+) -> DrawResult {
     {
-        let root = BitMapBackend::with_buffer(&mut pixels, (WIDTH, HEIGHT)).into_drawing_area();
+        let root = BitMapBackend::with_buffer(pixels, (WIDTH, HEIGHT)).into_drawing_area();
         root.fill(&WHITE)?;
         let mut chart = ChartBuilder::on(&root)
             .caption(title, (FONT, 20))
@@ -37,19 +81,21 @@ pub fn error_curve(title: &str, curve: &[(f64, f64)], target: Option<f64>) -> Re
             .build_cartesian_2d(xs.clone().log_scale(), ys.log_scale())?;
         chart
             .configure_mesh()
-            .x_desc("seconds since the command started (load included)")
+            .x_desc(x_desc)
             .y_desc("relative RMS error")
             .label_style((FONT, 14))
             .axis_desc_style((FONT, 15))
             .x_label_formatter(&|v| number(*v))
             .y_label_formatter(&|v| percent(*v))
             .draw()?;
-        let blue = RGBColor(31, 90, 180);
-        chart
-            .draw_series(LineSeries::new(shown.iter().copied(), blue.stroke_width(2)))?
-            .label("bundle bake")
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 24, y)], blue.stroke_width(2)));
-        chart.draw_series(shown.iter().map(|&p| Circle::new(p, 4, blue.filled())))?;
+        for (k, (label, points)) in shown.iter().enumerate() {
+            let colour = COLOURS[k % COLOURS.len()];
+            chart
+                .draw_series(LineSeries::new(points.iter().copied(), colour.stroke_width(2)))?
+                .label(*label)
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 24, y)], colour.stroke_width(2)));
+            chart.draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled())))?;
+        }
         if let Some(t) = target {
             let red = RGBColor(200, 40, 40);
             chart
@@ -66,7 +112,7 @@ pub fn error_curve(title: &str, curve: &[(f64, f64)], target: Option<f64>) -> Re
             .draw()?;
         root.present()?;
     }
-    RgbImage::from_raw(WIDTH, HEIGHT, pixels).context("the plot's pixel buffer has the wrong size")
+    Ok(())
 }
 
 /// The whole decades holding `values` (at least one), so a log axis always has labelled

@@ -3,22 +3,23 @@
 //! all with the same W, N and R, in one run: time, error against the reference path tracer
 //! at light-map texels, overflow and false-alarm ratios, tiles per direction.
 
+use crate::glam::Vec3;
 use anyhow::{Context, Result};
-use livebake::glam::Vec3;
 use serde_json::{Value, json};
 
-use livebake::bake::{BakeConfig, bake};
-use livebake::bundle::tiles::TilingMode;
-use livebake::progress::NoProgress;
-use livebake::reference::{ReferenceTracer, RelativeRmsError};
-use livebake::scene::{LoadOptions, Rgb, load_gltf};
+use crate::bake::{BakeConfig, bake};
+use crate::bundle::tiles::TilingMode;
+use crate::progress::NoProgress;
+use crate::reference::{ReferenceTracer, RelativeRmsError};
+use crate::scene::{LoadOptions, Rgb, load_gltf};
 
+use super::Bench;
 use super::assets;
-use crate::cli::progress::Ui;
 
 const ROOM: &str = "van_gogh_room/van_gogh_room_lit.gltf";
 
-pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let quick = bench.quick;
     let scene = std::sync::Arc::new(load_gltf(&assets().join(ROOM), &LoadOptions::default())?);
     let (directions, ref_points, ref_spp) = if quick { (32, 100, 1024) } else { (128, 300, 8192) };
     let mut base = BakeConfig { samples: directions, ..BakeConfig::default() };

@@ -1,6 +1,6 @@
 //! Point files: `{"points":[{"p":[x,y,z],"n":[x,y,z]}, ...]}` in, the same list out with
-//! `"E":[r,g,b]` (or `"error"`) added to each point. Shared by `probe`, `run --points` and
-//! `converge`.
+//! `"E":[r,g,b]` (or `"error"`) added to each point. Shared by `probe`, `run --points`,
+//! `converge` and the benches.
 //!
 //! Both directions stream: reading keeps each point's query (24 B) and nothing of the
 //! document, and is refused past [`MAX_POINTS`]; writing reads the file again, one point at a
@@ -19,11 +19,9 @@ use serde::Deserialize;
 use serde::de::{self, DeserializeSeed, Deserializer, MapAccess, SeqAccess, Visitor};
 use serde_json::{Map, Value, json};
 
-use livebake::probe::ProbeError;
-use livebake::reference::RelativeRmsError;
-use livebake::scene::Rgb;
-
-use super::progress::Ui;
+use crate::probe::ProbeError;
+use crate::reference::RelativeRmsError;
+use crate::scene::Rgb;
 
 /// Most points a points file may hold: a dense probe grid (references have hundreds).
 pub const MAX_POINTS: usize = 1 << 20;
@@ -184,12 +182,7 @@ impl ReferencePoints {
 /// Writes the points file `points` back with each result added to its point (`"E"` or
 /// `"error"`), to `out` (stdout when `None`), one point at a time; nothing is written when a
 /// result is not finite.
-pub fn write_results(
-    points: &PointsFile,
-    results: &[Result<Rgb, ProbeError>],
-    out: Option<&Path>,
-    ui: &Ui,
-) -> Result<()> {
+pub fn write_results(points: &PointsFile, results: &[Result<Rgb, ProbeError>], out: Option<&Path>) -> Result<()> {
     let non_finite = results.iter().filter(|r| r.as_ref().is_ok_and(|e| !e.is_finite())).count();
     if non_finite > 0 {
         bail!(
@@ -200,8 +193,7 @@ pub fn write_results(
     let copy = |w: &mut dyn Write| copy_with_results(&points.path, results, w);
     match out {
         Some(path) => {
-            livebake::output::write_stream(path, |w| copy(w))?;
-            ui.say(format!("wrote {} ({} points)", path.display(), results.len()));
+            crate::output::write_stream(path, |w| copy(w))?;
         }
         None => {
             let stdout = std::io::stdout();

@@ -11,10 +11,10 @@ use std::process::Command;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 
-use livebake::viewer::xvfb::Xvfb;
+use crate::viewer::xvfb::Xvfb;
 
+use super::Bench;
 use super::assets;
-use crate::cli::progress::Ui;
 
 const ROOMS: [&str; 3] = [
     "cornell_box/cornellBox-2.79-Cycles-gltf.gltf",
@@ -28,10 +28,11 @@ fn median(mut v: Vec<f64>) -> Option<f64> {
     v.get(v.len() / 2).copied()
 }
 
-pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
+pub fn run(bench: &Bench) -> Result<Value> {
+    let quick = bench.quick;
     let (runs, frames) = if quick { (1, 20) } else { (3, 120) };
     let xvfb = Xvfb::start()?;
-    let exe = std::env::current_exe()?;
+    let exe = bench.livebake;
     let dir = std::env::temp_dir().join(format!("livebake-bench-viewer-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let mut scenes = Vec::new();
@@ -40,7 +41,7 @@ pub fn run(quick: bool, _ui: &Ui) -> Result<Value> {
         let (mut medians, mut p99s, mut first) = (Vec::new(), Vec::new(), Vec::new());
         for _ in 0..runs {
             let stats = dir.join("stats.json");
-            let out = Command::new(&exe)
+            let out = Command::new(exe)
                 .env("DISPLAY", &xvfb.display)
                 .args(["-q", "view"])
                 .arg(assets().join(room))
