@@ -13,15 +13,36 @@ use std::io::{BufReader, Write};
 use std::marker::PhantomData;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
 use glam::{DVec3, Vec3};
 use serde::Deserialize;
 use serde::de::{self, DeserializeSeed, Deserializer, MapAccess, SeqAccess, Visitor};
 use serde_json::{Map, Value, json};
 
+use crate::output::OutputError;
 use crate::probe::ProbeError;
 use crate::reference::RelativeRmsError;
 use crate::scene::Rgb;
+
+/// Why a points file could not be read or written back.
+#[derive(Debug, thiserror::Error)]
+pub enum PointsError {
+    #[error("cannot read points file {}: {source}", path.display())]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("{}: {message} ({})", path.display(), FORMAT)]
+    Format { path: PathBuf, message: String },
+    #[error("{} is not valid JSON: {message}", path.display())]
+    Json { path: PathBuf, message: String },
+    #[error("in reference {}: {source}", path.display())]
+    Reference { path: PathBuf, source: Box<PointsError> },
+    #[error(
+        "{non_finite} of {total} points have non-finite irradiance (the light overflowed f32); nothing was written"
+    )]
+    NonFinite { non_finite: usize, total: usize },
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error("cannot write the points to standard output: {0}")]
+    Stdout(std::io::Error),
+}
 
 /// Most points a points file may hold: a dense probe grid (references have hundreds).
 pub const MAX_POINTS: usize = 1 << 20;
@@ -128,15 +149,17 @@ struct PointsDoc<T> {
 
 const FORMAT: &str = "expected {\"points\": [{\"p\": [x,y,z], \"n\": [x,y,z]}, ...]}";
 
-fn read_list<T: FromPoint>(path: &Path) -> Result<Vec<T>> {
-    let file = std::fs::File::open(path).with_context(|| format!("cannot read points file {}", path.display()))?;
+fn read_list<T: FromPoint>(path: &Path) -> Result<Vec<T>, PointsError> {
+    let file = std::fs::File::open(path).map_err(|source| PointsError::Read { path: path.to_path_buf(), source })?;
     let mut de = serde_json::Deserializer::from_reader(BufReader::new(file));
     let doc = PointsDoc::<T>::deserialize(&mut de).and_then(|d| de.end().map(|()| d));
     match doc {
         Ok(doc) => Ok(doc.points.0),
-        Err(e) if e.is_data() => bail!("{}: {e} ({FORMAT})", path.display()),
-        Err(e) if e.is_io() => bail!("cannot read points file {}: {e}", path.display()),
-        Err(e) => bail!("{} is not valid JSON: {e}", path.display()),
+        Err(e) if e.is_data() => Err(PointsError::Format { path: path.to_path_buf(), message: e.to_string() }),
+        Err(e) if e.is_io() => {
+            Err(PointsError::Read { path: path.to_path_buf(), source: std::io::Error::other(e.to_string()) })
+        }
+        Err(e) => Err(PointsError::Json { path: path.to_path_buf(), message: e.to_string() }),
     }
 }
 
@@ -146,7 +169,7 @@ pub struct PointsFile {
     pub queries: Vec<Query>,
 }
 
-pub fn read_points(path: &Path) -> Result<PointsFile> {
+pub fn read_points(path: &Path) -> Result<PointsFile, PointsError> {
     Ok(PointsFile { path: path.to_path_buf(), queries: read_list(path)? })
 }
 
@@ -158,8 +181,9 @@ pub struct ReferencePoints {
     pub stderr: Vec<DVec3>,
 }
 
-pub fn read_reference(path: &Path) -> Result<ReferencePoints> {
-    let list: Vec<ReferencePoint> = read_list(path).with_context(|| format!("in reference {}", path.display()))?;
+pub fn read_reference(path: &Path) -> Result<ReferencePoints, PointsError> {
+    let list: Vec<ReferencePoint> = read_list(path)
+        .map_err(|source| PointsError::Reference { path: path.to_path_buf(), source: Box::new(source) })?;
     Ok(ReferencePoints {
         queries: list.iter().map(|r| r.query).collect(),
         e: list.iter().map(|r| r.e).collect(),
@@ -182,13 +206,14 @@ impl ReferencePoints {
 /// Writes the points file `points` back with each result added to its point (`"E"` or
 /// `"error"`), to `out` (stdout when `None`), one point at a time; nothing is written when a
 /// result is not finite.
-pub fn write_results(points: &PointsFile, results: &[Result<Rgb, ProbeError>], out: Option<&Path>) -> Result<()> {
+pub fn write_results(
+    points: &PointsFile,
+    results: &[Result<Rgb, ProbeError>],
+    out: Option<&Path>,
+) -> Result<(), PointsError> {
     let non_finite = results.iter().filter(|r| r.as_ref().is_ok_and(|e| !e.is_finite())).count();
     if non_finite > 0 {
-        bail!(
-            "{non_finite} of {} points have non-finite irradiance (the light overflowed f32); nothing was written",
-            results.len()
-        );
+        return Err(PointsError::NonFinite { non_finite, total: results.len() });
     }
     let copy = |w: &mut dyn Write| copy_with_results(&points.path, results, w);
     match out {
@@ -198,8 +223,7 @@ pub fn write_results(points: &PointsFile, results: &[Result<Rgb, ProbeError>], o
         None => {
             let stdout = std::io::stdout();
             let mut w = std::io::BufWriter::new(stdout.lock());
-            copy(&mut w)?;
-            w.flush()?;
+            copy(&mut w).and_then(|()| w.flush()).map_err(PointsError::Stdout)?;
         }
     }
     Ok(())

@@ -193,6 +193,31 @@ fn save(path: &Path, bytes: &[u8], by_rename: bool) -> Result<()> {
 }
 
 /// Reads events for `for_how_long`, noting the cells published or evicted.
+/// Waits for first light's last LOD-0 publish (all of its directions), noting the cells
+/// published meanwhile.
+fn wait_lod0_complete(runtime: &Runtime, touched: &mut HashSet<CellId>) -> Result<()> {
+    let all = runtime.config().bundle.directions as u64;
+    if runtime.config().first_light_directions as u64 >= all {
+        return Ok(()); // first light was the whole LOD 0
+    }
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            bail!("LOD 0 did not reach its {all} directions within {PATIENCE:?} of first light");
+        }
+        if let Some(e) = next_event(runtime, left)? {
+            match e.event {
+                RuntimeEvent::Lod0Published { directions } if directions >= all => return Ok(()),
+                RuntimeEvent::CellPublished { cell, .. } | RuntimeEvent::CellEvicted { cell, .. } => {
+                    touched.insert(cell);
+                }
+                _ => {}
+            }
+        }
+    }
+}
+
 fn drain(runtime: &Runtime, for_how_long: Duration, touched: &mut HashSet<CellId>) -> Result<()> {
     let end = Instant::now() + for_how_long;
     loop {
@@ -424,6 +449,9 @@ fn case(c: &Case, root: &Path, quick: bool, ui: &dyn Narrator) -> Result<Value> 
     runtime.set_camera(camera);
     let (first_light, _, _) = wait_first_light(&runtime)?;
     let mut touched = HashSet::new();
+    // The audit compares LOD 0 before and after a save: first light's later publishes (its
+    // directions doubling) must all have landed, or they show as light changed unannounced.
+    wait_lod0_complete(&runtime, &mut touched)?;
     drain(&runtime, Duration::from_secs_f64(settle), &mut touched)?;
     let cells_per_lod_at_first_move = runtime.stats().cells_per_lod;
     let mut results = Vec::new();
