@@ -138,14 +138,27 @@ const SUBPIXELS: [(f64, f64); 4] = [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0
 /// bottom lies on the floor), under a wall's solid, or on the part of a face that runs
 /// through a box, sees the solid's inside straight above it; a point in open space sees the
 /// front of what faces it, or the sky.
+///
+/// See-through surfaces ([`crate::scene::Material::is_see_through`]) are looked past: light
+/// reaches what lies behind them, so the inside of a glass box is open space, and a point
+/// inside a solid stays buried when a pane lies between it and the solid's back.
 pub fn is_buried(scene: &Scene, geom: &SceneGeometry, bvh: &Bvh, tri: u32, p: Vec3, n: Vec3, epsilon: f32) -> bool {
-    match bvh.intersect(p + n * epsilon, n, 0.0, f32::INFINITY) {
-        Some(hit) if hit.tri != tri => {
-            let facing_away = geom.normals[hit.tri as usize].dot(n) > 0.0;
-            facing_away && !scene.materials[geom.material[hit.tri as usize] as usize].has_side(Side::Back)
+    let origin = p + n * epsilon;
+    let mut tmin = 0.0;
+    for _ in 0..super::bvh::MAX_CROSSINGS {
+        match bvh.intersect(origin, n, tmin, f32::INFINITY) {
+            Some(hit) if hit.tri != tri => {
+                if bvh.alpha().sheet_at(hit.tri, hit.u, hit.v).is_some() {
+                    tmin = hit.t + epsilon;
+                    continue;
+                }
+                let facing_away = geom.normals[hit.tri as usize].dot(n) > 0.0;
+                return facing_away && !scene.materials[geom.material[hit.tri as usize] as usize].has_side(Side::Back);
+            }
+            _ => return false,
         }
-        _ => false,
     }
+    false
 }
 
 /// Indices of `positions` sorted by the Morton code of their cell in a 1024³ grid over their
@@ -184,7 +197,9 @@ const NO_OCCLUDER: u32 = u32::MAX;
 /// `cache[l]`: the last triangle (BVH slot) found occluding light `l` (a shadow cache): the
 /// wall between a texel and another room's light occludes its neighbours too, and testing
 /// it alone is a fraction of a traversal. Exact: a hit on the cached triangle is a hit the
-/// traversal would accept (the same test); a miss falls back to the traversal.
+/// traversal would accept (the same test); a miss falls back to the traversal. In a scene
+/// with see-through surfaces the shadow ray carries their transmittance
+/// ([`Bvh::transmittance`]) and there is no cache (a pane found on the ray does not block).
 fn point_irradiance(scene: &Scene, bvh: &Bvh, p: Vec3, n: Vec3, epsilon: f32, cache: &mut [u32]) -> Rgb {
     let origin = p + n * epsilon;
     let mut e = Rgb::ZERO;
@@ -195,6 +210,10 @@ fn point_irradiance(scene: &Scene, bvh: &Bvh, p: Vec3, n: Vec3, epsilon: f32, ca
         }
         let tmax = if dist.is_finite() { dist - 2.0 * epsilon } else { f32::INFINITY };
         if tmax.is_nan() || tmax <= 0.0 {
+            continue;
+        }
+        if bvh.alpha().has_see_through() {
+            e += irradiance * bvh.transmittance(origin, wi, tmax, epsilon);
             continue;
         }
         if *cached != NO_OCCLUDER && bvh.occluded_by(*cached, origin, wi, tmax) {
