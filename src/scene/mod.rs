@@ -145,10 +145,22 @@ impl Material {
         c.clamp(Vec3::ZERO, Vec3::ONE)
     }
 
-    /// The albedo where it is the same at every point (no base-colour texture), `None`
-    /// where a texture varies it.
+    /// The albedo light maps reflect with at `uv0`: [`Sheet::reflect`] where the surface
+    /// exists. A cut-out (`Mask`) is whole where it exists and absent elsewhere (nothing is
+    /// lit there), so its reflectance is the albedo; a `Blend` surface reflects the covered
+    /// fraction α, a transmissive one the fraction 1 − t of that.
+    pub fn reflectance(&self, textures: &[Texture], uv0: Vec2) -> Rgb {
+        if !self.is_see_through() {
+            return self.albedo(textures, uv0);
+        }
+        self.sheet(textures, uv0).reflect
+    }
+
+    /// The reflectance ([`reflectance`](Self::reflectance)) where it is the same at every
+    /// point (no texture varies it), `None` where a texture does.
     pub fn uniform_albedo(&self, textures: &[Texture]) -> Option<Rgb> {
-        self.base_color_texture.is_none().then(|| self.albedo(textures, Vec2::ZERO))
+        (self.base_color_texture.is_none() && self.transmission_texture.is_none())
+            .then(|| self.reflectance(textures, Vec2::ZERO))
     }
 
     /// Alpha at `uv0` (factor × texture alpha).
