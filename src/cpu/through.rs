@@ -19,7 +19,7 @@ use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::sky::SkySeen;
 use crate::bundle::target::BakeTarget;
 use crate::bundle::through::{Layer, emit_through, exchange_through};
-use crate::scene::{AlphaMode, Rgb, Scene, SceneGeometry};
+use crate::scene::{Rgb, Scene, SceneGeometry};
 
 const OPAQUE: u32 = u32::MAX;
 
@@ -34,7 +34,7 @@ pub struct Passing {
 impl Passing {
     /// `None` when every material is opaque (no cut-outs, nothing see-through).
     pub fn new(scene: &Scene, geom: &SceneGeometry) -> Option<Passing> {
-        let passes = |m: &crate::scene::Material| m.is_see_through() || matches!(m.alpha_mode, AlphaMode::Mask { .. });
+        let passes = |m: &crate::scene::Material| m.lets_light_through();
         if !scene.materials.iter().any(passes) {
             return None;
         }

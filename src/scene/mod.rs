@@ -172,6 +172,12 @@ impl Material {
         a
     }
 
+    /// Whether light passes through any part of the surface: cut out (`Mask`) or
+    /// see-through ([`is_see_through`](Self::is_see_through)).
+    pub fn lets_light_through(&self) -> bool {
+        self.is_see_through() || matches!(self.alpha_mode, AlphaMode::Mask { .. })
+    }
+
     /// Whether light can pass through the surface where it exists (`Blend` or transmission).
     /// Cut-outs (`Mask`) are not: where a masked surface exists it is whole.
     pub fn is_see_through(&self) -> bool {
