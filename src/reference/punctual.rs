@@ -47,12 +47,12 @@ pub fn punctual_irradiance(
 /// Irradiance (W/m²) from every punctual light over each texel's visible part: texel `i` is
 /// LOD `lod` pixel `pixel(i)` of atlas face `faces[i]`, sampled at the 2×2 points of its
 /// pixel (each moved to the nearest point of its face's UV triangle) that do not lie inside
-/// closed geometry ([`is_buried`]), and their mean taken. A point sample at the texel's
+/// closed geometry ([`is_buried`]) or in a cut-out, and their mean taken. A point sample at the texel's
 /// centre is wrong wherever a texel straddles other geometry: a floor texel whose centre is
 /// under a wall shows the wall's shadow over its whole visible part, and real assets (a
 /// slab through a floor, a prop sunk into a wall) are full of such texels, most of all at
-/// coarse LODs. A texel whose every point is buried is never seen: it keeps its centre's
-/// value and is reported in the second list, for its neighbours to stand in for it.
+/// coarse LODs. A texel whose every point is buried or cut out is never seen: it keeps its
+/// centre's value and is reported in the second list, for its neighbours to stand in for it.
 #[allow(clippy::too_many_arguments)]
 pub fn punctual_irradiance_of_texels(
     scene: &Scene,
@@ -88,9 +88,10 @@ pub fn punctual_irradiance_of_texels(
                 (u, v)
             }
         };
-        (f.tri, geom.point(f.tri, u as f32, v as f32), geom.normals[f.tri as usize] * f.side.sign())
+        let (u, v) = (u as f32, v as f32);
+        (f.tri, u, v, geom.point(f.tri, u, v), geom.normals[f.tri as usize] * f.side.sign())
     };
-    let centres: Vec<Vec3> = (0..n).map(|i| point(i, 0.5, 0.5).1).collect();
+    let centres: Vec<Vec3> = (0..n).map(|i| point(i, 0.5, 0.5).3).collect();
     let order = spatial_order(&centres);
     drop(centres);
     let chunks: Vec<&[u32]> = order.chunks(CHUNK).collect();
@@ -101,8 +102,10 @@ pub fn punctual_irradiance_of_texels(
             .map(|&i| {
                 let (mut sum, mut seen) = (Rgb::ZERO, 0u32);
                 for (dx, dy) in SUBPIXELS {
-                    let (tri, p, nrm) = point(i as usize, dx, dy);
-                    if !is_buried(scene, geom, bvh, tri, p, nrm, epsilon) {
+                    let (tri, u, v, p, nrm) = point(i as usize, dx, dy);
+                    // A point in a cut-out is no surface: nothing is lit there (as the
+                    // bundles drop the fragments there).
+                    if bvh.alpha().opaque_at(tri, u, v) && !is_buried(scene, geom, bvh, tri, p, nrm, epsilon) {
                         sum += point_irradiance(scene, bvh, p, nrm, epsilon, &mut cache);
                         seen += 1;
                     }
@@ -110,7 +113,7 @@ pub fn punctual_irradiance_of_texels(
                 if seen > 0 {
                     (sum / seen as f32, false)
                 } else {
-                    let (_, p, nrm) = point(i as usize, 0.5, 0.5);
+                    let (_, _, _, p, nrm) = point(i as usize, 0.5, 0.5);
                     (point_irradiance(scene, bvh, p, nrm, epsilon, &mut cache), true)
                 }
             })
