@@ -10,9 +10,9 @@
 //! layer (its product is zero), so on a line without see-through surfaces it is the
 //! neighbouring layer's face, exactly as `exchange` gives. A see-through surface's own
 //! face shows only what it reflects (its texels' reflectance is α(1 − t)a); what passes it
-//! is counted by the walk. Cut-outs (T = 1: a `MASK` surface below its cutoff, `BLEND` with
-//! α = 0) are left out of the list by the caller: no texel is lit there and no light
-//! stops.
+//! is counted by the walk. Cut-outs (a `MASK` surface below its cutoff) are left out of the
+//! list by the caller: no texel is lit there and no light stops. (A `BLEND` surface with
+//! α = 0 stays: T = 1, it stops nothing, and its texels measure the light there.)
 //!
 //! **Layers.** A layer's T is the smallest of its members' (per channel): a pane stacked on
 //! a wall is opaque, two copies of one pane are one pane (the layer is one surface).

@@ -5,7 +5,7 @@
 //! as before, untouched.
 //!
 //! A fragment's transmittance is its surface's [`Sheet::pass`](crate::scene::Sheet) at the
-//! point where the line crosses it: a cut-out below its cutoff passes everything and is
+//! point where the line crosses it; a `MASK` surface below its cutoff is no surface and is
 //! dropped from the list (no texel is lit there, nothing is stopped). Textured materials
 //! are read at that point (barycentrics of the pixel centre in the triangle's projection),
 //! untextured ones once per material.
@@ -19,7 +19,7 @@ use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::sky::SkySeen;
 use crate::bundle::target::BakeTarget;
 use crate::bundle::through::{Layer, emit_through, exchange_through};
-use crate::scene::{Rgb, Scene, SceneGeometry};
+use crate::scene::{AlphaMode, Rgb, Scene, SceneGeometry};
 
 const OPAQUE: u32 = u32::MAX;
 
@@ -27,8 +27,8 @@ const OPAQUE: u32 = u32::MAX;
 pub struct Passing {
     /// Per triangle: its material when that material may let light through, else [`OPAQUE`].
     material: Vec<u32>,
-    /// Per material: its transmittance where no texture varies it.
-    uniform: Vec<Option<Rgb>>,
+    /// Per material: its transmittance where no texture varies it (`None` inside: cut out).
+    uniform: Vec<Option<Option<Rgb>>>,
 }
 
 impl Passing {
@@ -45,7 +45,7 @@ impl Passing {
             .iter()
             .map(|m| {
                 (m.base_color_texture.is_none() && m.transmission_texture.is_none())
-                    .then(|| m.sheet(&scene.textures, Vec2::ZERO).pass)
+                    .then(|| transmittance(m, &scene.textures, Vec2::ZERO))
             })
             .collect();
         Some(Passing { material, uniform })
@@ -66,15 +66,27 @@ pub struct Line<'a> {
     pub cy: f32,
 }
 
+/// The transmittance of material `m` at `uv0`; `None` where it is cut out (`MASK` below its
+/// cutoff: no surface, no texel lit). A `BLEND` surface with α = 0 passes everything too but
+/// is kept: its texels still measure the light there (and reflect none of it).
+fn transmittance(m: &crate::scene::Material, textures: &[crate::scene::Texture], uv0: Vec2) -> Option<Rgb> {
+    if let AlphaMode::Mask { cutoff } = m.alpha_mode
+        && m.alpha(textures, uv0) < cutoff
+    {
+        return None;
+    }
+    Some(m.sheet(textures, uv0).pass)
+}
+
 impl Passing {
-    /// The transmittance of fragment `f` on `line` (zero: opaque).
-    fn pass(&self, f: &Fragment, line: &Line) -> Rgb {
+    /// The transmittance of fragment `f` on `line` (zero: opaque; `None`: cut out).
+    fn pass(&self, f: &Fragment, line: &Line) -> Option<Rgb> {
         let code = match side_code(f.plus) {
             NO_SIDE => side_code(f.minus),
             c => c,
         };
         if code == NO_SIDE {
-            return Rgb::ZERO;
+            return Some(Rgb::ZERO);
         }
         let (tri, bary) = if is_own(code) {
             (line.atlas.faces[line.target.face[code as usize] as usize].tri, None)
@@ -84,14 +96,14 @@ impl Passing {
         };
         let m = self.material[tri as usize];
         if m == OPAQUE {
-            return Rgb::ZERO;
+            return Some(Rgb::ZERO);
         }
         if let Some(t) = self.uniform[m as usize] {
             return t;
         }
         let (u, v) = bary.unwrap_or_else(|| projected_barycentrics(line, tri));
         let uv = line.geom.uv0(line.scene, tri, u, v);
-        line.scene.materials[m as usize].sheet(&line.scene.textures, uv).pass
+        transmittance(&line.scene.materials[m as usize], &line.scene.textures, uv)
     }
 
     /// Each fragment's transmittance into `scratch`, cut-outs left out.
@@ -99,8 +111,7 @@ impl Passing {
         scratch.frags.clear();
         scratch.pass.clear();
         for f in frags {
-            let t = self.pass(f, line);
-            if t.min_element() < 1.0 {
+            if let Some(t) = self.pass(f, line) {
                 scratch.frags.push(*f);
                 scratch.pass.push(t);
             }
@@ -141,8 +152,12 @@ impl Passing {
     }
 }
 
-/// Barycentrics (of corners 1 and 2) of the pixel centre in triangle `tri` projected along
-/// the line's direction, clamped onto the triangle.
+/// Barycentrics (of corners 1 and 2) of the pixel centre in the plane of triangle `tri`
+/// projected along the line's direction. Not clamped: `tri` is the triangle of the texel's
+/// face, and a texel's square reaches a little over the neighbouring triangles of its chart,
+/// whose fragments then read the texture where the face's parametrisation extends to (the
+/// same UV where TEXCOORD_0 is affine across them, as over a quad); clamped, they read it
+/// along the shared edge instead.
 fn projected_barycentrics(line: &Line, tri: u32) -> (f32, f32) {
     let p = line.viewport.origin + Vec2::new(line.cx, line.cy) * line.viewport.pixel;
     let [a, b, c] = line.geom.corners[tri as usize].map(|q| {
@@ -154,9 +169,7 @@ fn projected_barycentrics(line: &Line, tri: u32) -> (f32, f32) {
     if det == 0.0 {
         return (0.0, 0.0);
     }
-    let u = (d.perp_dot(e2) / det).clamp(0.0, 1.0);
-    let v = (e1.perp_dot(d) / det).clamp(0.0, 1.0 - u);
-    (u, v)
+    (d.perp_dot(e2) / det, e1.perp_dot(d) / det)
 }
 
 /// One worker's buffers for the lines of a scene with [`Passing`].

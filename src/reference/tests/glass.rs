@@ -16,6 +16,11 @@ fn sheet(alpha: f32, mode: AlphaMode, albedo: Rgb, transmission: f32, double_sid
     Material { base_color: albedo.extend(alpha), alpha_mode: mode, transmission, double_sided, ..Material::default() }
 }
 
+/// A horizontal square of half-side `h` at height `y`, facing down.
+fn facing_down(y: f32, h: f32) -> [Vec3; 4] {
+    [Vec3::new(-h, y, -h), Vec3::new(h, y, -h), Vec3::new(h, y, h), Vec3::new(-h, y, h)]
+}
+
 /// A black floor under 100 m sheets stacked at heights 1, 2, ... (in `sheets` order from the
 /// bottom), lit by a 1 W/m² sun straight down: E on the floor is the product of the sheets'
 /// T, exactly (the floor reflects nothing and there is no sky).
@@ -92,16 +97,7 @@ fn a_sheet_lit_from_behind_passes_light_and_reflects_only_when_double_sided() {
         let black = b.material(diffuse(Rgb::ZERO, Rgb::ZERO, false));
         let pane = b.material(sheet(0.4, AlphaMode::Blend, Rgb::splat(0.7), 0.0, double_sided));
         b.floor("sheet", Vec3::Y, 1000.0, pane);
-        b.quad(
-            "cap",
-            [
-                Vec3::new(-500.0, 2.0, -500.0),
-                Vec3::new(500.0, 2.0, -500.0),
-                Vec3::new(500.0, 2.0, 500.0),
-                Vec3::new(-500.0, 2.0, 500.0),
-            ],
-            black,
-        );
+        b.quad("cap", facing_down(2.0, 500.0), black);
         b.directional_light(Vec3::Y, Rgb::ONE);
         let s = b.build();
         let t = ReferenceTracer::new(&s);
@@ -159,16 +155,7 @@ fn emitters_and_the_sky_are_seen_through_sheets() {
     let lamp = b.material(diffuse(Rgb::ZERO, Rgb::ONE, false));
     b.floor("floor", Vec3::ZERO, 1000.0, floor);
     b.floor("sheet", Vec3::Y, 1000.0, pane);
-    b.quad(
-        "lamp",
-        [
-            Vec3::new(-500.0, 2.0, -500.0),
-            Vec3::new(500.0, 2.0, -500.0),
-            Vec3::new(500.0, 2.0, 500.0),
-            Vec3::new(-500.0, 2.0, 500.0),
-        ],
-        lamp,
-    );
+    b.quad("lamp", facing_down(2.0, 500.0), lamp);
     let s = b.build();
     let t = ReferenceTracer::new(&s);
     // Per path: 0.6π·Le when the cosine ray passes, else the NEE share: σ per path ~ 0.5 E.
