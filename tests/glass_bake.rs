@@ -4,6 +4,8 @@
 //!
 //! Every tolerance is argued from the sample count in the test that uses it.
 
+mod support;
+
 use livebake::analytic::polygon_irradiance;
 use livebake::bake::{BackendKind, BakeConfig, BakeOutput, bake};
 use livebake::glam::{Vec2, Vec3};
@@ -181,4 +183,45 @@ fn a_mask_checkerboard_cuts_out_holes_for_the_sun_and_the_bundles() {
     let e = error.value();
     eprintln!("MASK checkerboard: relative RMS error against the reference {e:.4}");
     assert!(e < 0.05, "{e}");
+}
+
+/// Khronos GlassBrokenWindow (transmission glass, a MASK for the broken part) under a
+/// uniform sky: `probe` (a whole bake at the defaults, 256 directions) at 256 texel centres
+/// against the Mitsuba tool (16 384 spp, its variance removed by RelativeRmsError).
+/// Measured: 0.57 % (1.5 % at 64 directions, falling with them: the error is the directions'
+/// noise). The glass taken as opaque (no transmission, no cut-out) gives 3.5 % at these
+/// points (most of them see little through the pane), so the bound, 2 % (3.5× the measured
+/// figure), is where this test tells glass from no glass.
+#[test]
+fn glass_broken_window_matches_mitsuba_under_a_sky() {
+    let dir = tempfile::tempdir().unwrap();
+    let asset = |f: &str| format!("{}/assets/glass_broken_window/{f}", env!("CARGO_MANIFEST_DIR"));
+    let out = dir.path().join("probe.json");
+    let args = [
+        "-q",
+        "probe",
+        &asset("GlassBrokenWindow.gltf"),
+        "--sky",
+        "1",
+        "--points",
+        &asset("points.json"),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    support::ok(dir.path(), &args);
+    let read = |p: &str| -> serde_json::Value { serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap() };
+    let got = read(out.to_str().unwrap());
+    let want = read(&asset("mitsuba_sky.json"));
+    let rgb = |v: &serde_json::Value| {
+        livebake::glam::DVec3::new(v[0].as_f64().unwrap(), v[1].as_f64().unwrap(), v[2].as_f64().unwrap())
+    };
+    let (got, want) = (got["points"].as_array().unwrap(), want["points"].as_array().unwrap());
+    assert_eq!(got.len(), want.len());
+    let mut error = RelativeRmsError::default();
+    for (g, w) in got.iter().zip(want) {
+        error.add(rgb(&g["E"]), rgb(&w["E"]), rgb(&w["E_stderr"]));
+    }
+    let e = error.value();
+    eprintln!("GlassBrokenWindow under a sky: relative RMS error against Mitsuba {e:.4}");
+    assert!(e < 0.02, "{e}");
 }
