@@ -1092,3 +1092,60 @@ fn run_exports_the_light_map_it_showed() {
     // Both kinds of point are compared.
     assert!(exact >= 10 && other >= 100 && unread < 400, "{exact} exact, {other} other, {unread} not read");
 }
+
+/// Glass and cut-outs keep what makes them glass and cut-outs: alpha mode, cutoff and
+/// `KHR_materials_transmission` (its texture still names the same image) are in the export,
+/// and the extension is declared.
+#[test]
+fn export_keeps_alpha_modes_and_transmission() {
+    use support::*;
+    let dir = tempfile::tempdir().unwrap();
+    let mut d = Doc::new();
+    let tex = png(2, 2, |x, y| [128, 0, 0, if (x + y) % 2 == 0 { 255 } else { 0 }]);
+    d.push("images", json!({ "name": "glass", "uri": format!("data:image/png;base64,{}", base64(&tex)) }));
+    d.push("textures", json!({ "source": 0 }));
+    d.push(
+        "materials",
+        json!({ "name": "pane", "alphaMode": "BLEND",
+        "pbrMetallicRoughness": { "baseColorFactor": [0.8, 0.9, 1.0, 0.3] } }),
+    );
+    d.push(
+        "materials",
+        json!({ "name": "grille", "alphaMode": "MASK", "alphaCutoff": 0.3,
+        "pbrMetallicRoughness": { "baseColorTexture": { "index": 0 } } }),
+    );
+    d.push("materials", json!({ "name": "glass",
+        "extensions": { "KHR_materials_transmission": { "transmissionFactor": 0.9, "transmissionTexture": { "index": 0 } } } }));
+    d.json["extensionsUsed"] = json!(["KHR_materials_transmission"]);
+    let quad = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+    let mut prims = Vec::new();
+    for m in 0..3 {
+        let q = quad.map(|[x, y, z]| [x + 1.5 * m as f32, y, z]);
+        let mut p = d.prim(&q, Some(&[[0.0, 0.0, 1.0]; 4]), Some(&[0, 1, 2, 0, 2, 3]));
+        p["attributes"]["TEXCOORD_0"] = json!(d.vec2(&[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]));
+        p["material"] = json!(m);
+        prims.push(p);
+    }
+    d.mesh_node(prims, json!({ "name": "panes" }));
+    let src = d.write_gltf(dir.path(), "glass");
+    let scene = load(&src);
+    let atlas = atlas_for(&scene, 0.05);
+    let out = dir.path().join("out/glass.gltf");
+    export_gltf(&scene, &atlas, &gradient_map(&atlas, 0), &out, &ExportOptions::default()).unwrap();
+    let g = read_json(&out);
+    let m = &g["materials"];
+    assert_eq!((m[0]["name"].as_str(), m[0]["alphaMode"].as_str()), (Some("pane"), Some("BLEND")));
+    assert_eq!(m[0]["pbrMetallicRoughness"]["baseColorFactor"], json!([0.8, 0.9, 1.0, 0.3]));
+    assert_eq!((m[1]["alphaMode"].as_str(), m[1]["alphaCutoff"].as_f64()), (Some("MASK"), Some(0.3)));
+    let t = &m[2]["extensions"]["KHR_materials_transmission"];
+    assert_eq!(t["transmissionFactor"].as_f64(), Some(0.9));
+    let texture = &g["textures"][t["transmissionTexture"]["index"].as_u64().unwrap() as usize];
+    assert_eq!(g["images"][texture["source"].as_u64().unwrap() as usize]["name"], "glass");
+    assert!(g["extensionsUsed"].as_array().unwrap().contains(&json!("KHR_materials_transmission")));
+    // Loaded again, the export is the same glass.
+    let again = load(&out);
+    assert_eq!(again.materials[0].alpha_mode, scene.materials[0].alpha_mode);
+    assert_eq!(again.materials[1].alpha_mode, scene.materials[1].alpha_mode);
+    assert_eq!(again.materials[2].transmission, 0.9);
+    assert!(again.materials[2].transmission_texture.is_some());
+}

@@ -995,6 +995,60 @@ fn textures_from_data_uri_and_buffer_view_with_samplers() {
     }
 }
 
+/// Glass and cut-outs as architectural exports write them: a BLEND pane, a transmission
+/// pane whose texture is shared with the base colour (read linearly for transmission, as
+/// sRGB for colour), a MASK grille; their sheets follow T = (1 − α) + α·t·a.
+#[test]
+fn blend_transmission_and_mask_materials() {
+    let d = tmp();
+    let mut doc = Doc::new();
+    let mut prims = Vec::new();
+    for m in 0..3 {
+        let mut p = doc.prim(&TRI, Some(&UP_Z), None);
+        p["attributes"]["TEXCOORD_0"] = json!(doc.vec2(&[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]));
+        p["material"] = json!(m);
+        prims.push(p);
+    }
+    doc.mesh_node(prims, json!({}));
+    let grey = png(1, 1, |_, _| [188, 188, 188, 255]);
+    doc.push("images", json!({ "uri": format!("data:image/png;base64,{}", base64(&grey)) }));
+    doc.push("textures", json!({ "source": 0 }));
+    doc.push(
+        "materials",
+        json!({ "pbrMetallicRoughness": { "baseColorFactor": [0.8, 0.9, 1.0, 0.25] }, "alphaMode": "BLEND" }),
+    );
+    doc.push(
+        "materials",
+        json!({
+            "pbrMetallicRoughness": { "baseColorTexture": { "index": 0 } },
+            "extensions": { "KHR_materials_transmission": {
+                "transmissionFactor": 0.5, "transmissionTexture": { "index": 0 } } }
+        }),
+    );
+    doc.push("materials", json!({ "alphaMode": "MASK", "alphaCutoff": 0.25 }));
+    doc.json["extensionsUsed"] = json!(["KHR_materials_transmission"]);
+    doc.json["extensionsRequired"] = json!(["KHR_materials_transmission"]);
+    let s = load(&doc.write_gltf(d.path(), "glass")).unwrap();
+    assert!(s.stats.warnings.iter().all(|w| !w.contains("KHR_materials_transmission")), "{:?}", s.stats.warnings);
+    let uv = Vec2::splat(0.5);
+    let blend = &s.materials[0];
+    assert_eq!((blend.alpha_mode, blend.transmission), (AlphaMode::Blend, 0.0));
+    let sheet = blend.sheet(&s.textures, uv);
+    assert!((sheet.pass - Vec3::splat(0.75)).abs().max_element() < 1e-6, "{sheet:?}");
+    assert!((sheet.reflect - Vec3::new(0.2, 0.225, 0.25)).abs().max_element() < 1e-6, "{sheet:?}");
+    let glass = &s.materials[1];
+    assert_eq!(glass.transmission, 0.5);
+    let (colour, transmission) = (glass.base_color_texture.unwrap(), glass.transmission_texture.unwrap());
+    assert_ne!(colour.texture, transmission.texture, "one image, two decodings");
+    assert!(s.textures[colour.texture].srgb && !s.textures[transmission.texture].srgb);
+    // t = 0.5 × 188/255 (linear); a = sRGB 188 decoded (0.5029).
+    let (t, a) = (0.5 * 188.0 / 255.0, 0.502_886);
+    let sheet = glass.sheet(&s.textures, uv);
+    assert!((sheet.pass.x - t * a).abs() < 1e-4 && (sheet.reflect.x - (1.0 - t) * a).abs() < 1e-4, "{sheet:?}");
+    assert_eq!(s.materials[2].alpha_mode, AlphaMode::Mask { cutoff: 0.25 });
+    assert!(!s.materials[2].is_see_through() && blend.is_see_through() && glass.is_see_through());
+}
+
 #[test]
 fn texcoords_non_finite_and_normalized() {
     let d = tmp();

@@ -57,7 +57,7 @@ pub const FOREIGN: u32 = 0x4000_0000;
 pub const EMITTER_FLAG: u32 = 0x8000_0000;
 /// Set on `minus` when the triangle's front face looks along +ω.
 pub const FRONT_LOOKS_PLUS: u32 = 0x8000_0000;
-const CODE_MASK: u32 = 0x7FFF_FFFF;
+pub(super) const CODE_MASK: u32 = 0x7FFF_FFFF;
 
 /// The 31-bit code of a side (flags removed).
 #[inline]
@@ -265,7 +265,7 @@ pub fn sort_by_depth(frags: &mut [Fragment], l: Layering) {
 
 /// The end (exclusive) of the layer that starts at `start` in depth-sorted `frags`.
 #[inline]
-fn layer_end(frags: &[Fragment], start: usize, l: Layering) -> usize {
+pub(super) fn layer_end(frags: &[Fragment], start: usize, l: Layering) -> usize {
     let mut end = start + 1;
     while end < frags.len() && l.joins(&frags[end - 1], &frags[end]) {
         end += 1;
@@ -277,7 +277,7 @@ fn layer_end(frags: &[Fragment], start: usize, l: Layering) -> usize {
 /// layer is then one fragment, the common case (a line meets surfaces far apart), which
 /// [`exchange`] and [`emit`] take without looking for layers.
 #[inline(always)]
-fn all_apart(frags: &[Fragment], l: &Layering) -> bool {
+pub(super) fn all_apart(frags: &[Fragment], l: &Layering) -> bool {
     frags.windows(2).all(|w| (w[1].depth - w[0].depth).abs() > l.reach)
 }
 
@@ -287,7 +287,7 @@ fn all_apart(frags: &[Fragment], l: &Layering) -> bool {
 /// layer see the same light and differ only by albedo and emission: the one on top (an
 /// emissive quad on a ceiling, a decal) is there to be seen. Ties go to the first.
 #[inline]
-fn layer_face(
+pub(super) fn layer_face(
     layer: &[Fragment],
     side: impl Fn(&Fragment) -> u32,
     mut radiance: impl FnMut(&Fragment, u32) -> Option<Rgb>,
@@ -310,13 +310,13 @@ fn layer_face(
 /// The side of a fragment seen from before its layer (a monomorphised argument of
 /// [`layer_face`], so its loop is inlined where a function pointer was called per fragment).
 #[inline(always)]
-fn minus_side(f: &Fragment) -> u32 {
+pub(super) fn minus_side(f: &Fragment) -> u32 {
     f.minus
 }
 
 /// The side of a fragment seen from after its layer.
 #[inline(always)]
-fn plus_side(f: &Fragment) -> u32 {
+pub(super) fn plus_side(f: &Fragment) -> u32 {
     f.plus
 }
 

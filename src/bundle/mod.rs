@@ -22,6 +22,7 @@ pub mod raster;
 pub mod sky;
 pub mod stats;
 pub mod target;
+pub mod through;
 pub mod tiles;
 pub mod window;
 

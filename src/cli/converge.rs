@@ -177,7 +177,11 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
             (queries, taps)
         }
         (None, None) => {
-            let (q, taps) = sample_texels(&texels, SAMPLED_TEXELS, config.seed, |q| taps_at(q).ok());
+            // A texel whose centre lies in a cut-out (`MASK` below its cutoff) is not lit:
+            // there is no surface there to measure.
+            let exists = |q: &Query| locator.locate(q.p, q.n).is_ok_and(|at| bvh.alpha().opaque_at(at.tri, at.u, at.v));
+            let (q, taps) =
+                sample_texels(&texels, SAMPLED_TEXELS, config.seed, |q| exists(q).then(|| taps_at(q).ok()).flatten());
             sampled = q;
             (&sampled, taps)
         }

@@ -13,6 +13,7 @@ use super::analysis::Analysis;
 use super::emitter_rows::EmitterRows;
 use super::fragments::{ForeignSides, TileFragments, Visit};
 use super::scene::CpuScene;
+use super::through::{Line, ThroughScratch};
 use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own, side_code};
 use crate::bundle::mips::MipChain;
 use crate::bundle::raster::{BundleFrame, Viewport};
@@ -63,6 +64,8 @@ pub struct Worker {
     queue: Vec<Viewport>,
     /// The current light bundle's emitter silhouette.
     emitter_rows: EmitterRows,
+    /// Lines through see-through surfaces and cut-outs.
+    through: ThroughScratch,
     pub stats: PassStats,
 }
 
@@ -207,6 +210,29 @@ fn seen_foreign(
             lookups.lost += 1;
             Rgb::ZERO
         }
+    }
+}
+
+/// Where the fragments of pixel (cx, cy) of `viewport` lie, for their transmittances.
+fn line<'a>(
+    ctx: &'a PassContext,
+    frame: &'a BundleFrame,
+    viewport: &'a Viewport,
+    foreign: &'a ForeignSides<'a>,
+    cx: f32,
+    cy: f32,
+) -> Line<'a> {
+    let bundle = &ctx.scene.bundle;
+    Line {
+        scene: &bundle.scene,
+        geom: &bundle.geom,
+        atlas: &bundle.atlas,
+        target: ctx.target,
+        frame,
+        viewport,
+        foreign,
+        cx,
+        cy,
     }
 }
 
@@ -355,9 +381,16 @@ fn trace_tile(
                     prefetch(source.own.as_ptr().wrapping_add(code as usize));
                 }
             }
-            Visit::Pixel(f, foreign, cx, cy) => {
-                exchange(f, layering, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), sink)
-            }
+            Visit::Pixel(f, foreign, cx, cy) => match &ctx.scene.passing {
+                None => {
+                    exchange(f, layering, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), sink)
+                }
+                Some(passing) => {
+                    let line = line(ctx, &plan.frame, &vp, foreign, cx, cy);
+                    let seen = |code| seen(source, foreign, code, cx, cy, &mut lookups);
+                    passing.exchange(f, &line, layering, a_px, sky, seen, sink, &mut w.through)
+                }
+            },
         });
         stats.resolve_seconds += seconds(t);
     }
@@ -472,27 +505,28 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
         s.fragments.resolve(ctx.scene, ctx.target, |visit| {
             let Visit::Pixel(f, foreign, cx, cy) = visit else { return };
             stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
-            emit(
-                f,
-                layering,
-                a_px,
-                |code| {
-                    if is_own(code) {
-                        return own.at(code as usize);
+            let emission = |code| {
+                if is_own(code) {
+                    return own.at(code as usize);
+                }
+                match source.foreign {
+                    Some(src) => {
+                        let (tri, side, u, v) = foreign.locate(code, cx, cy);
+                        src.emission(tri, side, u, v)
                     }
-                    match source.foreign {
-                        Some(src) => {
-                            let (tri, side, u, v) = foreign.locate(code, cx, cy);
-                            src.emission(tri, side, u, v)
-                        }
-                        None => {
-                            lost += 1;
-                            Rgb::ZERO
-                        }
+                    None => {
+                        lost += 1;
+                        Rgb::ZERO
                     }
-                },
-                sink,
-            )
+                }
+            };
+            match &ctx.scene.passing {
+                None => emit(f, layering, a_px, emission, sink),
+                Some(passing) => {
+                    let line = line(ctx, &frame, &vp, foreign, cx, cy);
+                    passing.emit(f, &line, layering, a_px, emission, sink, &mut s.through)
+                }
+            }
         });
     }
     s.stats.lost_lookups += lost;

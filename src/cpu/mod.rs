@@ -14,6 +14,7 @@ pub(crate) mod direction;
 mod emitter_rows;
 pub(crate) mod fragments;
 pub mod scene;
+mod through;
 
 pub use batch::{SPARE_RECORD_BYTES, WAITING_HITS_PER_THREAD};
 

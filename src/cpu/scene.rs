@@ -7,6 +7,7 @@ use std::sync::Arc;
 use glam::Vec3;
 
 use super::bounds_tree::BoundsTree;
+use super::through::Passing;
 use crate::bundle::BundleScene;
 use crate::bundle::estimator::Coincidence;
 use crate::bundle::raster::snapped_depth_slack;
@@ -29,6 +30,9 @@ pub struct CpuScene {
     /// relative); `stacked` is the scene's ray offset ε, as the reference tracer's; `snap`
     /// is left to each tile ([`CpuScene::coincidence_at`]).
     pub coincidence: Coincidence,
+    /// Which triangles let light through (`None`: every one is opaque, and lines resolve
+    /// without transmittances).
+    pub passing: Option<Passing>,
 }
 
 impl CpuScene {
@@ -59,6 +63,7 @@ impl CpuScene {
         let rounding = 1e-6 * (radius + centre.abs().max_element());
         // `snap` depends on each tile's pixel size: set per tile.
         let coincidence = Coincidence { rounding, stacked: ray_epsilon(&bundle.scene).max(rounding), snap: 0.0 };
-        CpuScene { bundle, density, bounds, centre, radius, coincidence }
+        let passing = Passing::new(&bundle.scene, geom);
+        CpuScene { bundle, density, bounds, centre, radius, coincidence, passing }
     }
 }

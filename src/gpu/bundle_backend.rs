@@ -623,6 +623,12 @@ impl GpuProvider {
     }
 }
 
+/// Why a scene with see-through surfaces or cut-outs is not resolved on the GPU: its
+/// resolve shader does not carry transmittance along a line yet (the CPU backend does,
+/// `crate::bundle::through`), and treating glass as opaque would be silently wrong.
+pub const GLASS_ON_THE_CPU: &str = "the GPU backend does not resolve light through BLEND, \
+    KHR_materials_transmission or MASK surfaces yet; this scene has some: use --backend cpu (or auto)";
+
 impl BackendProvider for GpuProvider {
     type Backend = GpuBundleBackend;
 
@@ -631,6 +637,9 @@ impl BackendProvider for GpuProvider {
     }
 
     fn backend(&self, scene: &Arc<BundleScene>, threads: usize) -> Result<GpuBundleBackend, BackendError> {
+        if scene.scene.materials.iter().any(|m| m.lets_light_through()) {
+            return Err(BackendError::Unavailable(GLASS_ON_THE_CPU.into()));
+        }
         GpuBundleBackend::new(self.gpu.clone(), self.cpu.scene(scene), threads, self.phase_timing)
     }
 }

@@ -1,13 +1,18 @@
-//! Alpha-masked triangles (`AlphaMode::Mask`): what the BVH needs to cut them out.
+//! Triangles that let light through: alpha-masked ones (`AlphaMode::Mask`), cut out where
+//! their alpha is below the cutoff, and see-through ones (`Blend` or
+//! `KHR_materials_transmission`, [`Material::is_see_through`]), which pass a fraction of
+//! the light meeting them ([`Sheet`]).
 //!
-//! The BVH owns this (no borrow of the [`Scene`]): the masked materials are cloned with
-//! their base-colour texture replaced by an alpha-only copy, so the cut-out test is exactly
-//! [`Material::alpha`] at the hit's TEXCOORD_0. Opaque and blended triangles have no entry
-//! and never reach this code (the BVH flags leaves that contain masked triangles).
+//! The BVH owns this (no borrow of the [`Scene`]). Masked materials that are not see-through
+//! are cloned with their base-colour texture replaced by an alpha-only copy, so the cut-out
+//! test is exactly [`Material::alpha`] at the hit's TEXCOORD_0; see-through materials keep
+//! their textures (shared pixels, no copy), since their sheet needs the albedo too. Opaque
+//! triangles have no entry and never reach this code (the BVH flags leaves that contain
+//! entries).
 
 use glam::Vec2;
 
-use crate::scene::{AlphaMode, Material, Scene, SceneGeometry, Texture, TriangleId};
+use crate::scene::{AlphaMode, Material, Scene, SceneGeometry, Sheet, Texture, TriangleId};
 
 const NONE: u32 = u32::MAX;
 
@@ -20,7 +25,9 @@ struct MaskedTriangle {
 #[derive(Clone, Debug)]
 struct MaskMaterial {
     material: Material,
-    cutoff: f32,
+    /// The alpha cutoff of a masked material.
+    cutoff: Option<f32>,
+    see_through: bool,
 }
 
 /// Cut-out data for the masked triangles of a scene.
@@ -31,6 +38,7 @@ pub struct AlphaMasks {
     triangles: Vec<MaskedTriangle>,
     materials: Vec<MaskMaterial>,
     textures: Vec<Texture>,
+    see_through: bool,
 }
 
 /// The alpha channel of `t` only (RGB set to white): enough for [`Material::alpha`].
@@ -45,7 +53,7 @@ impl AlphaMasks {
         let mut textures: Vec<usize> = scene
             .materials
             .iter()
-            .filter(|m| matches!(m.alpha_mode, AlphaMode::Mask { .. }))
+            .filter(|m| matches!(m.alpha_mode, AlphaMode::Mask { .. }) && !m.is_see_through())
             .filter_map(|m| m.base_color_texture.map(|t| t.texture))
             .collect();
         textures.sort_unstable();
@@ -53,24 +61,35 @@ impl AlphaMasks {
         textures.iter().filter_map(|&t| scene.textures.get(t)).map(|t| t.rgba8.len() as u64 * 4).sum()
     }
 
-    /// Collects the masked triangles of `scene` (as laid out by `geom`).
+    /// Collects the masked and see-through triangles of `scene` (as laid out by `geom`).
     pub fn new(scene: &Scene, geom: &SceneGeometry) -> AlphaMasks {
         let mut out = AlphaMasks::default();
         let mut local_material = vec![NONE; scene.materials.len()];
-        // One alpha-only copy per texture, however many masked materials use it.
+        // One copy per texture (alpha-only or whole), however many materials use it.
         let mut local_texture = std::collections::HashMap::new();
         for (mi, m) in scene.materials.iter().enumerate() {
-            let AlphaMode::Mask { cutoff } = m.alpha_mode else { continue };
+            let cutoff = match m.alpha_mode {
+                AlphaMode::Mask { cutoff } => Some(cutoff),
+                _ => None,
+            };
+            let see_through = m.is_see_through();
+            if cutoff.is_none() && !see_through {
+                continue;
+            }
             let mut material = m.clone();
             material.emissive_texture = None;
-            if let Some(t) = material.base_color_texture.as_mut() {
-                t.texture = *local_texture.entry(t.texture).or_insert_with(|| {
-                    out.textures.push(alpha_only(&scene.textures[t.texture]));
+            for t in
+                [material.base_color_texture.as_mut(), material.transmission_texture.as_mut()].into_iter().flatten()
+            {
+                t.texture = *local_texture.entry((t.texture, see_through)).or_insert_with(|| {
+                    let source = &scene.textures[t.texture];
+                    out.textures.push(if see_through { source.clone() } else { alpha_only(source) });
                     out.textures.len() - 1
                 });
             }
+            out.see_through |= see_through;
             local_material[mi] = out.materials.len() as u32;
-            out.materials.push(MaskMaterial { material, cutoff });
+            out.materials.push(MaskMaterial { material, cutoff, see_through });
         }
         if out.materials.is_empty() {
             return out;
@@ -89,15 +108,38 @@ impl AlphaMasks {
         out
     }
 
-    /// Whether any triangle is masked.
+    /// Whether no triangle is masked or see-through.
     pub fn is_empty(&self) -> bool {
         self.triangles.is_empty()
     }
 
-    /// Whether triangle `tri` has an alpha-masked material.
+    /// Whether some triangle is see-through.
+    #[inline]
+    pub fn has_see_through(&self) -> bool {
+        self.see_through
+    }
+
+    /// Whether triangle `tri` has an alpha-masked or see-through material.
     #[inline]
     pub fn is_masked(&self, tri: TriangleId) -> bool {
         self.slot.get(tri as usize).is_some_and(|&s| s != NONE)
+    }
+
+    /// The [`Sheet`] of a see-through triangle at barycentrics (u, v), `None` for the others
+    /// (where they exist, they stop all light).
+    #[inline]
+    pub fn sheet_at(&self, tri: TriangleId, u: f32, v: f32) -> Option<Sheet> {
+        let &s = self.slot.get(tri as usize)?;
+        if s == NONE {
+            return None;
+        }
+        let mt = &self.triangles[s as usize];
+        let mm = &self.materials[mt.material as usize];
+        if !mm.see_through {
+            return None;
+        }
+        let [a, b, c] = mt.uv0;
+        Some(mm.material.sheet(&self.textures, a + (b - a) * u + (c - a) * v))
     }
 
     /// Whether the surface exists at barycentrics (u, v) of `tri`: true for unmasked
@@ -109,9 +151,10 @@ impl AlphaMasks {
             return true;
         }
         let mt = &self.triangles[s as usize];
+        let mm = &self.materials[mt.material as usize];
+        let Some(cutoff) = mm.cutoff else { return true };
         let [a, b, c] = mt.uv0;
         let uv = a + (b - a) * u + (c - a) * v;
-        let mm = &self.materials[mt.material as usize];
-        mm.material.alpha(&self.textures, uv) >= mm.cutoff
+        mm.material.alpha(&self.textures, uv) >= cutoff
     }
 }

@@ -2,7 +2,8 @@
 //! flattened 64-byte nodes (both child boxes per node, tested with one SIMD slab test) and
 //! triangles copied in leaf order for the watertight test.
 //!
-//! Queries: closest hit ([`Bvh::intersect`], front-to-back), any hit ([`Bvh::occluded`]) and
+//! Queries: closest hit ([`Bvh::intersect`], front-to-back), any hit ([`Bvh::occluded`]),
+//! light passing through see-through surfaces ([`Bvh::transmittance`]) and
 //! nearest surface point ([`Bvh::closest_point`]). Pure: no scene borrow, `Send + Sync`,
 //! reusable by the baker and the probe command.
 //!
@@ -15,7 +16,7 @@ use glam::{Vec3, Vec3A, Vec4, Vec4Swizzles};
 use super::alpha::AlphaMasks;
 use super::bvh_build::{self, Aabb, COUNT_MASK, LEAF, MASKED, MAX_TREE_DEPTH, Node};
 use super::triangle::{self, Shear};
-use crate::scene::{Scene, SceneGeometry, TriangleId};
+use crate::scene::{Rgb, Scene, SceneGeometry, TriangleId};
 
 /// A ray's closest intersection: parametric distance `t` (in units of the direction's
 /// length), the triangle and the barycentric weights (u, v) of its corners 1 and 2.
@@ -40,6 +41,9 @@ pub struct Nearest {
 /// `1 + 2γ₃` with γₙ = nε/(1 − nε), ε = 2⁻²⁴ (Ize 2013).
 const ROBUST_EXIT: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 const STACK: usize = MAX_TREE_DEPTH + 4;
+/// See-through surfaces a shadow ray crosses before it counts as blocked (the Mitsuba
+/// cross-check's limit).
+pub const MAX_CROSSINGS: usize = 64;
 
 /// See the [module docs](self).
 #[derive(Clone, Debug, Default)]
@@ -185,6 +189,30 @@ impl Bvh {
             1 => self.closest::<1>(&Ray::new::<1>(origin, dir), tmin, tmax),
             _ => self.closest::<2>(&Ray::new::<2>(origin, dir), tmin, tmax),
         }
+    }
+
+    /// The fraction of light (per channel) that passes along the ray `origin + t·dir` with
+    /// `0 < t < tmax`: the product of the [`Sheet::pass`](crate::scene::Sheet) of every
+    /// see-through surface crossed, 0 at the first surface that is not. Successive
+    /// crossings are looked for from `step` past the last one (the scene's ray offset ε),
+    /// at most [`MAX_CROSSINGS`] of them (as the Mitsuba cross-check). Without see-through
+    /// triangles it is the any-hit test [`Self::occluded`].
+    pub fn transmittance(&self, origin: Vec3, dir: Vec3, tmax: f32, step: f32) -> Rgb {
+        if !self.alpha.has_see_through() {
+            return if self.occluded(origin, dir, tmax) { Rgb::ZERO } else { Rgb::ONE };
+        }
+        let mut pass = Rgb::ONE;
+        let mut tmin = 0.0;
+        for _ in 0..MAX_CROSSINGS {
+            let Some(hit) = self.intersect(origin, dir, tmin, tmax) else { return pass };
+            let Some(sheet) = self.alpha.sheet_at(hit.tri, hit.u, hit.v) else { return Rgb::ZERO };
+            pass *= sheet.pass;
+            if pass.max_element() <= 0.0 {
+                return Rgb::ZERO;
+            }
+            tmin = hit.t + step;
+        }
+        Rgb::ZERO
     }
 
     /// Whether anything (not cut out) lies on the ray `origin + t·dir` with `0 < t < tmax`.

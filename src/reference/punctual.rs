@@ -47,12 +47,12 @@ pub fn punctual_irradiance(
 /// Irradiance (W/m²) from every punctual light over each texel's visible part: texel `i` is
 /// LOD `lod` pixel `pixel(i)` of atlas face `faces[i]`, sampled at the 2×2 points of its
 /// pixel (each moved to the nearest point of its face's UV triangle) that do not lie inside
-/// closed geometry ([`is_buried`]), and their mean taken. A point sample at the texel's
+/// closed geometry ([`is_buried`]) or in a cut-out, and their mean taken. A point sample at the texel's
 /// centre is wrong wherever a texel straddles other geometry: a floor texel whose centre is
 /// under a wall shows the wall's shadow over its whole visible part, and real assets (a
 /// slab through a floor, a prop sunk into a wall) are full of such texels, most of all at
-/// coarse LODs. A texel whose every point is buried is never seen: it keeps its centre's
-/// value and is reported in the second list, for its neighbours to stand in for it.
+/// coarse LODs. A texel whose every point is buried or cut out is never seen: it keeps its
+/// centre's value and is reported in the second list, for its neighbours to stand in for it.
 #[allow(clippy::too_many_arguments)]
 pub fn punctual_irradiance_of_texels(
     scene: &Scene,
@@ -88,9 +88,10 @@ pub fn punctual_irradiance_of_texels(
                 (u, v)
             }
         };
-        (f.tri, geom.point(f.tri, u as f32, v as f32), geom.normals[f.tri as usize] * f.side.sign())
+        let (u, v) = (u as f32, v as f32);
+        (f.tri, u, v, geom.point(f.tri, u, v), geom.normals[f.tri as usize] * f.side.sign())
     };
-    let centres: Vec<Vec3> = (0..n).map(|i| point(i, 0.5, 0.5).1).collect();
+    let centres: Vec<Vec3> = (0..n).map(|i| point(i, 0.5, 0.5).3).collect();
     let order = spatial_order(&centres);
     drop(centres);
     let chunks: Vec<&[u32]> = order.chunks(CHUNK).collect();
@@ -101,8 +102,10 @@ pub fn punctual_irradiance_of_texels(
             .map(|&i| {
                 let (mut sum, mut seen) = (Rgb::ZERO, 0u32);
                 for (dx, dy) in SUBPIXELS {
-                    let (tri, p, nrm) = point(i as usize, dx, dy);
-                    if !is_buried(scene, geom, bvh, tri, p, nrm, epsilon) {
+                    let (tri, u, v, p, nrm) = point(i as usize, dx, dy);
+                    // A point in a cut-out is no surface: nothing is lit there (as the
+                    // bundles drop the fragments there).
+                    if bvh.alpha().opaque_at(tri, u, v) && !is_buried(scene, geom, bvh, tri, p, nrm, epsilon) {
                         sum += point_irradiance(scene, bvh, p, nrm, epsilon, &mut cache);
                         seen += 1;
                     }
@@ -110,7 +113,7 @@ pub fn punctual_irradiance_of_texels(
                 if seen > 0 {
                     (sum / seen as f32, false)
                 } else {
-                    let (_, p, nrm) = point(i as usize, 0.5, 0.5);
+                    let (_, _, _, p, nrm) = point(i as usize, 0.5, 0.5);
                     (point_irradiance(scene, bvh, p, nrm, epsilon, &mut cache), true)
                 }
             })
@@ -138,14 +141,27 @@ const SUBPIXELS: [(f64, f64); 4] = [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0
 /// bottom lies on the floor), under a wall's solid, or on the part of a face that runs
 /// through a box, sees the solid's inside straight above it; a point in open space sees the
 /// front of what faces it, or the sky.
+///
+/// See-through surfaces ([`crate::scene::Material::is_see_through`]) are looked past: light
+/// reaches what lies behind them, so the inside of a glass box is open space, and a point
+/// inside a solid stays buried when a pane lies between it and the solid's back.
 pub fn is_buried(scene: &Scene, geom: &SceneGeometry, bvh: &Bvh, tri: u32, p: Vec3, n: Vec3, epsilon: f32) -> bool {
-    match bvh.intersect(p + n * epsilon, n, 0.0, f32::INFINITY) {
-        Some(hit) if hit.tri != tri => {
-            let facing_away = geom.normals[hit.tri as usize].dot(n) > 0.0;
-            facing_away && !scene.materials[geom.material[hit.tri as usize] as usize].has_side(Side::Back)
+    let origin = p + n * epsilon;
+    let mut tmin = 0.0;
+    for _ in 0..super::bvh::MAX_CROSSINGS {
+        match bvh.intersect(origin, n, tmin, f32::INFINITY) {
+            Some(hit) if hit.tri != tri => {
+                if bvh.alpha().sheet_at(hit.tri, hit.u, hit.v).is_some() {
+                    tmin = hit.t + epsilon;
+                    continue;
+                }
+                let facing_away = geom.normals[hit.tri as usize].dot(n) > 0.0;
+                return facing_away && !scene.materials[geom.material[hit.tri as usize] as usize].has_side(Side::Back);
+            }
+            _ => return false,
         }
-        _ => false,
     }
+    false
 }
 
 /// Indices of `positions` sorted by the Morton code of their cell in a 1024³ grid over their
@@ -184,7 +200,9 @@ const NO_OCCLUDER: u32 = u32::MAX;
 /// `cache[l]`: the last triangle (BVH slot) found occluding light `l` (a shadow cache): the
 /// wall between a texel and another room's light occludes its neighbours too, and testing
 /// it alone is a fraction of a traversal. Exact: a hit on the cached triangle is a hit the
-/// traversal would accept (the same test); a miss falls back to the traversal.
+/// traversal would accept (the same test); a miss falls back to the traversal. In a scene
+/// with see-through surfaces the shadow ray carries their transmittance
+/// ([`Bvh::transmittance`]) and there is no cache (a pane found on the ray does not block).
 fn point_irradiance(scene: &Scene, bvh: &Bvh, p: Vec3, n: Vec3, epsilon: f32, cache: &mut [u32]) -> Rgb {
     let origin = p + n * epsilon;
     let mut e = Rgb::ZERO;
@@ -195,6 +213,10 @@ fn point_irradiance(scene: &Scene, bvh: &Bvh, p: Vec3, n: Vec3, epsilon: f32, ca
         }
         let tmax = if dist.is_finite() { dist - 2.0 * epsilon } else { f32::INFINITY };
         if tmax.is_nan() || tmax <= 0.0 {
+            continue;
+        }
+        if bvh.alpha().has_see_through() {
+            e += irradiance * bvh.transmittance(origin, wi, tmax, epsilon);
             continue;
         }
         if *cached != NO_OCCLUDER && bvh.occluded_by(*cached, origin, wi, tmax) {

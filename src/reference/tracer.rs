@@ -204,29 +204,49 @@ impl<'s> ReferenceTracer<'s> {
                 }
                 beta /= survive;
             }
-            *rays += 1;
-            let Some(hit) = self.bvh.intersect(xo, wi, 0.0, f32::INFINITY) else {
-                e += beta * (self.scene.sky + self.environment_seen(wi, cos));
-                break;
+            // The ray crosses see-through surfaces (each passing `Sheet::pass`) until one
+            // reflects it: at every crossing, pass or reflect is chosen in proportion to
+            // mean(pass) and mean(reflect) (the Mitsuba cross-check's rule), the throughput
+            // divided by the choice's probability.
+            let mut travelled = 0.0;
+            let next = loop {
+                *rays += 1;
+                let Some(hit) = self.bvh.intersect(xo, wi, travelled, f32::INFINITY) else {
+                    e += beta * (self.scene.sky + self.environment_seen(wi, cos));
+                    break None;
+                };
+                let ng = self.geom.normals[hit.tri as usize];
+                let side = if ng.dot(wi) < 0.0 { Side::Front } else { Side::Back };
+                let m = self.material(hit.tri);
+                if m.is_emissive() && m.emits_from(side) {
+                    let le = self.geom.emission(self.scene, hit.tri, hit.u, hit.v);
+                    let pdf_l =
+                        EmitterTable::solid_angle_pdf(self.emitters.area_pdf(hit.tri), hit.t * hit.t, ng.dot(wi));
+                    e += beta * le * power_heuristic(cos / PI, pdf_l);
+                }
+                let sheet = self.bvh.alpha().sheet_at(hit.tri, hit.u, hit.v);
+                let reflect = match sheet {
+                    _ if !m.has_side(side) => Rgb::ZERO,
+                    Some(s) => s.reflect,
+                    None => self.geom.albedo(self.scene, hit.tri, hit.u, hit.v),
+                };
+                let pass = sheet.map_or(Rgb::ZERO, |s| s.pass);
+                let (p_pass, p_reflect) = (pass.element_sum(), reflect.element_sum());
+                if p_pass + p_reflect <= 0.0 {
+                    break None;
+                }
+                if p_pass > 0.0 && rng.next_f32() * (p_pass + p_reflect) < p_pass {
+                    beta *= pass * ((p_pass + p_reflect) / p_pass);
+                    travelled = hit.t + self.eps;
+                    continue;
+                }
+                beta *= (p_pass + p_reflect) / p_reflect;
+                break Some((reflect, self.geom.point(hit.tri, hit.u, hit.v), ng * side.sign()));
             };
-            let ng = self.geom.normals[hit.tri as usize];
-            let side = if ng.dot(wi) < 0.0 { Side::Front } else { Side::Back };
-            let m = self.material(hit.tri);
-            if !m.has_side(side) {
-                break;
-            }
-            if m.is_emissive() && m.emits_from(side) {
-                let le = self.geom.emission(self.scene, hit.tri, hit.u, hit.v);
-                let pdf_l = EmitterTable::solid_angle_pdf(self.emitters.area_pdf(hit.tri), hit.t * hit.t, ng.dot(wi));
-                e += beta * le * power_heuristic(cos / PI, pdf_l);
-            }
-            let albedo = self.geom.albedo(self.scene, hit.tri, hit.u, hit.v);
-            if albedo.max_element() <= 0.0 {
-                break;
-            }
+            let Some((albedo, point, normal)) = next else { break };
             f = albedo / PI;
-            x = self.geom.point(hit.tri, hit.u, hit.v);
-            nx = ng * side.sign();
+            x = point;
+            nx = normal;
         }
         e
     }
@@ -259,11 +279,12 @@ impl<'s> ReferenceTracer<'s> {
             return Rgb::ZERO;
         }
         *rays += 1;
-        if self.bvh.occluded(xo, wi, dist - self.eps) {
+        let pass = self.bvh.transmittance(xo, wi, dist - self.eps, self.eps);
+        if pass.max_element() <= 0.0 {
             return Rgb::ZERO;
         }
         let pdf_l = EmitterTable::solid_angle_pdf(s.area_pdf, dist2, cos_y);
-        le * (cos_x / pdf_l * power_heuristic(pdf_l, cos_x / PI))
+        pass * le * (cos_x / pdf_l * power_heuristic(pdf_l, cos_x / PI))
     }
 
     /// The environment's radiance along an escaping cosine-sampled ray `wi` (cosine `cos` to
@@ -293,10 +314,11 @@ impl<'s> ReferenceTracer<'s> {
             return Rgb::ZERO;
         }
         *rays += 1;
-        if self.bvh.occluded(xo, s.direction, f32::INFINITY) {
+        let pass = self.bvh.transmittance(xo, s.direction, f32::INFINITY, self.eps);
+        if pass.max_element() <= 0.0 {
             return Rgb::ZERO;
         }
-        l * (cos / s.pdf * power_heuristic(s.pdf, cos / PI))
+        pass * l * (cos / s.pdf * power_heuristic(s.pdf, cos / PI))
     }
 
     /// Direct irradiance from punctual lights at surface point `x` (normal `nx`), shadow rays
@@ -346,6 +368,6 @@ impl<'s> ReferenceTracer<'s> {
             (wi, f32::INFINITY)
         };
         *rays += 1;
-        if tmax > 0.0 && self.bvh.occluded(xo, dir, tmax) { Rgb::ZERO } else { el }
+        if tmax > 0.0 { el * self.bvh.transmittance(xo, dir, tmax, self.eps) } else { el }
     }
 }

@@ -82,10 +82,11 @@ impl SceneGeometry {
         a + (b - a) * u + (c - a) * v
     }
 
-    /// Diffuse albedo of triangle `t` at barycentrics (u, v).
+    /// Diffuse reflectance of triangle `t` at barycentrics (u, v)
+    /// ([`Material::reflectance`](crate::scene::Material::reflectance)).
     pub fn albedo(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Rgb {
         let m = &scene.materials[self.material[t as usize] as usize];
-        m.uniform_albedo(&scene.textures).unwrap_or_else(|| m.albedo(&scene.textures, self.uv0(scene, t, u, v)))
+        m.uniform_albedo(&scene.textures).unwrap_or_else(|| m.reflectance(&scene.textures, self.uv0(scene, t, u, v)))
     }
 
     /// Emitted radiance of triangle `t` at barycentrics (u, v), from its emitting side(s).

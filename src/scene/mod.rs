@@ -74,9 +74,9 @@ impl Side {
     }
 }
 
-/// glTF alpha mode. Light transport treats `Opaque` and `Blend` surfaces as opaque (a blended
-/// surface has no single transmittance we could bake); `Mask` surfaces are cut out where
-/// `alpha < cutoff`.
+/// glTF alpha mode: what fraction of the light meeting a surface interacts with it (its
+/// coverage, [`Material::coverage`]). `Opaque`: all; `Mask`: all where `alpha ≥ cutoff`, none
+/// elsewhere (cut out); `Blend`: `alpha`, the rest passes straight through untinted.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub enum AlphaMode {
     Opaque,
@@ -97,6 +97,21 @@ pub struct Material {
     pub emissive_texture: Option<TextureRef>,
     pub double_sided: bool,
     pub alpha_mode: AlphaMode,
+    /// `KHR_materials_transmission` (thin-walled): the fraction of the light interacting
+    /// with the surface that passes straight through, tinted by the albedo; multiplied by
+    /// the red channel of `transmission_texture` (linear) when present.
+    pub transmission: f32,
+    pub transmission_texture: Option<TextureRef>,
+}
+
+/// What a thin sheet does with the light meeting it at one point: it passes straight
+/// through with `pass` and is reflected diffusely (on the side it came from) with albedo
+/// `reflect`. With coverage c, transmission t and albedo a:
+/// `pass = (1 − c) + c·t·a`, `reflect = c·(1 − t)·a` (per channel, each in [0, 1]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sheet {
+    pub pass: Rgb,
+    pub reflect: Rgb,
 }
 
 impl Default for Material {
@@ -110,6 +125,8 @@ impl Default for Material {
             emissive_texture: None,
             double_sided: false,
             alpha_mode: AlphaMode::Opaque,
+            transmission: 0.0,
+            transmission_texture: None,
         }
     }
 }
@@ -128,10 +145,22 @@ impl Material {
         c.clamp(Vec3::ZERO, Vec3::ONE)
     }
 
-    /// The albedo where it is the same at every point (no base-colour texture), `None`
-    /// where a texture varies it.
+    /// The albedo light maps reflect with at `uv0`: [`Sheet::reflect`] where the surface
+    /// exists. A cut-out (`Mask`) is whole where it exists and absent elsewhere (nothing is
+    /// lit there), so its reflectance is the albedo; a `Blend` surface reflects the covered
+    /// fraction α, a transmissive one the fraction 1 − t of that.
+    pub fn reflectance(&self, textures: &[Texture], uv0: Vec2) -> Rgb {
+        if !self.is_see_through() {
+            return self.albedo(textures, uv0);
+        }
+        self.sheet(textures, uv0).reflect
+    }
+
+    /// The reflectance ([`reflectance`](Self::reflectance)) where it is the same at every
+    /// point (no texture varies it), `None` where a texture does.
     pub fn uniform_albedo(&self, textures: &[Texture]) -> Option<Rgb> {
-        self.base_color_texture.is_none().then(|| self.albedo(textures, Vec2::ZERO))
+        (self.base_color_texture.is_none() && self.transmission_texture.is_none())
+            .then(|| self.reflectance(textures, Vec2::ZERO))
     }
 
     /// Alpha at `uv0` (factor × texture alpha).
@@ -141,6 +170,45 @@ impl Material {
             a *= textures[t.texture].sample(uv0).w;
         }
         a
+    }
+
+    /// Whether light passes through any part of the surface: cut out (`Mask`) or
+    /// see-through ([`is_see_through`](Self::is_see_through)).
+    pub fn lets_light_through(&self) -> bool {
+        self.is_see_through() || matches!(self.alpha_mode, AlphaMode::Mask { .. })
+    }
+
+    /// Whether light can pass through the surface where it exists (`Blend` or transmission).
+    /// Cut-outs (`Mask`) are not: where a masked surface exists it is whole.
+    pub fn is_see_through(&self) -> bool {
+        self.alpha_mode == AlphaMode::Blend || self.transmission > 0.0
+    }
+
+    /// The fraction of the light meeting the surface at `uv0` that interacts with it
+    /// ([`AlphaMode`]), in [0, 1].
+    pub fn coverage(&self, textures: &[Texture], uv0: Vec2) -> f32 {
+        match self.alpha_mode {
+            AlphaMode::Opaque => 1.0,
+            AlphaMode::Mask { cutoff } => (self.alpha(textures, uv0) >= cutoff) as u32 as f32,
+            AlphaMode::Blend => self.alpha(textures, uv0).clamp(0.0, 1.0),
+        }
+    }
+
+    /// Transmission at `uv0`: factor × the texture's red channel, in [0, 1].
+    pub fn transmission_at(&self, textures: &[Texture], uv0: Vec2) -> f32 {
+        let mut t = self.transmission;
+        if let Some(tex) = &self.transmission_texture {
+            t *= textures[tex.texture].sample(uv0).x;
+        }
+        t.clamp(0.0, 1.0)
+    }
+
+    /// What the surface does with light meeting it at `uv0` ([`Sheet`]).
+    pub fn sheet(&self, textures: &[Texture], uv0: Vec2) -> Sheet {
+        let a = self.albedo(textures, uv0);
+        let c = self.coverage(textures, uv0);
+        let t = if self.transmission > 0.0 { self.transmission_at(textures, uv0) } else { 0.0 };
+        Sheet { pass: Rgb::splat(1.0 - c) + a * (c * t), reflect: a * (c * (1.0 - t)) }
     }
 
     /// Emitted radiance (W/(sr·m²)) at `uv0` from the emitting side(s).

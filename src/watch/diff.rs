@@ -281,7 +281,8 @@ fn material_hash(m: &Material, textures: &[u64]) -> u64 {
         AlphaMode::Mask { cutoff } => h.words([1, cutoff.to_bits()]),
         AlphaMode::Blend => h.word(2),
     }
-    for t in [m.base_color_texture, m.emissive_texture] {
+    h.word(m.transmission.to_bits());
+    for t in [m.base_color_texture, m.emissive_texture, m.transmission_texture] {
         match t.and_then(|t| Some((textures.get(t.texture)?, t.tex_coord))) {
             Some((&th, tc)) => h.words([1, th as u32, (th >> 32) as u32, tc]),
             None => h.word(0),
@@ -343,6 +344,8 @@ fn material_eq(old: &Scene, a: u32, new: &Scene, b: u32) -> bool {
         && alpha_bits(ma.alpha_mode) == alpha_bits(mb.alpha_mode)
         && texture_eq(ma.base_color_texture, mb.base_color_texture)
         && texture_eq(ma.emissive_texture, mb.emissive_texture)
+        && ma.transmission.to_bits() == mb.transmission.to_bits()
+        && texture_eq(ma.transmission_texture, mb.transmission_texture)
 }
 
 fn alpha_bits(a: AlphaMode) -> (u8, u32) {

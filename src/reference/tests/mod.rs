@@ -4,6 +4,7 @@
 mod batch;
 mod bvh;
 mod emissive;
+mod glass;
 mod lights;
 mod transport;
 

@@ -207,7 +207,7 @@ fn alpha_masked_occluders_cast_shadows_only_where_opaque() {
         ("masked, alpha 1", occluder_material(1.0, mask, false), 0.0),
         ("masked, alpha 0.4 < cutoff", occluder_material(0.4, mask, false), 2.0),
         ("opaque mode ignores alpha", occluder_material(0.0, AlphaMode::Opaque, false), 0.0),
-        ("blend mode is opaque for light", occluder_material(0.2, AlphaMode::Blend, false), 0.0),
+        ("blend α 0.2 passes 0.8", occluder_material(0.2, AlphaMode::Blend, false), 1.6),
     ];
     for (what, m, want) in cases {
         let s = masked_occluder(m, None);

@@ -34,10 +34,10 @@ struct Pixels {
 /// Bytes a decoder's output may take per pixel: RGBA of f32 (EXR, HDR), the widest format.
 const MOST_NATIVE_BYTES_PER_PIXEL: u64 = 16;
 
-/// glTF texture index → scene texture index, decoding on first use.
+/// (glTF texture index, sRGB-encoded) → scene texture index, decoding on first use.
 #[derive(Default)]
 pub(super) struct TextureCache {
-    by_texture: HashMap<usize, usize>,
+    by_texture: HashMap<(usize, bool), usize>,
     images: HashMap<usize, Pixels>,
     /// Bytes of the decoded pixels kept (each image once).
     decoded_bytes: u64,
@@ -45,9 +45,10 @@ pub(super) struct TextureCache {
 }
 
 impl TextureCache {
-    /// The scene texture for glTF texture `index` (a colour texture: sRGB).
-    pub(super) fn get(&mut self, ctx: &Ctx, index: usize) -> Result<usize, LoadError> {
-        if let Some(&t) = self.by_texture.get(&index) {
+    /// The scene texture for glTF texture `index`: a colour texture (`srgb`: base colour,
+    /// emission) or a linear one (transmission). Both share the image's pixels.
+    pub(super) fn get(&mut self, ctx: &Ctx, index: usize, srgb: bool) -> Result<usize, LoadError> {
+        if let Some(&t) = self.by_texture.get(&(index, srgb)) {
             return Ok(t);
         }
         let tex = ctx.root.textures.get(index).ok_or_else(|| {
@@ -69,12 +70,12 @@ impl TextureCache {
             width: pixels.width,
             height: pixels.height,
             rgba8: pixels.rgba8,
-            srgb: true,
+            srgb,
             wrap_s,
             wrap_t,
         });
         let id = self.textures.len() - 1;
-        self.by_texture.insert(index, id);
+        self.by_texture.insert((index, srgb), id);
         Ok(id)
     }
 }

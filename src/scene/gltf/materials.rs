@@ -64,16 +64,35 @@ fn convert(
         Checked::Valid(JsonAlphaMode::Mask) => AlphaMode::Mask { cutoff: m.alpha_cutoff.map_or(0.5, |c| c.0) },
         Checked::Invalid => return Err(bad("invalid alphaMode")),
     };
-    let mut texture = |info: &Option<json::texture::Info>, slot: &str| -> Result<Option<TextureRef>, LoadError> {
-        let Some(info) = info else { return Ok(None) };
-        if info.tex_coord != 0 {
-            diag.note(Kind::TexCoordSet, 1, || format!("{name} {slot} (texCoord {})", info.tex_coord));
+    if let AlphaMode::Mask { cutoff } = alpha_mode
+        && !cutoff.is_finite()
+    {
+        return Err(bad("alphaCutoff is not finite"));
+    }
+    let mut texture =
+        |info: &Option<json::texture::Info>, slot: &str, srgb: bool| -> Result<Option<TextureRef>, LoadError> {
+            let Some(info) = info else { return Ok(None) };
+            if info.tex_coord != 0 {
+                diag.note(Kind::TexCoordSet, 1, || format!("{name} {slot} (texCoord {})", info.tex_coord));
+            }
+            let texture = textures.get(ctx, info.index.value(), srgb)?;
+            Ok(Some(TextureRef { texture, tex_coord: info.tex_coord }))
+        };
+    let base_color_texture = texture(&m.pbr_metallic_roughness.base_color_texture, "baseColorTexture", true)?;
+    let emissive_texture = texture(&m.emissive_texture, "emissiveTexture", true)?;
+    // KHR_materials_transmission, thin-walled: the fraction of the light interacting with
+    // the surface that passes straight through (tinted by the albedo). Its texture's red
+    // channel is linear.
+    let (transmission, transmission_texture) = match m.extensions.as_ref().and_then(|e| e.transmission.as_ref()) {
+        None => (0.0, None),
+        Some(t) => {
+            let factor = t.transmission_factor.0;
+            if !factor.is_finite() {
+                return Err(bad("transmissionFactor is not finite"));
+            }
+            (factor.clamp(0.0, 1.0), texture(&t.transmission_texture, "transmissionTexture", false)?)
         }
-        let texture = textures.get(ctx, info.index.value())?;
-        Ok(Some(TextureRef { texture, tex_coord: info.tex_coord }))
     };
-    let base_color_texture = texture(&m.pbr_metallic_roughness.base_color_texture, "baseColorTexture")?;
-    let emissive_texture = texture(&m.emissive_texture, "emissiveTexture")?;
     Ok(Material {
         name,
         base_color,
@@ -82,5 +101,7 @@ fn convert(
         emissive_texture,
         double_sided: m.double_sided,
         alpha_mode,
+        transmission,
+        transmission_texture,
     })
 }
