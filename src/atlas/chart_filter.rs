@@ -94,17 +94,27 @@ pub fn filter_scalar_within_charts<'t>(
     values: &[f32],
 ) -> Vec<f32> {
     (0..pixels.len())
-        .map(|i| {
-            let (mut sum, mut wsum) = (0.0, 0.0);
-            for_each_neighbour(&|k| pixels[k], &table, i, |j, w| {
-                if !values[j].is_nan() {
-                    sum += values[j] * w;
-                    wsum += w;
-                }
-            });
-            if wsum > 0.0 { sum / wsum } else { f32::NAN }
-        })
+        .map(|i| neighbour_mean(pixels, &table, values, i, |j| !values[j].is_nan()).unwrap_or(f32::NAN))
         .collect()
+}
+
+/// The tent-weighted mean of `values` over texel `i`'s chart neighbours `j` for which
+/// `counts(j)`; `None` when none counts.
+fn neighbour_mean<'t>(
+    pixels: &[[u32; 2]],
+    table: &impl Fn(usize) -> &'t TexelTable,
+    values: &[f32],
+    i: usize,
+    counts: impl Fn(usize) -> bool,
+) -> Option<f32> {
+    let (mut sum, mut wsum) = (0.0, 0.0);
+    for_each_neighbour(&|k| pixels[k], table, i, |j, w| {
+        if counts(j) {
+            sum += values[j] * w;
+            wsum += w;
+        }
+    });
+    (wsum > 0.0).then(|| sum / wsum)
 }
 
 /// Per texel: the squared difference between `values[i]` and the tent-weighted mean of its
@@ -116,16 +126,7 @@ pub fn contrast_within_charts<'t>(
     values: &[f32],
 ) -> Vec<f32> {
     (0..pixels.len())
-        .map(|i| {
-            let (mut sum, mut wsum) = (0.0, 0.0);
-            for_each_neighbour(&|k| pixels[k], &table, i, |j, w| {
-                if j != i {
-                    sum += values[j] * w;
-                    wsum += w;
-                }
-            });
-            if wsum > 0.0 { (values[i] - sum / wsum).powi(2) } else { f32::NAN }
-        })
+        .map(|i| neighbour_mean(pixels, &table, values, i, |j| j != i).map_or(f32::NAN, |m| (values[i] - m).powi(2)))
         .collect()
 }
 
