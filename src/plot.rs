@@ -78,7 +78,7 @@ fn draw(
             .margin(20)
             .x_label_area_size(50)
             .y_label_area_size(80)
-            .build_cartesian_2d(xs.clone().log_scale(), ys.log_scale())?;
+            .build_cartesian_2d(xs.clone().log_scale(), ys.clone().log_scale())?;
         chart
             .configure_mesh()
             .x_desc(x_desc)
@@ -105,7 +105,7 @@ fn draw(
         }
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
+            .position(legend_corner(shown, target, &xs, &ys))
             .label_font((FONT, 14))
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
@@ -113,6 +113,43 @@ fn draw(
         root.present()?;
     }
     Ok(())
+}
+
+/// The corner of the plot the legend covers fewest points in (the upper right first, then
+/// the other corners: a curve that falls from the upper left leaves the upper right free;
+/// one that rises does not). A corner is the legend's size: about a third of the plot's
+/// width and, per line, a fifteenth of its height (log axes: fractions of decades). A
+/// target line counts against the corners it runs through.
+fn legend_corner(
+    shown: &[(&str, Vec<(f64, f64)>)],
+    target: Option<f64>,
+    xs: &Range<f64>,
+    ys: &Range<f64>,
+) -> SeriesLabelPosition {
+    let fraction = |v: f64, r: &Range<f64>| (v.ln() - r.start.ln()) / (r.end.ln() - r.start.ln());
+    let lines = shown.len() + usize::from(target.is_some());
+    let (w, h) = (0.35, (0.06 * lines as f64 + 0.04).min(0.5));
+    let corners = [
+        (SeriesLabelPosition::UpperRight, true, true),
+        (SeriesLabelPosition::UpperLeft, false, true),
+        (SeriesLabelPosition::LowerRight, true, false),
+        (SeriesLabelPosition::LowerLeft, false, false),
+    ];
+    let inside = |(x, y): (f64, f64), right: bool, upper: bool| {
+        let (fx, fy) = (fraction(x, xs), fraction(y, ys));
+        (if right { fx >= 1.0 - w } else { fx <= w }) && (if upper { fy >= 1.0 - h } else { fy <= h })
+    };
+    let covered = |right: bool, upper: bool| {
+        let points = shown.iter().flat_map(|s| s.1.iter()).filter(|&&p| inside(p, right, upper)).count();
+        let line = target.is_some_and(|t| {
+            let fy = fraction(t, ys);
+            if upper { fy >= 1.0 - h } else { fy <= h }
+        });
+        points + if line { usize::MAX / 2 } else { 0 }
+    };
+    // The first corner of the fewest covered points.
+    let best = (0..corners.len()).min_by_key(|&k| (covered(corners[k].1, corners[k].2), k)).unwrap_or(0);
+    corners[best].0.clone()
 }
 
 /// The whole decades holding `values` (at least one), so a log axis always has labelled
@@ -154,6 +191,19 @@ mod tests {
         let r = decades([10.0].into_iter());
         assert!((r.start * EDGE - 10.0).abs() < 1e-12 && (r.end / EDGE - 100.0).abs() < 1e-9, "{r:?}");
         assert_eq!(decades(std::iter::empty()), 0.1..1.0);
+    }
+
+    /// A falling curve leaves the upper right to the legend; a rising one (high at the
+    /// right, low at the left) sends it to the upper left.
+    #[test]
+    fn the_legend_goes_where_the_curves_are_not() {
+        let (xs, ys) = (0.1..100.0, 0.01..1.0);
+        let falling = vec![(0.2, 0.9), (1.0, 0.1), (10.0, 0.03), (90.0, 0.012)];
+        let rising: Vec<(f64, f64)> = falling.iter().map(|&(x, y)| (100.0 / x * 0.1, y)).collect();
+        let corner = |points: Vec<(f64, f64)>| format!("{:?}", legend_corner(&[("a", points)], None, &xs, &ys));
+        assert_eq!(corner(falling), "UpperRight");
+        // Mirrored in time: high at the right, low at the left.
+        assert_eq!(corner(rising), "UpperLeft");
     }
 
     #[test]
