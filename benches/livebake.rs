@@ -1,5 +1,5 @@
-//! `cargo bench`: the benches of [`livebake::bench`], the same sections and JSON as
-//! `livebake bench`.
+//! `cargo bench`: runs `livebake bench` of the binary cargo built beside this target (the
+//! sections live in the binary's `cli::bench`), the same sections and JSON.
 //!
 //! ```text
 //! cargo bench                                  # every section
@@ -7,14 +7,13 @@
 //! cargo bench -- --quick --out bench.json      # a smoke run, written where asked
 //! ```
 //!
-//! Run as a test (`cargo test --benches`, no `--bench` argument from cargo), it checks its
-//! arguments and lists the sections without measuring anything.
+//! Run as a test (`cargo test --benches`, no `--bench` argument from cargo), it checks that
+//! the binary answers `livebake bench --help` and measures nothing.
 
 use std::path::PathBuf;
-use std::process::ExitCode;
+use std::process::{Command, ExitCode};
 
 use clap::Parser;
-use livebake::bench::{Narrator, SECTIONS};
 
 /// Arguments after `cargo bench --`.
 #[derive(Parser, Debug)]
@@ -34,33 +33,30 @@ struct Args {
     bench: bool,
 }
 
-/// Lines to standard output.
-struct Stdout;
-
-impl Narrator for Stdout {
-    fn line(&self, line: &str) {
-        println!("{line}");
-    }
-}
-
 fn main() -> ExitCode {
-    livebake::bake::memory::return_large_buffers_to_the_system();
     let args = Args::parse();
-    if let Err(e) = livebake::bench::check_sections(&args.only) {
-        eprintln!("error: {e:#}");
-        return ExitCode::FAILURE;
-    }
+    let mut command = Command::new(env!("CARGO_BIN_EXE_livebake"));
+    command.arg("bench");
     if !args.bench {
-        let names: Vec<&str> = SECTIONS.iter().map(|(name, _)| *name).collect();
-        println!("bench sections (run with `cargo bench`): {}", names.join(", "));
-        return ExitCode::SUCCESS;
+        command.arg("--help");
+    } else {
+        let out = args.out.unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_TARGET_TMPDIR"), "/bench.json")));
+        command.arg("--out").arg(out);
+        if !args.only.is_empty() {
+            command.arg("--only").arg(args.only.join(","));
+        }
+        if args.quick {
+            command.arg("--quick");
+        }
     }
-    let out = args.out.unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_TARGET_TMPDIR"), "/bench.json")));
-    let livebake = PathBuf::from(env!("CARGO_BIN_EXE_livebake"));
-    match livebake::bench::run(&out, &args.only, args.quick, &livebake, &Stdout) {
-        Ok(()) => ExitCode::SUCCESS,
+    match command.status() {
+        Ok(status) if status.success() => ExitCode::SUCCESS,
+        Ok(status) => {
+            eprintln!("error: livebake bench {status}");
+            ExitCode::FAILURE
+        }
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: cannot run {}: {e}", env!("CARGO_BIN_EXE_livebake"));
             ExitCode::FAILURE
         }
     }

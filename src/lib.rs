@@ -10,7 +10,6 @@
 pub mod analytic;
 pub mod atlas;
 pub mod bake;
-pub mod bench;
 pub mod bundle;
 pub mod cpu;
 pub mod export;

@@ -59,7 +59,12 @@ pub(super) fn link_copies(scene: &Scene, geom: &SceneGeometry, meshes: &mut [Mes
 }
 
 /// `copy` as a rigid copy of `original`, if it is one.
-pub(super) fn rigid_copy(scene: &Scene, geom: &SceneGeometry, original: &MeshCharts, copy: &MeshCharts) -> Option<CopyOf> {
+pub(super) fn rigid_copy(
+    scene: &Scene,
+    geom: &SceneGeometry,
+    original: &MeshCharts,
+    copy: &MeshCharts,
+) -> Option<CopyOf> {
     let (a, b) = (&scene.meshes[original.mesh as usize], &scene.meshes[copy.mesh as usize]);
     if a.material != b.material
         || a.triangles != b.triangles

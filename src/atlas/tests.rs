@@ -3,8 +3,8 @@
 
 use glam::{DVec2, Vec3};
 
-use super::lookup::{self, TexelTable};
 use super::copies::rigid_copy;
+use super::lookup::{self, TexelTable};
 use super::raster::{self, PixelRect};
 use super::*;
 use crate::reference::scenes::{icosphere, torus};

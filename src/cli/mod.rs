@@ -136,7 +136,7 @@ pub fn run() -> Result<()> {
         }
         Some(Command::View { scene, view, options }) => view::run(&scene, &view, &options, &ui).map(|_| ()),
         Some(Command::Converge { scene, options, converge }) => converge::run(&scene, &options, &converge, &ui),
-        Some(Command::Bench { out, only, quick }) => bench::run(&out, &only, quick, &ui),
+        Some(Command::Bench { out, only, quick }) => bench::command(&out, &only, quick, &ui),
     }
 }
 

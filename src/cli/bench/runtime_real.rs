@@ -19,24 +19,24 @@
 use std::sync::Arc;
 use std::time::Duration;
 
-use crate::glam::Vec3;
 use anyhow::{Context, Result, bail};
+use livebake::glam::Vec3;
 use serde_json::{Value, json};
 
-use crate::bake::memory::peak_resident_bytes;
-use crate::bake::{BakeConfig, bake};
-use crate::cpu::CpuProvider;
-use crate::progress::NoProgress;
-use crate::runtime::shown::Layer;
-use crate::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
-use crate::scene::{LoadOptions, Rgb, load_gltf};
+use livebake::bake::memory::peak_resident_bytes;
+use livebake::bake::{BakeConfig, bake};
+use livebake::cpu::CpuProvider;
+use livebake::progress::NoProgress;
+use livebake::runtime::shown::Layer;
+use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
+use livebake::scene::{LoadOptions, Rgb, load_gltf};
 
 use super::assets;
 use super::runtime::{ShownReader, next_event, quantile, wait_first_light};
 use super::runtime_large::reset_peak;
 use super::{Bench, Narrator};
-use crate::plot::Series;
-use crate::points::read_reference;
+use livebake::plot::Series;
+use livebake::points::read_reference;
 
 /// A real scene, its eye and the reference irradiance at points seen from it.
 struct RealScene {
@@ -160,7 +160,7 @@ fn scene(s: &RealScene, horizon: f64, ui: &dyn Narrator) -> Result<(Value, Vec<S
     let texel = world.texel_size(lod);
     ui.say(format!("  {}: whole-scene bake at {texel:.3} m texels ({WHOLE_DIRECTIONS} directions) ...", s.name));
     let bake_config = BakeConfig {
-        atlas: crate::atlas::AtlasConfig { texel_size: Some(texel), ..config.atlas.clone() },
+        atlas: livebake::atlas::AtlasConfig { texel_size: Some(texel), ..config.atlas.clone() },
         samples: WHOLE_DIRECTIONS,
         ..BakeConfig::default()
     };

@@ -1,13 +1,13 @@
 //! Reference path tracer throughput: rays per second (path segments and shadow rays) on
 //! the bundled rooms, one thread and all threads, from texel points of their light maps.
 
-use crate::glam::Vec3;
 use anyhow::Result;
+use livebake::glam::Vec3;
 use serde_json::{Value, json};
 
-use crate::atlas::{Atlas, AtlasConfig, TexelMap};
-use crate::reference::ReferenceTracer;
-use crate::scene::{LoadOptions, SceneGeometry, load_gltf};
+use livebake::atlas::{Atlas, AtlasConfig, TexelMap};
+use livebake::reference::ReferenceTracer;
+use livebake::scene::{LoadOptions, SceneGeometry, load_gltf};
 
 use super::Bench;
 use super::{EMBREE_RAYS_PER_CORE, assets, median};
@@ -17,7 +17,7 @@ const SCENES: [&str; 2] = ["van_gogh_room/van_gogh_room_lit.gltf", "cornell_box/
 pub fn run(bench: &Bench) -> Result<Value> {
     let quick = bench.quick;
     let (points, spp, runs) = if quick { (2_000, 8, 3) } else { (20_000, 16, 5) };
-    let cores = crate::parallel::available_threads();
+    let cores = livebake::parallel::available_threads();
     let mut out = Vec::new();
     for name in SCENES {
         let scene = load_gltf(&assets().join(name), &LoadOptions::default())?;

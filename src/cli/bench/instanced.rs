@@ -17,10 +17,10 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 
-use crate::bake::memory::{peak_resident_bytes, resident_bytes};
-use crate::cpu::CpuProvider;
-use crate::runtime::{Runtime, RuntimeConfig};
-use crate::scene::{LoadOptions, load_gltf};
+use livebake::bake::memory::{peak_resident_bytes, resident_bytes};
+use livebake::cpu::CpuProvider;
+use livebake::runtime::{Runtime, RuntimeConfig};
+use livebake::scene::{LoadOptions, load_gltf};
 
 use super::runtime::{PATIENCE, wait_first_light};
 use super::{Bench, Narrator};

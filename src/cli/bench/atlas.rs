@@ -11,9 +11,9 @@ use std::time::Instant;
 use anyhow::Result;
 use serde_json::{Value, json};
 
-use crate::atlas::{Atlas, AtlasConfig, TexelMap};
-use crate::reference::scenes::{temple, temple_instanced, temple_soup};
-use crate::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
+use livebake::atlas::{Atlas, AtlasConfig, TexelMap};
+use livebake::reference::scenes::{temple, temple_instanced, temple_soup};
+use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 
 use super::Bench;
 use super::{assets, median, seconds};

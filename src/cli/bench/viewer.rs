@@ -11,7 +11,7 @@ use std::process::Command;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 
-use crate::viewer::xvfb::Xvfb;
+use livebake::viewer::xvfb::Xvfb;
 
 use super::Bench;
 use super::assets;

@@ -20,17 +20,17 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use crate::glam::Vec3;
 use anyhow::{Context, Result, bail};
+use livebake::glam::Vec3;
 use serde_json::{Value, json};
 
-use crate::cpu::CpuProvider;
-use crate::grid::CellId;
-use crate::runtime::shown::ShownLightmap;
-use crate::runtime::world::World;
-use crate::runtime::{CellInfo, Runtime, RuntimeConfig, RuntimeEvent};
-use crate::scene::{LoadOptions, load_gltf};
-use crate::watch::WatchConfig;
+use livebake::cpu::CpuProvider;
+use livebake::grid::CellId;
+use livebake::runtime::shown::ShownLightmap;
+use livebake::runtime::world::World;
+use livebake::runtime::{CellInfo, Runtime, RuntimeConfig, RuntimeEvent};
+use livebake::scene::{LoadOptions, load_gltf};
+use livebake::watch::WatchConfig;
 
 use super::assets;
 use super::runtime::{PATIENCE, inside_camera, next_event, wait_first_light};
@@ -86,7 +86,7 @@ fn add_torus(doc: &mut Value, dir: &Path) -> Result<usize> {
     let (c, r0, r1, n0, n1) = TORUS;
     let centre = Vec3::from(c);
     // Faces wind counter-clockwise seen from outside (the tube's outward normal).
-    let (p, tris) = crate::reference::scenes::torus(centre, r0, r1, n0, n1);
+    let (p, tris) = livebake::reference::scenes::torus(centre, r0, r1, n0, n1);
     let normals: Vec<Vec3> = (0..n0)
         .flat_map(|i| {
             let a = i as f32 / n0 as f32 * std::f32::consts::TAU;
@@ -240,7 +240,7 @@ fn drain(runtime: &Runtime, for_how_long: Duration, touched: &mut HashSet<CellId
 struct Move {
     applied_ms: f64,
     /// Where the time went (the runtime's figures).
-    steps_ms: crate::runtime::ReloadSteps,
+    steps_ms: livebake::runtime::ReloadSteps,
     relit_ms: f64,
     relit_directions: u32,
     /// `reload_refined.ms`: every invalidated cell re-baked with first light's directions.
@@ -469,7 +469,7 @@ fn case(c: &Case, root: &Path, quick: bool, ui: &dyn Narrator) -> Result<Value> 
     let applied: Vec<f64> = results.iter().map(|m| m.applied_ms).collect();
     let relit: Vec<f64> = results.iter().map(|m| m.relit_ms).collect();
     let refined: Vec<f64> = results.iter().filter_map(|m| m.refined_ms).collect();
-    let step = |f: fn(&crate::runtime::ReloadSteps) -> f64| {
+    let step = |f: fn(&livebake::runtime::ReloadSteps) -> f64| {
         quantiles(&results.iter().map(|m| f(&m.steps_ms)).collect::<Vec<_>>())["median"].clone()
     };
     let save_to: Vec<f64> = results.iter().map(|m| m.save_to_applied_ms).collect();

@@ -8,9 +8,9 @@ use std::time::Instant;
 use anyhow::{Context, Result, bail};
 use serde_json::{Value, json};
 
-use crate::bake::{BakeConfig, bake};
-use crate::progress::NoProgress;
-use crate::scene::{LoadOptions, load_gltf};
+use livebake::bake::{BakeConfig, bake};
+use livebake::progress::NoProgress;
+use livebake::scene::{LoadOptions, load_gltf};
 
 use super::Bench;
 use super::{EMBREE_RAYS_PER_CORE, assets, median, seconds};
@@ -51,7 +51,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
     let _ = std::fs::remove_dir_all(&dir);
     let lod = &out.report.lods[0];
     let bundle = lod.bundle.as_ref().context("bundle report")?;
-    let cores = crate::parallel::available_threads() as f64;
+    let cores = livebake::parallel::available_threads() as f64;
     let per_core = bundle.effective_rays_per_second / cores;
     let with_light_pass_per_core = bundle.effective_rays_per_second_with_light_pass / cores;
     Ok(json!({

@@ -14,19 +14,19 @@ use std::path::Path;
 use std::process::Command;
 use std::time::Instant;
 
-use crate::glam::DVec3;
 use anyhow::{Context, Result, bail};
+use livebake::glam::DVec3;
 use serde_json::{Value, json};
 
-use crate::bake::{BackendKind, BakeConfig, bake};
-use crate::probe::{LightmapSampler, SurfaceLocator};
-use crate::progress::NoProgress;
-use crate::reference::Bvh;
-use crate::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
+use livebake::bake::{BackendKind, BakeConfig, bake};
+use livebake::probe::{LightmapSampler, SurfaceLocator};
+use livebake::progress::NoProgress;
+use livebake::reference::Bvh;
+use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 
 use super::Bench;
 use super::{assets, seconds};
-use crate::points::{ReferencePoints, read_reference};
+use livebake::points::{ReferencePoints, read_reference};
 
 const TEXEL: f32 = 0.012;
 /// Blender Cycles (CPU, 2 threads, this machine) on a 2 m Cornell-style room at ~1.2 cm

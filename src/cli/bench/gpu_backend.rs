@@ -13,20 +13,20 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 
-use crate::atlas::{Atlas, AtlasConfig, TexelMap};
-use crate::bundle::progressive::BatchSums;
-use crate::bundle::stats::PassStats;
-use crate::bundle::target::WholeLod;
-use crate::bundle::{
+use livebake::atlas::{Atlas, AtlasConfig, TexelMap};
+use livebake::bundle::progressive::BatchSums;
+use livebake::bundle::stats::PassStats;
+use livebake::bundle::target::WholeLod;
+use livebake::bundle::{
     BackendProvider, BundleBackend, BundleConfig, BundleScene, DirectionJob, JobSequence, SourceRadiance,
 };
-use crate::cpu::CpuProvider;
-use crate::gpu::{GpuContext, GpuProvider};
-use crate::reference::scenes::temple_courtyard;
-use crate::runtime::cell_bake::CellBake;
-use crate::runtime::world::World;
-use crate::runtime::{RuntimeConfig, bake_first_light, empty_shown};
-use crate::scene::{LoadOptions, Rgb, Scene, SceneGeometry, load_gltf};
+use livebake::cpu::CpuProvider;
+use livebake::gpu::{GpuContext, GpuProvider};
+use livebake::reference::scenes::temple_courtyard;
+use livebake::runtime::cell_bake::CellBake;
+use livebake::runtime::world::World;
+use livebake::runtime::{RuntimeConfig, bake_first_light, empty_shown};
+use livebake::scene::{LoadOptions, Rgb, Scene, SceneGeometry, load_gltf};
 
 use super::{Bench, Narrator};
 use super::{assets, median, seconds};
@@ -64,7 +64,7 @@ fn one(
     let jobs = JobSequence::new(0, bundle.emitters.small.len(), bundle.config.light_directions);
     let batch: Vec<DirectionJob> = (0..directions).map(|i| jobs.job(i)).collect();
     let never = AtomicBool::new(false);
-    let threads = crate::parallel::available_threads();
+    let threads = livebake::parallel::available_threads();
     let timed = |backend: &mut dyn BundleBackend| -> Result<(f64, PassStats)> {
         let mut sums = BatchSums::default();
         // One untimed batch first: lavapipe compiles pipelines on first use, and both
@@ -142,7 +142,7 @@ fn cells(
     let geom = Arc::new(SceneGeometry::new(&scene));
     let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas)?);
     let world = World::new(scene.clone(), geom, atlas, &config)?;
-    let threads = crate::parallel::available_threads();
+    let threads = livebake::parallel::available_threads();
     let never = AtomicBool::new(false);
     ui.say(format!("  {name}: first light for the cell bakes ..."));
     let mut cpu = CpuProvider::new().backend(&world.bundle, threads)?;

@@ -1,8 +1,8 @@
-//! The benchmarks: the measurements the issues ask for, written as JSON. Medians and ratios
-//! are measured side by side in one run; nothing here is a pass/fail test. Two front ends
-//! run them: `cargo bench` (`benches/livebake.rs`) and `livebake bench` (scripts call it).
-//! The sections live here, in the library, because a bench target's code cannot be called by
-//! the binary: one implementation serves both, compiled once.
+//! `livebake bench`: the measurements the issues ask for, written as JSON. Medians and ratios
+//! are measured side by side in one run; nothing here is a pass/fail test. `cargo bench`
+//! (`benches/livebake.rs`) runs this command of the release binary, so one implementation
+//! serves both. A front end like the other commands: it drives the library's public API and
+//! reports failures with context (`anyhow`).
 
 mod atlas;
 mod bake_memory;
@@ -26,7 +26,9 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 
-use crate::plot;
+use livebake::plot;
+
+use super::progress::Ui;
 
 /// Embree's incoherent rays/s per core on this kind of machine: the anchor of the issues'
 /// throughput targets.
@@ -75,7 +77,7 @@ impl Bench<'_> {
         let path = self.out.with_file_name(&file);
         let x_desc = "seconds since the runtime (or the whole-scene bake) started";
         let image = plot::error_curves(title, x_desc, series, target)?;
-        crate::output::write_rgb8_png(&path, image)?;
+        livebake::output::write_rgb8_png(&path, image)?;
         self.ui.say(format!("  wrote {}", path.display()));
         *self.plot.lock().map_err(|_| anyhow::anyhow!("a section's plot lock was poisoned"))? = Some(file);
         Ok(())
@@ -136,7 +138,7 @@ pub fn run(out: &Path, only: &[String], quick: bool, livebake: &Path, ui: &dyn N
     check_sections(only)?;
     let mut report = json!({
         "livebake_version": env!("CARGO_PKG_VERSION"),
-        "threads": crate::parallel::available_threads(),
+        "threads": livebake::parallel::available_threads(),
         "quick": quick,
     });
     for (section, measure) in SECTIONS {
@@ -154,7 +156,24 @@ pub fn run(out: &Path, only: &[String], quick: bool, livebake: &Path, ui: &dyn N
             report["plots"][section] = file.into();
         }
     }
-    crate::output::write_json(out, &report).with_context(|| format!("cannot write {}", out.display()))?;
+    livebake::output::write_json(out, &report).with_context(|| format!("cannot write {}", out.display()))?;
     ui.say(format!("wrote {}", out.display()));
     Ok(())
+}
+
+impl Narrator for Ui {
+    fn line(&self, line: &str) {
+        self.say(line)
+    }
+
+    fn status(&self, line: &str) {
+        Ui::status(self, line)
+    }
+}
+
+/// `livebake bench`: the sections behind the command's progress display, timing this binary
+/// where a section runs whole commands.
+pub fn command(out: &Path, only: &[String], quick: bool, ui: &Ui) -> Result<()> {
+    let livebake = std::env::current_exe().context("cannot find the livebake binary")?;
+    run(out, only, quick, &livebake, ui)
 }

@@ -25,28 +25,28 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
-use crate::glam::{DVec3, Vec3};
 use anyhow::{Context, Result, anyhow, bail};
+use livebake::glam::{DVec3, Vec3};
 use serde_json::{Value, json};
 
-use crate::atlas::{Atlas, AtlasConfig, TexelMap};
-use crate::bake::bundle::{BatchDone, bake_lod_observed};
-use crate::bake::memory::{self, resident_bytes};
-use crate::bake::{BakeConfig, check_lod_sizes, check_node_capacity};
-use crate::bundle::{BackendProvider, BundleScene};
-use crate::cpu::CpuProvider;
-use crate::grid::CellId;
-use crate::probe::{LightmapLookup, SurfaceLocator};
-use crate::progress::NoProgress;
-use crate::reference::{Bvh, ReferenceTracer};
-use crate::runtime::shown::{Layer, ShownLightmap};
-use crate::runtime::world::World;
-use crate::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
-use crate::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
+use livebake::atlas::{Atlas, AtlasConfig, TexelMap};
+use livebake::bake::bundle::{BatchDone, bake_lod_observed};
+use livebake::bake::memory::{self, resident_bytes};
+use livebake::bake::{BakeConfig, check_lod_sizes, check_node_capacity};
+use livebake::bundle::{BackendProvider, BundleScene};
+use livebake::cpu::CpuProvider;
+use livebake::grid::CellId;
+use livebake::probe::{LightmapLookup, SurfaceLocator};
+use livebake::progress::NoProgress;
+use livebake::reference::{Bvh, ReferenceTracer};
+use livebake::runtime::shown::{Layer, ShownLightmap};
+use livebake::runtime::world::World;
+use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats, TimedEvent};
+use livebake::scene::{LoadOptions, Scene, SceneGeometry, load_gltf};
 
 use super::{Bench, Narrator, assets, curve_points, seconds};
-use crate::plot::Series;
-use crate::points::{Query, ReferencePoints};
+use livebake::plot::Series;
+use livebake::points::{Query, ReferencePoints};
 
 pub const ROOMS: [&str; 3] = [
     "cornell_box/cornellBox-2.79-Cycles-gltf.gltf",
@@ -145,7 +145,7 @@ pub(super) fn view_hits(world: &World, camera: &CameraView, rays: (u32, u32)) ->
             let n = world.geom.normals[hit.tri as usize];
             let n = if n.dot(dir) > 0.0 { -n } else { n };
             let p = world.geom.point(hit.tri, hit.u, hit.v);
-            let side = crate::scene::Side::facing(world.geom.normals[hit.tri as usize], n);
+            let side = livebake::scene::Side::facing(world.geom.normals[hit.tri as usize], n);
             if world.atlas.face(hit.tri, side).is_some() {
                 hits.push((hit.t, Query { p, n }));
             }
@@ -169,7 +169,7 @@ pub(super) fn reference_at(scene: &Scene, points: &[Query], spp: u32) -> Referen
 
 /// Where the error points read the shown light map: position and LOD-0 UV of each.
 pub(super) struct ShownReader {
-    pub at: Vec<(Vec3, crate::glam::Vec2)>,
+    pub at: Vec<(Vec3, livebake::glam::Vec2)>,
 }
 
 impl ShownReader {
@@ -290,7 +290,7 @@ pub(super) fn whole_bake(
     let geom = Arc::new(SceneGeometry::new(scene));
     let atlas = Arc::new(Atlas::build(scene, &geom, atlas_config)?);
     check_lod_sizes(&atlas, 1)?;
-    let bundle_config = crate::bundle::BundleConfig { directions: 1 << 16, ..runtime.bundle.clone() };
+    let bundle_config = livebake::bundle::BundleConfig { directions: 1 << 16, ..runtime.bundle.clone() };
     let bundle = Arc::new(BundleScene::new(scene.clone(), geom.clone(), atlas.clone(), bundle_config.clone()));
     let estimated_bytes = whole_bake_estimate(&atlas, !bundle.emitters.small.is_empty())?;
     let texels = TexelMap::build(scene, &geom, &atlas, 0);
@@ -341,7 +341,7 @@ pub(super) fn whole_bake(
         r
     });
     // Cancelled at the budget (the only error it has): the curve so far is the result.
-    let _: Result<_, crate::bundle::Cancelled> = baked;
+    let _: Result<_, livebake::bundle::Cancelled> = baked;
     Ok(WholeBake {
         texels: texels.len(),
         texel_size: atlas.texel_size,

@@ -5,9 +5,9 @@
 use anyhow::{Context, Result};
 use serde_json::{Value, json};
 
-use crate::bake::{BakeConfig, bake};
-use crate::progress::NoProgress;
-use crate::scene::{LoadOptions, load_gltf};
+use livebake::bake::{BakeConfig, bake};
+use livebake::progress::NoProgress;
+use livebake::scene::{LoadOptions, load_gltf};
 
 use super::Bench;
 use super::atlas::SCENES;
@@ -18,7 +18,7 @@ const TEXEL_SIZE: f32 = 0.012;
 pub fn run(bench: &Bench) -> Result<Value> {
     let quick = bench.quick;
     let (runs, samples) = if quick { (1, 64) } else { (3, 256) };
-    let cores = crate::parallel::available_threads() as f64;
+    let cores = livebake::parallel::available_threads() as f64;
     let mut out = Vec::new();
     for name in SCENES {
         let scene = std::sync::Arc::new(load_gltf(&assets().join(name), &LoadOptions::default())?);

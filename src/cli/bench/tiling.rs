@@ -3,15 +3,15 @@
 //! all with the same W, N and R, in one run: time, error against the reference path tracer
 //! at light-map texels, overflow and false-alarm ratios, tiles per direction.
 
-use crate::glam::Vec3;
 use anyhow::{Context, Result};
+use livebake::glam::Vec3;
 use serde_json::{Value, json};
 
-use crate::bake::{BakeConfig, bake};
-use crate::bundle::tiles::TilingMode;
-use crate::progress::NoProgress;
-use crate::reference::{ReferenceTracer, RelativeRmsError};
-use crate::scene::{LoadOptions, Rgb, load_gltf};
+use livebake::bake::{BakeConfig, bake};
+use livebake::bundle::tiles::TilingMode;
+use livebake::progress::NoProgress;
+use livebake::reference::{ReferenceTracer, RelativeRmsError};
+use livebake::scene::{LoadOptions, Rgb, load_gltf};
 
 use super::Bench;
 use super::assets;

@@ -30,28 +30,28 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use crate::glam::{DVec3, Vec3};
-use crate::reference::punctual::punctual_irradiance;
 use anyhow::{Context, Result, bail};
+use livebake::glam::{DVec3, Vec3};
+use livebake::reference::punctual::punctual_irradiance;
 use serde_json::{Value, json};
 
-use crate::atlas::{Atlas, AtlasConfig};
-use crate::bake::memory::{peak_resident_bytes, resident_bytes};
-use crate::cpu::CpuProvider;
-use crate::reference::scenes::{temple_courtyard, temple_courtyard_sunlit};
-use crate::runtime::shown::{Layer, ShownLightmap};
-use crate::runtime::world::World;
-use crate::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
-use crate::scene::Scene;
-use crate::scene::SceneGeometry;
+use livebake::atlas::{Atlas, AtlasConfig};
+use livebake::bake::memory::{peak_resident_bytes, resident_bytes};
+use livebake::cpu::CpuProvider;
+use livebake::reference::scenes::{temple_courtyard, temple_courtyard_sunlit};
+use livebake::runtime::shown::{Layer, ShownLightmap};
+use livebake::runtime::world::World;
+use livebake::runtime::{CameraView, Runtime, RuntimeConfig, RuntimeEvent, RuntimeStats};
+use livebake::scene::Scene;
+use livebake::scene::SceneGeometry;
 
 use super::runtime::{
     ShownLods, ShownReader, TooLarge, median_point_error, next_event, quantile, reference_at, view_hits,
     wait_first_light, whole_bake, worst_points,
 };
 use super::{Bench, curve_points};
-use crate::plot::Series;
-use crate::points::{Query, ReferencePoints};
+use livebake::plot::Series;
+use livebake::points::{Query, ReferencePoints};
 
 /// The error goal near the camera (relative RMS).
 const GOAL: f64 = 0.05;
@@ -193,7 +193,7 @@ fn temple(name: &str, make: fn() -> Scene, bench: &Bench) -> Result<Value> {
     ui.say("  temple: camera jump ...");
     let jump_at = runtime.elapsed();
     runtime.set_camera(jumped);
-    let near_jump = |c: &crate::runtime::CellInfo| {
+    let near_jump = |c: &livebake::runtime::CellInfo| {
         let (lo, hi) = (Vec3::from(c.min), Vec3::from(c.max));
         (jumped.eye.clamp(lo, hi) - jumped.eye).length() <= 2.0
     };
@@ -207,7 +207,7 @@ fn temple(name: &str, make: fn() -> Scene, bench: &Bench) -> Result<Value> {
             }
         }
         near_cells = runtime.cells().into_iter().filter(|c| near_jump(c)).collect();
-        let at_target = |lod: fn(&crate::runtime::CellInfo) -> u32| {
+        let at_target = |lod: fn(&livebake::runtime::CellInfo) -> u32| {
             !near_cells.is_empty() && near_cells.iter().all(|c| lod(c) >= c.target_lod)
         };
         if punctual_latency.is_none() && !scene.lights.is_empty() && at_target(|c| c.punctual_lod) {
