@@ -69,6 +69,7 @@ pub fn load_environment(path: &Path, options: &EnvironmentOptions) -> Result<Env
             },
         }
     })?;
+    let bytes = radiance_signature(bytes);
     match image::guess_format(&bytes) {
         Ok(image::ImageFormat::Hdr | image::ImageFormat::OpenExr) => {}
         Ok(other) => return Err(EnvironmentError::Format { file: file(), found: Some(format!("{other:?}")) }),
@@ -96,6 +97,20 @@ pub fn load_environment(path: &Path, options: &EnvironmentOptions) -> Result<Env
         tracing::warn!("{}: {negatives} pixel(s) with negative values taken as 0", path.display());
     }
     Ok(map)
+}
+
+/// A Radiance file starts with `#?` and the name of the program that wrote it: `#?RADIANCE`
+/// by convention, `#?RGBE` from Mitsuba and other renderers. The decoder knows only the
+/// first, so any other such first line (a short run of letters) is read as it.
+fn radiance_signature(mut bytes: Vec<u8>) -> Vec<u8> {
+    const SIGNATURE: &[u8] = b"#?RADIANCE";
+    let Some(name) = bytes.strip_prefix(b"#?") else { return bytes };
+    let Some(end) = name.iter().take(32).position(|&b| b == b'\n') else { return bytes };
+    if end == 0 || !name[..end].iter().all(u8::is_ascii_alphanumeric) || &bytes[..end + 2] == SIGNATURE {
+        return bytes;
+    }
+    bytes.splice(..end + 2, SIGNATURE.iter().copied());
+    bytes
 }
 
 #[cfg(test)]
@@ -127,6 +142,20 @@ mod tests {
             assert_eq!(m.texel(3, 1), Rgb::new(6.0, 2.0, 1.0), "{name}");
             assert!((m.rotation() - 30f32.to_radians()).abs() < 1e-7);
         }
+    }
+
+    /// A Radiance file whose first line names another program (`#?RGBE`, as Mitsuba writes
+    /// it) reads as one that says `#?RADIANCE`.
+    #[test]
+    fn radiance_files_of_any_program_read() {
+        let dir = tempfile::tempdir().expect("a temporary folder");
+        let path = dir.path().join("sky.hdr");
+        write_hdr(&path, 4, 2, |x, y| [x as f32, y as f32, 0.5]);
+        let bytes = std::fs::read(&path).expect("read the map");
+        let rest = bytes.strip_prefix(b"#?RADIANCE").expect("the encoder's signature");
+        std::fs::write(&path, [b"#?RGBE".as_slice(), rest].concat()).expect("write the map");
+        let m = load_environment(&path, &options()).expect("the map loads");
+        assert_eq!(m.texel(3, 1), Rgb::new(6.0, 2.0, 1.0));
     }
 
     /// Not a regular file, not an HDR image, too many pixels, a bad scale: each one error
