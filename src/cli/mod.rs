@@ -40,18 +40,8 @@ enum Command {
     Bake {
         /// glTF 2.0 scene (.gltf or .glb).
         scene: PathBuf,
-        /// Output directory (created if missing).
-        #[arg(long, default_value = "out")]
-        out: PathBuf,
-        /// Also write a copy of the scene with the finest baked light map attached, for other
-        /// engines (TEXCOORD_1 + MOZ_lightmap; OUT.bin, OUT.lightmap.exr and OUT.lightmap.png
-        /// beside it).
-        #[arg(long, value_name = "OUT.gltf")]
-        export_gltf: Option<PathBuf>,
-        /// Most memory the bake may hold (e.g. 8G, 512M; K/M/G/T are powers of 1024),
-        /// checked against an estimate before the texel maps are built. Default: 3/4 of RAM.
-        #[arg(long, value_name = "BYTES", value_parser = livebake::bake::memory::parse_bytes)]
-        memory_limit: Option<u64>,
+        #[command(flatten)]
+        outputs: Outputs,
         /// Bake LOD 0 in R bounce rounds instead of one progressive pass: round 1 holds the
         /// direct light, each further round reads the one before (one bounce a round). What
         /// direction shards merged round by round equal (docs/SHARDS.md).
@@ -76,15 +66,8 @@ enum Command {
         /// The shard files (DIR/shard-*), every share of one round.
         #[arg(required = true)]
         shards: Vec<PathBuf>,
-        /// Output directory (created if missing).
-        #[arg(long, default_value = "out")]
-        out: PathBuf,
-        /// Also write the scene with the light map attached, as `bake --export-gltf` does.
-        #[arg(long, value_name = "OUT.gltf")]
-        export_gltf: Option<PathBuf>,
-        /// Most memory the merge may hold (e.g. 8G). Default: 3/4 of RAM.
-        #[arg(long, value_name = "BYTES", value_parser = livebake::bake::memory::parse_bytes)]
-        memory_limit: Option<u64>,
+        #[command(flatten)]
+        outputs: Outputs,
     },
     /// Irradiance at surface points given in a JSON file.
     Probe {
@@ -148,6 +131,23 @@ enum Command {
     },
 }
 
+/// Where `bake` and `merge` write, and the memory they may hold.
+#[derive(clap::Args, Debug)]
+struct Outputs {
+    /// Output directory (created if missing).
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// Also write a copy of the scene with the finest baked light map attached, for other
+    /// engines (TEXCOORD_1 + MOZ_lightmap; OUT.bin, OUT.lightmap.exr and OUT.lightmap.png
+    /// beside it).
+    #[arg(long, value_name = "OUT.gltf")]
+    export_gltf: Option<PathBuf>,
+    /// Most memory the bake (or merge) may hold (e.g. 8G, 512M; K/M/G/T are powers of 1024),
+    /// checked against an estimate before the texel maps are built. Default: 3/4 of RAM.
+    #[arg(long, value_name = "BYTES", value_parser = livebake::bake::memory::parse_bytes)]
+    memory_limit: Option<u64>,
+}
+
 /// The scene baked when livebake runs without arguments.
 pub fn default_scene() -> PathBuf {
     PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf"))
@@ -162,26 +162,11 @@ pub fn run() -> Result<()> {
     match cli.command {
         None => run_default(&ui),
         Some(Command::Run { scene, options, run }) => run::run(&scene, &options, &run, &ui),
-        Some(Command::Bake {
-            scene,
-            out,
-            export_gltf,
-            memory_limit,
-            bounce_rounds,
-            shard: None,
-            previous: _,
-            options,
-        }) => bake::run(&scene, &out, export_gltf.as_deref(), memory_limit, bounce_rounds, &options, &ui),
-        Some(Command::Bake {
-            scene,
-            out,
-            export_gltf,
-            memory_limit,
-            bounce_rounds,
-            shard: Some(share),
-            previous,
-            options,
-        }) => {
+        Some(Command::Bake { scene, outputs, bounce_rounds, shard, previous, options }) => {
+            let Outputs { out, export_gltf, memory_limit } = outputs;
+            let Some(share) = shard else {
+                return bake::run(&scene, &out, export_gltf.as_deref(), memory_limit, bounce_rounds, &options, &ui);
+            };
             if export_gltf.is_some() {
                 anyhow::bail!("--export-gltf is the merge's (`livebake merge … --export-gltf`), not a shard's");
             }
@@ -193,7 +178,7 @@ pub fn run() -> Result<()> {
             let request = shard::ShardRequest { share, previous: previous.as_deref() };
             shard::bake(&scene, &out, request, memory_limit, &options, &raw_args, &ui)
         }
-        Some(Command::Merge { shards, out, export_gltf, memory_limit }) => {
+        Some(Command::Merge { shards, outputs: Outputs { out, export_gltf, memory_limit } }) => {
             shard::merge(&shards, &out, export_gltf.as_deref(), memory_limit, &ui)
         }
         Some(Command::Probe { scene, points, out, options }) => {
