@@ -150,7 +150,7 @@ fn job_of(file: &ShardFile) -> Result<JobRecord> {
 }
 
 /// Reads a whole state (the previous round's merge) after checking it against this bake.
-fn read_previous(path: &Path, scene_hash: u64, options_hash: u64) -> Result<ShardState> {
+fn read_previous(path: &Path, scene_hash: u64, options_hash: u64, memory_limit: Option<u64>) -> Result<ShardState> {
     let file = read_header(path)?;
     let h = &file.header;
     if h.count != 1 {
@@ -167,7 +167,7 @@ fn read_previous(path: &Path, scene_hash: u64, options_hash: u64) -> Result<Shar
     if h.options_hash != options_hash {
         bail!("--previous {} was baked with other options", path.display());
     }
-    let estimate = shard::merge(std::slice::from_ref(&file), limit(None))?;
+    let estimate = shard::merge(std::slice::from_ref(&file), limit(memory_limit))?;
     Ok(ShardState { header: file.header.clone(), job: file.job.clone(), estimate })
 }
 
@@ -205,7 +205,7 @@ pub fn bake(
         bail!("the shard's options do not read back the same from its stored command line: {:?}", job.args);
     }
     let scene_hash = scene_hash(&job.scene, &here)?;
-    let previous = previous.map(|p| read_previous(p, scene_hash, hash)).transpose()?;
+    let previous = previous.map(|p| read_previous(p, scene_hash, hash, memory_limit)).transpose()?;
     let round = previous.as_ref().map_or(1, |p| p.header.round + 1);
     let config = livebake::bake::BakeConfig { memory_limit, ..options.bake_config(default_samples)? };
     let (scene, _) = load_scene(scene_path, options, memory_limit)?;
@@ -235,20 +235,9 @@ pub fn bake(
 pub fn merge(files: &[PathBuf], out: &Path, export: Option<&Path>, memory_limit: Option<u64>, ui: &Ui) -> Result<()> {
     let started = Instant::now();
     let headers = files.iter().map(|f| read_header(f)).collect::<Result<Vec<_>, _>>()?;
+    // Shards of one bake may have been started from other folders or other copies of the
+    // scene: the hashes decide (`check_set`), the first shard's job remakes the atlas.
     let records = headers.iter().map(job_of).collect::<Result<Vec<_>>>()?;
-    for (f, r) in headers.iter().zip(&records).skip(1) {
-        if r.job != records[0].job {
-            bail!(
-                "{} does not belong with {}: another job (scene {} with {:?}, against {} with {:?})",
-                f.path.display(),
-                headers[0].path.display(),
-                r.job.scene.display(),
-                r.job.args,
-                records[0].job.scene.display(),
-                records[0].job.args
-            );
-        }
-    }
     let files = check_set(headers)?;
     let first = &files[0].header;
     let job = &records[0].job;
