@@ -55,7 +55,7 @@ fn four_shards_merged_equal_one_bake_round_by_round() {
     let dir = tempfile::tempdir().expect("temp dir");
     let d = dir.path();
     bake(d, &["--bounce-rounds", "1", "--out", "single1"]);
-    bake(d, &["--bounce-rounds", "2", "--out", "single2"]);
+    bake(d, &["--bounce-rounds", "2", "--out", "single2", "--export-gltf", "single2/scene.gltf"]);
     let round1 = shards(d, "r1", 4, &[]);
     merge(d, &round1, "merged1");
     let worst1 = worst_relative(&exr(&d.join("single1/lightmap_lod0.exr")), &exr(&d.join("merged1/lightmap_lod0.exr")));
@@ -72,6 +72,37 @@ fn four_shards_merged_equal_one_bake_round_by_round() {
     let (e1, e2) = (exr(&d.join("merged1/lightmap_lod0.exr")), exr(&d.join("merged2/lightmap_lod0.exr")));
     let total = |m: &[[f32; 3]]| m.iter().map(|p| p.iter().map(|&c| c as f64).sum::<f64>()).sum::<f64>();
     assert!(total(&e2) > total(&e1) * 1.05, "round 2 adds no bounce: {} against {}", total(&e2), total(&e1));
+    // With --export-gltf the merge writes the export a bake writes: the same files, its
+    // light map within the same bound.
+    ok(
+        d,
+        &[
+            "-q",
+            "merge",
+            &round2[0],
+            &round2[1],
+            &round2[2],
+            &round2[3],
+            "--out",
+            "merged2",
+            "--export-gltf",
+            "merged2/scene.gltf",
+        ],
+    );
+    let listing = |dir: &str| {
+        let mut names: Vec<String> = std::fs::read_dir(d.join(dir))
+            .expect("output folder")
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n != "merged.lbshard")
+            .collect();
+        names.sort();
+        names
+    };
+    assert_eq!(listing("merged2"), listing("single2"));
+    let exported = |dir: &str| exr(&d.join(dir).join("scene.lightmap.exr"));
+    let worst = worst_relative(&exported("single2"), &exported("merged2"));
+    assert!(worst <= round_two_bound(), "export: {worst:e} > {:e}", round_two_bound());
     // Merging again writes the same light map and state.
     merge(d, &round2, "again");
     for f in ["lightmap_lod0.exr", "lightmap_lod0.png", "merged.lbshard"] {
