@@ -6,7 +6,7 @@ use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use glam::{Vec2, Vec3};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::atlas::chart_filter::fill_within_charts;
 use crate::atlas::lookup::TexelTable;
@@ -23,7 +23,7 @@ use crate::reference::{Bvh, ray_epsilon};
 use crate::scene::Rgb;
 
 /// What one LOD's bundle bake did.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct BundleLodStats {
     pub directions: u64,
     pub batches: u64,
@@ -277,6 +277,65 @@ fn bake_region_observed(
     cancel: &AtomicBool,
     observe: &mut Observer,
 ) -> Result<LodIrradiance, Cancelled> {
+    let share = DirectionShare::whole(bundle.config.seed);
+    let traced = trace_region(bundle, backend, region, converged, punctual, share, threads, progress, cancel, observe)?;
+    let Traced { estimate, stats, source, buried } = traced;
+    // The irradiance goes into the source buffer, and the punctual part is moved out: no
+    // per-texel buffer is added at the bake's peak.
+    let mut irradiance = source;
+    estimate.irradiance_into(threads, &mut irradiance);
+    let unsampled = estimate.unsampled_texels();
+    Ok(LodIrradiance { irradiance, punctual: estimate.into_punctual(), unsampled, buried, stats })
+}
+
+/// Which batches of a bake's direction sequence a bake traces: batch `b` (of the batches
+/// [`BundleConfig::batch_size`](crate::bundle::BundleConfig::batch_size) or
+/// [`progressive_batch`](crate::bundle::BundleConfig::progressive_batch) cut) when
+/// `b mod count = index`, of the sequence of seed `seed`. A whole bake is share 0 of 1.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DirectionShare {
+    pub seed: u64,
+    pub index: u32,
+    pub count: u32,
+}
+
+impl DirectionShare {
+    /// Every batch of the sequence of `seed`.
+    pub fn whole(seed: u64) -> Self {
+        DirectionShare { seed, index: 0, count: 1 }
+    }
+
+    /// Whether batch `b` is this share's.
+    pub fn takes(&self, b: u64) -> bool {
+        b % self.count.max(1) as u64 == self.index as u64
+    }
+}
+
+/// What [`trace_region`] leaves: the estimate, the figures, the source buffer (to be reused)
+/// and the punctual pass's buried texels.
+pub(super) struct Traced {
+    pub estimate: ProgressiveEstimate,
+    pub stats: BundleLodStats,
+    pub source: Vec<Rgb>,
+    pub buried: Vec<u32>,
+}
+
+/// The batches of `share` traced into the region's estimate: its punctual pass (made by the
+/// caller) and the global and light bundles of every batch of the share, the source radiance
+/// `converged` or, without it, the bake's own running estimate refreshed after each batch.
+#[allow(clippy::too_many_arguments)]
+pub(super) fn trace_region(
+    bundle: &BundleScene,
+    backend: &mut dyn BundleBackend,
+    region: &Region,
+    converged: Option<Vec<Rgb>>,
+    punctual: PunctualPass,
+    share: DirectionShare,
+    threads: usize,
+    progress: &dyn Progress,
+    cancel: &AtomicBool,
+    observe: &mut Observer,
+) -> Result<Traced, Cancelled> {
     let texels = &region.texels;
     let config = &bundle.config;
     let mut stats = BundleLodStats::default();
@@ -310,17 +369,26 @@ fn bake_region_observed(
     stats.emitter_triangles_in_global_bundles = bundle.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
 
     let t1 = Instant::now();
-    let jobs = JobSequence::new(config.seed, bundle.emitters.small.len(), config.light_directions);
+    let jobs = JobSequence::new(share.seed, bundle.emitters.small.len(), config.light_directions);
     // Sized by the backend (lane 0's buffer; light-pass sums only with a light pass).
     let mut sums = BatchSums::default();
     progress.begin(&format!("LOD {} bundles", texels.lod), config.directions as u64);
-    let mut first = 0u64;
+    let (mut first, mut batch_index, mut traced) = (0u64, 0u64, 0u64);
     while first < config.directions as u64 {
+        // A progressive bake's batches grow with the batches folded in: a share of one
+        // would cut them otherwise than the whole bake (shards bake converged sources).
         let per_batch = match kind {
             SourceKind::Progressive => config.progressive_batch(estimate.batches()),
             SourceKind::Converged => config.batch_size(),
         };
         let count = (per_batch as u64).min(config.directions as u64 - first);
+        let mine = share.takes(batch_index);
+        batch_index += 1;
+        if !mine {
+            first += count;
+            progress.advance(count);
+            continue;
+        }
         let batch: Vec<DirectionJob> = (first..first + count).map(|i| jobs.job(i)).collect();
         let own = SourceRadiance { own: &source, foreign: region.foreign };
         let pass = match backend.trace_batch(&target, &batch, &own, &mut sums, cancel) {
@@ -336,6 +404,7 @@ fn bake_region_observed(
             estimate.source_radiance(&albedo, texels.emission, &carried, Some(&sums), threads, &mut source);
         }
         first += count;
+        traced += count;
         progress.advance(count);
         if observe(&BatchDone { directions: first, estimate: &estimate }).is_break() {
             break;
@@ -343,17 +412,11 @@ fn bake_region_observed(
     }
     progress.end();
     stats.bundle_seconds = t1.elapsed().as_secs_f64();
-    stats.directions = first;
+    stats.directions = traced;
     stats.batches = estimate.batches();
     stats.light_directions_per_group = estimate.light_directions();
     stats.unsampled_texels = estimate.unsampled();
-    drop(sums);
-    // The irradiance goes into the source buffer, and the punctual part is moved out: no
-    // per-texel buffer is added at the bake's peak.
-    let mut irradiance = source;
-    estimate.irradiance_into(threads, &mut irradiance);
-    let unsampled = estimate.unsampled_texels();
-    Ok(LodIrradiance { irradiance, punctual: estimate.into_punctual(), unsampled, buried, stats })
+    Ok(Traced { estimate, stats, source, buried })
 }
 
 /// A whole LOD's bundle bake.

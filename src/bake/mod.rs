@@ -7,6 +7,7 @@ pub mod bundle;
 pub mod memory;
 mod reference;
 pub mod report;
+pub mod rounds;
 
 use std::time::Instant;
 
@@ -74,6 +75,10 @@ pub struct BakeConfig {
     /// light maps and their previews read. Not part of the result.
     #[serde(skip)]
     pub keep_texel_positions: bool,
+    /// Bake LOD 0 in this many bounce rounds ([`rounds`]) instead of one progressive pass:
+    /// what direction shards merged round by round equal. `None`: the progressive bake.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bounce_rounds: Option<u32>,
 }
 
 impl Default for BakeConfig {
@@ -88,6 +93,7 @@ impl Default for BakeConfig {
             threads: None,
             memory_limit: None,
             keep_texel_positions: true,
+            bounce_rounds: None,
         }
     }
 }
@@ -134,6 +140,16 @@ pub enum BakeError {
     BadLodCount { got: u32, max: u32 },
     #[error("--samples must be at least 1")]
     NoSamples,
+    #[error("--bounce-rounds must be between 1 and {max}, got {got}")]
+    BadRounds { got: u32, max: u32 },
+    #[error("a shard bakes LOD 0 alone (--lods 1), got --lods {0}")]
+    ShardLods(u32),
+    #[error("a shard needs --backend cpu or gpu (the same on every machine), got {0}")]
+    ShardBackend(&'static str),
+    #[error("the previous round's state has {previous} texels, this bake's atlas {texels}: not the same bake")]
+    PreviousRound { texels: usize, previous: usize },
+    #[error("bounce rounds need a bundle backend (--backend cpu or gpu), not the reference path tracer")]
+    RoundsNeedBundles,
     #[error("--samples must be at most {max}, got {got}")]
     TooManySamples { got: u32, max: u32 },
     #[error(
@@ -261,43 +277,35 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
             }
         }
         BackendKind::Cpu | BackendKind::Gpu | BackendKind::Auto => {
-            let bundle = Arc::new(BundleScene::new(
-                scene.clone(),
-                Arc::new(geom.clone()),
-                Arc::new(atlas.clone()),
-                config.bundle_config(),
-            ));
-            let traits = memory::SceneTraits::of(scene, &geom, &atlas, !bundle.emitters.small.is_empty());
-            report.memory = check_memory(&atlas, config, traits)?;
-            let bvh = Bvh::for_scene(scene, &geom);
-            check_node_capacity(&bvh, &config.bundle_config())?;
-            let mut backend = backend::bundle_backend(config.backend, &bundle, config.threads())?;
-            report.backend = backend.name();
-            // Measured from here: what grows with the texels (the scene, its BVH and the
-            // per-triangle tables are resident already).
-            report.memory.resident_at_start = memory::resident_bytes();
+            let (bundle, bvh, mut backend) = bundle_setup(scene, &geom, &atlas, config, &mut report)?;
             for lod in 0..config.lods {
                 let t0 = Instant::now();
                 // Positions and normals only where something reads them: the punctual
                 // pass, or the caller.
                 let restore = if config.keep_texel_positions { Restore::All } else { Restore::Albedo };
-                let made = if scene.lights.is_empty() { restore } else { Restore::All };
+                let rounds = config.bounce_rounds.filter(|_| lod == 0);
+                // Rounds read the map's albedo and emission: a whole map.
+                let made = if scene.lights.is_empty() && rounds.is_none() { restore } else { Restore::All };
                 let mut texels = TexelMap::build_with(scene, &geom, &atlas, lod, made);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
                 let never = std::sync::atomic::AtomicBool::new(false);
                 let threads = config.threads();
-                let Ok(bundle::LodIrradiance { irradiance, stats: bstats, .. }) = bundle::bake_lod_lean(
-                    &bundle,
-                    &bvh,
-                    &mut *backend,
-                    &mut texels,
-                    coarser,
-                    restore,
-                    threads,
-                    progress,
-                    &never,
-                ) else {
+                let baked = match rounds {
+                    Some(r) => rounds::bake_lod_rounds(&bundle, &bvh, &mut *backend, &texels, r, threads, progress),
+                    None => bundle::bake_lod_lean(
+                        &bundle,
+                        &bvh,
+                        &mut *backend,
+                        &mut texels,
+                        coarser,
+                        restore,
+                        threads,
+                        progress,
+                        &never,
+                    ),
+                };
+                let Ok(bundle::LodIrradiance { irradiance, stats: bstats, .. }) = baked else {
                     unreachable!("an offline bake is never cancelled")
                 };
                 check_finite(lod, &irradiance)?;
@@ -321,6 +329,108 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
     Ok(BakeOutput { atlas, lods, report })
 }
 
+type BundleSetup = (Arc<BundleScene>, Bvh, Box<dyn crate::bundle::BundleBackend>);
+
+/// What a bundle bake needs beside its texels: the bundle scene, the BVH and the backend,
+/// after the memory and node-buffer checks (their figures into `report`).
+fn bundle_setup(
+    scene: &Arc<Scene>,
+    geom: &SceneGeometry,
+    atlas: &Atlas,
+    config: &BakeConfig,
+    report: &mut BakeReport,
+) -> Result<BundleSetup, BakeError> {
+    let bundle = Arc::new(BundleScene::new(
+        scene.clone(),
+        Arc::new(geom.clone()),
+        Arc::new(atlas.clone()),
+        config.bundle_config(),
+    ));
+    let traits = memory::SceneTraits::of(scene, geom, atlas, !bundle.emitters.small.is_empty());
+    report.memory = check_memory(atlas, config, traits)?;
+    let bvh = Bvh::for_scene(scene, geom);
+    check_node_capacity(&bvh, &config.bundle_config())?;
+    let backend = backend::bundle_backend(config.backend, &bundle, config.threads())?;
+    report.backend = backend.name();
+    // Measured from here: what grows with the texels (the scene, its BVH and the
+    // per-triangle tables are resident already).
+    report.memory.resident_at_start = memory::resident_bytes();
+    Ok((bundle, bvh, backend))
+}
+
+/// One direction shard's bake: share `share` (index, count) of round `round` of LOD 0
+/// ([`rounds`], docs/SHARDS.md), reading `previous`, round `round − 1`'s merged estimate.
+pub struct ShardBake {
+    pub atlas: Atlas,
+    pub estimate: crate::bundle::progressive::ProgressiveEstimate,
+    pub report: BakeReport,
+}
+
+/// Bakes one direction shard (see [`ShardBake`]). Share 0 holds the punctual part (made in
+/// round 1, taken from `previous` after), the other shares none, so that the merge counts
+/// it once.
+pub fn bake_shard(
+    scene: &Arc<Scene>,
+    config: &BakeConfig,
+    round: u32,
+    share: (u32, u32),
+    previous: Option<&crate::bundle::progressive::ProgressiveEstimate>,
+    progress: &dyn Progress,
+) -> Result<ShardBake, BakeError> {
+    config.validate()?;
+    if config.lods != 1 {
+        return Err(BakeError::ShardLods(config.lods));
+    }
+    if !matches!(config.backend, BackendKind::Cpu | BackendKind::Gpu) {
+        return Err(BakeError::ShardBackend(config.backend.name()));
+    }
+    let started = Instant::now();
+    let geom = SceneGeometry::new(scene);
+    config.atlas.validate()?;
+    check_memory_early(scene, &geom, config)?;
+    let atlas = Atlas::build(scene, &geom, &config.atlas)?;
+    check_lod_sizes(&atlas, 1)?;
+    let mut report = BakeReport::new(scene, &atlas, config);
+    let (bundle, bvh, mut backend) = bundle_setup(scene, &geom, &atlas, config, &mut report)?;
+    let t0 = Instant::now();
+    let texels = TexelMap::build(scene, &geom, &atlas, 0);
+    let texel_seconds = t0.elapsed().as_secs_f64();
+    if let Some(p) = previous
+        && p.len() != texels.len()
+    {
+        return Err(BakeError::PreviousRound { texels: texels.len(), previous: p.len() });
+    }
+    let threads = config.threads();
+    let mut punctual_seconds = 0.0;
+    let punctual = match (share.0, previous) {
+        (0, Some(p)) => p.punctual().to_vec(),
+        (0, None) => {
+            let pass = bundle::PunctualPass::of_map(&bundle, &bvh, &texels, threads);
+            punctual_seconds = pass.seconds;
+            pass.irradiance
+        }
+        _ => Vec::new(),
+    };
+    let rounds::RoundSums { estimate, mut stats } =
+        rounds::bake_round(&bundle, &mut *backend, &texels, previous, punctual, round, share, threads, progress);
+    stats.punctual_seconds = punctual_seconds;
+    if stats.pass.unplanned_directions > 0 {
+        let (count, directions) = (stats.pass.unplanned_directions, stats.directions);
+        return Err(BakeError::UnplannedDirections { lod: 0, count, directions });
+    }
+    let irradiance = estimate.irradiance();
+    let backend_stats = BackendStats {
+        samples_per_texel: config.samples,
+        rays: stats.pass.covered_pixels,
+        seconds: stats.bundle_seconds + stats.punctual_seconds,
+    };
+    report.lods.push(LodReport::new(&texels, texel_seconds, &backend_stats, &irradiance, Some(stats)));
+    report.total_seconds = started.elapsed().as_secs_f64();
+    report.memory.measure();
+    report.bytes_per_texel = report.memory.measured_bytes_per_texel;
+    Ok(ShardBake { atlas, estimate, report })
+}
+
 impl BakeConfig {
     /// Refuses what [`bake`] cannot run: the LOD count, no samples, bundle parameters.
     pub fn validate(&self) -> Result<(), BakeError> {
@@ -332,6 +442,14 @@ impl BakeConfig {
         }
         if self.samples > MAX_SAMPLES {
             return Err(BakeError::TooManySamples { got: self.samples, max: MAX_SAMPLES });
+        }
+        if let Some(r) = self.bounce_rounds {
+            if !(1..=rounds::MAX_ROUNDS).contains(&r) {
+                return Err(BakeError::BadRounds { got: r, max: rounds::MAX_ROUNDS });
+            }
+            if self.backend == BackendKind::Reference {
+                return Err(BakeError::RoundsNeedBundles);
+            }
         }
         self.bundle_config().validate()?;
         Ok(())

@@ -270,6 +270,38 @@ impl ProgressiveEstimate {
         self.punctual
     }
 
+    /// Texel `i`'s global-bundle sums `(Σw·S rgb, Σw·A)`: with [`light_sums`](Self::light_sums),
+    /// [`light_directions`](Self::light_directions), [`batches`](Self::batches) and
+    /// [`punctual`](Self::punctual) what the estimate is made of (what a direction shard
+    /// writes, [`crate::shard`]).
+    #[inline]
+    pub fn bundle_sums(&self, i: usize) -> [f32; 4] {
+        let t = &self.totals[i];
+        [t.bundle_sum.x, t.bundle_sum.y, t.bundle_sum.z, t.bundle_weight]
+    }
+
+    /// The light pass's `Σ a·Le / A_texel` per texel; empty without a light pass.
+    pub fn light_sums(&self) -> &[Rgb] {
+        &self.light
+    }
+
+    /// The estimate made of the sums [`bundle_sums`](Self::bundle_sums) and the rest give
+    /// (or their merge): `bundle` as
+    /// `(Σw·S rgb, Σw·A)` per texel, `light` empty or one per texel, `punctual` empty or
+    /// one per texel.
+    pub fn from_sums(
+        kind: SourceKind,
+        bundle: Vec<[f32; 4]>,
+        light: Vec<Rgb>,
+        light_directions: u64,
+        batches: u64,
+        punctual: Vec<Rgb>,
+    ) -> Self {
+        let totals =
+            bundle.into_iter().map(|b| TexelTotals { bundle_sum: Rgb::new(b[0], b[1], b[2]), bundle_weight: b[3] });
+        ProgressiveEstimate { kind, totals: totals.collect(), light, light_directions, batches, punctual }
+    }
+
     /// Texels no global bundle has hit yet.
     pub fn unsampled(&self) -> usize {
         self.totals.iter().filter(|t| t.bundle_weight == 0.0).count()

@@ -1,12 +1,12 @@
 //! Counters and phase timings of bundle passes: the paper's Table 1 (time per phase per
 //! direction) and Table 2 (overflow and false-alarm ratios), identical for every backend.
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::tiles::PlanStats;
 
 /// Sums over the directions a backend traced.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct PassStats {
     pub directions: u64,
     /// Phase times, seconds summed over directions (divide by `directions` for Table 1).

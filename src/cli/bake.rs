@@ -17,7 +17,7 @@ use super::options::Backend;
 
 /// Default samples: 256 bundle directions (under 5% error on a lit room); 16 paths per texel
 /// for the reference backend (a recognisable preview in tens of seconds, not a converged bake).
-fn default_samples(backend: Backend) -> u32 {
+pub(super) fn default_samples(backend: Backend) -> u32 {
     match backend {
         Backend::Cpu | Backend::Gpu | Backend::Auto => 256,
         Backend::Reference => 16,
@@ -52,11 +52,17 @@ pub fn run(
     out: &Path,
     export: Option<&Path>,
     memory_limit: Option<u64>,
+    bounce_rounds: Option<u32>,
     options: &SceneOptions,
     ui: &Ui,
 ) -> Result<()> {
     // The light maps, their previews and the export read no texel positions.
-    let config = BakeConfig { memory_limit, keep_texel_positions: false, ..options.bake_config(default_samples)? };
+    let config = BakeConfig {
+        memory_limit,
+        keep_texel_positions: false,
+        bounce_rounds,
+        ..options.bake_config(default_samples)?
+    };
     let (scene, load_seconds) = load_scene(scene_path, options, memory_limit)?;
     tracing::info!(
         "loaded {}: {} meshes, {} triangles, {} lights in {:.2} s",

@@ -8,6 +8,7 @@ mod options;
 mod probe;
 mod progress;
 mod run;
+mod shard;
 mod view;
 
 use std::path::PathBuf;
@@ -39,20 +40,34 @@ enum Command {
     Bake {
         /// glTF 2.0 scene (.gltf or .glb).
         scene: PathBuf,
-        /// Output directory (created if missing).
-        #[arg(long, default_value = "out")]
-        out: PathBuf,
-        /// Also write a copy of the scene with the finest baked light map attached, for other
-        /// engines (TEXCOORD_1 + MOZ_lightmap; OUT.bin, OUT.lightmap.exr and OUT.lightmap.png
-        /// beside it).
-        #[arg(long, value_name = "OUT.gltf")]
-        export_gltf: Option<PathBuf>,
-        /// Most memory the bake may hold (e.g. 8G, 512M; K/M/G/T are powers of 1024),
-        /// checked against an estimate before the texel maps are built. Default: 3/4 of RAM.
-        #[arg(long, value_name = "BYTES", value_parser = livebake::bake::memory::parse_bytes)]
-        memory_limit: Option<u64>,
+        #[command(flatten)]
+        outputs: Outputs,
+        /// Bake LOD 0 in R bounce rounds instead of one progressive pass: round 1 holds the
+        /// direct light, each further round reads the one before (one bounce a round). What
+        /// direction shards merged round by round equal (docs/SHARDS.md).
+        #[arg(long, value_name = "R")]
+        bounce_rounds: Option<u32>,
+        /// Bake only share I of N (from 0) of one bounce round's directions and write its
+        /// sums to DIR/shard-IIII-of-NNNN.lbshard for `livebake merge` (docs/SHARDS.md).
+        #[arg(long, value_name = "I/N", value_parser = livebake::shard::parse_share)]
+        shard: Option<(u32, u32)>,
+        /// With --shard: the merged state of the previous round (its merge's
+        /// DIR/merged.lbshard); this shard bakes the next round. Without it, round 1.
+        #[arg(long, value_name = "FILE", requires = "shard")]
+        previous: Option<PathBuf>,
         #[command(flatten)]
         options: SceneOptions,
+    },
+    /// Merge direction shards (`bake --shard`) into what one bake writes: DIR/lightmap_lod0.exr,
+    /// .png and report.json (and with --export-gltf the export), plus DIR/merged.lbshard for
+    /// the next round's shards. Refuses shards that do not belong together, a missing share
+    /// or one given twice.
+    Merge {
+        /// The shard files (DIR/shard-*), every share of one round.
+        #[arg(required = true)]
+        shards: Vec<PathBuf>,
+        #[command(flatten)]
+        outputs: Outputs,
     },
     /// Irradiance at surface points given in a JSON file.
     Probe {
@@ -116,20 +131,55 @@ enum Command {
     },
 }
 
+/// Where `bake` and `merge` write, and the memory they may hold.
+#[derive(clap::Args, Debug)]
+struct Outputs {
+    /// Output directory (created if missing).
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// Also write a copy of the scene with the finest baked light map attached, for other
+    /// engines (TEXCOORD_1 + MOZ_lightmap; OUT.bin, OUT.lightmap.exr and OUT.lightmap.png
+    /// beside it).
+    #[arg(long, value_name = "OUT.gltf")]
+    export_gltf: Option<PathBuf>,
+    /// Most memory the bake (or merge) may hold (e.g. 8G, 512M; K/M/G/T are powers of 1024),
+    /// checked against an estimate before the texel maps are built. Default: 3/4 of RAM.
+    #[arg(long, value_name = "BYTES", value_parser = livebake::bake::memory::parse_bytes)]
+    memory_limit: Option<u64>,
+}
+
 /// The scene baked when livebake runs without arguments.
 pub fn default_scene() -> PathBuf {
     PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf"))
 }
 
 pub fn run() -> Result<()> {
+    // A shard stores its command line in its file (the merge remakes the bake from it).
+    let raw_args: Vec<std::ffi::OsString> = std::env::args_os().collect();
     let cli = Cli::parse();
     init_logging(cli.quiet, cli.verbose);
     let ui = progress::Ui::new(cli.quiet);
     match cli.command {
         None => run_default(&ui),
         Some(Command::Run { scene, options, run }) => run::run(&scene, &options, &run, &ui),
-        Some(Command::Bake { scene, out, export_gltf, memory_limit, options }) => {
-            bake::run(&scene, &out, export_gltf.as_deref(), memory_limit, &options, &ui)
+        Some(Command::Bake { scene, outputs, bounce_rounds, shard, previous, options }) => {
+            let Outputs { out, export_gltf, memory_limit } = outputs;
+            let Some(share) = shard else {
+                return bake::run(&scene, &out, export_gltf.as_deref(), memory_limit, bounce_rounds, &options, &ui);
+            };
+            if export_gltf.is_some() {
+                anyhow::bail!("--export-gltf is the merge's (`livebake merge … --export-gltf`), not a shard's");
+            }
+            if bounce_rounds.is_some() {
+                anyhow::bail!(
+                    "a shard bakes one bounce round (round 1, or the one after --previous): --bounce-rounds is for a bake on one machine"
+                );
+            }
+            let request = shard::ShardRequest { share, previous: previous.as_deref() };
+            shard::bake(&scene, &out, request, memory_limit, &options, &raw_args, &ui)
+        }
+        Some(Command::Merge { shards, outputs: Outputs { out, export_gltf, memory_limit } }) => {
+            shard::merge(&shards, &out, export_gltf.as_deref(), memory_limit, &ui)
         }
         Some(Command::Probe { scene, points, out, options }) => {
             probe::run(&scene, &points, out.as_deref(), &options, &ui)

@@ -380,6 +380,7 @@ impl SceneOptions {
             threads: self.threads,
             memory_limit: None,
             keep_texel_positions: true,
+            bounce_rounds: None,
         })
     }
 }

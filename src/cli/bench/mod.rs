@@ -14,6 +14,7 @@ mod reload;
 mod runtime;
 mod runtime_large;
 mod runtime_real;
+mod scale_out;
 mod startup;
 mod throughput;
 mod tiling;
@@ -88,7 +89,7 @@ impl Bench<'_> {
 type Section = fn(&Bench) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Section); 15] = [
+pub const SECTIONS: [(&str, Section); 16] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -104,6 +105,7 @@ pub const SECTIONS: [(&str, Section); 15] = [
     ("instanced_1m", instanced::run),
     ("bake_memory", bake_memory::run),
     ("reload", reload::run),
+    ("scale_out", scale_out::run),
 ];
 
 /// Runs `f` `runs` times and returns the median of its results (seconds or rates).

@@ -1,0 +1,187 @@
+//! Direction shards against one machine (docs/SHARDS.md): a bake of `ROUNDS` bounce rounds
+//! on a real scene, once as `livebake bake --bounce-rounds` and once as N = 4 shards run one
+//! after another plus a merge per round, each a process of its own. Per process the CPU time
+//! (user + system) and peak resident memory come from `wait4`'s resource usage. The two
+//! ways alternate, and the figures are medians over the repeats: the ratio of the shards'
+//! CPU time (merges included) to the single bake's, the merges' share of the single bake's
+//! CPU time, and each shard's peak memory against the single bake's.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{Context, Result, bail};
+use serde_json::{Value, json};
+
+use super::{Bench, assets};
+
+/// Shards a round is cut into.
+const SHARDS: u32 = 4;
+/// Bounce rounds baked: the direct light and one bounce.
+const ROUNDS: u32 = 2;
+/// The goals: CPU time of the shards over the single bake's, the merge's share.
+const GOAL_CPU_RATIO: f64 = 1.15;
+const GOAL_MERGE_SHARE: f64 = 0.05;
+
+/// What one process used.
+#[derive(Clone, Copy, Debug, Default)]
+struct Usage {
+    cpu_seconds: f64,
+    wall_seconds: f64,
+    peak_bytes: u64,
+}
+
+/// Runs `livebake ARGS` in `dir` and measures it (its own resource usage, from `wait4`).
+fn measured(livebake: &Path, dir: &Path, args: &[String]) -> Result<Usage> {
+    let t = std::time::Instant::now();
+    let child = Command::new(livebake)
+        .args(args)
+        .current_dir(dir)
+        .env_remove("RUST_LOG")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .context("cannot run livebake")?;
+    let pid = child.id() as libc::pid_t;
+    let mut status = 0;
+    // SAFETY: `rusage` is plain old data that wait4 fills; `pid` is our child, waited for once.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let waited = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    let wall_seconds = t.elapsed().as_secs_f64();
+    if waited != pid {
+        bail!("cannot wait for livebake: {}", std::io::Error::last_os_error());
+    }
+    if !(libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0) {
+        let mut stderr = String::new();
+        if let Some(mut e) = child.stderr {
+            use std::io::Read;
+            let _ = e.read_to_string(&mut stderr);
+        }
+        bail!("livebake {} failed: {}", args.join(" "), stderr.trim());
+    }
+    let secs = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    Ok(Usage {
+        cpu_seconds: secs(usage.ru_utime) + secs(usage.ru_stime),
+        wall_seconds,
+        // Linux reports the peak in KiB.
+        peak_bytes: usage.ru_maxrss as u64 * 1024,
+    })
+}
+
+/// One bake both ways: the single bake's usage, the shards' (each, per round) and the
+/// merges' (per round).
+struct Pair {
+    single: Usage,
+    shards: Vec<Usage>,
+    merges: Vec<Usage>,
+}
+
+fn bake_both(bench: &Bench, dir: &Path, scene_args: &[String]) -> Result<Pair> {
+    let lb = bench.livebake;
+    let with = |extra: &[&str]| -> Vec<String> {
+        let mut a = vec!["-q".to_string(), "bake".into()];
+        a.extend(scene_args.iter().cloned());
+        a.extend(extra.iter().map(|s| s.to_string()));
+        a
+    };
+    let rounds = ROUNDS.to_string();
+    let single = measured(lb, dir, &with(&["--bounce-rounds", &rounds, "--out", "single"]))?;
+    let (mut shards, mut merges) = (Vec::new(), Vec::new());
+    for round in 1..=ROUNDS {
+        let out = format!("r{round}");
+        let previous = format!("m{}/merged.lbshard", round - 1);
+        for i in 0..SHARDS {
+            let share = format!("{i}/{SHARDS}");
+            let mut extra = vec!["--shard", share.as_str(), "--out", out.as_str()];
+            if round > 1 {
+                extra.extend(["--previous", previous.as_str()]);
+            }
+            shards.push(measured(lb, dir, &with(&extra))?);
+        }
+        let mut merge = vec!["-q".to_string(), "merge".into()];
+        merge.extend((0..SHARDS).map(|i| format!("{out}/{}", livebake::shard::shard_file_name(i, SHARDS))));
+        merge.extend(["--out".into(), format!("m{round}")]);
+        merges.push(measured(lb, dir, &merge)?);
+    }
+    Ok(Pair { single, shards, merges })
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+}
+
+pub fn run(bench: &Bench) -> Result<Value> {
+    let (scene, budget, samples, repeats): (PathBuf, u64, u32, usize) = if bench.quick {
+        (assets().join("cornell_box/cornellBox-2.79-Cycles-gltf.gltf"), 20_000, 32, 1)
+    } else {
+        // The default bake's texels and directions: the fixed costs every process pays
+        // (load, atlas, BVH, texel map; the merge's write) weigh as they would in use.
+        (assets().join("van_gogh_room/van_gogh_room_lit.gltf"), 500_000, 256, 3)
+    };
+    let scene_args: Vec<String> = vec![
+        scene.to_string_lossy().into_owned(),
+        "--texel-budget".into(),
+        budget.to_string(),
+        "--samples".into(),
+        samples.to_string(),
+    ];
+    let dir = tempfile_dir()?;
+    let mut pairs = Vec::new();
+    for r in 0..repeats {
+        bench.ui.status(&format!("scale_out: repeat {} of {repeats}", r + 1));
+        let pair = bake_both(bench, &dir, &scene_args);
+        // Every file of the repeat goes, whatever happened.
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir)?;
+        pairs.push(pair?);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    let cpu = |u: &[Usage]| u.iter().map(|u| u.cpu_seconds).sum::<f64>();
+    let ratio = median(pairs.iter().map(|p| (cpu(&p.shards) + cpu(&p.merges)) / p.single.cpu_seconds).collect());
+    let merge_share = median(pairs.iter().map(|p| cpu(&p.merges) / p.single.cpu_seconds).collect());
+    let shard_peak =
+        median(pairs.iter().map(|p| p.shards.iter().map(|u| u.peak_bytes).max().unwrap_or(0) as f64).collect());
+    let single_peak = median(pairs.iter().map(|p| p.single.peak_bytes as f64).collect());
+    let merge_peak =
+        median(pairs.iter().map(|p| p.merges.iter().map(|u| u.peak_bytes).max().unwrap_or(0) as f64).collect());
+    let runs: Vec<Value> = pairs
+        .iter()
+        .map(|p| {
+            json!({
+                "single": usage_json(&p.single),
+                "shards": p.shards.iter().map(usage_json).collect::<Vec<_>>(),
+                "merges": p.merges.iter().map(usage_json).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    Ok(json!({
+        "scene": scene.file_name().map(|f| f.to_string_lossy().into_owned()),
+        "texel_budget": budget,
+        "samples": samples,
+        "rounds": ROUNDS,
+        "shards": SHARDS,
+        "repeats": repeats,
+        "single_cpu_seconds": median(pairs.iter().map(|p| p.single.cpu_seconds).collect()),
+        "shards_cpu_seconds": median(pairs.iter().map(|p| cpu(&p.shards)).collect()),
+        "merge_cpu_seconds": median(pairs.iter().map(|p| cpu(&p.merges)).collect()),
+        "cpu_ratio": ratio,
+        "goal_cpu_ratio": GOAL_CPU_RATIO,
+        "merge_share": merge_share,
+        "goal_merge_share": GOAL_MERGE_SHARE,
+        "single_peak_bytes": single_peak,
+        "shard_peak_bytes": shard_peak,
+        "merge_peak_bytes": merge_peak,
+        "shard_peak_over_single": shard_peak / single_peak,
+        "runs": runs,
+    }))
+}
+
+fn usage_json(u: &Usage) -> Value {
+    json!({ "cpu_seconds": u.cpu_seconds, "wall_seconds": u.wall_seconds, "peak_bytes": u.peak_bytes })
+}
+
+fn tempfile_dir() -> Result<PathBuf> {
+    let dir = std::env::temp_dir().join(format!("livebake-bench-scale-out-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    Ok(dir)
+}

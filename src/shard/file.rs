@@ -1,0 +1,263 @@
+//! The shard file (docs/SHARDS.md "The shard file"): a header, the job that made it (JSON),
+//! each texel's sums, a checksum. Little-endian; every length read from the file is checked
+//! against the file's size and the memory it would take before anything is allocated.
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+use crate::scene::Rgb;
+
+use super::{MergedSums, ShardError, ShardHeader, ShardState, WordHash};
+
+/// The file's first eight bytes.
+pub const MAGIC: [u8; 8] = *b"LBSHARD\0";
+/// The format this build writes and reads.
+pub const FORMAT_VERSION: u32 = 1;
+/// Bytes of the fixed header.
+pub const HEADER_BYTES: u64 = 80;
+/// Most bytes of the job JSON (a scene path and the bake's options: a few hundred bytes).
+pub const MAX_JOB_BYTES: u32 = 1 << 20;
+
+const FLAG_LIGHT: u32 = 1;
+const FLAG_PUNCTUAL: u32 = 2;
+
+impl ShardHeader {
+    /// Bytes of the texels' sums: 16 a texel (the global bundles' `Σ S rgb, Σ A`), 12 more
+    /// with the light pass, 12 more with the punctual part.
+    pub fn payload_bytes(&self) -> Option<u64> {
+        let per_texel = 16 + 12 * u64::from(self.has_light) + 12 * u64::from(self.has_punctual);
+        self.texels.checked_mul(per_texel)
+    }
+
+    /// The whole file's size: header, job, sums, checksum.
+    fn file_bytes(&self, job_bytes: u32) -> Option<u64> {
+        self.payload_bytes()?.checked_add(HEADER_BYTES + job_bytes as u64 + 8)
+    }
+
+    fn encode(&self, job_bytes: u32) -> [u8; HEADER_BYTES as usize] {
+        let mut h = [0u8; HEADER_BYTES as usize];
+        let flags = (FLAG_LIGHT * u32::from(self.has_light)) | (FLAG_PUNCTUAL * u32::from(self.has_punctual));
+        h[0..8].copy_from_slice(&MAGIC);
+        h[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+        h[12..16].copy_from_slice(&flags.to_le_bytes());
+        h[16..24].copy_from_slice(&self.scene_hash.to_le_bytes());
+        h[24..32].copy_from_slice(&self.options_hash.to_le_bytes());
+        h[32..36].copy_from_slice(&self.lod.to_le_bytes());
+        h[36..40].copy_from_slice(&self.round.to_le_bytes());
+        h[40..44].copy_from_slice(&self.index.to_le_bytes());
+        h[44..48].copy_from_slice(&self.count.to_le_bytes());
+        h[48..56].copy_from_slice(&self.texels.to_le_bytes());
+        h[56..64].copy_from_slice(&self.batches.to_le_bytes());
+        h[64..72].copy_from_slice(&self.light_directions.to_le_bytes());
+        h[72..76].copy_from_slice(&job_bytes.to_le_bytes());
+        h
+    }
+}
+
+/// Writes `state` to `path` through a hidden temporary file in the same folder
+/// (`.NAME.partial`, which no `shard-*` pattern matches), flushed to disk, then renamed:
+/// a shard killed while writing leaves no file under the final name, and a re-run
+/// replaces an older file whole.
+pub fn write_state(path: &Path, state: &ShardState) -> Result<(), ShardError> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let name = path
+        .file_name()
+        .ok_or_else(|| ShardError::Io { path: path.to_path_buf(), source: std::io::Error::other("not a file name") })?;
+    let mut tmp_name = std::ffi::OsString::from(".");
+    tmp_name.push(name);
+    tmp_name.push(".partial");
+    let tmp = dir.join(tmp_name);
+    let io = |source| ShardError::Io { path: tmp.clone(), source };
+    let result = (|| {
+        let file = File::create(&tmp).map_err(io)?;
+        let mut w = HashingWriter { inner: BufWriter::with_capacity(1 << 20, file), hash: WordHash::new() };
+        write_body(&mut w, state).map_err(io)?;
+        let sum = w.hash.finish();
+        w.inner.write_all(&sum.to_le_bytes()).map_err(io)?;
+        let file = w.inner.into_inner().map_err(|e| io(e.into_error()))?;
+        file.sync_all().map_err(io)?;
+        std::fs::rename(&tmp, path).map_err(|source| ShardError::Io { path: path.to_path_buf(), source })
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+fn write_body(w: &mut impl Write, state: &ShardState) -> std::io::Result<()> {
+    let h = &state.header;
+    let job = state.job.as_bytes();
+    let job_bytes = u32::try_from(job.len()).ok().filter(|&n| n <= MAX_JOB_BYTES).ok_or_else(|| {
+        std::io::Error::other(format!("the job description is {} bytes, more than {MAX_JOB_BYTES}", job.len()))
+    })?;
+    w.write_all(&h.encode(job_bytes))?;
+    w.write_all(job)?;
+    let e = &state.estimate;
+    for i in 0..e.len() {
+        for v in e.bundle_sums(i) {
+            w.write_all(&v.to_le_bytes())?;
+        }
+    }
+    for part in [e.light_sums(), e.punctual()] {
+        for c in part {
+            for v in c.to_array() {
+                w.write_all(&v.to_le_bytes())?;
+            }
+        }
+    }
+    Ok(())
+}
+
+struct HashingWriter<W: Write> {
+    inner: W,
+    hash: WordHash,
+}
+
+impl<W: Write> Write for HashingWriter<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hash.update(&buf[..n]);
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// A shard file's header and job, read and checked (its sums not yet read).
+pub struct ShardFile {
+    pub path: PathBuf,
+    pub header: ShardHeader,
+    pub job: String,
+    job_bytes: u32,
+}
+
+/// Reads `path`'s header and job: a file that is not a shard file, of another format
+/// version, or whose size disagrees with what its header says is refused here, naming the
+/// file, before its sums are read.
+pub fn read_header(path: &Path) -> Result<ShardFile, ShardError> {
+    let bad = |why: String| ShardError::Invalid { path: path.to_path_buf(), why };
+    let io = |source| ShardError::Io { path: path.to_path_buf(), source };
+    let mut file = File::open(path).map_err(io)?;
+    let size = file.metadata().map_err(io)?.len();
+    let mut h = [0u8; HEADER_BYTES as usize];
+    let head = size.min(HEADER_BYTES) as usize;
+    file.read_exact(&mut h[..head]).map_err(io)?;
+    if head < MAGIC.len() || h[0..8] != MAGIC {
+        return Err(bad("not a livebake shard file (its first bytes are not LBSHARD)".into()));
+    }
+    if size < HEADER_BYTES + 8 {
+        return Err(bad(format!("truncated: {size} bytes, shorter than a shard file's header")));
+    }
+    let u32_at = |o: usize| u32::from_le_bytes([h[o], h[o + 1], h[o + 2], h[o + 3]]);
+    let u64_at = |o: usize| u64::from_le_bytes(std::array::from_fn(|k| h[o + k]));
+    let version = u32_at(8);
+    if version != FORMAT_VERSION {
+        return Err(bad(format!("format version {version}; this livebake reads version {FORMAT_VERSION}")));
+    }
+    let flags = u32_at(12);
+    if flags & !(FLAG_LIGHT | FLAG_PUNCTUAL) != 0 {
+        return Err(bad(format!("unknown flags {flags:#x}")));
+    }
+    let header = ShardHeader {
+        scene_hash: u64_at(16),
+        options_hash: u64_at(24),
+        lod: u32_at(32),
+        round: u32_at(36),
+        index: u32_at(40),
+        count: u32_at(44),
+        texels: u64_at(48),
+        batches: u64_at(56),
+        light_directions: u64_at(64),
+        has_light: flags & FLAG_LIGHT != 0,
+        has_punctual: flags & FLAG_PUNCTUAL != 0,
+    };
+    if header.count == 0 || header.index >= header.count || header.round == 0 {
+        return Err(bad(format!("share {}/{} of round {} is not a share", header.index, header.count, header.round)));
+    }
+    let job_bytes = u32_at(72);
+    if job_bytes > MAX_JOB_BYTES {
+        return Err(bad(format!("a job description of {job_bytes} bytes (at most {MAX_JOB_BYTES})")));
+    }
+    let expected = header
+        .file_bytes(job_bytes)
+        .ok_or_else(|| bad(format!("{} texels is more than a file can hold", header.texels)))?;
+    if size != expected {
+        let what = if size < expected { "truncated" } else { "longer than its header says" };
+        return Err(bad(format!("{what}: {size} bytes, where its header ({} texels) makes {expected}", header.texels)));
+    }
+    let mut job = vec![0u8; job_bytes as usize];
+    file.read_exact(&mut job).map_err(io)?;
+    let job = String::from_utf8(job).map_err(|_| bad("its job description is not UTF-8".into()))?;
+    Ok(ShardFile { path: path.to_path_buf(), header, job, job_bytes })
+}
+
+impl ShardFile {
+    /// Adds the file's sums to `sums` texel by texel, then checks the checksum. The caller
+    /// has checked the texel count against the atlas (`sums` is of that size) and the
+    /// memory it takes.
+    pub fn add_sums_to(&self, sums: &mut MergedSums) -> Result<(), ShardError> {
+        let io = |source| ShardError::Io { path: self.path.clone(), source };
+        let n = self.header.texels as usize;
+        if sums.bundle.len() != n {
+            return Err(ShardError::Invalid {
+                path: self.path.clone(),
+                why: format!("{n} texels where the merge holds {}", sums.bundle.len()),
+            });
+        }
+        let file = File::open(&self.path).map_err(io)?;
+        let mut r = HashingReader { inner: BufReader::with_capacity(1 << 20, file), hash: WordHash::new() };
+        let mut skip = vec![0u8; HEADER_BYTES as usize + self.job_bytes as usize];
+        r.read_exact(&mut skip).map_err(io)?;
+        let mut buf = [0u8; 16];
+        let f32_at =
+            |buf: &[u8; 16], k: usize| f32::from_le_bytes([buf[4 * k], buf[4 * k + 1], buf[4 * k + 2], buf[4 * k + 3]]);
+        for b in sums.bundle.iter_mut() {
+            r.read_exact(&mut buf).map_err(io)?;
+            for (k, v) in b.iter_mut().enumerate() {
+                *v += f32_at(&buf, k);
+            }
+        }
+        for (present, part) in
+            [(self.header.has_light, &mut sums.light), (self.header.has_punctual, &mut sums.punctual)]
+        {
+            if !present {
+                continue;
+            }
+            if part.is_empty() {
+                part.resize(n, Rgb::ZERO);
+            }
+            for c in part.iter_mut() {
+                r.read_exact(&mut buf[..12]).map_err(io)?;
+                *c += Rgb::new(f32_at(&buf, 0), f32_at(&buf, 1), f32_at(&buf, 2));
+            }
+        }
+        sums.batches += self.header.batches;
+        sums.light_directions += self.header.light_directions;
+        let computed = r.hash.finish();
+        let mut sum = [0u8; 8];
+        r.inner.read_exact(&mut sum).map_err(io)?;
+        if u64::from_le_bytes(sum) != computed {
+            return Err(ShardError::Invalid {
+                path: self.path.clone(),
+                why: "its checksum does not match its contents (the file is damaged)".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+struct HashingReader<R: Read> {
+    inner: R,
+    hash: WordHash,
+}
+
+impl<R: Read> Read for HashingReader<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.hash.update(&buf[..n]);
+        Ok(n)
+    }
+}
