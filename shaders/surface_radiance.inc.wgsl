@@ -19,7 +19,7 @@ struct SurfaceTriangle {
 }
 
 struct SurfaceMaterial {
-    // Linear base-colour factor (rgb; alpha unused).
+    // Linear base-colour factor (rgb; alpha: the coverage factor).
     base_color: vec4<f32>,
     // Emitted radiance W/(sr·m²).
     emission: vec3<f32>,
@@ -27,8 +27,15 @@ struct SurfaceMaterial {
     double_sided: u32,
     base_texture: u32,
     emissive_texture: u32,
-    _pad0: u32,
-    _pad1: u32,
+    // ALPHA_* (`scene::AlphaMode`), and MASK's cutoff.
+    alpha_mode: u32,
+    alpha_cutoff: f32,
+    // KHR_materials_transmission: factor, and the texture whose red channel scales it.
+    transmission: f32,
+    transmission_texture: u32,
+    // 1 when light may pass the surface (`Material::lets_light_through`).
+    passing: u32,
+    _pad: u32,
 }
 
 struct TextureHeader {
@@ -119,15 +126,24 @@ fn surface_uv0(tri: SurfaceTriangle, u: f32, v: f32) -> vec2<f32> {
     return a + vec2<f32>(mul(d1.x, u), mul(d1.y, u)) + vec2<f32>(mul(d2.x, v), mul(d2.y, v));
 }
 
+// `Material::albedo` from the base colour texture's value `texel` (linear, clamped to [0, 1]).
+fn material_albedo(m: SurfaceMaterial, texel: vec4<f32>) -> vec3<f32> {
+    var c = m.base_color.rgb;
+    if m.base_texture != NO_TEXTURE {
+        c = mul3(c, texel.rgb);
+    }
+    return clamp(c, vec3<f32>(0.0), vec3<f32>(1.0));
+}
+
 // Diffuse albedo (linear, clamped to [0, 1]) of triangle `t` at barycentrics (u, v).
 fn surface_albedo(t: u32, u: f32, v: f32) -> vec3<f32> {
     let tri = surface_triangles[t];
     let m = surface_materials[tri.material];
-    var c = m.base_color.rgb;
+    var texel = vec4<f32>(1.0);
     if m.base_texture != NO_TEXTURE {
-        c = mul3(c, texture_sample(m.base_texture, surface_uv0(tri, u, v)).rgb);
+        texel = texture_sample(m.base_texture, surface_uv0(tri, u, v));
     }
-    return clamp(c, vec3<f32>(0.0), vec3<f32>(1.0));
+    return material_albedo(m, texel);
 }
 
 // Emitted radiance of side `front` of triangle `t` at barycentrics (u, v): zero from the
