@@ -11,10 +11,6 @@
 // surface_radiance.inc.wgsl the materials and textures. Every product goes through `mul`,
 // so T and the walk's sums round as the CPU's f32 arithmetic does.
 
-const ALPHA_OPAQUE: u32 = 0u;
-const ALPHA_MASK: u32 = 1u;
-const ALPHA_BLEND: u32 = 2u;
-
 // Per fragment of the list once cut-outs are dropped: its transmittance.
 var<private> pass_of: array<vec3<f32>, MAX_DEPTH>;
 // Per layer: its fragments (layer_first..layer_last), its transmittance, and its faces
@@ -27,37 +23,16 @@ var<private> face_plus: array<vec3<f32>, MAX_DEPTH>;
 var<private> face_known: array<u32, MAX_DEPTH>;
 
 // `cpu::through::transmittance`: rgb the transmittance of material `m` (`Sheet::pass`,
-// T = (1 − c) + c·t·a), w 0 where it is cut out (MASK below its cutoff); `base` and
-// `transmitted` are its textures' values at the point (read by the caller only where the
-// material has them).
-fn material_transmittance(m: SurfaceMaterial, base: vec4<f32>, transmitted: vec4<f32>) -> vec4<f32> {
-    // `Material::alpha`.
-    var alpha = m.base_color.w;
-    if m.base_texture != NO_TEXTURE {
-        alpha = mul(alpha, base.w);
-    }
-    if m.alpha_mode == ALPHA_MASK && alpha < m.alpha_cutoff {
+// T = (1 − c) + c·t·a), w 0 where it is cut out (MASK below its cutoff), from its textures'
+// values at the point.
+fn material_transmittance(m: SurfaceMaterial, x: MaterialTexels) -> vec4<f32> {
+    if m.alpha_mode == ALPHA_MASK && material_alpha(m, x.base) < m.alpha_cutoff {
         return vec4<f32>(1.0, 1.0, 1.0, 0.0);
     }
-    // `Material::coverage`.
-    var c = 1.0;
-    if m.alpha_mode == ALPHA_MASK {
-        c = select(0.0, 1.0, alpha >= m.alpha_cutoff);
-    } else if m.alpha_mode == ALPHA_BLEND {
-        c = clamp(alpha, 0.0, 1.0);
-    }
-    // `Material::transmission_at`, read only where the factor is positive (`Material::sheet`).
-    var t = 0.0;
-    if m.transmission > 0.0 {
-        t = m.transmission;
-        if m.transmission_texture != NO_TEXTURE {
-            t = mul(t, transmitted.x);
-        }
-        t = clamp(t, 0.0, 1.0);
-    }
-    let a = material_albedo(m, base);
-    let ct = mul(c, t);
-    return vec4<f32>(vec3<f32>(1.0 - c) + vec3<f32>(mul(a.x, ct), mul(a.y, ct), mul(a.z, ct)), 1.0);
+    let cover = material_cover(m, x.base, x.transmitted);
+    let a = material_albedo(m, x.base);
+    let ct = mul(cover.x, cover.y);
+    return vec4<f32>(vec3<f32>(1.0 - cover.x) + vec3<f32>(mul(a.x, ct), mul(a.y, ct), mul(a.z, ct)), 1.0);
 }
 
 // `cpu::through::projected_barycentrics`: of the pixel centre in the plane of triangle
@@ -105,24 +80,17 @@ fn fragment_transmittance(f: Fragment) -> vec4<f32> {
     if m.passing == 0u {
         return opaque;
     }
-    var base = vec4<f32>(1.0);
-    var transmitted = vec4<f32>(1.0);
-    if m.base_texture != NO_TEXTURE || m.transmission_texture != NO_TEXTURE {
+    var x = MaterialTexels(vec4<f32>(1.0), vec4<f32>(1.0));
+    if material_textured(m) {
         var bary: vec2<f32>;
         if own_side {
             bary = projected_barycentrics(tri);
         } else {
             bary = located_barycentrics(tri);
         }
-        let uv = surface_uv0(st, bary.x, bary.y);
-        if m.base_texture != NO_TEXTURE {
-            base = texture_sample(m.base_texture, uv);
-        }
-        if m.transmission > 0.0 && m.transmission_texture != NO_TEXTURE {
-            transmitted = texture_sample(m.transmission_texture, uv);
-        }
+        x = material_texels(m, surface_uv0(st, bary.x, bary.y));
     }
-    return material_transmittance(m, base, transmitted);
+    return material_transmittance(m, x);
 }
 
 // `Passing::collect`: each fragment's transmittance into `pass_of`, cut-outs dropped from
