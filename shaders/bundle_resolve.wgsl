@@ -4,7 +4,8 @@
 // walks the pixel's list, rebuilds each node's fragment (depth, side codes, packed normal)
 // from its triangle exactly as the CPU sets it up,
 // sorts the fragments along ω with the estimator's layer rules (`Coincidence`), and credits
-// every target side the radiance of what it sees.
+// every target side the radiance of what it sees (in a scene that lets light through
+// surfaces, through them: bundle_through.inc.wgsl, `cpu::through`'s twin).
 //
 // Depths are recomputed from the triangle's snapped corners the CPU's way, never taken
 // from the raster's interpolation (which differs by up to 2^-16 m, more than the layer
@@ -28,9 +29,15 @@
 // runs both sides of a branch its lanes may take, and the foreign path, never taken, made
 // every whole-LOD resolve 6× slower as a branch on a parameter.
 override FOREIGN_SOURCE: bool = false;
+// Whether the scene has surfaces light passes (BLEND, transmission, MASK): each fragment
+// then gets its transmittance and a side sees through them (bundle_through.inc.wgsl),
+// reading the scene's materials (group 2) and each target texel's triangle. A pipeline
+// constant too: scenes without such surfaces resolve with none of that code.
+override PASSING: bool = false;
 
 #include "lightmap.inc.wgsl"
 #include "surface_radiance.inc.wgsl"
+#include "bundle_through.inc.wgsl"
 
 // Products, divisions and square roots round as the CPU's IEEE f32 arithmetic does (every
 // decision is then the CPU's): Vulkan lets f32 division and sqrt be off by ulps, so they go
@@ -163,6 +170,9 @@ var<private> params: ResolveParams;
 // The groups of 8 pixels (a row's, from a multiple of 8) that have fragments, as
 // bundle_groups.wgsl lists them: 1 + the group's index, 0 past the last.
 @group(0) @binding(11) var<storage, read> groups: array<u32>;
+// Per target texel: the triangle of its face (`PASSING`: where a texel's fragment reads
+// its material).
+@group(0) @binding(12) var<storage, read> texel_triangles: array<u32>;
 
 // ---- fragment set-up (cpu::fragments, bundle::raster) ----
 
@@ -448,10 +458,9 @@ fn foreign_radiance(f: Fragment, code: u32) -> vec3<f32> {
     if select(info.back_chart, info.front_chart, front) == NO_CHART {
         return vec3<f32>(0.0);
     }
-    // `Planes::barycentrics`: clamped onto the triangle.
-    let t = triangle_planes(tri, centre.x, centre.y);
-    let u = clamp(eval(t.bu, t.dx, t.dy), 0.0, 1.0);
-    let v = clamp(eval(t.bv, t.dx, t.dy), 0.0, 1.0 - u);
+    let bary = located_barycentrics(tri);
+    let u = bary.x;
+    let v = bary.y;
     // `SceneGeometry::point` and `AtlasFace::uv_at`: a + (b − a)·u + (c − a)·v.
     let a = corners[3u * tri].xyz;
     let e1 = corners[3u * tri + 1u].xyz - a;
@@ -473,6 +482,15 @@ fn foreign_radiance(f: Fragment, code: u32) -> vec3<f32> {
         return reflected + surface_emission(tri, front, u, v);
     }
     return reflected;
+}
+
+// `ForeignSides::locate`'s barycentrics of the pixel centre on triangle `tri`
+// (`Planes::barycentrics`: clamped onto the triangle).
+fn located_barycentrics(tri: u32) -> vec2<f32> {
+    let t = triangle_planes(tri, centre.x, centre.y);
+    let u = clamp(eval(t.bu, t.dx, t.dy), 0.0, 1.0);
+    let v = clamp(eval(t.bv, t.dx, t.dy), 0.0, 1.0 - u);
+    return vec2<f32>(u, v);
 }
 
 // std::f32::consts::FRAC_1_PI.
@@ -685,7 +703,11 @@ fn resolve(@builtin(global_invocation_id) id: vec3<u32>) {
     }
     foreign_lookups = 0u;
     lost_lookups = 0u;
-    exchange(n);
+    if PASSING {
+        exchange_through(drop_cut_outs(n));
+    } else {
+        exchange(n);
+    }
     if foreign_lookups > 0u {
         atomicAdd(&sums[8u * params.texel_count + STATUS_FOREIGN], foreign_lookups);
     }

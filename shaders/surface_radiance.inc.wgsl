@@ -9,6 +9,9 @@ const NO_TEXTURE: u32 = 0xFFFFFFFFu;
 const WRAP_REPEAT: u32 = 0u;
 const WRAP_MIRRORED_REPEAT: u32 = 1u;
 const WRAP_CLAMP_TO_EDGE: u32 = 2u;
+const ALPHA_OPAQUE: u32 = 0u;
+const ALPHA_MASK: u32 = 1u;
+const ALPHA_BLEND: u32 = 2u;
 
 // Per triangle: the TEXCOORD_0 of its corners, its material, whether its emission travels
 // with the global bundles (`EmitterPlan::carried_by_bundles`).
@@ -19,7 +22,7 @@ struct SurfaceTriangle {
 }
 
 struct SurfaceMaterial {
-    // Linear base-colour factor (rgb; alpha unused).
+    // Linear base-colour factor (rgb; alpha: the coverage factor).
     base_color: vec4<f32>,
     // Emitted radiance W/(sr·m²).
     emission: vec3<f32>,
@@ -27,8 +30,15 @@ struct SurfaceMaterial {
     double_sided: u32,
     base_texture: u32,
     emissive_texture: u32,
-    _pad0: u32,
-    _pad1: u32,
+    // ALPHA_* (`scene::AlphaMode`), and MASK's cutoff.
+    alpha_mode: u32,
+    alpha_cutoff: f32,
+    // KHR_materials_transmission: factor, and the texture whose red channel scales it.
+    transmission: f32,
+    transmission_texture: u32,
+    // 1 when light may pass the surface (`Material::lets_light_through`).
+    passing: u32,
+    _pad: u32,
 }
 
 struct TextureHeader {
@@ -119,15 +129,93 @@ fn surface_uv0(tri: SurfaceTriangle, u: f32, v: f32) -> vec2<f32> {
     return a + vec2<f32>(mul(d1.x, u), mul(d1.y, u)) + vec2<f32>(mul(d2.x, v), mul(d2.y, v));
 }
 
-// Diffuse albedo (linear, clamped to [0, 1]) of triangle `t` at barycentrics (u, v).
+// `Material::albedo` from the base colour texture's value `texel` (linear, clamped to [0, 1]).
+fn material_albedo(m: SurfaceMaterial, texel: vec4<f32>) -> vec3<f32> {
+    var c = m.base_color.rgb;
+    if m.base_texture != NO_TEXTURE {
+        c = mul3(c, texel.rgb);
+    }
+    return clamp(c, vec3<f32>(0.0), vec3<f32>(1.0));
+}
+
+// `Material::alpha` from the base colour texture's value `base`.
+fn material_alpha(m: SurfaceMaterial, base: vec4<f32>) -> f32 {
+    if m.base_texture != NO_TEXTURE {
+        return mul(m.base_color.w, base.w);
+    }
+    return m.base_color.w;
+}
+
+// `Material::is_see_through`: BLEND or transmissive.
+fn material_see_through(m: SurfaceMaterial) -> bool {
+    return m.alpha_mode == ALPHA_BLEND || m.transmission > 0.0;
+}
+
+// `Material::sheet`'s coverage c (`Material::coverage`) and transmission t
+// (`Material::transmission_at` where the factor is positive, else 0), from the base colour
+// and transmission textures' values `base` and `transmitted`.
+fn material_cover(m: SurfaceMaterial, base: vec4<f32>, transmitted: vec4<f32>) -> vec2<f32> {
+    let alpha = material_alpha(m, base);
+    var c = 1.0;
+    if m.alpha_mode == ALPHA_MASK {
+        c = select(0.0, 1.0, alpha >= m.alpha_cutoff);
+    } else if m.alpha_mode == ALPHA_BLEND {
+        c = clamp(alpha, 0.0, 1.0);
+    }
+    var t = 0.0;
+    if m.transmission > 0.0 {
+        t = m.transmission;
+        if m.transmission_texture != NO_TEXTURE {
+            t = mul(t, transmitted.x);
+        }
+        t = clamp(t, 0.0, 1.0);
+    }
+    return vec2<f32>(c, t);
+}
+
+// Whether material `m`'s textures are read at a point: its base colour texture, and its
+// transmission texture where the factor is positive.
+fn material_textured(m: SurfaceMaterial) -> bool {
+    return m.base_texture != NO_TEXTURE || (m.transmission > 0.0 && m.transmission_texture != NO_TEXTURE);
+}
+
+// Material `m`'s base colour and transmission textures' values at a point (1 where it has
+// none, or where its transmission factor is 0).
+struct MaterialTexels {
+    base: vec4<f32>,
+    transmitted: vec4<f32>,
+}
+
+fn material_texels(m: SurfaceMaterial, uv: vec2<f32>) -> MaterialTexels {
+    var x: MaterialTexels;
+    x.base = vec4<f32>(1.0);
+    x.transmitted = vec4<f32>(1.0);
+    if m.base_texture != NO_TEXTURE {
+        x.base = texture_sample(m.base_texture, uv);
+    }
+    if m.transmission > 0.0 && m.transmission_texture != NO_TEXTURE {
+        x.transmitted = texture_sample(m.transmission_texture, uv);
+    }
+    return x;
+}
+
+// Diffuse reflectance (linear) of triangle `t` at barycentrics (u, v): `SceneGeometry::albedo`,
+// the albedo clamped to [0, 1] (`Material::albedo`), of a see-through surface the part it
+// reflects, α(1 − t)·a (`Material::reflectance`).
 fn surface_albedo(t: u32, u: f32, v: f32) -> vec3<f32> {
     let tri = surface_triangles[t];
     let m = surface_materials[tri.material];
-    var c = m.base_color.rgb;
-    if m.base_texture != NO_TEXTURE {
-        c = mul3(c, texture_sample(m.base_texture, surface_uv0(tri, u, v)).rgb);
+    var x = MaterialTexels(vec4<f32>(1.0), vec4<f32>(1.0));
+    if material_textured(m) {
+        x = material_texels(m, surface_uv0(tri, u, v));
     }
-    return clamp(c, vec3<f32>(0.0), vec3<f32>(1.0));
+    let a = material_albedo(m, x.base);
+    if !material_see_through(m) {
+        return a;
+    }
+    let ct = material_cover(m, x.base, x.transmitted);
+    let r = mul(ct.x, 1.0 - ct.y);
+    return vec3<f32>(mul(a.x, r), mul(a.y, r), mul(a.z, r));
 }
 
 // Emitted radiance of side `front` of triangle `t` at barycentrics (u, v): zero from the

@@ -698,9 +698,10 @@ fn the_punctual_layer_is_exact_at_the_lod_the_camera_wants() {
 /// Cell bakes on the GPU backend (lavapipe here) equal the CPU backend's, foreign sides
 /// included: the surfaces outside a cell, which its bundles see through the shown map
 /// (albedo/π · E, textured albedo, carried emission), are evaluated in the GPU resolve.
-/// Two scenes: the Cornell box (textured walls, its lamp carried by the global bundles)
-/// and the Van Gogh room (double-sided materials, small emitters, punctual lights: the
-/// shown map has both layers). The map the bakes
+/// Three scenes: the Cornell box (textured walls, its lamp carried by the global bundles),
+/// the Van Gogh room (double-sided materials, small emitters, punctual lights: the
+/// shown map has both layers) and GlassBrokenWindow under a sky of 1 (glass and a cut-out:
+/// the resolve's transmittances read the materials the foreign sides read). The map the bakes
 /// see has first light at LOD 0 and two cells published at LOD 1, so foreign points also
 /// read LOD 1 and blend across LOD borders.
 ///
@@ -723,12 +724,18 @@ fn cell_bakes_on_the_gpu_backend_equal_the_cpu_backends() {
     let directions = 16u32;
     // The Cornell box's lamp is made a large emitter (the global bundles carry its light),
     // so foreign sides show emission too.
-    for (rel, small_emitter_fraction) in
-        [("cornell_box/cornellBox-2.79-Cycles-gltf.gltf", 0.0), ("van_gogh_room/van_gogh_room_lit.gltf", 0.05)]
-    {
-        let mut config = RuntimeConfig::default();
+    // The window is small: at the default finest texel it has a single LOD, and the bakes
+    // here publish LOD 1.
+    for (rel, small_emitter_fraction, sky, lods) in [
+        ("cornell_box/cornellBox-2.79-Cycles-gltf.gltf", 0.0, Rgb::ZERO, None),
+        ("van_gogh_room/van_gogh_room_lit.gltf", 0.05, Rgb::ZERO, None),
+        ("glass_broken_window/GlassBrokenWindow.gltf", 0.05, Rgb::ONE, Some(2)),
+    ] {
+        let mut config = RuntimeConfig { lods, ..RuntimeConfig::default() };
         config.bundle.small_emitter_fraction = small_emitter_fraction;
-        let world = world(load(rel), &config);
+        let mut scene = (*load(rel)).clone();
+        scene.sky += sky;
+        let world = world(Arc::new(scene), &config);
         let carried = world.bundle.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
         eprintln!("{rel}: {carried} triangles whose emission the global bundles carry");
         let first = first_light(&world);

@@ -33,10 +33,6 @@ pub(super) fn bundle_backend(
         BackendKind::Gpu => gpu(GpuContext::headless().map_err(|e| {
             BakeError::Backend(format!("{e} (--backend gpu needs a Vulkan adapter; --backend cpu needs none)"))
         })?),
-        BackendKind::Auto if bundle.scene.materials.iter().any(|m| m.lets_light_through()) => {
-            tracing::info!("--backend auto: the scene lets light through surfaces; baking on the CPU");
-            cpu()
-        }
         BackendKind::Auto => {
             let context = match GpuContext::headless() {
                 Ok(c) => c,

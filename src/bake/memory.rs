@@ -33,7 +33,10 @@
 //! What does not grow with the texels (scene, its decoded textures, BVH, atlas)
 //! is already resident when the guard runs and is read from the process's resident set,
 //! but for the alpha-only copies of masked materials' textures that the BVH makes after it
-//! (4 B a pixel, counted: [`SceneTraits::mask_texture_bytes`]).
+//! (4 B a pixel, counted: [`SceneTraits::mask_texture_bytes`]), and the tables a scene that
+//! lets light through surfaces gets from the bundle backends after it
+//! ([`PassingBytes`]: 4 B a triangle on the CPU; the GPU's mirror of the materials, and 4 B a
+//! texel, each target texel's triangle).
 //!
 //! Before this model (and the changes it describes), the same bake held 253 B per texel plus
 //! 8 B per pixel: the texel map whole (60), punctual (12), carried (1), totals in seven f64
@@ -111,20 +114,64 @@ pub struct SceneTraits {
     /// materials ([`crate::reference::AlphaMasks::texture_bytes`]), built after the guard
     /// has looked at the resident set.
     pub mask_texture_bytes: u64,
+    /// The tables of a scene that lets light through surfaces (zero without such surfaces).
+    pub passing: PassingBytes,
+}
+
+/// Bytes of the tables a scene with `BLEND`, transmission or `MASK` materials gets from the
+/// bundle backends, after the guard: all zero for a scene without them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct PassingBytes {
+    /// The CPU backend's (and the GPU backend's light pass's): per triangle its material or
+    /// none (4 B; `cpu::through::Passing`).
+    pub cpu: u64,
+    /// The GPU backend's mirror of the materials its resolve reads (`gpu::surface_radiance`):
+    /// 32 B a triangle, 64 B a material, 4 B a texture texel and the sRGB table (1 KiB).
+    /// Each target texel's triangle (4 B) grows with the texels:
+    /// [`bake_bytes_per_texel`].
+    pub gpu: u64,
+}
+
+impl PassingBytes {
+    pub fn of(scene: &Scene) -> PassingBytes {
+        if !scene.materials.iter().any(|m| m.lets_light_through()) {
+            return PassingBytes::default();
+        }
+        let triangles = scene.triangle_count() as u64;
+        let texels: u64 = scene.textures.iter().map(|t| t.rgba8.len() as u64).sum();
+        let gpu = 32 * triangles + 64 * scene.materials.len() as u64 + 4 * texels + 1024;
+        PassingBytes { cpu: 4 * triangles, gpu }
+    }
+
+    fn any(&self) -> bool {
+        self.gpu > 0
+    }
 }
 
 impl SceneTraits {
     /// The most a scene can add per texel: both kinds of light, every surface textured (its
     /// masked textures are the scene's own: [`SceneTraits::with_masks`]).
-    pub const MOST: SceneTraits =
-        SceneTraits { light_pass: true, punctual: true, textured_share: 1.0, mask_texture_bytes: 0 };
+    pub const MOST: SceneTraits = SceneTraits {
+        light_pass: true,
+        punctual: true,
+        textured_share: 1.0,
+        mask_texture_bytes: 0,
+        passing: PassingBytes { cpu: 0, gpu: 0 },
+    };
     /// The least.
-    pub const LEAST: SceneTraits =
-        SceneTraits { light_pass: false, punctual: false, textured_share: 0.0, mask_texture_bytes: 0 };
+    pub const LEAST: SceneTraits = SceneTraits {
+        light_pass: false,
+        punctual: false,
+        textured_share: 0.0,
+        mask_texture_bytes: 0,
+        passing: PassingBytes { cpu: 0, gpu: 0 },
+    };
 
-    /// These traits with `scene`'s masked textures.
+    /// These traits with `scene`'s masked textures and the tables of its see-through
+    /// surfaces and cut-outs.
     pub fn with_masks(self, scene: &Scene) -> SceneTraits {
-        SceneTraits { mask_texture_bytes: crate::reference::AlphaMasks::texture_bytes(scene), ..self }
+        let mask_texture_bytes = crate::reference::AlphaMasks::texture_bytes(scene);
+        SceneTraits { mask_texture_bytes, passing: PassingBytes::of(scene), ..self }
     }
 
     /// The traits of `scene` unwrapped into `atlas`; `light_pass`: whether it has small
@@ -139,8 +186,8 @@ impl SceneTraits {
             }
         }
         let textured_share = if all > 0.0 { textured / all } else { 0.0 };
-        SceneTraits { light_pass, punctual: !scene.lights.is_empty(), textured_share, mask_texture_bytes: 0 }
-            .with_masks(scene)
+        let punctual = !scene.lights.is_empty();
+        SceneTraits { light_pass, punctual, textured_share, ..SceneTraits::LEAST }.with_masks(scene)
     }
 }
 
@@ -175,10 +222,12 @@ pub fn bake_bytes_per_texel(
             let cpu = map + punctual + 16.0 + 12.0 * light + 12.0 + lanes * (16.0 + 12.0 * light);
             // The GPU backend keeps the CPU's (its light pass) and adds its buffers, which
             // are host memory on a software adapter: the sources (12 B) and the fixed-point
-            // sums with their read-back copy (2 × 32 B). `auto` may pick either.
+            // sums with their read-back copy (2 × 32 B), in a scene that lets light through
+            // surfaces each texel's triangle (4 B). `auto` may pick either.
+            let triangle = if traits.passing.any() { 4.0 } else { 0.0 };
             match backend {
                 BackendKind::Cpu => cpu,
-                _ => cpu + 12.0 + 64.0,
+                _ => cpu + 12.0 + 64.0 + triangle,
             }
         }
     }
@@ -212,7 +261,9 @@ pub struct MemoryEstimate {
     pub lanes: u32,
     /// Bytes of the alpha-only copies of masked materials' textures (the BVH's).
     pub texture_bytes: u64,
-    /// Everything: `texel_bytes + thread_bytes + texture_bytes`.
+    /// Bytes of the backend's tables for surfaces that let light through ([`PassingBytes`]).
+    pub passing_bytes: u64,
+    /// Everything: `texel_bytes + thread_bytes + texture_bytes + passing_bytes`.
     pub bytes: u64,
     /// `bytes / texels`.
     pub bytes_per_texel: f64,
@@ -273,12 +324,18 @@ pub fn estimate_from_lod0(
     };
     let texel_bytes = bytes.min(u64::MAX as f64 / 2.0) as u64;
     let texture_bytes = traits.mask_texture_bytes;
-    let total = texel_bytes.saturating_add(thread_bytes).saturating_add(texture_bytes);
+    let passing_bytes = match config.backend {
+        BackendKind::Reference => 0,
+        BackendKind::Cpu => traits.passing.cpu,
+        BackendKind::Gpu | BackendKind::Auto => traits.passing.cpu + traits.passing.gpu,
+    };
+    let total = texel_bytes.saturating_add(thread_bytes).saturating_add(texture_bytes).saturating_add(passing_bytes);
     MemoryEstimate {
         texels,
         texel_bytes,
         thread_bytes,
         texture_bytes,
+        passing_bytes,
         lanes: if config.backend == BackendKind::Reference { 0 } else { lanes },
         bytes: total,
         bytes_per_texel: if texels > 0 { total as f64 / texels as f64 } else { 0.0 },
@@ -478,6 +535,31 @@ mod tests {
         let without = estimate_from_lod0(1000, None, &config, SceneTraits::LEAST);
         assert_eq!(with.bytes - without.bytes, 128);
         assert_eq!(crate::reference::AlphaMasks::texture_bytes(&scene), 128);
+    }
+
+    /// A scene that lets light through surfaces: the CPU backend's per-triangle table, and
+    /// on the GPU backend its materials' mirror and each texel's triangle.
+    #[test]
+    fn tables_of_see_through_surfaces_are_counted() {
+        use crate::scene::{AlphaMode, Material, SceneBuilder};
+        let mut b = SceneBuilder::new();
+        let glass = b.material(Material { alpha_mode: AlphaMode::Blend, ..Material::default() });
+        b.cuboid("box", glam::Vec3::ZERO, glam::Vec3::ONE, false, glass);
+        let scene = b.build();
+        let traits = SceneTraits::LEAST.with_masks(&scene);
+        assert_eq!(traits.passing, PassingBytes { cpu: 12 * 4, gpu: 12 * 32 + 64 + 1024 });
+        for (backend, extra) in [
+            (BackendKind::Cpu, 48),
+            (BackendKind::Gpu, 48 + 12 * 32 + 64 + 1024 + 1000 * 4),
+            (BackendKind::Reference, 0),
+        ] {
+            let config = BakeConfig { backend, ..BakeConfig::default() };
+            let with = estimate_from_lod0(1000, None, &config, traits);
+            let without = estimate_from_lod0(1000, None, &config, SceneTraits::LEAST);
+            assert_eq!(with.bytes - without.bytes, extra, "{backend:?}");
+        }
+        let opaque = SceneTraits::LEAST.with_masks(&SceneBuilder::new().build());
+        assert_eq!(opaque.passing, PassingBytes::default());
     }
 
     #[test]

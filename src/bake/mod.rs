@@ -540,7 +540,7 @@ fn refuse_over_limit(
     if need > limit {
         // Texels scale as 1/texel size²: the size (or budget) that brings the texel part
         // within what is left, with 5% to spare.
-        let fixed = estimate.thread_bytes.saturating_add(estimate.texture_bytes);
+        let fixed = estimate.thread_bytes.saturating_add(estimate.texture_bytes).saturating_add(estimate.passing_bytes);
         let room = limit.saturating_sub(resident).saturating_sub(fixed) as f64;
         let shrink = estimate.texel_bytes as f64 / room.max(1.0) * 1.05;
         let size = texel_size.map(|t| memory::metres(t as f64 * shrink.sqrt()));

@@ -32,6 +32,7 @@ use livebake::cpu::CpuProvider;
 use livebake::output::{write_json, write_rgb8_png, write_text};
 use livebake::probe::{BilinearTaps, LightmapLookup, SurfaceLocator};
 use livebake::progress::NoProgress;
+use livebake::reference::punctual::is_buried;
 use livebake::reference::{Bvh, ReferenceTracer};
 use livebake::sampling::Rng;
 use livebake::scene::SceneGeometry;
@@ -177,9 +178,19 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
             (queries, taps)
         }
         (None, None) => {
-            // A texel whose centre lies in a cut-out (`MASK` below its cutoff) is not lit:
-            // there is no surface there to measure.
-            let exists = |q: &Query| locator.locate(q.p, q.n).is_ok_and(|at| bvh.alpha().opaque_at(at.tri, at.u, at.v));
+            // A texel whose centre lies in a cut-out (`MASK` below its cutoff), or inside
+            // closed geometry (a face running through a solid: `is_buried`), has no surface
+            // there to measure: a reference sees nothing or the solid's inside (E = 0), while
+            // the bundles light the texel from its visible part. On AlphaBlendModeTest one
+            // such centre (the bed's top, 2 mm inside its back panel: 1.2 against Mitsuba's
+            // 0) takes the relative RMS error at 256 points from 1.2 % to 3.1 %.
+            let epsilon = livebake::reference::ray_epsilon(&scene);
+            let exists = |q: &Query| {
+                locator.locate(q.p, q.n).is_ok_and(|at| {
+                    bvh.alpha().opaque_at(at.tri, at.u, at.v)
+                        && !is_buried(&scene, &geom, &bvh, at.tri, q.p, q.n.normalize(), epsilon)
+                })
+            };
             let (q, taps) =
                 sample_texels(&texels, SAMPLED_TEXELS, config.seed, |q| exists(q).then(|| taps_at(q).ok()).flatten());
             sampled = q;

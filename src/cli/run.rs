@@ -600,7 +600,6 @@ fn summarise(ui: &Ui, path: &Path, scene: &Scene, stats: &RuntimeStats, written:
 pub fn start_runtime(scene: Arc<Scene>, config: RuntimeConfig, backend: Backend) -> Result<Runtime> {
     let gpu = match backend {
         Backend::Gpu => Some(GpuContext::headless().context("--backend gpu needs a Vulkan adapter")?),
-        Backend::Auto if scene.materials.iter().any(|m| m.lets_light_through()) => None,
         Backend::Auto => GpuContext::headless().ok().filter(|g| !g.is_software()),
         Backend::Cpu | Backend::Reference => None,
     };

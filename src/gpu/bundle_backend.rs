@@ -25,6 +25,12 @@
 //! once, at the first such batch). A foreign source of another kind, or one the device
 //! cannot hold, runs on the CPU backend (logged once).
 //!
+//! **Light through surfaces** (a scene with `BLEND`, transmission or `MASK` materials): the
+//! resolve gives each fragment its transmittance and walks each line's layers with the
+//! running product ([`super::bundle_resolve`], bundle_through.inc.wgsl), reading the
+//! scene's materials (uploaded once, at the start, and shared with a foreign source) and
+//! each target texel's triangle (with the target's buffers).
+//!
 //! Window culling (which triangles a cell's window draws) uses the CPU's bounds tree, as
 //! the CPU backend does; a whole-scene window draws every triangle.
 
@@ -39,7 +45,7 @@ use super::bundle_mips::{AnalysisMaps, MipPass};
 use super::bundle_resolve::{FixedPoint, Rectangle, ResolvePass, ResolveStatus, SceneSides, TargetBuffers};
 use super::bundle_tiles::{TileBuffers, TilePass, read_plans};
 use super::device::GpuContext;
-use super::surface_radiance::ForeignRadiance;
+use super::surface_radiance::{ForeignRadiance, SceneSurfaces};
 use crate::bundle::progressive::BatchSums;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::stats::PassStats;
@@ -134,6 +140,10 @@ pub struct GpuBundleBackend {
     phase_timing: bool,
     /// The runtime's foreign source on the GPU, made at the first batch that has one.
     foreign: Option<ForeignRadiance>,
+    /// The scene's materials on the GPU: made at the start when the scene lets light
+    /// through surfaces (the resolve reads them for every fragment's transmittance), else
+    /// with the foreign source.
+    surfaces: Option<Arc<SceneSurfaces>>,
     warned_foreign: bool,
     /// Tests: fixed-point scales 2^this larger than chosen (to force a saturation).
     #[cfg(test)]
@@ -162,7 +172,17 @@ impl GpuBundleBackend {
         let mips = MipPass::new(&gpu).map_err(unavailable)?;
         let planner = TilePass::new(&gpu).map_err(unavailable)?;
         let lists = ListPass::new(&gpu).map_err(unavailable)?;
-        let resolve = ResolvePass::new(&gpu, config.head_side).map_err(unavailable)?;
+        let passing = scene.passing.is_some();
+        let resolve = ResolvePass::new(&gpu, config.head_side, passing).map_err(unavailable)?;
+        let surfaces = match passing {
+            true => {
+                let s =
+                    SceneSurfaces::new(&gpu, &resolve.foreign.surfaces_layout, &scene.bundle).map_err(unavailable)?;
+                tracing::debug!("GPU resolve: scene materials uploaded ({} bytes)", s.bytes);
+                Some(Arc::new(s))
+            }
+            false => None,
+        };
         let list_buffers = lists.buffers(&gpu, config.head_side, config.node_capacity).map_err(|e| match e {
             ListError::Capacity(n) => BackendError::Unavailable(format!(
                 "--nodes {n} is more than this GPU's storage bindings hold ({} bytes); use a smaller --nodes",
@@ -196,6 +216,7 @@ impl GpuBundleBackend {
             tile_counts: TileCounts::default(),
             phase_timing,
             foreign: None,
+            surfaces,
             warned_foreign: false,
             #[cfg(test)]
             scale_boost_bits: 0,
@@ -254,7 +275,10 @@ impl GpuBundleBackend {
         let key = TargetKey::of(target);
         let buffers = match self.target_buffers.take() {
             Some((k, b)) if k == key => b,
-            _ => TargetBuffers::new(&self.gpu, target)?,
+            _ => {
+                let passing = self.scene.passing.as_ref().map(|_| &*self.scene.bundle.atlas);
+                TargetBuffers::new(&self.gpu, target, passing)?
+            }
         };
         let result = self.trace_global_into(target, batch, source, foreign, sums, cancel, &buffers);
         self.target_buffers = Some((key, buffers));
@@ -434,19 +458,20 @@ impl GpuBundleBackend {
                     scales,
                 };
                 let foreign = self.foreign.as_ref().filter(|_| foreign);
+                let surfaces = self.surfaces.as_deref();
                 let (triangles, sides, lists) = (&self.triangles, &self.sides, &self.list_buffers);
                 if self.phase_timing {
                     submit_and_wait(&gpu, encoder)?;
                     stats.build_seconds += seconds(t);
                     let resolve_start = Instant::now();
                     encoder = gpu.device.create_command_encoder(&Default::default());
-                    self.resolve.encode(&gpu, &mut encoder, triangles, sides, lists, buffers, foreign, &rect);
+                    self.resolve.encode(&gpu, &mut encoder, triangles, sides, lists, buffers, foreign, surfaces, &rect);
                     submit_and_wait(&gpu, encoder)?;
                     stats.resolve_seconds += seconds(resolve_start);
                     encoder = gpu.device.create_command_encoder(&Default::default());
                     t = Instant::now();
                 } else {
-                    self.resolve.encode(&gpu, &mut encoder, triangles, sides, lists, buffers, foreign, &rect);
+                    self.resolve.encode(&gpu, &mut encoder, triangles, sides, lists, buffers, foreign, surfaces, &rect);
                 }
             }
             gpu.queue.submit([encoder.finish()]);
@@ -515,12 +540,20 @@ impl GpuBundleBackend {
         let snapshot: &Arc<ShownLightmap> = &shown.shown;
         let pipeline = self.resolve.prepare_foreign(&self.gpu);
         let (gpu, bindings, scene) = (&self.gpu, &self.resolve.foreign, &self.scene.bundle);
+        let surfaces = &mut self.surfaces;
         let result = pipeline.and_then(|()| match &mut self.foreign {
             Some(f) => f.sync(gpu, bindings, scene, snapshot),
-            None => ForeignRadiance::new(gpu, bindings, scene, snapshot).map(|f| {
-                tracing::debug!("GPU resolve: scene materials uploaded ({} bytes)", f.surface_bytes());
-                self.foreign = Some(f);
-            }),
+            None => {
+                let surfaces = match surfaces {
+                    Some(s) => s.clone(),
+                    None => {
+                        let s = SceneSurfaces::new(gpu, &bindings.surfaces_layout, scene)?;
+                        tracing::debug!("GPU resolve: scene materials uploaded ({} bytes)", s.bytes);
+                        surfaces.insert(Arc::new(s)).clone()
+                    }
+                };
+                ForeignRadiance::new(gpu, bindings, scene, snapshot, surfaces).map(|f| self.foreign = Some(f))
+            }
         });
         result.map_err(|e| {
             // A mirror left half-synced is dropped; the next batch starts it anew.
@@ -623,12 +656,6 @@ impl GpuProvider {
     }
 }
 
-/// Why a scene with see-through surfaces or cut-outs is not resolved on the GPU: its
-/// resolve shader does not carry transmittance along a line yet (the CPU backend does,
-/// `crate::bundle::through`), and treating glass as opaque would be silently wrong.
-pub const GLASS_ON_THE_CPU: &str = "the GPU backend does not resolve light through BLEND, \
-    KHR_materials_transmission or MASK surfaces yet; this scene has some: use --backend cpu (or auto)";
-
 impl BackendProvider for GpuProvider {
     type Backend = GpuBundleBackend;
 
@@ -637,229 +664,9 @@ impl BackendProvider for GpuProvider {
     }
 
     fn backend(&self, scene: &Arc<BundleScene>, threads: usize) -> Result<GpuBundleBackend, BackendError> {
-        if scene.scene.materials.iter().any(|m| m.lets_light_through()) {
-            return Err(BackendError::Unavailable(GLASS_ON_THE_CPU.into()));
-        }
         GpuBundleBackend::new(self.gpu.clone(), self.cpu.scene(scene), threads, self.phase_timing)
     }
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::atlas::texels::TexelMap;
-    use crate::bundle::target::WholeLod;
-    use crate::bundle::{BundleConfig, JobSequence};
-    use crate::gpu::bundle_analysis::tests::cornell;
-    use crate::scene::Rgb;
-
-    /// Sums of one batch of `directions` on the whole LOD-`lod` target of `scene`, from
-    /// both backends, with a made-up source (every texel a different colour, so that
-    /// which texel a line sees shows in the sums).
-    fn both(
-        scene: &Arc<CpuScene>,
-        lod: u32,
-        first: u64,
-        directions: u64,
-    ) -> (TexelMap, BatchSums, BatchSums, PassStats, PassStats) {
-        let bundle = &scene.bundle;
-        let texels = TexelMap::build(&bundle.scene, &bundle.geom, &bundle.atlas, lod);
-        let whole = WholeLod::new(&bundle.atlas, &texels);
-        let target = whole.target(&texels);
-        let own = crate::bundle::target::distinct_colours(texels.len());
-        let source = SourceRadiance { own: &own, foreign: None };
-        let jobs = JobSequence::new(bundle.config.seed, bundle.emitters.small.len(), bundle.config.light_directions);
-        let batch: Vec<DirectionJob> = (first..first + directions).map(|i| jobs.job(i)).collect();
-        let never = AtomicBool::new(false);
-        let mut cpu = CpuBundleBackend::new(scene.clone(), 2);
-        let mut cpu_sums = BatchSums::default();
-        let t = Instant::now();
-        let cpu_stats = cpu.trace_batch(&target, &batch, &source, &mut cpu_sums, &never).unwrap();
-        let cpu_seconds = t.elapsed().as_secs_f64();
-        let gpu_context = GpuContext::headless().expect("a Vulkan adapter (lavapipe: mesa-vulkan-drivers)");
-        let mut gpu = GpuBundleBackend::new(gpu_context, scene.clone(), 2, false).unwrap();
-        let mut gpu_sums = BatchSums::default();
-        let t = Instant::now();
-        let stats = gpu.trace_batch(&target, &batch, &source, &mut gpu_sums, &never).unwrap();
-        // For the record (timings are the bench's business, never asserted here).
-        eprintln!("batch of {directions}: CPU {cpu_seconds:.2} s, GPU {:.2} s", t.elapsed().as_secs_f64());
-        (texels, cpu_sums, gpu_sums, stats, cpu_stats)
-    }
-
-    /// Largest relative difference of any channel of any texel, and how many texels
-    /// differ beyond `bound`.
-    fn compare(cpu: &BatchSums, gpu: &BatchSums, bound: f64) -> (f64, usize) {
-        let (mut worst, mut beyond) = (0f64, 0);
-        for (t, (c, g)) in cpu.bundle.iter().zip(&gpu.bundle).enumerate() {
-            let mut d = 0f64;
-            for k in 0..4 {
-                let scale = c[k].abs().max(g[k].abs()).max(f32::MIN_POSITIVE) as f64;
-                d = d.max((c[k] - g[k]).abs() as f64 / scale);
-            }
-            if d > bound {
-                beyond += 1;
-                if beyond <= 3 {
-                    eprintln!("texel {t}: cpu {c:?} gpu {g:?}");
-                }
-            }
-            worst = worst.max(d);
-        }
-        (worst, beyond)
-    }
-
-    /// The bound on the difference of one texel's sums: both backends see the same hits
-    /// (same lines, same sides, same texels: the resolve makes every decision with the CPU's
-    /// rounding), so the sums differ only by how they are added. The CPU adds k terms in f32
-    /// (relative error ≤ (k − 1)·2⁻²⁴ for non-negative terms, plus one rounding per lane
-    /// reduction); the GPU rounds each term once to f32 and adds them exactly in fixed
-    /// point, then rounds once to f32. So ≤ (k + lanes + 2)·2⁻²⁴. Per direction a texel
-    /// gets at most (2·oversampling + 1)² lines (tile pixels are between 1 and 2 times
-    /// finer than texel/oversampling on a uniform-density atlas), doubled for the gutter
-    /// pixels that map to it: k ≤ 2·D·(2·os + 1)². A line credited to another texel would
-    /// move a whole hit, 1/k of the sums: far above this.
-    fn summation_bound(scene: &CpuScene, directions: u64) -> f64 {
-        let os = scene.bundle.config.oversampling as f64;
-        let k = 2.0 * directions as f64 * (2.0 * os + 1.0).powi(2);
-        (k + scene.bundle.config.lanes.most() as f64 + 2.0) * 2f64.powi(-24)
-    }
-
-    /// GPU and CPU backends on the same directions of the bundled Cornell box (whole LOD 0,
-    /// 507k texels, 14.6 M fragments): every texel's sums agree within the summation bound
-    /// (measured worst 3.9·10⁻⁶ against a bound of 2.4·10⁻⁵), so no line was credited to a
-    /// different texel, seen through a different layer or lost.
-    #[test]
-    fn gpu_sums_equal_the_cpu_backends_on_the_cornell_box() {
-        let scene = cornell();
-        let (texels, cpu, gpu, stats, cpu_stats) = both(&scene, 0, 0, 8);
-        assert_eq!(
-            (stats.cpu_fallback_batches, stats.unresolved_pixels, stats.saturated_sums, stats.unplanned_directions),
-            (0, 0, 0, 0)
-        );
-        // Every pixel with a fragment was resolved (the resolve visits only the listed groups
-        // of 8 pixels with fragments).
-        assert_eq!(stats.covered_pixels, cpu_stats.covered_pixels);
-        let bound = summation_bound(&scene, 8);
-        let (worst, beyond) = compare(&cpu, &gpu, bound);
-        eprintln!("Cornell box: {} texels, worst relative difference {worst:e} (bound {bound:e})", texels.len());
-        assert_eq!(beyond, 0, "texels whose sums differ beyond the summation bound");
-        assert!(stats.fragments > 1_000_000);
-    }
-
-    /// The same on the bundled Van Gogh room (a real asset: 2 M fragments a direction, a
-    /// light pass of small emitters on the CPU beside the GPU's global bundles), at LOD 1
-    /// so that the resolve reads LOD-scaled UVs.
-    #[test]
-    fn gpu_sums_equal_the_cpu_backends_on_the_van_gogh_room() {
-        let scene = crate::gpu::bundle_analysis::tests::bundled("van_gogh_room/van_gogh_room_lit.gltf");
-        let (texels, cpu, gpu, stats, cpu_stats) = both(&scene, 1, 3, 4);
-        assert_eq!(
-            (stats.cpu_fallback_batches, stats.unresolved_pixels, stats.saturated_sums, stats.unplanned_directions),
-            (0, 0, 0, 0)
-        );
-        assert_eq!(stats.covered_pixels, cpu_stats.covered_pixels);
-        let bound = summation_bound(&scene, 4);
-        let (worst, beyond) = compare(&cpu, &gpu, bound);
-        eprintln!("Van Gogh room: {} texels, worst relative difference {worst:e} (bound {bound:e})", texels.len());
-        assert_eq!(beyond, 0, "texels whose sums differ beyond the summation bound");
-        assert_eq!(cpu.light, gpu.light, "the light pass is the CPU's on both");
-    }
-
-    /// Under an environment map that differs in every direction (a sky brighter toward +X
-    /// and up, an octant 50× brighter, turned by 30°) the ends of each line see the sky in
-    /// their own direction, ω and −ω, read from the map filtered for the bake's directions:
-    /// both backends take those values from one function (`BundleSky::seen`) per direction,
-    /// so on the bundled living room (an open window frame: lines leave the room through it,
-    /// and the outside walls and the grass see the sky) every texel's sums still agree within
-    /// the summation bound, and the sky shows in them (the sums differ from a black sky's).
-    #[test]
-    fn gpu_sums_equal_the_cpu_backends_under_an_environment_map() {
-        use crate::scene::Environment;
-        let black = crate::gpu::bundle_analysis::tests::bundled("living_room/living_room.glb");
-        let (w, h) = (128u32, 64u32);
-        let probe = Environment::uniform(Rgb::ZERO);
-        let texels = (0..h)
-            .flat_map(|y| (0..w).map(move |x| (x, y)))
-            .map(|(x, y)| {
-                let d = probe.direction((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
-                let octant = if d.x > 0.0 && d.y > 0.0 && d.z > 0.0 { 50.0 } else { 1.0 };
-                Rgb::new(1.0 + d.x as f32, 0.5 + d.y.max(0.0) as f32, 0.25) * octant
-            })
-            .collect();
-        let map = Environment::new("test sky", w, h, texels, 30f32.to_radians()).expect("a map");
-        let b = &black.bundle;
-        let mut scene = (*b.scene).clone();
-        scene.environment = Some(Arc::new(map));
-        let bundle = BundleScene::new(Arc::new(scene), b.geom.clone(), b.atlas.clone(), b.config.clone());
-        let lit = Arc::new(CpuScene::new(Arc::new(bundle)));
-        let (texels, cpu, gpu, stats, cpu_stats) = both(&lit, 0, 0, 8);
-        assert_eq!((stats.cpu_fallback_batches, stats.unresolved_pixels, stats.saturated_sums), (0, 0, 0));
-        assert_eq!(stats.covered_pixels, cpu_stats.covered_pixels);
-        let bound = summation_bound(&lit, 8);
-        let (worst, beyond) = compare(&cpu, &gpu, bound);
-        eprintln!("living room: {} texels, worst relative difference {worst:e} (bound {bound:e})", texels.len());
-        assert_eq!(beyond, 0, "texels whose sums differ beyond the summation bound");
-        let (_, dark, _, _, _) = both(&black, 0, 0, 8);
-        let total = |s: &BatchSums| s.bundle.iter().map(|t| (t[0] + t[1] + t[2]) as f64).sum::<f64>();
-        assert!(total(&cpu) > 1.05 * total(&dark), "the sky does not show: {} vs {}", total(&cpu), total(&dark));
-    }
-
-    /// Tiles that overflow the node buffer: with a small buffer planned to its full size
-    /// (alpha 1, so the planner's estimate often falls short), tiles overflow; their parts
-    /// are built and resolved in further submissions of the batch (rounds), and the
-    /// sums are still the CPU backend's within the summation bound (which splits the same
-    /// tiles the same way: with two lanes it traces planned tiles whole), the same pixels,
-    /// each line credited once.
-    #[test]
-    fn overflowed_tiles_are_redone_in_further_rounds() {
-        let cornell = cornell();
-        let config = BundleConfig { node_capacity: 20_000, alpha: 1.0, ..cornell.bundle.config.clone() };
-        let b = &cornell.bundle;
-        let bundle = BundleScene::new(b.scene.clone(), b.geom.clone(), b.atlas.clone(), config);
-        let scene = Arc::new(CpuScene::new(Arc::new(bundle)));
-        let (texels, cpu, gpu, stats, cpu_stats) = both(&scene, 0, 0, 2);
-        eprintln!(
-            "{} texels: {} tiles, {} overflowed, {} rounds over {} directions",
-            texels.len(),
-            stats.tiles,
-            stats.overflowed_tiles,
-            stats.tile_rounds,
-            stats.directions
-        );
-        assert!(stats.overflowed_tiles > 0, "no tile overflowed: the test tests nothing");
-        assert_eq!(stats.covered_pixels, cpu_stats.covered_pixels, "the same pixels resolved");
-        assert_eq!((stats.tiles, stats.overflowed_tiles), (cpu_stats.tiles, cpu_stats.overflowed_tiles));
-        assert!(stats.tile_rounds >= 2, "overflowed parts make further rounds");
-        assert_eq!((stats.cpu_fallback_batches, stats.saturated_sums), (0, 0));
-        let (worst, beyond) = compare(&cpu, &gpu, summation_bound(&scene, 2));
-        assert_eq!(beyond, 0, "worst {worst:e}");
-    }
-
-    /// Fixed-point scales far too large for the batch (2^20 times the chosen ones): the
-    /// shader sees the high words overflow, the backend redoes the batch with scales 2^24
-    /// smaller, and the sums are then the CPU's within the summation bound.
-    #[test]
-    fn saturated_fixed_point_sums_are_seen_and_the_batch_redone() {
-        let scene = cornell();
-        let bundle = &scene.bundle;
-        let texels = TexelMap::build(&bundle.scene, &bundle.geom, &bundle.atlas, 0);
-        let whole = WholeLod::new(&bundle.atlas, &texels);
-        let target = whole.target(&texels);
-        let own = vec![Rgb::ONE; texels.len()];
-        let source = SourceRadiance { own: &own, foreign: None };
-        let jobs = JobSequence::new(1, 0, 0);
-        let batch = [jobs.job(0)];
-        let never = AtomicBool::new(false);
-        let gpu_context = GpuContext::headless().expect("a Vulkan adapter (lavapipe: mesa-vulkan-drivers)");
-        let mut gpu = GpuBundleBackend::new(gpu_context, scene.clone(), 2, false).unwrap();
-        gpu.scale_boost_bits = 20;
-        let mut gpu_sums = BatchSums::default();
-        let stats = gpu.trace_batch(&target, &batch, &source, &mut gpu_sums, &never).unwrap();
-        assert_eq!(stats.redone_batches, 1, "the first attempt must saturate");
-        assert_eq!((stats.saturated_sums, stats.cpu_fallback_batches), (0, 0));
-        let mut cpu = CpuBundleBackend::new(scene.clone(), 2);
-        let mut cpu_sums = BatchSums::default();
-        cpu.trace_batch(&target, &batch, &source, &mut cpu_sums, &never).unwrap();
-        let (worst, beyond) = compare(&cpu_sums, &gpu_sums, summation_bound(&scene, 1));
-        assert_eq!(beyond, 0, "worst {worst:e}");
-    }
-}
+mod tests;

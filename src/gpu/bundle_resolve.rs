@@ -2,7 +2,10 @@
 //! rectangle, walk its linked list, rebuild each fragment from its triangle, sort along ω
 //! with the estimator's layer rules and credit every target side what it sees. The twin of
 //! the CPU's `TileFragments::resolve` + `estimator::exchange` (shaders/bundle_resolve.wgsl
-//! says how each step follows the CPU's).
+//! says how each step follows the CPU's); in a scene with see-through surfaces or
+//! cut-outs, of `cpu::through` (each fragment's transmittance, the walk with the running
+//! product: bundle_through.inc.wgsl), which reads the scene's materials and each target
+//! texel's triangle.
 //!
 //! Per-texel sums are 64-bit fixed point in pairs of u32 (no float atomics): exact, so the
 //! GPU's sums do not depend on the order threads run in. [`FixedPoint`] picks the scales
@@ -18,7 +21,8 @@ use super::device::GpuContext;
 use super::layout::{ResolveParams, ResolveTriangle, TableHeader};
 use super::pass::{self, READ, WRITE};
 use super::shader;
-use super::surface_radiance::{ForeignBindings, ForeignRadiance};
+use super::surface_radiance::{ForeignBindings, ForeignRadiance, SceneSurfaces};
+use crate::atlas::Atlas;
 use crate::bundle::estimator::Coincidence;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::sky::SkySeen;
@@ -36,8 +40,10 @@ const STATUS_WORDS: u64 = 5;
 /// (bundle_groups.wgsl), then resolved, an invocation per pixel of a listed group.
 pub struct ResolvePass {
     layout: wgpu::BindGroupLayout,
-    /// Groups 1 and 2: what foreign sides show (or placeholders).
+    /// Groups 1 and 2: what foreign sides show, the scene's materials (or placeholders).
     pub foreign: ForeignBindings,
+    /// Whether the scene lets light through surfaces (`PASSING` in every pipeline).
+    passing: bool,
     /// The resolve without a foreign source, and with one (`FOREIGN_SOURCE`; made at the
     /// first bake that has one).
     pipeline: wgpu::ComputePipeline,
@@ -152,19 +158,24 @@ pub struct TargetBuffers {
     own: wgpu::Buffer,
     sums: wgpu::Buffer,
     staging: wgpu::Buffer,
+    /// Per texel its face's triangle, in a scene that lets light through surfaces (else a
+    /// placeholder word the resolve never reads).
+    texel_triangles: wgpu::Buffer,
 }
 
-/// Bytes of storage the target's buffers need (for the memory estimate and limits).
-pub fn target_bytes(target: &BakeTarget) -> u64 {
+/// Bytes of storage the target's buffers need (for the memory estimate and limits); a
+/// scene that lets light through surfaces (`passing`) adds each texel's triangle.
+pub fn target_bytes(target: &BakeTarget, passing: bool) -> u64 {
     let entries: u64 = target.tables.iter().map(|t| t.dense_len() as u64 * 4).sum();
     let n = target.len() as u64;
-    entries + n * 12 + 2 * (n * WORDS_PER_TEXEL + STATUS_WORDS) * 4
+    entries + n * (12 + 4 * passing as u64) + 2 * (n * WORDS_PER_TEXEL + STATUS_WORDS) * 4
 }
 
 impl TargetBuffers {
-    /// Uploads `target`'s tables and makes its sums; an error when a buffer exceeds the
-    /// device's binding limit.
-    pub fn new(gpu: &GpuContext, target: &BakeTarget) -> Result<TargetBuffers, GpuError> {
+    /// Uploads `target`'s tables and makes its sums, and in a scene that lets light through
+    /// surfaces (`passing`: its atlas) each texel's triangle; an error when a buffer exceeds
+    /// the device's binding limit.
+    pub fn new(gpu: &GpuContext, target: &BakeTarget, passing: Option<&Atlas>) -> Result<TargetBuffers, GpuError> {
         let device = &gpu.device;
         let limit = device.limits().max_storage_buffer_binding_size;
         let mut headers = Vec::with_capacity(target.tables.len());
@@ -186,7 +197,16 @@ impl TargetBuffers {
         let whole_table = matches!(target.tables, [t] if t.chart.is_none());
         let n = target.len() as u64;
         let sums_bytes = (n * WORDS_PER_TEXEL + STATUS_WORDS) * 4;
-        for (what, bytes) in [("texel tables", entries.len() as u64 * 4), ("texel sums", sums_bytes)] {
+        let mut triangles: Vec<u32> = match passing {
+            Some(atlas) => target.face.iter().map(|&f| atlas.faces[f as usize].tri).collect(),
+            None => Vec::new(),
+        };
+        let checked = [
+            ("texel tables", entries.len() as u64 * 4),
+            ("texel sums", sums_bytes),
+            ("texel triangles", triangles.len() as u64 * 4),
+        ];
+        for (what, bytes) in checked {
             if bytes > limit {
                 return Err(GpuError::Validation(format!(
                     "the target's {what} need {bytes} bytes, over the device's storage binding limit of {limit}"
@@ -206,6 +226,10 @@ impl TargetBuffers {
         if entries.is_empty() {
             entries.push(u32::MAX);
         }
+        if triangles.is_empty() {
+            triangles.push(0);
+        }
+        let texel_triangles = init("bundle resolve texel triangles", bytemuck::cast_slice(&triangles));
         let tables = init("bundle resolve tables", bytemuck::cast_slice(&headers));
         let entries = init("bundle resolve table entries", bytemuck::cast_slice(&entries));
         let own = device.create_buffer(&wgpu::BufferDescriptor {
@@ -236,6 +260,7 @@ impl TargetBuffers {
             own,
             sums,
             staging,
+            texel_triangles,
         })
     }
 
@@ -295,17 +320,18 @@ pub fn groups_bytes(head_side: u32) -> u64 {
 }
 
 impl ResolvePass {
-    /// The pipelines, for rectangles of at most `head_side`² pixels.
-    pub fn new(gpu: &GpuContext, head_side: u32) -> Result<ResolvePass, GpuError> {
+    /// The pipelines, for rectangles of at most `head_side`² pixels of a scene that lets
+    /// light through surfaces or not (`passing`).
+    pub fn new(gpu: &GpuContext, head_side: u32, passing: bool) -> Result<ResolvePass, GpuError> {
         let device = &gpu.device;
         let c = wgpu::ShaderStages::COMPUTE;
         let mut bindings = vec![(c, READ); 10];
-        bindings.extend([(c, WRITE), (c, READ)]);
+        bindings.extend([(c, WRITE), (c, READ), (c, READ)]);
         let needed = bindings.len() as u32;
         if device.limits().max_storage_buffers_per_shader_stage < needed {
             return Err(GpuError::Unsupported {
                 adapter: gpu.info.name.clone(),
-                missing: "12 storage buffers per shader stage (the bundle resolve)",
+                missing: "13 storage buffers per shader stage (the bundle resolve)",
             });
         }
         let layout = pass::buffer_layout(device, "bundle resolve", &bindings);
@@ -319,7 +345,7 @@ impl ResolvePass {
         let name = "bundle_resolve.wgsl";
         let text = if gpu.has_f64() { shader::source_f64(name)? } else { shader::source(name)? };
         let module = shader::module_from(device, name, text);
-        let pipeline = resolve_pipeline(device, &pipeline_layout, &module, false);
+        let pipeline = resolve_pipeline(device, &pipeline_layout, &module, false, passing);
         let groups_layout =
             pass::buffer_layout(device, "bundle resolve groups", &[(c, READ), (c, READ), (c, WRITE), (c, WRITE)]);
         let groups_pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -345,6 +371,7 @@ impl ResolvePass {
         Ok(ResolvePass {
             layout,
             foreign,
+            passing,
             pipeline,
             foreign_pipeline: None,
             pipeline_layout,
@@ -361,7 +388,8 @@ impl ResolvePass {
     /// with a foreign source).
     pub fn prepare_foreign(&mut self, gpu: &GpuContext) -> Result<(), GpuError> {
         if self.foreign_pipeline.is_none() {
-            self.foreign_pipeline = Some(resolve_pipeline(&gpu.device, &self.pipeline_layout, &self.module, true));
+            let pipeline = resolve_pipeline(&gpu.device, &self.pipeline_layout, &self.module, true, self.passing);
+            self.foreign_pipeline = Some(pipeline);
             gpu.take_error()?;
         }
         Ok(())
@@ -371,7 +399,9 @@ impl ResolvePass {
     /// earlier submission). It does nothing when the list build overflowed a splittable
     /// rectangle (the host splits and redoes it). Its parameters go in buffers of its own,
     /// so many rectangles may share a submission. Foreign sides show `foreign`'s radiance (after
-    /// [`Self::prepare_foreign`]), or are black and counted lost without one.
+    /// [`Self::prepare_foreign`]), or are black and counted lost without one. A pass made
+    /// for a scene that lets light through surfaces reads their materials from `surfaces`
+    /// (`foreign`'s when it has one).
     #[allow(clippy::too_many_arguments)]
     pub fn encode(
         &self,
@@ -382,6 +412,7 @@ impl ResolvePass {
         lists: &ListBuffers,
         target: &TargetBuffers,
         foreign: Option<&ForeignRadiance>,
+        surfaces: Option<&SceneSurfaces>,
         rect: &Rectangle,
     ) {
         let (vp, frame, c) = (rect.viewport, rect.frame, rect.coincidence);
@@ -462,6 +493,7 @@ impl ResolvePass {
             &target.own,
             &target.sums,
             &self.groups,
+            &target.texel_triangles,
         ];
         let group = bind(&self.layout, &buffers);
         let mut pass = encoder
@@ -472,21 +504,24 @@ impl ResolvePass {
         };
         pass.set_pipeline(pipeline);
         pass.set_bind_group(0, &group, &[]);
-        let [lightmap, surfaces] = self.foreign.groups(foreign);
+        let [lightmap, surfaces] = self.foreign.groups(foreign, surfaces);
         pass.set_bind_group(1, lightmap, &[]);
         pass.set_bind_group(2, surfaces, &[]);
         pass.dispatch_workgroups_indirect(&self.dispatch, 0);
     }
 }
 
-/// The resolve pipeline, reading foreign sides or not (`FOREIGN_SOURCE`).
+/// The resolve pipeline, reading foreign sides or not (`FOREIGN_SOURCE`), letting light
+/// through surfaces or not (`PASSING`).
 fn resolve_pipeline(
     device: &wgpu::Device,
     layout: &wgpu::PipelineLayout,
     module: &wgpu::ShaderModule,
     foreign: bool,
+    passing: bool,
 ) -> wgpu::ComputePipeline {
-    let constants = [("FOREIGN_SOURCE", if foreign { 1.0 } else { 0.0 })];
+    let flag = |on: bool| if on { 1.0 } else { 0.0 };
+    let constants = [("FOREIGN_SOURCE", flag(foreign)), ("PASSING", flag(passing))];
     device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
         label: Some(if foreign { "bundle resolve (foreign sides)" } else { "bundle resolve" }),
         layout: Some(layout),

@@ -235,14 +235,22 @@ pub struct SurfaceTriangle {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable, PartialEq)]
 pub struct SurfaceMaterial {
+    /// Linear base-colour factor; alpha is the coverage factor.
     pub base_color: [f32; 4],
     pub emission: [f32; 3],
     pub double_sided: u32,
     /// Texture indices, `u32::MAX` for none.
     pub base_texture: u32,
     pub emissive_texture: u32,
-    pub _pad0: u32,
-    pub _pad1: u32,
+    /// `ALPHA_*` in the shader (`scene::AlphaMode`), and `MASK`'s cutoff.
+    pub alpha_mode: u32,
+    pub alpha_cutoff: f32,
+    /// `KHR_materials_transmission`'s factor and texture (its red channel).
+    pub transmission: f32,
+    pub transmission_texture: u32,
+    /// 1 when light may pass the surface (`Material::lets_light_through`).
+    pub passing: u32,
+    pub _pad: u32,
 }
 
 /// `TextureHeader` (surface_radiance.inc.wgsl): one RGBA8 texture in the texel buffer.
@@ -419,7 +427,19 @@ mod tests {
             "bundle_resolve.wgsl",
             SurfaceMaterial,
             "SurfaceMaterial",
-            [base_color, emission, double_sided, base_texture, emissive_texture, _pad0, _pad1]
+            [
+                base_color,
+                emission,
+                double_sided,
+                base_texture,
+                emissive_texture,
+                alpha_mode,
+                alpha_cutoff,
+                transmission,
+                transmission_texture,
+                passing,
+                _pad
+            ]
         );
         assert_layout!(
             "bundle_resolve.wgsl",

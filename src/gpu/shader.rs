@@ -10,6 +10,7 @@ pub const SOURCES: &[(&str, &str)] = &[
     ("common.inc.wgsl", include_str!("../../shaders/common.inc.wgsl")),
     ("lightmap.inc.wgsl", include_str!("../../shaders/lightmap.inc.wgsl")),
     ("surface_radiance.inc.wgsl", include_str!("../../shaders/surface_radiance.inc.wgsl")),
+    ("bundle_through.inc.wgsl", include_str!("../../shaders/bundle_through.inc.wgsl")),
     ("surface.wgsl", include_str!("../../shaders/surface.wgsl")),
     ("irradiance_probe.wgsl", include_str!("../../shaders/irradiance_probe.wgsl")),
     ("bundle_analysis.wgsl", include_str!("../../shaders/bundle_analysis.wgsl")),

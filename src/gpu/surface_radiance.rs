@@ -1,15 +1,20 @@
 //! What surfaces outside a bake's target show its bundles, on the GPU: the runtime's
 //! `ShownSource` (albedo/π times the shown light map's irradiance, plus emission where the
-//! global bundles carry it), evaluated in the resolve (bundle_resolve.wgsl).
+//! global bundles carry it), evaluated in the resolve (bundle_resolve.wgsl); and the
+//! scene's materials, which that and the transmittance of see-through surfaces and
+//! cut-outs (bundle_through.inc.wgsl) read.
 //!
 //! - group 1: the shown light map's mirror ([`super::lightmap`], lightmap.inc.wgsl), kept in
 //!   step with each batch's snapshot by partial page uploads;
 //! - group 2: the scene's materials ([`SceneSurfaces`], surface_radiance.inc.wgsl): per
 //!   triangle its TEXCOORD_0 corners, material and whether the bundles carry its emission;
-//!   per material its factors and textures; the textures as RGBA8 words; the CPU's sRGB table.
+//!   per material its factors, alpha mode, transmission and textures; the textures as RGBA8
+//!   words; the CPU's sRGB table. The GPU mirror of `Scene::materials` and `textures`,
+//!   uploaded once per backend (at its start when the scene lets light through surfaces,
+//!   else at the first bake with a foreign source).
 //!
-//! A bake without a foreign source binds [`ForeignBindings`]' placeholders instead (its
-//! resolve pipeline, made with `FOREIGN_SOURCE` false, never reads them).
+//! A bake that reads neither binds [`ForeignBindings`]' placeholders instead (its resolve
+//! pipeline, made with `FOREIGN_SOURCE` and `PASSING` false, never reads them).
 
 use std::sync::Arc;
 
@@ -22,6 +27,7 @@ use super::lightmap::{self, LightmapGpu};
 use crate::bundle::target::BundleScene;
 use crate::runtime::shown::ShownLightmap;
 use crate::scene::texture::{WrapMode, srgb_to_linear_lut};
+use crate::scene::{AlphaMode, Material};
 
 /// `NO_TEXTURE` in the shader.
 const NO_TEXTURE: u32 = u32::MAX;
@@ -51,6 +57,33 @@ struct SurfaceRecords {
     materials: Vec<SurfaceMaterial>,
     headers: Vec<TextureHeader>,
     texels: Vec<u32>,
+}
+
+/// `ALPHA_*` in bundle_through.inc.wgsl, and the cutoff (0 unless `MASK`).
+fn alpha_code(mode: AlphaMode) -> (u32, f32) {
+    match mode {
+        AlphaMode::Opaque => (0, 0.0),
+        AlphaMode::Mask { cutoff } => (1, cutoff),
+        AlphaMode::Blend => (2, 0.0),
+    }
+}
+
+/// The record of material `m` (`texture`: a texture reference's index, or `NO_TEXTURE`).
+fn material_record(m: &Material, texture: impl Fn(&Option<crate::scene::TextureRef>) -> u32) -> SurfaceMaterial {
+    let (alpha_mode, alpha_cutoff) = alpha_code(m.alpha_mode);
+    SurfaceMaterial {
+        base_color: m.base_color.to_array(),
+        emission: m.emission.to_array(),
+        double_sided: m.double_sided as u32,
+        base_texture: texture(&m.base_color_texture),
+        emissive_texture: texture(&m.emissive_texture),
+        alpha_mode,
+        alpha_cutoff,
+        transmission: m.transmission,
+        transmission_texture: texture(&m.transmission_texture),
+        passing: m.lets_light_through() as u32,
+        _pad: 0,
+    }
 }
 
 fn wrap_code(mode: WrapMode) -> u32 {
@@ -86,19 +119,7 @@ impl SurfaceRecords {
             })
             .collect();
         let texture = |r: &Option<crate::scene::TextureRef>| r.as_ref().map_or(NO_TEXTURE, |r| r.texture as u32);
-        let materials = s
-            .materials
-            .iter()
-            .map(|m| SurfaceMaterial {
-                base_color: m.base_color.to_array(),
-                emission: m.emission.to_array(),
-                double_sided: m.double_sided as u32,
-                base_texture: texture(&m.base_color_texture),
-                emissive_texture: texture(&m.emissive_texture),
-                _pad0: 0,
-                _pad1: 0,
-            })
-            .collect();
+        let materials = s.materials.iter().map(|m| material_record(m, texture)).collect();
         let words = u32::try_from(words)
             .map_err(|_| GpuError::Validation(format!("the scene's textures hold {words} texels, over 2^32")))?;
         let mut texels = Vec::with_capacity(words as usize);
@@ -121,7 +142,7 @@ impl SurfaceRecords {
 }
 
 /// A storage buffer holding `data`, or zeros when it is empty: a binding must hold one
-/// element of its array (the largest here is 48 bytes).
+/// element of its array (the largest here is 64 bytes).
 fn storage(device: &wgpu::Device, label: &str, data: &[u8]) -> wgpu::Buffer {
     let zero = [0u8; 64];
     let contents = if data.is_empty() { &zero[..] } else { data };
@@ -207,19 +228,23 @@ impl ForeignBindings {
         ForeignBindings { lightmap_layout, surfaces_layout, placeholder_lightmap, placeholder_surfaces }
     }
 
-    /// Groups 1 and 2 for a resolve: `foreign`'s, or the placeholders.
-    pub fn groups<'a>(&'a self, foreign: Option<&'a ForeignRadiance>) -> [&'a wgpu::BindGroup; 2] {
-        match foreign {
-            Some(f) => [f.lightmap.bind_group(), &f.surfaces.bind_group],
-            None => [&self.placeholder_lightmap, &self.placeholder_surfaces],
-        }
+    /// Groups 1 and 2 for a resolve: `foreign`'s shown map, or the placeholder; the scene's
+    /// `surfaces` (`foreign`'s when it has one), or the placeholder.
+    pub fn groups<'a>(
+        &'a self,
+        foreign: Option<&'a ForeignRadiance>,
+        surfaces: Option<&'a SceneSurfaces>,
+    ) -> [&'a wgpu::BindGroup; 2] {
+        let lightmap = foreign.map_or(&self.placeholder_lightmap, |f| f.lightmap.bind_group());
+        let surfaces = foreign.map(|f| &*f.surfaces).or(surfaces);
+        [lightmap, surfaces.map_or(&self.placeholder_surfaces, |s| &s.bind_group)]
     }
 }
 
-/// One backend's foreign source on the GPU: the scene's materials (uploaded once) and the
-/// mirror of the last shown-map snapshot a batch saw.
+/// One backend's foreign source on the GPU: the scene's materials (uploaded once, shared
+/// with the backend) and the mirror of the last shown-map snapshot a batch saw.
 pub struct ForeignRadiance {
-    surfaces: SceneSurfaces,
+    surfaces: Arc<SceneSurfaces>,
     lightmap: LightmapGpu,
     /// The snapshot mirrored, and a bound on the radiance any foreign side shows in it.
     shown: Arc<ShownLightmap>,
@@ -227,13 +252,14 @@ pub struct ForeignRadiance {
 }
 
 impl ForeignRadiance {
+    /// The mirror of `shown` beside the scene's `surfaces`.
     pub fn new(
         gpu: &GpuContext,
         bindings: &ForeignBindings,
         scene: &BundleScene,
         shown: &Arc<ShownLightmap>,
+        surfaces: Arc<SceneSurfaces>,
     ) -> Result<ForeignRadiance, GpuError> {
-        let surfaces = SceneSurfaces::new(gpu, &bindings.surfaces_layout, scene)?;
         let lightmap = LightmapGpu::new(gpu, &bindings.lightmap_layout, shown)?;
         Ok(ForeignRadiance { surfaces, lightmap, shown: shown.clone(), brightest: brightest(scene, shown) })
     }
@@ -258,11 +284,6 @@ impl ForeignRadiance {
     /// A bound on any channel of any foreign side's radiance (for the fixed-point scales).
     pub fn brightest(&self) -> f32 {
         self.brightest
-    }
-
-    /// Bytes of the scene's materials on the GPU (the mirror's pages come on top).
-    pub fn surface_bytes(&self) -> u64 {
-        self.surfaces.bytes
     }
 }
 

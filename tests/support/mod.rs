@@ -397,3 +397,18 @@ pub fn fails(cwd: &Path, args: &[&str], needles: &[&str]) -> i32 {
     }
     code
 }
+
+/// Bakes `scene` with `config`; on the GPU backend, checks that it really traced every
+/// batch (it falls back to the CPU on a GPU error) and resolved every pixel.
+pub fn bake(scene: &livebake::scene::Scene, config: &livebake::bake::BakeConfig) -> livebake::bake::BakeOutput {
+    let progress = livebake::progress::NoProgress;
+    let out = livebake::bake::bake(&std::sync::Arc::new(scene.clone()), config, &progress).expect("bake");
+    if config.backend == livebake::bake::BackendKind::Gpu {
+        assert_eq!(out.report.backend, "gpu");
+        for lod in &out.report.lods {
+            let pass = &lod.bundle.as_ref().expect("bundle report").stats.pass;
+            assert_eq!((pass.cpu_fallback_batches, pass.unresolved_pixels), (0, 0));
+        }
+    }
+    out
+}
