@@ -163,14 +163,6 @@ pub struct TargetBuffers {
     texel_triangles: wgpu::Buffer,
 }
 
-/// Bytes of storage the target's buffers need (for the memory estimate and limits); a
-/// scene that lets light through surfaces (`passing`) adds each texel's triangle.
-pub fn target_bytes(target: &BakeTarget, passing: bool) -> u64 {
-    let entries: u64 = target.tables.iter().map(|t| t.dense_len() as u64 * 4).sum();
-    let n = target.len() as u64;
-    entries + n * (12 + 4 * passing as u64) + 2 * (n * WORDS_PER_TEXEL + STATUS_WORDS) * 4
-}
-
 impl TargetBuffers {
     /// Uploads `target`'s tables and makes its sums, and in a scene that lets light through
     /// surfaces (`passing`: its atlas) each texel's triangle; an error when a buffer exceeds
