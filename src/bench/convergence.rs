@@ -54,7 +54,7 @@ const RECORDED_CYCLES: RecordedCycles = RecordedCycles {
     date: "2026-12-05",
     machine: "the project's 2-core AMD EPYC VM (shared with other work)",
     renderer: "Blender Cycles 5.0.1 (bpy from PyPI), CPU, 2 threads",
-    command: "scripts/cycles_time_to_error.py assets/cornell_2m/cornell_2m.gltf points.json mitsuba_reference.json",
+    command: "/work/bpy-venv/bin/python scripts/cycles_time_to_error.py assets/cornell_2m/{cornell_2m.gltf,points.json,mitsuba_reference.json}",
     seconds: &[(0.10, 11.27), (0.05, 18.24)],
 };
 
