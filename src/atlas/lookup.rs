@@ -45,24 +45,10 @@ struct RankedBlock {
 /// Z-order index inside a block of the pixel at `(x, y)` from the block's corner: x's bits
 /// at the even positions, y's at the odd ones.
 #[inline(always)]
-const fn z_index(x: i64, y: i64) -> u32 {
-    const fn spread(v: i64) -> u32 {
-        ((v & 1) | (v & 2) << 1 | (v & 4) << 2) as u32
-    }
+fn z_index(x: i64, y: i64) -> u32 {
+    let spread = |v: i64| ((v & 1) | (v & 2) << 1 | (v & 4) << 2) as u32;
     spread(x & 7) | spread(y & 7) << 1
 }
-
-/// [`z_index`] of every pixel of a block, at `(y & 7) << 3 | (x & 7)`: one load where the bits
-/// were spread one by one.
-const Z_INDEX: [u8; 64] = {
-    let mut table = [0u8; 64];
-    let mut k = 0;
-    while k < 64 {
-        table[k] = z_index(k as i64 & 7, k as i64 >> 3) as u8;
-        k += 1;
-    }
-    table
-};
 
 /// The coordinate in a block whose bits are the even ones of `m` (the inverse of `z_index`).
 #[inline(always)]
@@ -134,22 +120,6 @@ impl TexelTable {
                     NO_TEXEL
                 }
             }
-        }
-    }
-
-    /// A walk through the table for lookups along a line (see [`TableWalk`]).
-    pub fn walk(&self) -> TableWalk<'_> {
-        let gutter_texels = match &self.storage {
-            Storage::Dense(_) => &[][..],
-            Storage::Ranked { gutter_texels, .. } => &gutter_texels[..],
-        };
-        TableWalk {
-            table: self,
-            corner: (self.rect.x0, self.rect.y0),
-            blocks: (self.blocks_x, (self.rect.height() + 7) >> 3),
-            at: (i64::MIN, i64::MIN),
-            block: Remembered::Outside,
-            gutter_texels,
         }
     }
 
@@ -256,75 +226,6 @@ impl TexelTable {
             }
         }
         Some(MapPixels { pixel, gutter })
-    }
-}
-
-/// Lookups in a [`TexelTable`] along a line: a bundle span steps across the atlas a pixel or
-/// less at a time, so most lookups land in the 8×8 block of the one before. The walk
-/// remembers that block, its bounds checked once, and a lookup in it costs the block's own
-/// bit tests (a ranked table) or one load (a dense one). The same entries as
-/// [`TexelTable::get`]: the pixels of a ragged block beyond the table's rectangle hold no
-/// texel in either storage (a dense table is filled inside its rectangle alone).
-pub struct TableWalk<'a> {
-    table: &'a TexelTable,
-    /// The rectangle's corner, and its size in blocks.
-    corner: (i64, i64),
-    blocks: (i64, i64),
-    /// The remembered block's coordinates (in blocks from the corner) and entries.
-    at: (i64, i64),
-    block: Remembered<'a>,
-    /// A ranked table's gutter pixels' texels.
-    gutter_texels: &'a [u32],
-}
-
-#[derive(Clone, Copy)]
-enum Remembered<'a> {
-    /// The remembered coordinates lie outside the table.
-    Outside,
-    Dense(&'a [u32; 64]),
-    Ranked(&'a RankedBlock),
-}
-
-impl<'a> TableWalk<'a> {
-    /// The entry of LOD pixel `(x, y)` ([`TexelTable::get`]'s).
-    #[inline(always)]
-    pub fn get(&mut self, x: i64, y: i64) -> u32 {
-        let (x, y) = (x - self.corner.0, y - self.corner.1);
-        let at = (x >> 3, y >> 3);
-        if at != self.at {
-            self.at = at;
-            self.block = self.remember(at);
-        }
-        let k = ((y & 7) << 3 | (x & 7)) as usize;
-        match self.block {
-            Remembered::Outside => NO_TEXEL,
-            Remembered::Dense(entries) => entries[k],
-            Remembered::Ranked(b) => {
-                let m = Z_INDEX[k] as u32;
-                if b.texels >> m & 1 == 1 {
-                    b.first_texel + before(b.texels, m)
-                } else if b.gutter >> m & 1 == 1 {
-                    self.gutter_texels[(b.first_gutter + before(b.gutter, m)) as usize]
-                } else {
-                    NO_TEXEL
-                }
-            }
-        }
-    }
-
-    /// The entries of block `(bx, by)`.
-    #[inline(never)]
-    fn remember(&self, (bx, by): (i64, i64)) -> Remembered<'a> {
-        if bx < 0 || by < 0 || bx >= self.blocks.0 || by >= self.blocks.1 {
-            return Remembered::Outside;
-        }
-        let b = (by * self.blocks.0 + bx) as usize;
-        match &self.table.storage {
-            Storage::Dense(entries) => {
-                entries[b << 6..][..64].try_into().map_or(Remembered::Outside, Remembered::Dense)
-            }
-            Storage::Ranked { blocks, .. } => blocks.get(b).map_or(Remembered::Outside, Remembered::Ranked),
-        }
     }
 }
 
@@ -457,38 +358,6 @@ mod tests {
         assert_eq!(ranked.bytes(), 20 * 12 * 24 + map.gutter.len() * 4);
         assert_eq!(dense.bytes(), 20 * 12 * 64 * 4);
         assert_ne!(ranked.fingerprint(), TexelTable::of_map(&scrambled_map(157, 94)).fingerprint());
-    }
-
-    /// Walks read what `get` reads, along lines in every direction that cross blocks, leave
-    /// the table and come back, on a ranked and a dense table with ragged blocks and a
-    /// corner away from the origin.
-    #[test]
-    fn a_walk_reads_what_get_reads() {
-        let map = scrambled_map(157, 93);
-        let ranked = TexelTable::of_map(&map);
-        let mut dense = TexelTable::new(Some(0), PixelRect::new(-5, 3, 140, 90));
-        for y in 3..90 {
-            for x in -5..140 {
-                dense.set(x, y, ranked.get(x + 5, y));
-            }
-        }
-        let mut rng = crate::sampling::Rng::new(41, 7);
-        let mut steps = 0;
-        for table in [&ranked, &dense] {
-            for _ in 0..400 {
-                let mut walk = table.walk();
-                let (mut x, mut y) = (rng.next_f32() * 200.0 - 20.0, rng.next_f32() * 130.0 - 20.0);
-                let angle = rng.next_f32() * std::f32::consts::TAU;
-                let (dx, dy) = (angle.cos() * 0.7, angle.sin() * 0.7);
-                for _ in 0..120 {
-                    let (px, py) = (x.floor() as i64, y.floor() as i64);
-                    assert_eq!(walk.get(px, py), table.get(px, py), "({px}, {py})");
-                    (x, y) = (x + dx, y + dy);
-                    steps += 1;
-                }
-            }
-        }
-        assert_eq!(steps, 2 * 400 * 120);
     }
 
     #[test]

@@ -17,7 +17,7 @@
 //! ties keep a deterministic order, and results do not depend on how tiles were split.
 
 use super::scene::CpuScene;
-use crate::atlas::lookup::{TableWalk, TexelTable};
+use crate::atlas::lookup::TexelTable;
 use crate::atlas::texels::NO_TEXEL;
 use crate::bundle::estimator::{
     EMITTER_FLAG, FOREIGN, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, pack_normal, sort_by_depth,
@@ -402,10 +402,9 @@ impl ForeignSides<'_> {
 /// The codes of one side along a span: its texel under each pixel centre, or `foreign`
 /// where its table holds none (a pixel of the chart owned by another region, or a UV that
 /// rounds outside every texel). Bundle pixels are about half a texel wide, so consecutive
-/// pixels often fall in the same atlas pixel: its code is remembered, not looked up again;
-/// and the next atlas pixel is mostly in the same 8×8 block of the table ([`TableWalk`]).
+/// pixels often fall in the same atlas pixel: its code is remembered, not looked up again.
 struct TexelCursor<'a> {
-    walk: TableWalk<'a>,
+    table: &'a TexelTable,
     /// The side's UV in LOD pixels as an affine function of the pixel centre (dx, dy)
     /// relative to the triangle's anchor (see `Planes`), on this span's row.
     uv: [Vec2; 3],
@@ -420,7 +419,7 @@ struct TexelCursor<'a> {
 impl<'a> TexelCursor<'a> {
     #[inline(always)]
     fn new(table: &'a TexelTable, uv: &[Vec2; 3], dy: f32, foreign: u32) -> Self {
-        TexelCursor { walk: table.walk(), uv: *uv, dy, foreign, last: Vec2::NEG_ONE, code: foreign }
+        TexelCursor { table, uv: *uv, dy, foreign, last: Vec2::NEG_ONE, code: foreign }
     }
 
     /// The code at pixel centre x `dx` (relative to the anchor).
@@ -435,7 +434,7 @@ impl<'a> TexelCursor<'a> {
         let pixel = p.floor();
         if pixel != self.last {
             self.last = pixel;
-            self.code = match self.walk.get(pixel.x as i64, pixel.y as i64) {
+            self.code = match self.table.get(pixel.x as i64, pixel.y as i64) {
                 NO_TEXEL => self.foreign,
                 t => t,
             };
