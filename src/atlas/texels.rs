@@ -321,11 +321,12 @@ impl TexelMap {
     }
 
     /// Gives up the albedo (12 B a texel) of the texels whose material has no texture (their
-    /// face's [`uniform_albedo`]), returning the others'; [`restore_albedo`](Self::restore_albedo)
+    /// face's [`UniformAlbedos::of_face`]), returning the others'; [`restore_albedo`](Self::restore_albedo)
     /// puts it back. `None` (the dense albedo kept) when so many texels are textured that the
     /// sparse form would be larger.
     pub fn take_albedo(&mut self, scene: &Scene, geom: &SceneGeometry, atlas: &Atlas) -> Option<TexelSubset> {
-        let textured = |i: usize| uniform_albedo(scene, geom, atlas, self.face[i]).is_none();
+        let uniform = UniformAlbedos::new(scene);
+        let textured = |i: usize| uniform.of_face(geom, atlas, self.face[i]).is_none();
         let t = TexelSubset::from_dense_where(&self.albedo, textured);
         if t.bytes() >= self.albedo.len() * 12 {
             return None;
@@ -336,8 +337,8 @@ impl TexelMap {
 
     /// Puts back the albedo [`take_albedo`](Self::take_albedo) gave up, value for value.
     pub fn restore_albedo(&mut self, textured: &TexelSubset, scene: &Scene, geom: &SceneGeometry, atlas: &Atlas) {
-        let view = TexelAlbedo::Textured(textured);
-        self.albedo = (0..self.face.len()).map(|i| view.at(i, self.face[i], scene, geom, atlas)).collect();
+        let (view, uniform) = (TexelAlbedo::Textured(textured), UniformAlbedos::new(scene));
+        self.albedo = (0..self.face.len()).map(|i| view.at(i, self.face[i], &uniform, geom, atlas)).collect();
     }
 
     /// Recomputes the albedo when [`drop_albedo`](Self::drop_albedo) gave it up, and with
@@ -590,11 +591,21 @@ impl TexelSubset {
     }
 }
 
-/// The albedo of face `face` where its material has no base-colour texture (the same at every
-/// point: what [`TexelMap::build`] gives each of its texels), `None` where it has one.
-#[inline]
-pub fn uniform_albedo(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, face: FaceId) -> Option<Rgb> {
-    scene.materials[geom.material[atlas.faces[face as usize].tri as usize] as usize].uniform_albedo(&scene.textures)
+/// Each material's albedo where no texture varies it (the same at every point: what
+/// [`TexelMap::build`] gives each of its texels; [`crate::scene::Material::uniform_albedo`]),
+/// worked out once: a lean bake asks it of a texel's face for every texel of every batch.
+pub struct UniformAlbedos(Vec<Option<Rgb>>);
+
+impl UniformAlbedos {
+    pub fn new(scene: &Scene) -> Self {
+        UniformAlbedos(scene.materials.iter().map(|m| m.uniform_albedo(&scene.textures)).collect())
+    }
+
+    /// The albedo of face `face`'s material, `None` where a texture varies it.
+    #[inline]
+    pub fn of_face(&self, geom: &SceneGeometry, atlas: &Atlas, face: FaceId) -> Option<Rgb> {
+        self.0[geom.material[atlas.faces[face as usize].tri as usize] as usize]
+    }
 }
 
 /// Per texel: diffuse albedo, held densely or for the texels of textured materials alone.
@@ -603,18 +614,18 @@ pub enum TexelAlbedo<'a> {
     /// One value per texel ([`TexelMap::albedo`]).
     Dense(&'a [Rgb]),
     /// The texels of textured materials only; every other texel's is its material's
-    /// ([`uniform_albedo`] of its face).
+    /// ([`UniformAlbedos::of_face`]).
     Textured(&'a TexelSubset),
 }
 
 impl TexelAlbedo<'_> {
     /// Texel `i` of face `face`'s albedo.
     #[inline]
-    pub fn at(&self, i: usize, face: FaceId, scene: &Scene, geom: &SceneGeometry, atlas: &Atlas) -> Rgb {
+    pub fn at(&self, i: usize, face: FaceId, uniform: &UniformAlbedos, geom: &SceneGeometry, atlas: &Atlas) -> Rgb {
         match self {
             TexelAlbedo::Dense(a) => a[i],
             TexelAlbedo::Textured(t) => {
-                t.get(i as u32).or_else(|| uniform_albedo(scene, geom, atlas, face)).unwrap_or(Rgb::ZERO)
+                t.get(i as u32).or_else(|| uniform.of_face(geom, atlas, face)).unwrap_or(Rgb::ZERO)
             }
         }
     }

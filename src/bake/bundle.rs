@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::atlas::chart_filter::fill_within_charts;
 use crate::atlas::lookup::TexelTable;
-use crate::atlas::texels::{Restore, TexelAlbedo, TexelEmission, TexelView};
+use crate::atlas::texels::{Restore, TexelAlbedo, TexelEmission, TexelView, UniformAlbedos};
 use crate::atlas::{FaceId, TexelMap};
 use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
 use crate::bundle::stats::PassStats;
@@ -343,7 +343,8 @@ pub(super) fn trace_region(
     stats.punctual_seconds = seconds;
 
     let carried = |i: usize| bundle.carried(texels.face[i]);
-    let albedo = |i: usize| texels.albedo.at(i, texels.face[i], &bundle.scene, &bundle.geom, &bundle.atlas);
+    let uniform = UniformAlbedos::new(&bundle.scene);
+    let albedo = |i: usize| texels.albedo.at(i, texels.face[i], &uniform, &bundle.geom, &bundle.atlas);
     let triangles = crate::bundle::target::target_triangles(&bundle.atlas, texels.face);
     let target = BakeTarget {
         lod: texels.lod,

@@ -74,7 +74,7 @@
 
 use serde::Serialize;
 
-use crate::atlas::texels::uniform_albedo;
+use crate::atlas::texels::UniformAlbedos;
 use crate::atlas::{Atlas, FaceId};
 use crate::scene::{Scene, SceneGeometry};
 
@@ -178,10 +178,11 @@ impl SceneTraits {
     /// emitters.
     pub fn of(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, light_pass: bool) -> SceneTraits {
         let (mut textured, mut all) = (0f64, 0f64);
+        let uniform = UniformAlbedos::new(scene);
         for (f, face) in atlas.faces.iter().enumerate() {
             let area = geom.areas[face.tri as usize] as f64;
             all += area;
-            if uniform_albedo(scene, geom, atlas, f as FaceId).is_none() {
+            if uniform.of_face(geom, atlas, f as FaceId).is_none() {
                 textured += area;
             }
         }
