@@ -26,6 +26,7 @@ pub mod reference;
 pub mod runtime;
 pub mod sampling;
 pub mod scene;
+pub mod serve;
 pub mod shard;
 pub mod viewer;
 pub mod watch;

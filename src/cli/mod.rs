@@ -8,6 +8,7 @@ mod options;
 mod probe;
 mod progress;
 mod run;
+mod serve;
 mod shard;
 mod view;
 
@@ -88,6 +89,17 @@ enum Command {
         scene: PathBuf,
         #[command(flatten)]
         view: view::ViewOptions,
+        #[command(flatten)]
+        options: SceneOptions,
+    },
+    /// Serve the live runtime to a browser or a WebXR headset: a page drawing the scene
+    /// with its light map, refined where the viewer looks, hot reloads pushed
+    /// (docs/SERVE.md). Binds 127.0.0.1 unless --host is given (then with an access token).
+    Serve {
+        /// glTF 2.0 scene (.gltf or .glb).
+        scene: PathBuf,
+        #[command(flatten)]
+        serve: serve::ServeOptions,
         #[command(flatten)]
         options: SceneOptions,
     },
@@ -185,6 +197,7 @@ pub fn run() -> Result<()> {
             probe::run(&scene, &points, out.as_deref(), &options, &ui)
         }
         Some(Command::View { scene, view, options }) => view::run(&scene, &view, &options, &ui).map(|_| ()),
+        Some(Command::Serve { scene, serve, options }) => serve::run(&scene, &serve, &options, &ui),
         Some(Command::Converge { scene, options, converge }) => converge::run(&scene, &options, &converge, &ui),
         Some(Command::Bench { out, only, quick }) => bench::command(&out, &only, quick, &ui),
     }

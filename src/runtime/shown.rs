@@ -464,6 +464,64 @@ impl ShownLightmap {
     }
 }
 
+/// Where a page of the shown map lies: its layer, LOD and page position (pixels
+/// `px·PAGE_SIDE..` and `py·PAGE_SIDE..` of that LOD).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct PageKey {
+    pub layer: Layer,
+    pub lod: u32,
+    pub px: u32,
+    pub py: u32,
+}
+
+/// What became of one page position between two snapshots ([`ShownLightmap::changed_pages`]).
+#[derive(Clone, Debug)]
+pub enum PageChange {
+    /// A page written (or allocated) since: its new content.
+    Written(PageKey, Arc<Page>),
+    /// A page freed since (an eviction, or a publish that emptied it).
+    Dropped(PageKey),
+}
+
+impl ShownLightmap {
+    /// The pages `self` holds that `before` does not (by id: a publish gives every page it
+    /// writes a new id) and the ones `before` held that `self` no longer has: what a mirror of
+    /// `before` must take to become `self`. A publish's change is exactly the pages its cells
+    /// wrote. Rows the two snapshots share are skipped unread. `None`, or a `before` of
+    /// another shape (a reload that repacked the atlas), compares with an empty map: every
+    /// live page.
+    pub fn changed_pages(&self, before: Option<&ShownLightmap>) -> Vec<PageChange> {
+        let mut out = Vec::new();
+        for layer in Layer::ALL {
+            let now = &self.layers[layer as usize];
+            let then = before.map(|b| &b.layers[layer as usize]);
+            for (k, level) in now.levels.iter().enumerate() {
+                let old = then.and_then(|t| t.levels.get(k)).filter(|o| {
+                    o.pages_x == level.pages_x && before.is_some_and(|b| b.atlas_width == self.atlas_width)
+                });
+                for py in 0..level.pages_y {
+                    let row = &level.rows[py as usize];
+                    let old_row = old.and_then(|o| o.rows.get(py as usize));
+                    if old_row.is_some_and(|r| Arc::ptr_eq(r, row)) {
+                        continue;
+                    }
+                    for px in 0..level.pages_x {
+                        let key = PageKey { layer, lod: k as u32, px, py };
+                        let was = old_row.and_then(|r| r.get(px as usize)).and_then(|p| p.as_ref());
+                        match (row.get(px as usize).and_then(|p| p.as_ref()), was) {
+                            (Some(p), Some(w)) if p.id == w.id => {}
+                            (Some(p), _) => out.push(PageChange::Written(key, p.clone())),
+                            (None, Some(_)) => out.push(PageChange::Dropped(key)),
+                            (None, None) => {}
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
 /// Writes LOD pixels into a copy of a snapshot: pages are copied (or made) on first write,
 /// page-table rows on first change.
 pub struct PageWriter<'a> {
@@ -544,6 +602,42 @@ impl<'a> PageWriter<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A snapshot's change against the one before it is exactly the pages the publish
+    /// wrote (new content) and the ones it freed; against nothing, every live page.
+    #[test]
+    fn changed_pages_are_what_a_publish_wrote() {
+        let mut a = ShownLightmap::new(grid(), 4 * PAGE_SIDE, 2 * PAGE_SIDE, 2, 0.0);
+        let mut w = PageWriter::new(&mut a);
+        w.write(Layer::Bundles, 0, 1, 1, Rgb::ONE);
+        w.write(Layer::Bundles, 0, 2 * PAGE_SIDE + 2, 1, Rgb::ONE);
+        w.finish();
+        assert_eq!(a.changed_pages(None).len(), 2);
+        let mut b = a.clone();
+        let mut w = PageWriter::new(&mut b);
+        w.write(Layer::Bundles, 0, 3, PAGE_SIDE + 1, Rgb::splat(2.0));
+        w.write(Layer::Punctual, 1, 5, 5, Rgb::splat(3.0));
+        w.clear(Layer::Bundles, 0, 2 * PAGE_SIDE + 2, 1);
+        w.finish();
+        let mut written: Vec<(PageKey, f32)> = Vec::new();
+        let mut dropped = Vec::new();
+        for c in b.changed_pages(Some(&a)) {
+            match c {
+                PageChange::Written(k, p) => written.push((k, p.texels.iter().map(|t| t[0]).sum())),
+                PageChange::Dropped(k) => dropped.push(k),
+            }
+        }
+        written.sort_by_key(|(k, _)| (k.layer as u8, k.lod, k.py, k.px));
+        assert_eq!(
+            written,
+            vec![
+                (PageKey { layer: Layer::Bundles, lod: 0, px: 0, py: 1 }, 2.0),
+                (PageKey { layer: Layer::Punctual, lod: 1, px: 0, py: 0 }, 3.0),
+            ]
+        );
+        assert_eq!(dropped, vec![PageKey { layer: Layer::Bundles, lod: 0, px: 2, py: 0 }]);
+        assert!(b.changed_pages(Some(&b)).is_empty());
+    }
 
     fn grid() -> Grid {
         Grid::covering(Vec3::ZERO, Vec3::new(2.0, 1.0, 1.0), 1.0).unwrap()

@@ -64,13 +64,12 @@ pub use error::LoadError;
 pub use references::{ExternalFile, ExternalKind, external_files};
 pub use source::{SourceDocument, SourceImage, read_source};
 
-pub(crate) use files::{FileError, read_regular};
+pub(crate) use files::{FileError, FileScope, read_regular};
 pub(crate) use images::{DecodeError, decode_bounded, most_encoded_bytes};
 
 use super::{Material, MaterialId, Scene};
 use buffers::Buffers;
 use diag::{Diagnostics, Kind};
-use files::FileScope;
 use primitive::Built;
 
 /// Options for [`load_gltf`].

@@ -1,0 +1,310 @@
+//! The glue between the runtime and the clients: one loop (the caller's thread) that reads
+//! the runtime's events and shown map, as `view` does through its `LightSource`, and
+//! broadcasts the scene and each publish's pages; the clients' poses move the runtime's
+//! camera (the latest pose of any client wins).
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use crossbeam_channel::{Receiver, Sender, TrySendError};
+use glam::Vec3;
+use serde::Serialize;
+use tungstenite::{Bytes, Message};
+
+use super::protocol::{ClientMessage, StartPose, changed_cells, encode_update};
+use super::scene::{scene_messages, start_pose};
+use super::{ServeConfig, ServeError};
+use crate::runtime::shown::{Page, PageChange, ShownLightmap};
+use crate::runtime::{CameraView, Runtime, RuntimeEvent};
+use crate::scene::Scene;
+
+/// What the acceptor and the clients tell the hub.
+pub enum HubCommand {
+    /// A client connected; `to` is its outgoing queue.
+    Join {
+        id: u64,
+        to: Sender<Message>,
+    },
+    Message {
+        id: u64,
+        message: ClientMessage,
+    },
+    Leave {
+        id: u64,
+    },
+}
+
+/// Messages a client may have waiting before it counts as fallen behind and is let go (it
+/// can reconnect and gets the whole map again).
+pub const CLIENT_QUEUE: usize = 4096;
+
+/// The serve run's figures (`--stats`, the bench, `/status.json`).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ServeStats {
+    pub clients_joined: u64,
+    pub clients_now: usize,
+    /// Scene generation (1 at first light, +1 a reload that replaced the world).
+    pub generation: u32,
+    pub reloads: u64,
+    /// Incremental updates broadcast (not the whole maps sent to joining clients).
+    pub updates: u64,
+    pub update_pages: u64,
+    pub update_bytes: u64,
+    /// What those updates' pages hold (their texels alone): `update_bytes` minus this is
+    /// the headers'.
+    pub update_page_bytes: u64,
+    /// Runtime publish (the hub's noticing of the new snapshot) to the page's
+    /// acknowledgement that the pages are in its texture, ms, one a received ack.
+    pub ack_latency_ms: Vec<f64>,
+    /// Frame times the pages reported (mean over their reports, ms) and frames counted.
+    pub page_frame_ms: Option<f64>,
+    pub page_frames: u64,
+    /// The last pose a client sent (eye, target).
+    pub last_pose: Option<([f32; 3], [f32; 3])>,
+    pub start: Option<StartPose>,
+    pub first_light: bool,
+}
+
+struct Client {
+    to: Sender<Message>,
+}
+
+struct Hub<'a> {
+    runtime: &'a Runtime,
+    config: &'a ServeConfig,
+    clients: HashMap<u64, Client>,
+    /// Joined before there was a scene to send.
+    waiting: Vec<(u64, Sender<Message>)>,
+    /// The scene's messages, sent to every joining client.
+    scene: Vec<Message>,
+    scene_of: Option<Arc<Scene>>,
+    exposure: Option<f32>,
+    last: Option<Arc<ShownLightmap>>,
+    seq: u32,
+    sent_at: HashMap<u32, f64>,
+    stats: ServeStats,
+    frame_sum: f64,
+    frame_reports: u64,
+}
+
+fn now_ms(runtime: &Runtime) -> f64 {
+    runtime.elapsed() * 1e3
+}
+
+impl Hub<'_> {
+    /// Sends to one client; a full queue or a gone client drops it.
+    fn send(&mut self, id: u64, m: Message) {
+        let Some(c) = self.clients.get(&id) else { return };
+        match c.to.try_send(m) {
+            Ok(()) => {}
+            Err(TrySendError::Full(_)) => {
+                tracing::warn!("client {id} fell behind ({CLIENT_QUEUE} messages queued); letting it go");
+                self.clients.remove(&id);
+            }
+            Err(TrySendError::Disconnected(_)) => {
+                self.clients.remove(&id);
+            }
+        }
+    }
+
+    fn broadcast(&mut self, m: &Message) {
+        let ids: Vec<u64> = self.clients.keys().copied().collect();
+        for id in ids {
+            self.send(id, m.clone());
+        }
+    }
+
+    /// The whole current map as one update (a joining client, or everyone after a reload).
+    fn full_update(&self) -> Option<Message> {
+        let last = self.last.as_ref()?;
+        let bytes = encode_update(
+            self.seq,
+            self.stats.generation,
+            now_ms(self.runtime),
+            true,
+            &changed_cells(last, None),
+            &last.changed_pages(None),
+        );
+        Some(Message::Binary(Bytes::from(bytes)))
+    }
+
+    fn welcome(&mut self, id: u64) {
+        for m in self.scene.clone() {
+            self.send(id, m);
+        }
+        if let Some(full) = self.full_update() {
+            self.send(id, full);
+        }
+    }
+
+    /// (Re)builds the scene's messages from the runtime's world when it is not the one sent.
+    fn follow_world(&mut self) -> bool {
+        let world = self.runtime.world();
+        if self.scene_of.as_ref().is_some_and(|s| Arc::ptr_eq(s, &world.scene)) {
+            return false;
+        }
+        let shown = self.runtime.shown();
+        let exposure = *self.exposure.get_or_insert_with(|| {
+            self.config.exposure.unwrap_or_else(|| crate::viewer::render::auto_exposure(&shown))
+        });
+        let start = start_pose(&world.scene, self.config.pose);
+        self.stats.generation += 1;
+        self.stats.start = Some(start);
+        let msgs = scene_messages(&world.scene, &world.atlas, &shown, self.stats.generation, exposure, start);
+        let text = serde_json::to_string(&msgs.description).unwrap_or_default();
+        let mut scene = vec![Message::text(text), Message::Binary(Bytes::from(msgs.geometry))];
+        scene.extend(msgs.textures.into_iter().map(|t| Message::Binary(Bytes::from(t))));
+        self.scene = scene;
+        self.scene_of = Some(world.scene.clone());
+        // The new scene's map is sent whole.
+        self.last = Some(shown);
+        true
+    }
+
+    fn handle(&mut self, cmd: HubCommand) {
+        match cmd {
+            HubCommand::Join { id, to } => {
+                self.stats.clients_joined += 1;
+                if self.scene.is_empty() {
+                    self.waiting.push((id, to));
+                } else {
+                    self.clients.insert(id, Client { to });
+                    self.welcome(id);
+                }
+            }
+            HubCommand::Leave { id } => {
+                self.clients.remove(&id);
+                self.waiting.retain(|(w, _)| *w != id);
+            }
+            HubCommand::Message { message, .. } => match message {
+                ClientMessage::Pose(p) => {
+                    self.runtime.set_camera(CameraView {
+                        eye: p.eye,
+                        target: p.target,
+                        up: Vec3::Y,
+                        yfov: p.yfov,
+                        aspect: p.aspect,
+                        height_px: p.height_px,
+                    });
+                    self.stats.last_pose = Some((p.eye.to_array(), p.target.to_array()));
+                }
+                ClientMessage::Ack { seq, .. } => {
+                    if let Some(t) = self.sent_at.remove(&seq) {
+                        self.stats.ack_latency_ms.push(now_ms(self.runtime) - t);
+                    }
+                }
+                ClientMessage::Frames { frames, mean_ms } => {
+                    self.frame_sum += mean_ms;
+                    self.frame_reports += 1;
+                    self.stats.page_frames += frames as u64;
+                    self.stats.page_frame_ms = Some(self.frame_sum / self.frame_reports as f64);
+                }
+            },
+        }
+    }
+
+    /// Broadcasts what changed in the shown map since the last broadcast.
+    fn publish(&mut self) {
+        let Some(last) = self.last.clone() else { return };
+        let now = self.runtime.shown();
+        if Arc::ptr_eq(&now, &last) || now.version == last.version {
+            return;
+        }
+        let pages = now.changed_pages(Some(&last));
+        let cells = changed_cells(&now, Some(&last));
+        self.last = Some(now);
+        if pages.is_empty() && cells.is_empty() {
+            return;
+        }
+        self.seq = self.seq.wrapping_add(1);
+        let t = now_ms(self.runtime);
+        let bytes = encode_update(self.seq, self.stats.generation, t, false, &cells, &pages);
+        let written = pages.iter().filter(|p| matches!(p, PageChange::Written(..))).count() as u64;
+        self.stats.updates += 1;
+        self.stats.update_pages += written;
+        self.stats.update_bytes += bytes.len() as u64;
+        self.stats.update_page_bytes += written * Page::BYTES as u64;
+        if self.sent_at.len() > 4096 {
+            self.sent_at.clear();
+        }
+        self.sent_at.insert(self.seq, t);
+        self.broadcast(&Message::Binary(Bytes::from(bytes)));
+    }
+}
+
+/// Runs the hub until `stop` says so; returns the run's figures.
+pub fn run(
+    runtime: &Runtime,
+    config: &ServeConfig,
+    commands: &Receiver<HubCommand>,
+    status: &Mutex<ServeStats>,
+    mut stop: impl FnMut(&ServeStats) -> bool,
+) -> Result<ServeStats, ServeError> {
+    let mut hub = Hub {
+        runtime,
+        config,
+        clients: HashMap::new(),
+        waiting: Vec::new(),
+        scene: Vec::new(),
+        scene_of: None,
+        exposure: None,
+        last: None,
+        seq: 0,
+        sent_at: HashMap::new(),
+        stats: ServeStats::default(),
+        frame_sum: 0.0,
+        frame_reports: 0,
+    };
+    loop {
+        let mut reloaded = false;
+        while let Ok(ev) = runtime.events().try_recv() {
+            match ev.event {
+                RuntimeEvent::Failed { error } => return Err(ServeError::Runtime(error)),
+                RuntimeEvent::ReloadApplied { .. } => {
+                    hub.stats.reloads += 1;
+                    reloaded = true;
+                }
+                _ => {}
+            }
+        }
+        if !hub.stats.first_light && runtime.has_first_light() {
+            hub.stats.first_light = true;
+            hub.follow_world();
+            for (id, to) in std::mem::take(&mut hub.waiting) {
+                hub.clients.insert(id, Client { to });
+                hub.welcome(id);
+            }
+        } else if hub.stats.first_light && reloaded && hub.follow_world() {
+            // "Scene changed": the new description, geometry, textures and whole map.
+            let mut msgs = hub.scene.clone();
+            msgs.extend(hub.full_update());
+            for m in &msgs {
+                hub.broadcast(m);
+            }
+        }
+        if hub.stats.first_light {
+            hub.publish();
+        }
+        match commands.recv_timeout(Duration::from_millis(2)) {
+            Ok(cmd) => {
+                hub.handle(cmd);
+                while let Ok(cmd) = commands.try_recv() {
+                    hub.handle(cmd);
+                }
+            }
+            Err(crossbeam_channel::RecvTimeoutError::Timeout) => {}
+            Err(crossbeam_channel::RecvTimeoutError::Disconnected) => return Err(ServeError::AcceptorGone),
+        }
+        hub.stats.clients_now = hub.clients.len();
+        if let Ok(mut s) = status.lock() {
+            let latencies = std::mem::take(&mut hub.stats.ack_latency_ms);
+            *s = hub.stats.clone();
+            s.ack_latency_ms = latencies.iter().rev().take(64).copied().collect();
+            hub.stats.ack_latency_ms = latencies;
+        }
+        if stop(&hub.stats) {
+            return Ok(hub.stats);
+        }
+    }
+}

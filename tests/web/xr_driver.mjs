@@ -1,0 +1,114 @@
+// Drives livebake's page (web/livebake.js) in headless Chromium with an emulated headset:
+// the Immersive Web Emulation Runtime (npm `iwer`, a Meta Quest 3 config, stereo) is
+// installed before the page loads, the page enters an immersive-vr session and draws both
+// eyes. Software GL (SwiftShader): no GPU needed.
+//   node xr_driver.mjs CONFIG.json
+// CONFIG: {"tools": node_modules' parent, "url", "out": directory, "fovy", "ipd",
+//          "eye_size": [w, h], "frames": N, "steps": ["capture", "move_head", "wait_updates",
+//          "wait_scene:G", "garbage", "frame_times", "static"]}
+// Prints one JSON object: what each step saw. Eye pixels go to OUT/eye-I.rgba (rows bottom
+// up, as readPixels returns them).
+import fs from "fs";
+import path from "path";
+
+const config = JSON.parse(fs.readFileSync(process.argv[2], "utf8"));
+const tools = path.join(config.tools, "node_modules");
+const { chromium } = await import(path.join(tools, "playwright-core", "index.mjs"));
+const iwer = fs.readFileSync(path.join(tools, "iwer", "build", "iwer.min.js"), "utf8");
+
+const browser = await chromium.launch({
+  executablePath: config.chromium || "/usr/bin/chromium",
+  headless: true,
+  args: ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"],
+});
+const result = { steps: [], console: [] };
+const timeout = (config.timeout_s || 120) * 1000;
+try {
+  const [w, h] = config.eye_size || [160, 120];
+  const context = await browser.newContext({ viewport: { width: 2 * w, height: h }, deviceScaleFactor: 1 });
+  await context.addInitScript({ content: iwer });
+  await context.addInitScript({
+    content: `window.__device = new IWER.XRDevice(IWER.metaQuest3, { stereoEnabled: true, fovy: ${config.fovy ?? Math.PI / 2}, ipd: ${config.ipd ?? 0.063} });
+      window.__device.installRuntime({ forceInstall: true });`,
+  });
+  const page = await context.newPage();
+  page.on("console", (m) => result.console.push(m.text()));
+  page.on("pageerror", (e) => result.console.push(`pageerror: ${e.message}`));
+  await page.goto(config.url);
+  await page.waitForFunction(() => window.livebake && window.livebake.vao && window.livebake.updates > 0, null, { timeout });
+  if (!config.no_vr) {
+    await page.evaluate(() => window.livebake.enterVR().then(() => true));
+    await page.waitForFunction((n) => window.livebake.xrFrames >= n, config.frames || 3, { timeout });
+  }
+  const status = () => page.evaluate(() => {
+    const s = window.livebake;
+    return { updates: s.updates, pages: s.pagesWritten, full: s.fullSeen, generation: s.generation,
+      scenes: s.scenesReceived, xr_frames: s.xrFrames, frames: s.frames, pose: s.lastPoseSent || null,
+      frame_ms: s.lastFrameMean ?? null, connected: s.connected, errors: s.errors };
+  });
+  for (const step of config.steps || []) {
+    if (step === "capture") {
+      const eyes = await page.evaluate(async () => {
+        const eyes = await window.livebake.captureEyes();
+        return eyes.map((e) => {
+          let bin = "";
+          for (let i = 0; i < e.pixels.length; i += 0x8000) bin += String.fromCharCode(...e.pixels.subarray(i, i + 0x8000));
+          return { ...e, pixels: btoa(bin) };
+        });
+      });
+      eyes.forEach((e, i) => {
+        const file = path.join(config.out, `eye-${i}.rgba`);
+        fs.writeFileSync(file, Buffer.from(e.pixels, "base64"));
+        e.file = file;
+        delete e.pixels;
+      });
+      result.steps.push({ step, eyes });
+    } else if (step === "move_head") {
+      // One metre along +x in the headset's own tracking space; the page's next pose
+      // message carries it to the runtime's camera.
+      const before = await status();
+      await page.evaluate(() => { const p = window.__device.position; window.__device.position.set(p.x + 1, p.y, p.z); });
+      await page.waitForTimeout(600);
+      const after = await status();
+      const server = await page.evaluate(() => fetch("/status.json").then((r) => r.json()));
+      result.steps.push({ step, before: before.pose, after: after.pose, server_pose: server.last_pose });
+    } else if (step === "wait_updates") {
+      const before = await status();
+      await page.waitForFunction((n) => window.livebake.updates > n, before.updates + 1, { timeout });
+      result.steps.push({ step, before, after: await status() });
+    } else if (step.startsWith("wait_scene:")) {
+      const g = Number(step.split(":")[1]);
+      await page.waitForFunction((g) => window.livebake.generation >= g && window.livebake.updates > 0, g, { timeout });
+      result.steps.push({ step, after: await status() });
+    } else if (step === "frame_times") {
+      await page.waitForFunction(() => window.livebake.lastFrameMean != null, null, { timeout });
+      result.steps.push({ step, after: await status() });
+    } else if (step.startsWith("sleep:")) {
+      await page.waitForTimeout(Number(step.split(":")[1]));
+    } else if (step === "status") {
+      result.steps.push({ step, after: await status() });
+    } else if (step === "screenshot") {
+      const file = path.join(config.out, "page.png");
+      await page.screenshot({ path: file });
+      result.steps.push({ step, file });
+    } else if (step === "mean_pixel") {
+      // The desktop canvas's mean colour (static export check).
+      const mean = await page.evaluate(() => {
+        const c = document.getElementById("view");
+        const gl = c.getContext("webgl2");
+        const px = new Uint8Array(c.width * c.height * 4);
+        gl.readPixels(0, 0, c.width, c.height, gl.RGBA, gl.UNSIGNED_BYTE, px);
+        let s = [0, 0, 0];
+        for (let i = 0; i < px.length; i += 4) { s[0] += px[i]; s[1] += px[i + 1]; s[2] += px[i + 2]; }
+        return s.map((v) => v / (px.length / 4));
+      });
+      result.steps.push({ step, mean });
+    } else throw new Error(`unknown step ${step}`);
+  }
+  result.final = await status();
+} catch (e) {
+  result.error = String(e && e.stack || e);
+} finally {
+  await browser.close();
+}
+process.stdout.write(JSON.stringify(result));

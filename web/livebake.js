@@ -1,0 +1,791 @@
+// livebake's page: the scene lit by the live runtime's light map (docs/SERVE.md).
+//
+// WebGL 2 without a framework: the light map is the viewer's sparse page pyramid (a pool
+// texture of 16×16-texel pages, a page table per layer and LOD, a shown LOD per cell and
+// layer), sampled by a GLSL twin of the viewer's shaders/lightmap.inc.wgsl, so that the
+// page shows what `livebake view` shows. Each socket update writes exactly the pages it
+// carries into the pool (texSubImage2D) and the table entries and cell LODs it changes.
+// "Enter VR" opens a WebXR immersive-vr session: teleport (trigger, aiming at the floor)
+// and snap turn (thumbstick left/right) on the controllers. On a desktop: the fly camera of
+// `view` (drag to look, WASD/QE to move, wheel for speed).
+
+const PAGE_SIDE = 16;
+const PAGE_FLOATS = PAGE_SIDE * PAGE_SIDE * 4;
+const NO_PAGE = 0xffffffff;
+const MAX_LODS = 8;
+const TABLE_W = 4096;
+const POOL_COLUMNS = 64;
+const VERTEX_FLOATS = 9;
+const UPDATE_HEADER = 32;
+const SNAP_TURN = Math.PI / 6;
+// The viewer's background (src/gpu/surface.rs: linear 0.02, 0.02, 0.025), sRGB-encoded as
+// the page's framebuffer wants.
+const srgb = (c) => (c <= 0.0031308 ? c * 12.92 : 1.055 * Math.pow(c, 1 / 2.4) - 0.055);
+const CLEAR = [srgb(0.02), srgb(0.02), srgb(0.025)];
+
+// ---------------------------------------------------------------- matrices (column-major)
+
+function perspective(yfov, aspect, near, far) {
+  const f = 1 / Math.tan(yfov / 2), nf = 1 / (near - far);
+  return new Float32Array([f / aspect, 0, 0, 0, 0, f, 0, 0, 0, 0, (far + near) * nf, -1, 0, 0, 2 * far * near * nf, 0]);
+}
+
+function lookAt(eye, target, up) {
+  const f = norm(sub(target, eye));
+  const s = norm(cross(f, up));
+  const u = cross(s, f);
+  return new Float32Array([
+    s[0], u[0], -f[0], 0, s[1], u[1], -f[1], 0, s[2], u[2], -f[2], 0,
+    -dot(s, eye), -dot(u, eye), dot(f, eye), 1,
+  ]);
+}
+
+function mul(a, b) {
+  const o = new Float32Array(16);
+  for (let c = 0; c < 4; c++)
+    for (let r = 0; r < 4; r++) {
+      let v = 0;
+      for (let k = 0; k < 4; k++) v += a[k * 4 + r] * b[c * 4 + k];
+      o[c * 4 + r] = v;
+    }
+  return o;
+}
+
+const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+const add = (a, b) => [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
+const scale = (a, s) => [a[0] * s, a[1] * s, a[2] * s];
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const norm = (a) => { const l = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / l, a[1] / l, a[2] / l]; };
+
+// ---------------------------------------------------------------- shaders
+
+const VERTEX_SHADER = `#version 300 es
+layout(location = 0) in vec3 position;
+layout(location = 1) in vec2 uv0;
+layout(location = 2) in vec2 lightmapFront;
+layout(location = 3) in vec2 lightmapBack;
+uniform mat4 viewProj;
+out vec3 world;
+out vec2 vUv0;
+out vec2 vFront;
+out vec2 vBack;
+void main() {
+  gl_Position = viewProj * vec4(position, 1.0);
+  world = position;
+  vUv0 = uv0;
+  vFront = lightmapFront;
+  vBack = lightmapBack;
+}`;
+
+// The twin of shaders/lightmap.inc.wgsl and surface.wgsl's lit view.
+const FRAGMENT_SHADER = `#version 300 es
+precision highp float;
+precision highp int;
+precision highp usampler2D;
+const float PI = 3.14159265358979;
+const int PAGE_SIDE = 16;
+const uint NO_PAGE = 0xffffffffu;
+const uint MAX_LODS = 8u;
+const uint TABLE_W = ${TABLE_W}u;
+uniform sampler2D pool;
+uniform usampler2D pageTable;
+uniform usampler2D cellLod;
+uniform sampler2D baseColorTexture;
+uniform sampler2D emissiveTexture;
+uniform vec3 gridOrigin;
+uniform float cellSize;
+uniform uvec3 gridDims;
+uniform uint lodCount;
+uniform float blendBand;
+uniform uint poolColumns;
+uniform uint cellCount;
+uniform uvec4 levels[16]; // pages_x, pages_y, table offset (layer * MAX_LODS + lod)
+uniform vec4 baseColor;
+uniform vec3 emission;
+uniform float exposure;
+in vec3 world;
+in vec2 vUv0;
+in vec2 vFront;
+in vec2 vBack;
+out vec4 colour;
+
+uint tableEntry(uint i) { return texelFetch(pageTable, ivec2(int(i % TABLE_W), int(i / TABLE_W)), 0).r; }
+uint cellEntry(uint i) { return texelFetch(cellLod, ivec2(int(i % TABLE_W), int(i / TABLE_W)), 0).r; }
+
+vec4 lm_tap(uint layer, uint k, ivec2 px) {
+  if (px.x < 0 || px.y < 0) return vec4(0.0);
+  ivec2 page = px / PAGE_SIDE;
+  uvec4 level = levels[layer * MAX_LODS + k];
+  if (uint(page.x) >= level.x || uint(page.y) >= level.y) return vec4(0.0);
+  uint slot = tableEntry(level.z + uint(page.y) * level.x + uint(page.x));
+  if (slot == NO_PAGE) return vec4(0.0);
+  ivec2 origin = ivec2(int(slot % poolColumns), int(slot / poolColumns)) * PAGE_SIDE;
+  vec4 t = texelFetch(pool, origin + px % PAGE_SIDE, 0);
+  if (t.a > 0.0) return vec4(t.rgb, 1.0);
+  return vec4(0.0);
+}
+
+vec3 lm_value(uint layer, uint lod, vec2 uv) {
+  int k = int(min(lod, lodCount - 1u));
+  for (; k >= 0; k--) {
+    vec2 p = uv * float(1u << uint(k)) - vec2(0.5);
+    vec2 p0 = floor(p);
+    vec2 f = p - p0;
+    ivec2 i0 = ivec2(p0);
+    vec4 t00 = lm_tap(layer, uint(k), i0);
+    vec4 t10 = lm_tap(layer, uint(k), i0 + ivec2(1, 0));
+    vec4 t01 = lm_tap(layer, uint(k), i0 + ivec2(0, 1));
+    vec4 t11 = lm_tap(layer, uint(k), i0 + ivec2(1, 1));
+    float w00 = (1.0 - f.x) * (1.0 - f.y) * t00.a;
+    float w10 = f.x * (1.0 - f.y) * t10.a;
+    float w01 = (1.0 - f.x) * f.y * t01.a;
+    float w11 = f.x * f.y * t11.a;
+    float wsum = w00 + w10 + w01 + w11;
+    if (wsum > 0.0) return (t00.rgb * w00 + t10.rgb * w10 + t01.rgb * w01 + t11.rgb * w11) / wsum;
+  }
+  return vec3(0.0);
+}
+
+uvec3 lm_cell_coords(vec3 p) {
+  vec3 q = floor((p - gridOrigin) / cellSize);
+  return uvec3(clamp(q, vec3(0.0), vec3(gridDims - uvec3(1u))));
+}
+
+uint lm_cell_index(uvec3 c) { return c.x + gridDims.x * (c.y + gridDims.y * c.z); }
+
+vec3 lm_layer_irradiance(uint layer, uvec3 c, vec3 p, vec2 uv) {
+  uint lods = layer * cellCount;
+  uint k = cellEntry(lods + lm_cell_index(c));
+  vec3 base = lm_value(layer, k, uv);
+  vec3 lo = gridOrigin + vec3(c) * cellSize;
+  if (k == 0u || blendBand <= 0.0) return base;
+  float w = 0.0;
+  uint kLow = k;
+  bool nearCoarser = false;
+  for (uint axis = 0u; axis < 3u; axis++) {
+    for (uint side = 0u; side < 2u; side++) {
+      uvec3 n = c;
+      float d = 0.0;
+      if (side == 0u) {
+        if (c[axis] == 0u) continue;
+        n[axis] = c[axis] - 1u;
+        d = p[axis] - lo[axis];
+      } else {
+        if (c[axis] + 1u >= gridDims[axis]) continue;
+        n[axis] = c[axis] + 1u;
+        d = lo[axis] + cellSize - p[axis];
+      }
+      if (d >= blendBand) continue;
+      uint kn = cellEntry(lods + lm_cell_index(n));
+      float band = blendBand / float(1u << kn);
+      if (kn >= k || d >= band) continue;
+      w = max(w, clamp(1.0 - max(d, 0.0) / band, 0.0, 1.0));
+      kLow = min(kLow, kn);
+      nearCoarser = true;
+    }
+  }
+  if (nearCoarser) return base * (1.0 - w) + lm_value(layer, kLow, uv) * w;
+  return base;
+}
+
+vec3 srgb_encode(vec3 c) {
+  vec3 lo = c * 12.92;
+  vec3 hi = 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055;
+  return mix(hi, lo, vec3(lessThanEqual(c, vec3(0.0031308))));
+}
+
+void main() {
+  vec3 base = baseColor.rgb * texture(baseColorTexture, vUv0).rgb;
+  vec3 albedo = clamp(base, vec3(0.0), vec3(1.0));
+  vec3 emitted = emission * texture(emissiveTexture, vUv0).rgb;
+  vec2 uv = gl_FrontFacing ? vFront : vBack;
+  vec3 irradiance = vec3(0.0);
+  if (uv.x >= 0.0) {
+    uvec3 c = lm_cell_coords(world);
+    irradiance = lm_layer_irradiance(0u, c, world, uv) + lm_layer_irradiance(1u, c, world, uv);
+  }
+  vec3 radiance = albedo * irradiance / PI + emitted;
+  vec3 toned = vec3(1.0) - exp(-max(radiance * exposure, vec3(0.0)));
+  colour = vec4(srgb_encode(toned), 1.0);
+}`;
+
+function compile(gl, type, source) {
+  const s = gl.createShader(type);
+  gl.shaderSource(s, source);
+  gl.compileShader(s);
+  if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(gl.getShaderInfoLog(s));
+  return s;
+}
+
+function program(gl) {
+  const p = gl.createProgram();
+  gl.attachShader(p, compile(gl, gl.VERTEX_SHADER, VERTEX_SHADER));
+  gl.attachShader(p, compile(gl, gl.FRAGMENT_SHADER, FRAGMENT_SHADER));
+  gl.linkProgram(p);
+  if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(p));
+  const u = {};
+  const n = gl.getProgramParameter(p, gl.ACTIVE_UNIFORMS);
+  for (let i = 0; i < n; i++) {
+    const name = gl.getActiveUniform(p, i).name.replace(/\[0\]$/, "");
+    u[name] = gl.getUniformLocation(p, gl.getActiveUniform(p, i).name);
+  }
+  return { program: p, u };
+}
+
+// ---------------------------------------------------------------- the light map mirror
+
+// Integer texture of TABLE_W columns holding `count` u32 entries; rows uploaded when dirty.
+class IntTable {
+  constructor(gl, count, fill) {
+    this.gl = gl;
+    this.rows = Math.max(1, Math.ceil(count / TABLE_W));
+    this.data = new Uint32Array(this.rows * TABLE_W).fill(fill);
+    this.tex = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, this.tex);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.R32UI, TABLE_W, this.rows, 0, gl.RED_INTEGER, gl.UNSIGNED_INT, this.data);
+    this.lo = Infinity;
+    this.hi = -1;
+  }
+  set(i, v) {
+    if (this.data[i] === v) return;
+    this.data[i] = v;
+    const r = (i / TABLE_W) | 0;
+    if (r < this.lo) this.lo = r;
+    if (r > this.hi) this.hi = r;
+  }
+  upload() {
+    if (this.hi < 0) return;
+    const gl = this.gl;
+    gl.bindTexture(gl.TEXTURE_2D, this.tex);
+    const view = this.data.subarray(this.lo * TABLE_W, (this.hi + 1) * TABLE_W);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, this.lo, TABLE_W, this.hi - this.lo + 1, gl.RED_INTEGER, gl.UNSIGNED_INT, view);
+    this.lo = Infinity;
+    this.hi = -1;
+  }
+  dispose() { this.gl.deleteTexture(this.tex); }
+}
+
+class LightMap {
+  constructor(gl, scene) {
+    this.gl = gl;
+    this.scene = scene;
+    const cells = scene.grid.dims[0] * scene.grid.dims[1] * scene.grid.dims[2];
+    this.cellCount = cells;
+    // Per layer, per LOD: pages_x, pages_y, offset.
+    this.levels = new Uint32Array(16 * 4);
+    let offset = 0;
+    for (let layer = 0; layer < 2; layer++)
+      for (let k = 0; k < scene.lods; k++) {
+        const [px, py] = scene.page_tables[k];
+        this.levels.set([px, py, offset, 0], (layer * MAX_LODS + k) * 4);
+        offset += px * py;
+      }
+    this.table = new IntTable(gl, offset, NO_PAGE);
+    this.cells = new IntTable(gl, 2 * cells, 0);
+    this.free = [];
+    this.capacityRows = 0;
+    this.used = 0;
+    this.poolData = new Float32Array(0);
+    this.pool = null;
+    this.grow(16);
+  }
+  // The pool holds POOL_COLUMNS × rows pages; growing re-uploads the mirror.
+  grow(rows) {
+    const gl = this.gl;
+    const data = new Float32Array(POOL_COLUMNS * PAGE_SIDE * rows * PAGE_SIDE * 4);
+    data.set(this.poolData);
+    for (let s = POOL_COLUMNS * rows - 1; s >= POOL_COLUMNS * this.capacityRows; s--) this.free.push(s);
+    this.poolData = data;
+    this.capacityRows = rows;
+    if (this.pool) gl.deleteTexture(this.pool);
+    this.pool = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, this.pool);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, POOL_COLUMNS * PAGE_SIDE, rows * PAGE_SIDE, 0, gl.RGBA, gl.FLOAT, data);
+  }
+  entry(layer, lod, px, py) {
+    return this.levels[(layer * MAX_LODS + lod) * 4 + 2] + py * this.levels[(layer * MAX_LODS + lod) * 4] + px;
+  }
+  clear() {
+    for (let i = 0; i < this.table.data.length; i++) {
+      if (this.table.data[i] !== NO_PAGE) { this.free.push(this.table.data[i]); this.table.set(i, NO_PAGE); }
+    }
+    for (let i = 0; i < 2 * this.cellCount; i++) this.cells.set(i, 0);
+  }
+  // Applies an UPDATE message; returns the number of pages written.
+  apply(buf) {
+    const gl = this.gl;
+    const dv = new DataView(buf);
+    const flags = dv.getUint8(1);
+    const nCells = dv.getUint32(20, true), nPages = dv.getUint32(24, true), nDropped = dv.getUint32(28, true);
+    if (flags & 1) this.clear();
+    let at = UPDATE_HEADER;
+    for (let i = 0; i < nCells; i++, at += 8) {
+      const cell = dv.getUint32(at, true), layer = dv.getUint8(at + 4), lod = dv.getUint8(at + 5);
+      if (cell < this.cellCount && layer < 2) this.cells.set(layer * this.cellCount + cell, lod);
+    }
+    gl.bindTexture(gl.TEXTURE_2D, this.pool);
+    for (let i = 0; i < nPages; i++) {
+      const layer = dv.getUint8(at), lod = dv.getUint8(at + 1);
+      const px = dv.getUint32(at + 4, true), py = dv.getUint32(at + 8, true);
+      at += 12;
+      const texels = new Float32Array(buf, at, PAGE_FLOATS);
+      at += PAGE_FLOATS * 4;
+      if (layer > 1 || lod >= this.scene.lods) continue;
+      const e = this.entry(layer, lod, px, py);
+      let slot = this.table.data[e];
+      if (slot === NO_PAGE) {
+        if (this.free.length === 0) {
+          this.grow(this.capacityRows * 2);
+          gl.bindTexture(gl.TEXTURE_2D, this.pool);
+        }
+        slot = this.free.pop();
+        this.table.set(e, slot);
+      }
+      const sx = (slot % POOL_COLUMNS) * PAGE_SIDE, sy = Math.floor(slot / POOL_COLUMNS) * PAGE_SIDE;
+      // The mirror (for a pool that grows), then exactly this page in the texture.
+      for (let row = 0; row < PAGE_SIDE; row++) {
+        this.poolData.set(texels.subarray(row * PAGE_SIDE * 4, (row + 1) * PAGE_SIDE * 4),
+          ((sy + row) * POOL_COLUMNS * PAGE_SIDE + sx) * 4);
+      }
+      gl.texSubImage2D(gl.TEXTURE_2D, 0, sx, sy, PAGE_SIDE, PAGE_SIDE, gl.RGBA, gl.FLOAT, texels);
+    }
+    for (let i = 0; i < nDropped; i++, at += 12) {
+      const layer = dv.getUint8(at), lod = dv.getUint8(at + 1);
+      const px = dv.getUint32(at + 4, true), py = dv.getUint32(at + 8, true);
+      if (layer > 1 || lod >= this.scene.lods) continue;
+      const e = this.entry(layer, lod, px, py);
+      if (this.table.data[e] !== NO_PAGE) { this.free.push(this.table.data[e]); this.table.set(e, NO_PAGE); }
+    }
+    this.table.upload();
+    this.cells.upload();
+    return nPages;
+  }
+  dispose() {
+    this.gl.deleteTexture(this.pool);
+    this.table.dispose();
+    this.cells.dispose();
+  }
+}
+
+// ---------------------------------------------------------------- the scene on the GPU
+
+function makeTexture(gl, width, height, pixels, srgb, wrap) {
+  const t = gl.createTexture();
+  gl.bindTexture(gl.TEXTURE_2D, t);
+  gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+  gl.texImage2D(gl.TEXTURE_2D, 0, srgb ? gl.SRGB8_ALPHA8 : gl.RGBA8, width, height, 0, gl.RGBA, gl.UNSIGNED_BYTE, pixels);
+  const mode = { repeat: gl.REPEAT, mirrored_repeat: gl.MIRRORED_REPEAT, clamp_to_edge: gl.CLAMP_TO_EDGE };
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, mode[wrap?.[0]] ?? gl.REPEAT);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, mode[wrap?.[1]] ?? gl.REPEAT);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR_MIPMAP_LINEAR);
+  gl.generateMipmap(gl.TEXTURE_2D);
+  return t;
+}
+
+// ---------------------------------------------------------------- the page
+
+export function start(canvas, ui = {}) {
+  const gl = canvas.getContext("webgl2", { antialias: false, xrCompatible: true, preserveDrawingBuffer: true });
+  if (!gl) throw new Error("WebGL 2 is not available");
+  const shader = program(gl);
+  const white = makeTexture(gl, 1, 1, new Uint8Array([255, 255, 255, 255]), false);
+  const params = new URLSearchParams(location.search);
+  const state = {
+    scene: null, vao: null, buffer: null, textures: [], lightmap: null,
+    updates: 0, pagesWritten: 0, lastSeq: -1, fullSeen: 0, generation: 0,
+    eye: [0, 0, 0], yaw: 0, pitch: 0, speed: 1, frames: 0, frameMs: [],
+    xr: null, xrFrames: 0, lastViews: null, capture: null, socket: null, connected: false,
+    scenesReceived: 0, errors: [],
+  };
+  const setStatus = (s) => { if (ui.status) ui.status.textContent = s; };
+
+  function setStart(start) {
+    state.eye = start.eye.slice();
+    const f = norm(sub(start.target, start.eye));
+    state.yaw = Math.atan2(f[0], -f[2]);
+    state.pitch = Math.asin(Math.max(-1, Math.min(1, f[1])));
+    state.speed = start.speed;
+  }
+
+  function forward() {
+    const sy = Math.sin(state.yaw), cy = Math.cos(state.yaw), sp = Math.sin(state.pitch), cp = Math.cos(state.pitch);
+    return [cp * sy, sp, -cp * cy];
+  }
+
+  function onScene(scene) {
+    if (state.lightmap) state.lightmap.dispose();
+    for (const t of state.textures) if (t) gl.deleteTexture(t);
+    state.scene = scene;
+    state.textures = new Array(scene.textures.length).fill(null);
+    state.lightmap = new LightMap(gl, scene);
+    state.generation = scene.generation;
+    state.scenesReceived++;
+    if (!state.started) { setStart(scene.start); state.started = true; }
+    uploadUniforms();
+  }
+
+  function onGeometry(buf) {
+    const floats = new Float32Array(buf, 8);
+    if (state.vao) { gl.deleteVertexArray(state.vao); gl.deleteBuffer(state.buffer); }
+    state.vao = gl.createVertexArray();
+    gl.bindVertexArray(state.vao);
+    state.buffer = gl.createBuffer();
+    gl.bindBuffer(gl.ARRAY_BUFFER, state.buffer);
+    gl.bufferData(gl.ARRAY_BUFFER, floats, gl.STATIC_DRAW);
+    const stride = VERTEX_FLOATS * 4;
+    [[0, 3, 0], [1, 2, 3], [2, 2, 5], [3, 2, 7]].forEach(([loc, n, off]) => {
+      gl.enableVertexAttribArray(loc);
+      gl.vertexAttribPointer(loc, n, gl.FLOAT, false, stride, off * 4);
+    });
+    gl.bindVertexArray(null);
+  }
+
+  function onTexture(buf) {
+    const dv = new DataView(buf);
+    const i = dv.getUint32(4, true), w = dv.getUint32(8, true), h = dv.getUint32(12, true);
+    const info = state.scene?.textures[i];
+    if (!info || w === 0 || h === 0) return;
+    state.textures[i] = makeTexture(gl, w, h, new Uint8Array(buf, 16, w * h * 4), info.srgb, info.wrap);
+  }
+
+  function onUpdate(buf) {
+    if (!state.lightmap) return;
+    const dv = new DataView(buf);
+    const seq = dv.getUint32(4, true), generation = dv.getUint32(16, true);
+    if (generation !== state.generation) return;
+    const pages = state.lightmap.apply(buf);
+    state.updates++;
+    state.pagesWritten += pages;
+    state.lastSeq = seq;
+    if (dv.getUint8(1) & 1) state.fullSeen++;
+    // The pages are in the texture: tell the server (its publish-to-texture latency).
+    const ack = new ArrayBuffer(16);
+    const a = new DataView(ack);
+    a.setUint8(0, 2);
+    a.setUint32(4, seq, true);
+    a.setFloat64(8, performance.now(), true);
+    send(ack);
+    if (state.onUpdate) state.onUpdate(buf);
+  }
+
+  function send(buf) {
+    if (state.socket && state.socket.readyState === 1) state.socket.send(buf);
+  }
+
+  let lastPose = 0;
+  function sendPose(eye, fwd, yfov, aspect, heightPx) {
+    const now = performance.now();
+    if (now - lastPose < 100) return;
+    lastPose = now;
+    const b = new ArrayBuffer(40);
+    const d = new DataView(b);
+    d.setUint8(0, 1);
+    const target = add(eye, fwd);
+    [...eye, ...target, yfov, aspect].forEach((v, i) => d.setFloat32(4 + 4 * i, v, true));
+    d.setUint32(36, Math.max(1, Math.round(heightPx)), true);
+    send(b);
+    state.lastPoseSent = { eye: eye.slice(), target };
+  }
+
+  function connect() {
+    if (params.has("static")) return loadStatic();
+    const proto = location.protocol === "https:" ? "wss:" : "ws:";
+    const ws = new WebSocket(`${proto}//${location.host}/socket${location.search}`);
+    ws.binaryType = "arraybuffer";
+    state.socket = ws;
+    ws.onopen = () => { state.connected = true; setStatus("waiting for first light…"); };
+    ws.onclose = () => { state.connected = false; setStatus("disconnected"); };
+    ws.onmessage = (ev) => {
+      try {
+        if (typeof ev.data === "string") {
+          const m = JSON.parse(ev.data);
+          if (m.type === "scene") onScene(m);
+          return;
+        }
+        const kind = new Uint8Array(ev.data, 0, 1)[0];
+        if (kind === 1) onGeometry(ev.data);
+        else if (kind === 2) onTexture(ev.data);
+        else if (kind === 3) onUpdate(ev.data);
+        setStatus(`${state.updates} updates, ${state.pagesWritten} pages`);
+      } catch (e) {
+        state.errors.push(String(e));
+        console.error(e);
+      }
+    };
+  }
+
+  // --export-web: scene.json, geometry.bin, texture-N.bin and lightmap.bin beside the page.
+  async function loadStatic() {
+    const get = async (name) => { const r = await fetch(name); if (!r.ok) throw new Error(`${name}: ${r.status}`); return r; };
+    onScene(await (await get("scene.json")).json());
+    onGeometry(await (await get("geometry.bin")).arrayBuffer());
+    for (let i = 0; i < state.scene.textures.length; i++) onTexture(await (await get(`texture-${i}.bin`)).arrayBuffer());
+    onUpdate(await (await get("lightmap.bin")).arrayBuffer());
+    setStatus("static export");
+  }
+
+  function uploadUniforms() {
+    const s = state.scene, lm = state.lightmap, u = shader.u;
+    gl.useProgram(shader.program);
+    gl.uniform3fv(u.gridOrigin, s.grid.origin);
+    gl.uniform1f(u.cellSize, s.grid.cell_size);
+    gl.uniform3uiv(u.gridDims, s.grid.dims);
+    gl.uniform1ui(u.lodCount, s.lods);
+    gl.uniform1f(u.blendBand, s.blend_band);
+    gl.uniform1ui(u.poolColumns, POOL_COLUMNS);
+    gl.uniform1ui(u.cellCount, lm.cellCount);
+    gl.uniform4uiv(u.levels, lm.levels);
+    gl.uniform1f(u.exposure, exposureOverride ?? s.exposure);
+    gl.uniform1i(u.pool, 0);
+    gl.uniform1i(u.pageTable, 1);
+    gl.uniform1i(u.cellLod, 2);
+    gl.uniform1i(u.baseColorTexture, 3);
+    gl.uniform1i(u.emissiveTexture, 4);
+  }
+  let exposureOverride = params.has("exposure") ? Number(params.get("exposure")) : null;
+
+  // Draws the scene with `viewProj` into the bound framebuffer's `viewport`.
+  function drawScene(viewProj, viewport) {
+    const s = state.scene, lm = state.lightmap, u = shader.u;
+    gl.viewport(...viewport);
+    gl.enable(gl.SCISSOR_TEST);
+    gl.scissor(...viewport);
+    gl.clearColor(...CLEAR, 1);
+    gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
+    gl.disable(gl.SCISSOR_TEST);
+    if (!s || !state.vao) return;
+    gl.enable(gl.DEPTH_TEST);
+    gl.depthFunc(gl.LESS);
+    gl.frontFace(gl.CCW);
+    gl.useProgram(shader.program);
+    gl.uniformMatrix4fv(u.viewProj, false, viewProj);
+    gl.activeTexture(gl.TEXTURE0); gl.bindTexture(gl.TEXTURE_2D, lm.pool);
+    gl.activeTexture(gl.TEXTURE1); gl.bindTexture(gl.TEXTURE_2D, lm.table.tex);
+    gl.activeTexture(gl.TEXTURE2); gl.bindTexture(gl.TEXTURE_2D, lm.cells.tex);
+    gl.bindVertexArray(state.vao);
+    for (const b of s.batches) {
+      const m = s.materials[b.material];
+      gl.uniform4fv(u.baseColor, m.base_color);
+      gl.uniform3fv(u.emission, m.emission);
+      gl.activeTexture(gl.TEXTURE3);
+      gl.bindTexture(gl.TEXTURE_2D, (m.base_color_texture != null && state.textures[m.base_color_texture]) || white);
+      gl.activeTexture(gl.TEXTURE4);
+      gl.bindTexture(gl.TEXTURE_2D, (m.emissive_texture != null && state.textures[m.emissive_texture]) || white);
+      if (b.double_sided) gl.disable(gl.CULL_FACE);
+      else { gl.enable(gl.CULL_FACE); gl.cullFace(gl.BACK); }
+      gl.drawArrays(gl.TRIANGLES, b.first, b.count);
+    }
+    gl.bindVertexArray(null);
+  }
+
+  // ------------------------------------------------------------ desktop: the fly camera
+  const keys = new Set();
+  addEventListener("keydown", (e) => keys.add(e.code));
+  addEventListener("keyup", (e) => keys.delete(e.code));
+  let drag = null;
+  canvas.addEventListener("pointerdown", (e) => { drag = [e.clientX, e.clientY]; canvas.setPointerCapture(e.pointerId); });
+  canvas.addEventListener("pointerup", () => { drag = null; });
+  canvas.addEventListener("pointermove", (e) => {
+    if (!drag) return;
+    state.yaw += (e.clientX - drag[0]) * 0.003;
+    state.pitch = Math.max(-1.55, Math.min(1.55, state.pitch - (e.clientY - drag[1]) * 0.003));
+    drag = [e.clientX, e.clientY];
+  });
+  canvas.addEventListener("wheel", (e) => { state.speed *= Math.pow(1.25, -Math.sign(e.deltaY)); e.preventDefault(); }, { passive: false });
+
+  let lastT = performance.now();
+  function desktopFrame(t) {
+    const dt = Math.min(0.1, (t - lastT) / 1000);
+    lastT = t;
+    if (!state.xr) {
+      const f = forward(), r = norm(cross(f, [0, 1, 0]));
+      const m = [0, 0, 0];
+      if (keys.has("KeyW")) m[2] += 1;
+      if (keys.has("KeyS")) m[2] -= 1;
+      if (keys.has("KeyD")) m[0] += 1;
+      if (keys.has("KeyA")) m[0] -= 1;
+      if (keys.has("KeyE")) m[1] += 1;
+      if (keys.has("KeyQ")) m[1] -= 1;
+      const step = state.speed * dt;
+      state.eye = add(state.eye, scale(add(add(scale(r, m[0]), [0, m[1], 0]), scale(f, m[2])), step));
+      const w = Math.max(1, Math.round(canvas.clientWidth * devicePixelRatio));
+      const h = Math.max(1, Math.round(canvas.clientHeight * devicePixelRatio));
+      if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
+      if (state.scene) {
+        const s = state.scene.start;
+        const t0 = performance.now();
+        const vp = mul(perspective(s.yfov, w / h, s.znear, s.zfar), lookAt(state.eye, add(state.eye, f), [0, 1, 0]));
+        gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+        drawScene(vp, [0, 0, w, h]);
+        countFrame(performance.now() - t0);
+        sendPose(state.eye, f, s.yfov, w / h, h);
+      }
+    }
+    requestAnimationFrame(desktopFrame);
+  }
+
+  function countFrame(ms) {
+    state.frames++;
+    state.frameMs.push(ms);
+    if (state.frameMs.length >= 60) {
+      const mean = state.frameMs.reduce((a, b) => a + b, 0) / state.frameMs.length;
+      const b = new ArrayBuffer(16);
+      const d = new DataView(b);
+      d.setUint8(0, 3);
+      d.setUint32(4, state.frameMs.length, true);
+      d.setFloat64(8, mean, true);
+      send(b);
+      state.lastFrameMean = mean;
+      state.frameMs = [];
+    }
+  }
+
+  // ------------------------------------------------------------ WebXR
+  // World = origin · local: the session's local space is placed at the start eye, facing
+  // the start view (yaw only), and moved by teleports and snap turns. (Applied to the
+  // matrices here rather than through an offset reference space.)
+  function rotY(yaw) {
+    // Rotation about +Y taking -Z to the view's forward (sin yaw, 0, -cos yaw).
+    const c = Math.cos(yaw), s = Math.sin(yaw);
+    return [[c, 0, -s], [0, 1, 0], [s, 0, c]]; // rows
+  }
+  const apply = (r, v) => [dot(r[0], v), dot(r[1], v), dot(r[2], v)];
+  function originInverse() {
+    const r = rotY(state.origin.yaw), p = state.origin.position;
+    const t = [-dot([r[0][0], r[1][0], r[2][0]], p), -dot([r[0][1], r[1][1], r[2][1]], p), -dot([r[0][2], r[1][2], r[2][2]], p)];
+    return new Float32Array([r[0][0], r[0][1], r[0][2], 0, r[1][0], r[1][1], r[1][2], 0, r[2][0], r[2][1], r[2][2], 0, t[0], t[1], t[2], 1]);
+  }
+  // A local-space point or direction in the world.
+  const toWorld = (v) => add(apply(rotY(state.origin.yaw), v), state.origin.position);
+  const dirToWorld = (v) => apply(rotY(state.origin.yaw), v);
+
+  async function enterVR() {
+    if (!navigator.xr) throw new Error("WebXR is not available");
+    const session = await navigator.xr.requestSession("immersive-vr", { optionalFeatures: ["local-floor"] });
+    await gl.makeXRCompatible();
+    const scaleFactor = params.has("xrscale") ? Number(params.get("xrscale")) : 1;
+    session.updateRenderState({
+      baseLayer: new XRWebGLLayer(session, gl, { antialias: false, framebufferScaleFactor: scaleFactor }),
+      depthNear: state.scene.start.znear,
+      depthFar: state.scene.start.zfar,
+    });
+    const local = await session.requestReferenceSpace("local");
+    state.xr = { session, space: local, turnHeld: false, placed: false };
+    session.addEventListener("end", () => { state.xr = null; });
+    session.addEventListener("selectend", (ev) => teleport(ev.frame, ev.inputSource));
+    session.requestAnimationFrame(xrFrame);
+    return session;
+  }
+  state.enterVR = enterVR;
+
+  // Places the origin so that the head, where it is in the local space now, is at the
+  // start eye facing the start view's yaw.
+  function placeAtStart(localHead) {
+    state.origin = { position: [0, 0, 0], yaw: state.yaw };
+    state.origin.position = sub(state.eye, dirToWorld(localHead));
+  }
+
+  // Aims the controller's ray at the floor (the plane 1.6 m below the head) and moves the
+  // viewer's feet where it hits.
+  function teleport(frame, source) {
+    if (!state.xr || !frame || !state.origin) return;
+    const pose = frame.getPose(source.targetRaySpace, state.xr.space);
+    const viewer = frame.getViewerPose(state.xr.space);
+    if (!pose || !viewer) return;
+    const m = pose.transform.matrix;
+    const o = toWorld([m[12], m[13], m[14]]), d = dirToWorld([-m[8], -m[9], -m[10]]);
+    const hp = viewer.transform.position;
+    const head = toWorld([hp.x, hp.y, hp.z]);
+    const floor = head[1] - 1.6;
+    if (d[1] >= -1e-3) return;
+    const hit = add(o, scale(d, (floor - o[1]) / d[1]));
+    state.origin.position = add(state.origin.position, [hit[0] - head[0], 0, hit[2] - head[2]]);
+    state.teleports = (state.teleports || 0) + 1;
+  }
+
+  function snapTurn(frame, viewer) {
+    for (const source of state.xr.session.inputSources) {
+      const axes = source.gamepad?.axes;
+      if (!axes || axes.length < 4) continue;
+      const x = axes[2];
+      if (Math.abs(x) > 0.7 && !state.xr.turnHeld) {
+        state.xr.turnHeld = true;
+        // Turn about the head: it stays where it is in the world.
+        const hp = viewer.transform.position, local = [hp.x, hp.y, hp.z];
+        const head = toWorld(local);
+        state.origin.yaw += x > 0 ? SNAP_TURN : -SNAP_TURN;
+        state.origin.position = sub(head, dirToWorld(local));
+        state.snapTurns = (state.snapTurns || 0) + 1;
+      } else if (Math.abs(x) < 0.3) state.xr.turnHeld = false;
+    }
+  }
+
+  function xrFrame(t, frame) {
+    const xr = state.xr;
+    if (!xr) return;
+    xr.session.requestAnimationFrame(xrFrame);
+    const pose = frame.getViewerPose(xr.space);
+    const layer = xr.session.renderState.baseLayer;
+    if (!pose || !state.scene) return;
+    if (!state.origin) {
+      const hp = pose.transform.position;
+      placeAtStart([hp.x, hp.y, hp.z]);
+    }
+    snapTurn(frame, pose);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, layer.framebuffer);
+    const t0 = performance.now();
+    const views = [];
+    const inv = originInverse();
+    for (const view of pose.views) {
+      const vp = layer.getViewport(view);
+      const viewport = [vp.x, vp.y, vp.width, vp.height];
+      drawScene(mul(view.projectionMatrix, mul(view.transform.inverse.matrix, inv)), viewport);
+      const m = view.transform.matrix;
+      views.push({
+        eye: view.eye, viewport,
+        position: toWorld([m[12], m[13], m[14]]), forward: dirToWorld([-m[8], -m[9], -m[10]]), up: dirToWorld([m[4], m[5], m[6]]),
+        projection: Array.from(view.projectionMatrix),
+      });
+    }
+    // With ?finish the frame time includes the GPU's work (the bench), not only its submission.
+    if (params.has("finish")) gl.finish();
+    countFrame(performance.now() - t0);
+    state.xrFrames++;
+    state.lastViews = views;
+    if (state.capture) {
+      const c = state.capture;
+      state.capture = null;
+      const eyes = views.map((v) => {
+        const [x, y, w, h] = v.viewport;
+        const px = new Uint8Array(w * h * 4);
+        gl.readPixels(x, y, w, h, gl.RGBA, gl.UNSIGNED_BYTE, px);
+        return { ...v, width: w, height: h, pixels: px };
+      });
+      c(eyes);
+    }
+    const m = pose.transform.matrix;
+    const p = views[0].projection;
+    sendPose(toWorld([m[12], m[13], m[14]]), dirToWorld([-m[8], -m[9], -m[10]]), 2 * Math.atan(1 / p[5]), p[5] / p[0], views[0].viewport[3]);
+  }
+
+  // Test hooks: the page's state, and the pixels of each eye of the next XR frame.
+  state.captureEyes = () => new Promise((resolve) => { state.capture = resolve; });
+  window.livebake = state;
+
+  if (ui.vrButton && navigator.xr) {
+    navigator.xr.isSessionSupported("immersive-vr").then((ok) => {
+      if (!ok) return;
+      ui.vrButton.hidden = false;
+      ui.vrButton.onclick = () => enterVR().catch((e) => setStatus(`VR: ${e.message}`));
+    });
+  }
+  connect();
+  requestAnimationFrame(desktopFrame);
+  return state;
+}
