@@ -47,10 +47,18 @@ pub fn load_scene_with(
     Ok((Arc::new(scene), t0.elapsed().as_secs_f64(), spec))
 }
 
+/// What `bake` exports beside its light maps.
+pub struct Exports<'a> {
+    /// `--export-gltf OUT.gltf`
+    pub gltf: Option<&'a Path>,
+    /// `--export-web DIR`
+    pub web: Option<&'a Path>,
+}
+
 pub fn run(
     scene_path: &Path,
     out: &Path,
-    export: Option<&Path>,
+    exports: Exports<'_>,
     memory_limit: Option<u64>,
     bounce_rounds: Option<u32>,
     options: &SceneOptions,
@@ -75,13 +83,27 @@ pub fn run(
     let mut baked = bake(&scene, &config, ui).with_context(|| format!("cannot bake {}", scene_path.display()))?;
     let t_write = Instant::now();
     let mut files = write_lightmaps(out, &baked)?;
-    if let Some(gltf) = export {
+    let web_gltf = exports.web.map(|dir| dir.join("scene.gltf"));
+    for gltf in exports.gltf.into_iter().chain(web_gltf.as_deref()) {
         // The finest level baked.
         let lod = baked.lods.last().context("the bake produced no light-map level")?;
         let export = ExportOptions { load: options.load_options(memory_limit) };
+        if let Some(dir) = gltf.parent() {
+            std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        }
         let report = export_gltf(&scene, &baked.atlas, &irradiance_image(lod), gltf, &export)
             .with_context(|| format!("cannot export {}", gltf.display()))?;
         files.extend([report.gltf, report.bin, report.hdr, report.png]);
+    }
+    if let Some(dir) = exports.web {
+        // Every cell at the finest LOD baked: one cell over the whole scene.
+        let (lo, hi) = scene.bounds().context("the scene has no geometry")?;
+        let grid = livebake::grid::Grid::covering(lo, hi, (hi - lo).max_element().max(1e-3) * 1.001)
+            .context("cannot cover the scene with one cell")?;
+        let shown = livebake::viewer::source::shown_from_bake(&baked, grid, 0.0);
+        let written = livebake::serve::export::export_web(dir, &scene, &baked.atlas, &shown, None, None)
+            .with_context(|| format!("cannot export the web page into {}", dir.display()))?;
+        files.extend(written);
     }
     baked.report.phases.load = load_seconds;
     baked.report.phases.write = t_write.elapsed().as_secs_f64();

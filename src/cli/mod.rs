@@ -56,6 +56,11 @@ enum Command {
         /// DIR/merged.lbshard); this shard bakes the next round. Without it, round 1.
         #[arg(long, value_name = "FILE", requires = "shard")]
         previous: Option<PathBuf>,
+        /// Also write a static web page showing the finest baked light map (open
+        /// DIR/index.html?static from any file server or a headset's browser; docs/SERVE.md),
+        /// with the scene exported as --export-gltf does (DIR/scene.gltf).
+        #[arg(long, value_name = "DIR")]
+        export_web: Option<PathBuf>,
         #[command(flatten)]
         options: SceneOptions,
     },
@@ -174,13 +179,16 @@ pub fn run() -> Result<()> {
     match cli.command {
         None => run_default(&ui),
         Some(Command::Run { scene, options, run }) => run::run(&scene, &options, &run, &ui),
-        Some(Command::Bake { scene, outputs, bounce_rounds, shard, previous, options }) => {
+        Some(Command::Bake { scene, outputs, bounce_rounds, shard, previous, export_web, options }) => {
             let Outputs { out, export_gltf, memory_limit } = outputs;
             let Some(share) = shard else {
-                return bake::run(&scene, &out, export_gltf.as_deref(), memory_limit, bounce_rounds, &options, &ui);
+                let exports = bake::Exports { gltf: export_gltf.as_deref(), web: export_web.as_deref() };
+                return bake::run(&scene, &out, exports, memory_limit, bounce_rounds, &options, &ui);
             };
-            if export_gltf.is_some() {
-                anyhow::bail!("--export-gltf is the merge's (`livebake merge … --export-gltf`), not a shard's");
+            if export_gltf.is_some() || export_web.is_some() {
+                anyhow::bail!(
+                    "--export-gltf and --export-web are the merge's (`livebake merge … --export-gltf`), not a shard's"
+                );
             }
             if bounce_rounds.is_some() {
                 anyhow::bail!(

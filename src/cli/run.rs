@@ -106,6 +106,11 @@ pub struct RunOptions {
     /// LOD any cell shows (at most 4 M pixels; see report.json "export").
     #[arg(long, value_name = "OUT.gltf")]
     pub export_gltf: Option<PathBuf>,
+    /// At the end, also write a static web page showing the light map as shown (open
+    /// DIR/index.html?static from any file server or a headset's browser; docs/SERVE.md),
+    /// with the scene exported as --export-gltf does (DIR/scene.gltf).
+    #[arg(long, value_name = "DIR")]
+    pub export_web: Option<PathBuf>,
     #[command(flatten)]
     pub runtime: RuntimeOptions,
 }
@@ -123,6 +128,7 @@ impl Default for RunOptions {
             points_out: None,
             watch: false,
             export_gltf: None,
+            export_web: None,
             runtime: RuntimeOptions::default(),
         }
     }
@@ -478,6 +484,13 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         Some(out) => Some(export_shown(&world, &shown, out, &ExportOptions { load: options.load_options(None) })?),
         None => None,
     };
+    if let Some(dir) = &run.export_web {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        export_shown(&world, &shown, &dir.join("scene.gltf"), &ExportOptions { load: options.load_options(None) })?;
+        livebake::serve::export::export_web(dir, &world.scene, &world.atlas, &shown, None, run.camera)
+            .with_context(|| format!("cannot export the web page into {}", dir.display()))?;
+        ui.say(format!("  web page in {} (open index.html?static from a file server)", dir.display()));
+    }
     let report = json!({
         "scene": scene_path.display().to_string(),
         "triangles": scene.triangle_count(),

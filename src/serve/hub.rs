@@ -118,8 +118,9 @@ impl Hub<'_> {
     /// The whole current map as one update (a joining client, or everyone after a reload).
     fn full_update(&self) -> Option<Message> {
         let last = self.last.as_ref()?;
+        // Seq 0: a whole map's acknowledgement measures no publish.
         let bytes = encode_update(
-            self.seq,
+            0,
             self.stats.generation,
             now_ms(self.runtime),
             true,
@@ -149,6 +150,9 @@ impl Hub<'_> {
             self.config.exposure.unwrap_or_else(|| crate::viewer::render::auto_exposure(&shown))
         });
         let start = start_pose(&world.scene, self.config.pose);
+        if self.stats.last_pose.is_none() {
+            self.runtime.set_camera(start_camera(&start));
+        }
         self.stats.generation += 1;
         self.stats.start = Some(start);
         let msgs = scene_messages(&world.scene, &world.atlas, &shown, self.stats.generation, exposure, start);
@@ -217,7 +221,7 @@ impl Hub<'_> {
         if pages.is_empty() && cells.is_empty() {
             return;
         }
-        self.seq = self.seq.wrapping_add(1);
+        self.seq = self.seq.checked_add(1).unwrap_or(1);
         let t = now_ms(self.runtime);
         let bytes = encode_update(self.seq, self.stats.generation, t, false, &cells, &pages);
         let written = pages.iter().filter(|p| matches!(p, PageChange::Written(..))).count() as u64;
@@ -230,6 +234,19 @@ impl Hub<'_> {
         }
         self.sent_at.insert(self.seq, t);
         self.broadcast(&Message::Binary(Bytes::from(bytes)));
+    }
+}
+
+/// The runtime's camera until a page sends its pose: the page's start pose on a 720-pixel
+/// high 16:9 screen (as `run` assumes).
+fn start_camera(start: &StartPose) -> CameraView {
+    CameraView {
+        eye: Vec3::from(start.eye),
+        target: Vec3::from(start.target),
+        up: Vec3::Y,
+        yfov: start.yfov,
+        aspect: 16.0 / 9.0,
+        height_px: 720,
     }
 }
 
@@ -256,6 +273,10 @@ pub fn run(
         frame_sum: 0.0,
         frame_reports: 0,
     };
+    // Refinement starts from the page's start pose (before any page joins).
+    let world = runtime.world();
+    runtime.set_camera(start_camera(&start_pose(&world.scene, config.pose)));
+    drop(world);
     loop {
         let mut reloaded = false;
         while let Ok(ev) = runtime.events().try_recv() {

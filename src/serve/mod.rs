@@ -7,6 +7,7 @@
 //! view of the runtime and broadcasts to the clients' queues. Only std's `TcpListener` and
 //! `tungstenite` (sync) are used: no async runtime.
 
+pub mod export;
 pub mod http;
 pub mod hub;
 pub mod protocol;

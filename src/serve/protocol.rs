@@ -29,7 +29,7 @@ pub const FULL: u8 = 1;
 
 /// Page → server: the viewer's pose.
 pub const POSE: u8 = 1;
-/// Page → server: an update's pages are in the page's texture.
+/// Page → server: an update's pages are in the page's texture (seq 0: a whole map's).
 pub const ACK: u8 = 2;
 /// Page → server: frame times.
 pub const FRAMES: u8 = 3;

@@ -83,6 +83,23 @@ try {
     } else if (step === "frame_times") {
       await page.waitForFunction(() => window.livebake.lastFrameMean != null, null, { timeout });
       result.steps.push({ step, after: await status() });
+    } else if (step === "edit") {
+      // A save of the scene (hot reload).
+      fs.writeFileSync(config.edit.path, config.edit.content);
+    } else if (step === "garbage_clients") {
+      // A second client that sends garbage (the server must close it) and a third that
+      // goes away mid-handshake; the page's own connection must not notice.
+      const closed = await page.evaluate(() => new Promise((resolve) => {
+        const url = `ws://${location.host}/socket${location.search}`;
+        const gone = new WebSocket(url);
+        gone.close();
+        const bad = new WebSocket(url);
+        bad.binaryType = "arraybuffer";
+        bad.onopen = () => bad.send(new Uint8Array([42, 1, 2, 3]));
+        bad.onclose = () => resolve(true);
+        setTimeout(() => resolve(false), 20000);
+      }));
+      result.steps.push({ step, garbage_closed: closed, after: await status() });
     } else if (step.startsWith("sleep:")) {
       await page.waitForTimeout(Number(step.split(":")[1]));
     } else if (step === "status") {

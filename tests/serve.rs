@@ -1,0 +1,506 @@
+//! `livebake serve`: the page in headless Chromium with an emulated headset (npm `iwer`,
+//! driven by tests/web/xr_driver.mjs through playwright-core), the socket's messages as a
+//! plain client reads them, and the HTTP side's refusals. Nothing is skipped for want of a
+//! headset or a GPU: Chromium draws with SwiftShader, the viewer on lavapipe under Xvfb,
+//! and scripts/test installs Chromium and the npm packages when missing.
+
+mod viewer_support;
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::TcpStream;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use livebake::runtime::shown::{Layer, Page, ShownLightmap};
+use livebake::serve::protocol::{CELL_ENTRY, PAGE_ENTRY_HEADER, UPDATE_HEADER, Update, decode_update, encode_pose};
+use serde_json::{Value, json};
+use tungstenite::Message;
+use viewer_support::{cornell_path, run_bounded, xvfb};
+
+fn livebake() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_livebake"))
+}
+
+/// A `livebake serve` child, killed when dropped; `url` is the line it printed.
+struct Served {
+    child: Child,
+    url: String,
+}
+
+impl Drop for Served {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Served {
+    fn start(scene: &Path, args: &[&str]) -> Served {
+        let mut child = livebake()
+            .arg("-q")
+            .arg("serve")
+            .arg(scene)
+            .args(["--port", "0", "--backend", "cpu", "--seconds", "600"])
+            .args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+        assert!(line.starts_with("http://"), "serve printed {line:?}");
+        Served { child, url: line.trim().to_string() }
+    }
+
+    /// host:port
+    fn addr(&self) -> String {
+        self.url.trim_start_matches("http://").split('/').next().unwrap().to_string()
+    }
+
+    fn token(&self) -> Option<String> {
+        self.url.split_once("?token=").map(|(_, t)| t.to_string())
+    }
+
+    fn status(&self) -> Value {
+        let q = self.token().map(|t| format!("?token={t}")).unwrap_or_default();
+        let (code, body) = http_get(&self.addr(), &format!("/status.json{q}"), "");
+        assert_eq!(code, 200);
+        serde_json::from_slice(&body).unwrap()
+    }
+
+    fn wait_first_light(&self) -> Value {
+        let deadline = Instant::now() + Duration::from_secs(300);
+        loop {
+            let s = self.status();
+            if s["first_light"] == true {
+                return s;
+            }
+            assert!(Instant::now() < deadline, "no first light: {s}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    fn socket(&self) -> tungstenite::WebSocket<TcpStream> {
+        let stream = TcpStream::connect(self.addr()).unwrap();
+        stream.set_read_timeout(Some(Duration::from_secs(60))).unwrap();
+        let q = self.token().map(|t| format!("?token={t}")).unwrap_or_default();
+        let (ws, _) = tungstenite::client(format!("ws://{}/socket{q}", self.addr()), stream).unwrap();
+        ws
+    }
+}
+
+/// A raw HTTP GET (the path sent exactly as given): status code and body.
+fn http_get(addr: &str, path: &str, extra_headers: &str) -> (u16, Vec<u8>) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    write!(s, "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n{extra_headers}\r\n").unwrap();
+    let mut all = Vec::new();
+    s.read_to_end(&mut all).unwrap();
+    let head_end = all.windows(4).position(|w| w == b"\r\n\r\n").expect("a response head");
+    let head = String::from_utf8_lossy(&all[..head_end]).to_string();
+    let code = head.split_whitespace().nth(1).and_then(|c| c.parse().ok()).unwrap();
+    (code, all[head_end + 4..].to_vec())
+}
+
+/// The scene description, then every message up to and including the first update.
+fn read_welcome(ws: &mut tungstenite::WebSocket<TcpStream>) -> (Value, Update) {
+    let mut scene = Value::Null;
+    loop {
+        match ws.read().unwrap() {
+            Message::Text(t) => scene = serde_json::from_str(&t).unwrap(),
+            Message::Binary(b) if b[0] == 3 => return (scene, decode_update(&b).expect("a well-formed update")),
+            _ => {}
+        }
+    }
+}
+
+/// Where scripts/test installs the npm packages.
+fn node_tools() -> PathBuf {
+    match std::env::var_os("LIVEBAKE_NODE_TOOLS") {
+        Some(dir) => PathBuf::from(dir),
+        None => PathBuf::from(std::env::var_os("HOME").unwrap_or_default()).join(".cache/livebake-node"),
+    }
+}
+
+/// Runs the page in Chromium with the emulated headset (tests/web/xr_driver.mjs); its JSON.
+/// The driver's files (eye pixels) go to `out`.
+fn drive(config: Value, out: &Path) -> Value {
+    for p in ["iwer", "playwright-core"] {
+        assert!(
+            node_tools().join("node_modules").join(p).join("package.json").exists(),
+            "npm package {p} missing from {}: run scripts/test, which installs it",
+            node_tools().display()
+        );
+    }
+    assert!(Path::new("/usr/bin/chromium").exists(), "Chromium missing: run scripts/test, which installs it");
+    let mut config = config;
+    config["tools"] = json!(node_tools());
+    config["out"] = json!(out);
+    let file = out.join("config.json");
+    std::fs::write(&file, config.to_string()).unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/web/xr_driver.mjs");
+    let out = Command::new("node").arg(script).arg(&file).output().expect("cannot run node");
+    let text = String::from_utf8_lossy(&out.stdout);
+    let result: Value = serde_json::from_str(&text).unwrap_or_else(|e| {
+        panic!("driver output is not JSON ({e}): {text}\n{}", String::from_utf8_lossy(&out.stderr))
+    });
+    assert!(result.get("error").is_none(), "the page failed: {result:#}");
+    assert!(result["final"]["errors"].as_array().is_some_and(|e| e.is_empty()), "{result:#}");
+    result
+}
+
+fn step<'a>(result: &'a Value, name: &str) -> &'a Value {
+    result["steps"].as_array().unwrap().iter().find(|s| s["step"] == name).unwrap_or_else(|| panic!("{result:#}"))
+}
+
+fn v3(v: &Value) -> [f32; 3] {
+    let a = v.as_array().unwrap();
+    [0, 1, 2].map(|i| a[i].as_f64().unwrap() as f32)
+}
+
+/// The light map stays as first light made it: one LOD, every direction in first light.
+const FROZEN: [&str; 10] =
+    ["--lods", "1", "--samples", "64", "--first-light-directions", "64", "--exposure", "1.5", "--texel-size", "0.05"];
+
+/// Each eye the page draws in the emulated headset matches livebake's own render of that
+/// eye's pose (`view --stereo`, lavapipe, under Xvfb).
+///
+/// Tolerance. Both draw albedo × E/π from the same light map (the same f32 texels, from the
+/// same seeded bake) through the same sampling formulas (the page's GLSL is a line-by-line
+/// twin of shaders/lightmap.inc.wgsl), the same tone curve and sRGB encoding. What differs:
+/// (1) rounding to 8 bits (the viewer's target encodes sRGB in hardware, the page in its
+/// shader) and the two software rasterisers' exp/pow: ±1 level, so 4 levels (of 255) per
+/// channel is a match; (2) the rasterisers place triangle edges differently by a fraction of
+/// a pixel (different projection conventions, GL's [-1, 1] depth against Vulkan's [0, 1],
+/// different f32 arithmetic): a pixel whose centre lies within that fraction of an edge may
+/// show the other side's colour. The room's visible edges are ~1 000 pixels long in a
+/// 160×120 eye (19 200 pixels), and a sub-pixel shift flips only the pixels whose centres
+/// lie within it: a few tenths of those. Hence at most 1 % of the pixels may differ by more
+/// than 4 levels, and the mean difference over all pixels must stay under 0.5 level (1 %
+/// of pixels at full contrast, ~50 levels here, is 0.5); an error in exposure, tone curve,
+/// light-map sampling or pose moves every lit pixel and fails it. (Measured: 0.01 % of the
+/// pixels, mean 0.07 level.)
+#[test]
+fn each_eye_in_the_emulated_headset_matches_the_viewers_stereo_render() {
+    let served = Served::start(&cornell_path(), &[&FROZEN[..], &["--no-watch"]].concat());
+    let status = served.wait_first_light();
+    let yfov = status["start"]["yfov"].as_f64().unwrap();
+    let (w, h) = (160u32, 120u32);
+    let ipd = 0.063f32;
+    let dir = tempfile::tempdir().unwrap();
+    let result = drive(
+        json!({"url": served.url, "fovy": yfov, "ipd": ipd, "eye_size": [w, h], "frames": 3, "steps": ["capture"]}),
+        dir.path(),
+    );
+    let eyes = step(&result, "capture")["eyes"].as_array().unwrap().clone();
+    assert_eq!(eyes.len(), 2);
+    let (left, right) = (v3(&eyes[0]["position"]), v3(&eyes[1]["position"]));
+    let forward = v3(&eyes[0]["forward"]);
+    let centre: [f32; 3] = [0, 1, 2].map(|i| 0.5 * (left[i] + right[i]));
+    let dist = ((0..3).map(|i| (right[i] - left[i]).powi(2)).sum::<f32>()).sqrt();
+    assert!((dist - ipd).abs() < 1e-4, "eyes {dist} m apart");
+    let target: [f32; 3] = [0, 1, 2].map(|i| centre[i] + forward[i]);
+    let camera = format!("{},{},{},{},{},{}", centre[0], centre[1], centre[2], target[0], target[1], target[2]);
+    let x = xvfb();
+    let shot = dir.path().join("view.png");
+    let mut cmd = livebake();
+    cmd.env("DISPLAY", &x.display)
+        .arg("-q")
+        .arg("view")
+        .arg(cornell_path())
+        .args(FROZEN)
+        .args(["--backend", "cpu", "--no-watch", "--stereo", "--ipd", &ipd.to_string(), "--camera", &camera])
+        .args(["--size", &format!("{}x{h}", 2 * w)])
+        .arg("--screenshot")
+        .arg(&shot);
+    let (code, stderr) = run_bounded(&mut cmd, 300);
+    assert_eq!(code, Some(0), "{stderr}");
+    let view = image::open(&shot).unwrap().to_rgba8();
+    assert_eq!(view.dimensions(), (2 * w, h));
+    for (i, eye) in eyes.iter().enumerate() {
+        assert_eq!((eye["width"].as_u64(), eye["height"].as_u64()), (Some(w as u64), Some(h as u64)));
+        let raw = std::fs::read(eye["file"].as_str().unwrap()).unwrap();
+        let (mut over, mut sum, mut lit) = (0usize, 0f64, 0usize);
+        for y in 0..h {
+            for x in 0..w {
+                // readPixels rows run bottom up.
+                let p = &raw[(((h - 1 - y) * w + x) * 4) as usize..][..3];
+                let q = view.get_pixel(i as u32 * w + x, y).0;
+                let d = (0..3).map(|c| p[c].abs_diff(q[c])).max().unwrap();
+                over += (d > 4) as usize;
+                sum += d as f64;
+                lit += (p.iter().map(|&v| v as u32).sum::<u32>() > 150) as usize;
+            }
+        }
+        let n = (w * h) as f64;
+        let (frac, mean) = (over as f64 / n, sum / n);
+        eprintln!(
+            "eye {i}: {:.2}% of pixels differ by more than 4 levels, mean difference {mean:.3}, {lit} lit pixels",
+            100.0 * frac
+        );
+        assert!(lit as f64 > 0.2 * n, "eye {i}: the room is not in view ({lit} lit pixels)");
+        assert!(frac <= 0.01, "eye {i}: {:.2}% of pixels differ by more than 4 levels", 100.0 * frac);
+        assert!(mean <= 0.5, "eye {i}: mean difference {mean:.3} levels");
+    }
+}
+
+/// A copy of the Cornell room in a fresh folder (hot reload edits it).
+fn cornell_copy(dir: &Path) -> PathBuf {
+    let path = dir.join("cornell_2m.gltf");
+    std::fs::copy(cornell_path(), &path).unwrap();
+    path
+}
+
+/// The live session in the emulated headset: cells published after the page joined reach
+/// its texture as partial updates; the headset's pose moves the runtime's camera; a hot
+/// reload replaces the page's scene; a second client that sends garbage and a third that
+/// drops its connection change nothing for the page.
+#[test]
+fn live_updates_head_pose_and_hot_reload_reach_the_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = cornell_copy(dir.path());
+    // Refinement long enough (20 s and more) for the steps to see it going on.
+    let served = Served::start(&scene, &["--texel-size", "0.05", "--samples", "128", "--lods", "4"]);
+    let status = served.wait_first_light();
+    let yfov = status["start"]["yfov"].as_f64().unwrap();
+    // The reload: the room's lamp dimmed to a third, saved.
+    let text = std::fs::read_to_string(&scene).unwrap();
+    let mut doc: Value = serde_json::from_str(&text).unwrap();
+    let mut edited = false;
+    for m in doc["materials"].as_array_mut().unwrap() {
+        if let Some(e) = m.get_mut("emissiveFactor")
+            && e.as_array().unwrap().iter().any(|v| v.as_f64().unwrap() > 0.0)
+        {
+            *e = json!(e.as_array().unwrap().iter().map(|v| v.as_f64().unwrap() / 3.0).collect::<Vec<_>>());
+            edited = true;
+        }
+    }
+    assert!(edited, "the room has an emissive material");
+    let result = drive(
+        json!({
+            "url": served.url, "fovy": yfov, "eye_size": [320, 240], "frames": 2,
+            "steps": ["wait_updates", "move_head", "garbage_clients", "wait_updates", "edit", "wait_scene:2", "status"],
+            "edit": {"path": scene, "content": doc.to_string()},
+        }),
+        dir.path(),
+    );
+    // Incremental updates after the whole map: pages of single publishes, not the map.
+    let w = step(&result, "wait_updates");
+    let (before, after) = (&w["before"], &w["after"]);
+    assert!(after["updates"].as_u64() > before["updates"].as_u64(), "{w}");
+    assert!(after["pages"].as_u64() > before["pages"].as_u64(), "{w}");
+    assert_eq!(after["full"], 1, "one whole map (on joining) before the reload: {w}");
+    // The head moved 1 m along x in the tracking space; the page sent it, the runtime's
+    // camera took it.
+    let m = step(&result, "move_head");
+    let (b, a) = (v3(&m["before"]["eye"]), v3(&m["after"]["eye"]));
+    assert!((a[0] - b[0] - 1.0).abs() < 1e-3 && (a[1] - b[1]).abs() < 1e-3, "{m}");
+    assert_eq!(v3(&m["server_pose"][0]), a, "the runtime's camera: {m}");
+    // Garbage and a dropped client did not disturb the page: it kept its connection and
+    // took updates after them (the second wait_updates).
+    let g = step(&result, "garbage_clients");
+    assert_eq!(g["garbage_closed"], true, "{g}");
+    let fin = &step(&result, "status")["after"];
+    assert_eq!(fin["connected"], true, "{fin}");
+    // The reload reached the page: the new scene and its whole map.
+    assert_eq!(fin["generation"], 2, "{fin}");
+    assert_eq!(fin["scenes"], 2, "{fin}");
+    assert!(fin["full"].as_u64() >= Some(2), "{fin}");
+    let s = served.status();
+    assert!(s["reloads"].as_u64() >= Some(1), "{s}");
+}
+
+/// Every update after the first carries exactly what the runtime published: replayed on a
+/// mirror of the first (whole) map, they give the runtime's shown map page for page, bit
+/// for bit (read after the runtime is paused, so nothing is in flight); and each is the
+/// published pages plus its small header, never the whole map.
+#[test]
+fn updates_carry_exactly_the_published_pages() {
+    use livebake::cpu::CpuProvider;
+    use livebake::runtime::{Runtime, RuntimeConfig};
+    use livebake::serve::{ServeConfig, Server};
+    let scene = Arc::new(livebake::scene::load_gltf(&cornell_path(), &Default::default()).unwrap());
+    // First light at every direction: no later re-publish of the whole of LOD 0 (which
+    // legitimately rewrites every LOD-0 page); what follows are cell publishes.
+    let config = RuntimeConfig {
+        lods: Some(3),
+        threads: Some(1),
+        first_light_directions: 64,
+        bundle: livebake::bundle::BundleConfig { seed: 3, directions: 64, ..RuntimeConfig::default().bundle },
+        ..RuntimeConfig::default()
+    };
+    let runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new())).unwrap();
+    let server = Server::bind(
+        &cornell_path(),
+        ServeConfig { addr: "127.0.0.1:0".parse().unwrap(), token: None, exposure: Some(1.0), pose: None },
+    )
+    .unwrap();
+    let addr = server.local_addr().to_string();
+    // The client reads until the server lets it go (everything queued is delivered first).
+    let client = std::thread::spawn(move || {
+        let stream = TcpStream::connect(&addr).unwrap();
+        stream.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+        let (mut ws, _) = tungstenite::client(format!("ws://{addr}/socket"), stream).unwrap();
+        let (scene, first) = read_welcome(&mut ws);
+        assert!(first.full);
+        let mut updates = vec![first];
+        while let Ok(m) = ws.read() {
+            if let Message::Binary(b) = m
+                && b[0] == 3
+            {
+                updates.push(decode_update(&b).expect("a well-formed update"));
+            }
+        }
+        (scene, updates)
+    });
+    let mut paused_at: Option<Instant> = None;
+    let mut last_shown: Option<Arc<ShownLightmap>> = None;
+    let stats = server
+        .run(&runtime, |s| {
+            if s.updates >= 8 && paused_at.is_none() {
+                runtime.set_paused(true);
+                paused_at = Some(Instant::now());
+            }
+            // Paused long enough for a bake in flight to have been published (and broadcast:
+            // the hub publishes before it asks whether to stop).
+            if paused_at.is_some_and(|t| t.elapsed() > Duration::from_secs(3)) {
+                last_shown = Some(runtime.shown());
+                return true;
+            }
+            false
+        })
+        .unwrap();
+    let (scene, updates) = client.join().unwrap();
+    let shown = last_shown.unwrap();
+    runtime.shutdown().unwrap();
+    assert_eq!(scene["type"], "scene");
+    assert_eq!(scene["lods"], 3);
+    // The mirror: page key → texels.
+    let mut mirror = std::collections::HashMap::new();
+    let mut cells = [vec![0u8; shown.grid.len()], vec![0u8; shown.grid.len()]];
+    for (i, u) in updates.iter().enumerate() {
+        assert_eq!(u.full, i == 0);
+        if i > 0 {
+            let bytes = UPDATE_HEADER
+                + u.cells.len() * CELL_ENTRY
+                + u.pages.len() * (PAGE_ENTRY_HEADER + Page::BYTES)
+                + u.dropped.len() * PAGE_ENTRY_HEADER;
+            assert!(!u.pages.is_empty() || !u.cells.is_empty() || !u.dropped.is_empty(), "an empty update");
+            assert!(
+                u.pages.len() < updates[0].pages.len(),
+                "update {i} carries {} pages: the whole map?",
+                u.pages.len()
+            );
+            eprintln!("update {i}: {} pages, {} cell LODs, {bytes} bytes", u.pages.len(), u.cells.len());
+        }
+        for (k, t) in &u.pages {
+            mirror.insert(*k, t.clone());
+        }
+        for k in &u.dropped {
+            mirror.remove(k);
+        }
+        for c in &u.cells {
+            cells[c.layer as usize][c.cell as usize] = c.lod;
+        }
+    }
+    assert_eq!(updates.len() as u64, stats.updates + 1, "every update broadcast reached the client");
+    let mut live = 0;
+    for layer in Layer::ALL {
+        for (k, level) in shown.layer(layer).levels.iter().enumerate() {
+            for py in 0..level.pages_y {
+                for px in 0..level.pages_x {
+                    if let Some(p) = level.page(px, py) {
+                        live += 1;
+                        let got = mirror.get(&(layer as u8, k as u8, px, py)).expect("a live page the client lacks");
+                        assert_eq!(got.as_slice(), &p.texels[..], "page {layer:?} {k} ({px}, {py})");
+                    }
+                }
+            }
+        }
+        assert_eq!(&cells[layer as usize][..], &shown.layer(layer).cell_lod[..]);
+    }
+    assert_eq!(live, mirror.len(), "pages the runtime freed are gone from the mirror too");
+    assert!(stats.update_bytes > stats.update_page_bytes);
+}
+
+/// With --host every request needs the token (page, files, status, socket); the scene's
+/// folder is all that is served of the disk, and only its own files.
+#[test]
+fn without_the_token_or_outside_the_scene_requests_are_refused() {
+    let served = Served::start(&cornell_path(), &["--host", "127.0.0.1", "--no-watch", "--texel-size", "0.1"]);
+    let token = served.token().expect("--host prints a URL with a token");
+    assert_eq!(token.len(), 32);
+    let addr = served.addr();
+    let q = format!("?token={token}");
+    for path in ["/", "/livebake.js", "/status.json", "/scene/cornell_2m.gltf"] {
+        assert_eq!(http_get(&addr, path, "").0, 403, "{path} without the token");
+        assert_eq!(http_get(&addr, &format!("{path}?token=0{}", &token[1..]), "").0, 403, "{path} with a wrong token");
+        assert_eq!(http_get(&addr, &format!("{path}{q}"), "").0, 200, "{path} with the token");
+        let cookie = format!("Cookie: livebake_token={token}\r\n");
+        assert_eq!(http_get(&addr, path, &cookie).0, 200, "{path} with the cookie");
+    }
+    // The socket too.
+    let stream = TcpStream::connect(&addr).unwrap();
+    assert!(tungstenite::client(format!("ws://{addr}/socket"), stream).is_err(), "a socket without the token");
+    // Outside the folder, or in it but not the scene's.
+    for (path, want) in [
+        ("/scene/../serve.rs", 403),
+        ("/scene/%2e%2e/%2e%2e/Cargo.toml", 403),
+        ("/scene//etc/passwd", 403),
+        ("/scene/mitsuba_reference.json", 404),
+        ("/scene/points.json", 404),
+        ("/../Cargo.toml", 404),
+        ("/etc/passwd", 404),
+        ("/scene/", 403),
+    ] {
+        assert_eq!(http_get(&addr, &format!("{path}{q}"), "").0, want, "{path}");
+    }
+    let (_, page) = http_get(&addr, &format!("/{q}"), "");
+    assert!(String::from_utf8_lossy(&page).contains("livebake.js"));
+}
+
+/// A socket that sends garbage is closed; the others go on (plain clients, no browser).
+#[test]
+fn a_malformed_message_closes_that_client_only() {
+    let served = Served::start(&cornell_path(), &["--no-watch", "--texel-size", "0.1", "--lods", "3"]);
+    served.wait_first_light();
+    let mut first = served.socket();
+    read_welcome(&mut first);
+    let mut bad = served.socket();
+    read_welcome(&mut bad);
+    bad.send(Message::Binary(vec![42u8, 1, 2, 3].into())).unwrap();
+    let closed = (0..1000).any(|_| match bad.read() {
+        Ok(Message::Close(_)) | Err(_) => true,
+        Ok(_) => false,
+    });
+    assert!(closed, "the garbage sender was not closed");
+    let mut text = served.socket();
+    read_welcome(&mut text);
+    text.send(Message::text("hello")).unwrap();
+    drop(text);
+    // A client that vanishes without a close.
+    drop(served.socket());
+    // The first client still talks: its pose reaches the runtime.
+    let pose = livebake::serve::protocol::Pose {
+        eye: glam::Vec3::new(0.5, 1.0, 1.5),
+        target: glam::Vec3::new(0.5, 1.0, 0.0),
+        yfov: 1.0,
+        aspect: 1.0,
+        height_px: 100,
+    };
+    first.send(Message::Binary(encode_pose(&pose).into())).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        // (Reading keeps its queue flowing.)
+        first.get_mut().set_read_timeout(Some(Duration::from_millis(50))).unwrap();
+        let _ = first.read();
+        let s = served.status();
+        if s["last_pose"][0] == json!([0.5, 1.0, 1.5]) {
+            assert_eq!(s["clients_now"], 1, "{s}");
+            break;
+        }
+        assert!(Instant::now() < deadline, "the first client's pose never arrived: {s}");
+    }
+}
