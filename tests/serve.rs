@@ -504,3 +504,87 @@ fn a_malformed_message_closes_that_client_only() {
         assert!(Instant::now() < deadline, "the first client's pose never arrived: {s}");
     }
 }
+
+/// A plain static file server over `dir` (what anyone would put a `--export-web` folder
+/// behind); records each request's path and status.
+/// Requests a test file server saw: path and status.
+type RequestLog = Arc<std::sync::Mutex<Vec<(String, u16)>>>;
+
+fn static_server(dir: PathBuf) -> (String, RequestLog) {
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let log = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let seen = log.clone();
+    std::thread::spawn(move || {
+        for stream in listener.incoming() {
+            let Ok(mut s) = stream else { continue };
+            let mut head = Vec::new();
+            let mut b = [0u8; 1];
+            while !head.ends_with(b"\r\n\r\n") && s.read(&mut b).is_ok_and(|n| n == 1) {
+                head.push(b[0]);
+            }
+            let line = String::from_utf8_lossy(&head).lines().next().unwrap_or("").to_string();
+            let target = line.split_whitespace().nth(1).unwrap_or("/").to_string();
+            let path = target.split('?').next().unwrap().trim_start_matches('/').to_string();
+            let file = dir.join(&path);
+            let body = (!path.contains("..") && !path.is_empty()).then(|| std::fs::read(&file).ok()).flatten();
+            let code = if body.is_some() { 200 } else { 404 };
+            seen.lock().unwrap().push((path.clone(), code));
+            let ty = match file.extension().and_then(|e| e.to_str()) {
+                Some("html") => "text/html",
+                Some("js") => "text/javascript",
+                Some("json") => "application/json",
+                _ => "application/octet-stream",
+            };
+            let body = body.unwrap_or_default();
+            let _ = write!(
+                s,
+                "HTTP/1.1 {code} X\r\nContent-Type: {ty}\r\nContent-Length: {}\r\nConnection: close\r\n\r\n",
+                body.len()
+            );
+            let _ = s.write_all(&body);
+        }
+    });
+    (addr, log)
+}
+
+/// `bake --export-web DIR` is self-contained: a plain file server over DIR alone, and the
+/// page in Chromium draws the lit room (not black) from DIR's files and nothing else.
+#[test]
+fn the_web_export_is_a_static_self_contained_page() {
+    let dir = tempfile::tempdir().unwrap();
+    let web = dir.path().join("web");
+    let mut cmd = livebake();
+    cmd.arg("-q")
+        .arg("bake")
+        .arg(cornell_path())
+        .args(["--texel-size", "0.05", "--samples", "64", "--backend", "cpu", "--out"])
+        .arg(dir.path().join("out"))
+        .arg("--export-web")
+        .arg(&web);
+    let (code, stderr) = run_bounded(&mut cmd, 300);
+    assert_eq!(code, Some(0), "{stderr}");
+    for f in ["index.html", "livebake.js", "scene.json", "geometry.bin", "lightmap.bin", "scene.gltf", "scene.bin"] {
+        assert!(web.join(f).is_file(), "{f} missing from the export");
+    }
+    let (addr, log) = static_server(web.clone());
+    let out = dir.path().join("driver");
+    std::fs::create_dir_all(&out).unwrap();
+    let result = drive(
+        json!({"url": format!("http://{addr}/index.html?static"), "no_vr": true, "eye_size": [160, 120],
+               "steps": ["sleep:500", "mean_pixel"]}),
+        &out,
+    );
+    let mean =
+        step(&result, "mean_pixel")["mean"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect::<Vec<_>>();
+    let lit = step(&result, "mean_pixel")["lit"].as_f64().unwrap();
+    eprintln!("mean page colour {mean:?}, {:.0}% of the pixels lit", 100.0 * lit);
+    // The background is (39, 39, 46), a sum of 124; the lit room's walls and floor sum to
+    // well over 200 and fill about a sixth of this 320×120 canvas (measured 17 %).
+    assert!(lit > 0.1, "the page is (nearly) black: mean {mean:?}, {lit} lit");
+    let requests = log.lock().unwrap().clone();
+    for (path, code) in &requests {
+        assert!(*code == 200 || path == "favicon.ico", "{path}: {code} ({requests:?})");
+    }
+    assert!(requests.iter().any(|(p, _)| p == "lightmap.bin"), "{requests:?}");
+}

@@ -109,17 +109,21 @@ try {
       await page.screenshot({ path: file });
       result.steps.push({ step, file });
     } else if (step === "mean_pixel") {
-      // The desktop canvas's mean colour (static export check).
+      // The desktop canvas's mean colour and the fraction of pixels brighter than the
+      // background (static export check).
       const mean = await page.evaluate(() => {
         const c = document.getElementById("view");
         const gl = c.getContext("webgl2");
         const px = new Uint8Array(c.width * c.height * 4);
         gl.readPixels(0, 0, c.width, c.height, gl.RGBA, gl.UNSIGNED_BYTE, px);
-        let s = [0, 0, 0];
-        for (let i = 0; i < px.length; i += 4) { s[0] += px[i]; s[1] += px[i + 1]; s[2] += px[i + 2]; }
-        return s.map((v) => v / (px.length / 4));
+        let s = [0, 0, 0], lit = 0;
+        for (let i = 0; i < px.length; i += 4) {
+          s[0] += px[i]; s[1] += px[i + 1]; s[2] += px[i + 2];
+          if (px[i] + px[i + 1] + px[i + 2] > 200) lit++;
+        }
+        return { mean: s.map((v) => v / (px.length / 4)), lit: lit / (px.length / 4) };
       });
-      result.steps.push({ step, mean });
+      result.steps.push({ step, ...mean });
     } else throw new Error(`unknown step ${step}`);
   }
   result.final = await status();
