@@ -15,6 +15,7 @@ mod runtime;
 mod runtime_large;
 mod runtime_real;
 mod scale_out;
+mod serve;
 mod startup;
 mod throughput;
 mod tiling;
@@ -89,7 +90,7 @@ impl Bench<'_> {
 type Section = fn(&Bench) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Section); 16] = [
+pub const SECTIONS: [(&str, Section); 17] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -106,6 +107,7 @@ pub const SECTIONS: [(&str, Section); 16] = [
     ("bake_memory", bake_memory::run),
     ("reload", reload::run),
     ("scale_out", scale_out::run),
+    ("serve", serve::run),
 ];
 
 /// Runs `f` `runs` times and returns the median of its results (seconds or rates).
