@@ -246,6 +246,39 @@ fn each_eye_in_the_emulated_headset_matches_the_viewers_stereo_render() {
     }
 }
 
+/// The controllers in the emulated headset: the thumbstick turns the view 30° to the right
+/// about the head (which stays where it is); the trigger, aimed at the floor, moves the head
+/// over the floor to where the ray meets it (its height kept).
+#[test]
+fn snap_turn_and_teleport_on_the_emulated_controllers() {
+    let served = Served::start(&cornell_path(), &[&FROZEN[..], &["--no-watch"]].concat());
+    served.wait_first_light();
+    let dir = tempfile::tempdir().unwrap();
+    let result = drive(
+        json!({"url": served.url, "eye_size": [96, 72], "frames": 2, "steps": ["snap_turn", "teleport"]}),
+        dir.path(),
+    );
+    let centre = |views: &Value| -> [f32; 3] {
+        let (a, b) = (v3(&views[0]["position"]), v3(&views[1]["position"]));
+        [0, 1, 2].map(|i| 0.5 * (a[i] + b[i]))
+    };
+    let turn = step(&result, "snap_turn");
+    assert_eq!(turn["snap_turns"], 1, "{turn}");
+    let (f0, f1) = (v3(&turn["before"][0]["forward"]), v3(&turn["after"][0]["forward"]));
+    let yaw = |f: [f32; 3]| f[0].atan2(-f[2]);
+    let turned = (yaw(f1) - yaw(f0)).to_degrees();
+    assert!((turned - 30.0).abs() < 0.01, "turned {turned}°: {turn}");
+    let (h0, h1) = (centre(&turn["before"]), centre(&turn["after"]));
+    assert!((0..3).all(|i| (h0[i] - h1[i]).abs() < 1e-4), "the head moved in a snap turn: {h0:?} → {h1:?}");
+    let tele = step(&result, "teleport");
+    assert_eq!(tele["teleports"], 1, "{tele}");
+    let (t0, t1) = (centre(&tele["before"]), centre(&tele["after"]));
+    let moved = ((t1[0] - t0[0]).powi(2) + (t1[2] - t0[2]).powi(2)).sqrt();
+    eprintln!("teleported {moved:.2} m");
+    assert!(moved > 0.5, "the teleport moved the head {moved} m: {tele}");
+    assert!((t1[1] - t0[1]).abs() < 1e-4, "the head's height changed: {t0:?} → {t1:?}");
+}
+
 /// A copy of the Cornell room in a fresh folder (hot reload edits it).
 fn cornell_copy(dir: &Path) -> PathBuf {
     let path = dir.join("cornell_2m.gltf");

@@ -676,7 +676,7 @@ export function start(canvas, ui = {}) {
       depthFar: state.scene.start.zfar,
     });
     const local = await session.requestReferenceSpace("local");
-    state.xr = { session, space: local, turnHeld: false, placed: false };
+    state.xr = { session, space: local, turnHeld: new Set() };
     session.addEventListener("end", () => { state.xr = null; });
     session.addEventListener("selectend", (ev) => teleport(ev.frame, ev.inputSource));
     session.requestAnimationFrame(xrFrame);
@@ -714,15 +714,16 @@ export function start(canvas, ui = {}) {
       const axes = source.gamepad?.axes;
       if (!axes || axes.length < 4) continue;
       const x = axes[2];
-      if (Math.abs(x) > 0.7 && !state.xr.turnHeld) {
-        state.xr.turnHeld = true;
+      const held = state.xr.turnHeld;
+      if (Math.abs(x) > 0.7 && !held.has(source.handedness)) {
+        held.add(source.handedness);
         // Turn about the head: it stays where it is in the world.
         const hp = viewer.transform.position, local = [hp.x, hp.y, hp.z];
         const head = toWorld(local);
         state.origin.yaw += x > 0 ? SNAP_TURN : -SNAP_TURN;
         state.origin.position = sub(head, dirToWorld(local));
         state.snapTurns = (state.snapTurns || 0) + 1;
-      } else if (Math.abs(x) < 0.3) state.xr.turnHeld = false;
+      } else if (Math.abs(x) < 0.3) held.delete(source.handedness);
     }
   }
 
@@ -730,6 +731,15 @@ export function start(canvas, ui = {}) {
     const xr = state.xr;
     if (!xr) return;
     xr.session.requestAnimationFrame(xrFrame);
+    try {
+      drawXR(frame);
+    } catch (e) {
+      if (state.errors.length < 10) state.errors.push(String(e && e.stack || e));
+    }
+  }
+
+  function drawXR(frame) {
+    const xr = state.xr;
     const pose = frame.getViewerPose(xr.space);
     const layer = xr.session.renderState.baseLayer;
     if (!pose || !state.scene) return;

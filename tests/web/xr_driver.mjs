@@ -83,6 +83,41 @@ try {
     } else if (step === "frame_times") {
       await page.waitForFunction(() => window.livebake.lastFrameMean != null, null, { timeout });
       result.steps.push({ step, after: await status() });
+    } else if (step === "snap_turn" || step === "teleport") {
+      // The right controller: thumbstick right for a moment (snap turn), or pointed 45°
+      // down and its trigger pressed and released (teleport: select).
+      // Waits for the headset to draw n more frames (time alone does not: a headless page
+      // may draw nothing while the test waits).
+      const frames = async (n) => {
+        const now = await page.evaluate(() => window.livebake.xrFrames);
+        await page.waitForFunction((k) => window.livebake.xrFrames >= k, now + n, { timeout });
+      };
+      const views = () => page.evaluate(() => window.livebake.lastViews.map((v) => ({ position: v.position, forward: v.forward })));
+      // The controllers connect a few frames into the session.
+      await page.waitForFunction(() => window.livebake.xr.session.inputSources.length >= 2, null, { timeout });
+      await frames(4);
+      const before = await views();
+      if (step === "snap_turn") {
+        await page.evaluate(() => window.__device.controllers.right.updateAxes("thumbstick", 1, 0));
+        await frames(8);
+        await page.evaluate(() => window.__device.controllers.right.updateAxes("thumbstick", 0, 0));
+      } else {
+        await page.evaluate(() => {
+          const s = Math.sin(-Math.PI / 8), c = Math.cos(-Math.PI / 8);
+          window.__device.controllers.right.quaternion.set(s, 0, 0, c);
+        });
+        await frames(4);
+        await page.evaluate(() => window.__device.controllers.right.updateButtonValue("trigger", 1));
+        await frames(4);
+        await page.evaluate(() => window.__device.controllers.right.updateButtonValue("trigger", 0));
+      }
+      await frames(8);
+      const after = await views();
+      const counts = await page.evaluate(() => ({
+        snap_turns: window.livebake.snapTurns || 0, teleports: window.livebake.teleports || 0, xr_frames: window.livebake.xrFrames,
+        axes: Array.from(window.livebake.xr.session.inputSources).map((x) => x.gamepad && Array.from(x.gamepad.axes)),
+      }));
+      result.steps.push({ step, before, after, ...counts });
     } else if (step === "edit") {
       // A save of the scene (hot reload).
       fs.writeFileSync(config.edit.path, config.edit.content);
@@ -101,7 +136,10 @@ try {
       }));
       result.steps.push({ step, garbage_closed: closed, after: await status() });
     } else if (step.startsWith("sleep:")) {
-      await page.waitForTimeout(Number(step.split(":")[1]));
+      // Polled on animation frames: a headless page left alone may stop drawing (the
+      // emulator's frames stall), which would be measured as slow frames.
+      const until = (await page.evaluate(() => performance.now())) + Number(step.split(":")[1]);
+      await page.waitForFunction((t) => performance.now() >= t, until, { timeout: timeout + Number(step.split(":")[1]), polling: "raf" });
     } else if (step === "status") {
       result.steps.push({ step, after: await status() });
     } else if (step === "screenshot") {
