@@ -467,7 +467,7 @@ fn without_the_token_or_outside_the_scene_requests_are_refused() {
     assert_eq!(token.len(), 32);
     let addr = served.addr();
     let q = format!("?token={token}");
-    for path in ["/", "/livebake.js", "/status.json", "/scene/cornell_2m.gltf"] {
+    for path in ["/", "/livebake.js", "/shaders.js", "/status.json", "/scene/cornell_2m.gltf"] {
         assert_eq!(http_get(&addr, path, "").0, 403, "{path} without the token");
         assert_eq!(http_get(&addr, &format!("{path}?token=0{}", &token[1..]), "").0, 403, "{path} with a wrong token");
         assert_eq!(http_get(&addr, &format!("{path}{q}"), "").0, 200, "{path} with the token");
@@ -597,7 +597,16 @@ fn the_web_export_is_a_static_self_contained_page() {
         .arg(&web);
     let (code, stderr) = run_bounded(&mut cmd, 300);
     assert_eq!(code, Some(0), "{stderr}");
-    for f in ["index.html", "livebake.js", "scene.json", "geometry.bin", "lightmap.bin", "scene.gltf", "scene.bin"] {
+    for f in [
+        "index.html",
+        "livebake.js",
+        "shaders.js",
+        "scene.json",
+        "geometry.bin",
+        "lightmap.bin",
+        "scene.gltf",
+        "scene.bin",
+    ] {
         assert!(web.join(f).is_file(), "{f} missing from the export");
     }
     let (addr, log) = static_server(web.clone());

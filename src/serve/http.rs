@@ -17,6 +17,7 @@ pub const PAGE_FILES: &[(&str, &str, &[u8])] = &[
     ("/", "text/html; charset=utf-8", include_bytes!("../../web/index.html")),
     ("/index.html", "text/html; charset=utf-8", include_bytes!("../../web/index.html")),
     ("/livebake.js", "text/javascript; charset=utf-8", include_bytes!("../../web/livebake.js")),
+    ("/shaders.js", "text/javascript; charset=utf-8", include_bytes!("../../web/shaders.js")),
 ];
 
 /// Largest request head read.

@@ -78,7 +78,8 @@ try {
       result.steps.push({ step, before, after: await status() });
     } else if (step.startsWith("wait_scene:")) {
       const g = Number(step.split(":")[1]);
-      await page.waitForFunction((g) => window.livebake.generation >= g && window.livebake.updates > 0, g, { timeout });
+      // Generation g's scene and its whole map (each scene the page gets comes with one).
+      await page.waitForFunction((g) => window.livebake.generation >= g && window.livebake.fullSeen >= g, g, { timeout });
       result.steps.push({ step, after: await status() });
     } else if (step === "frame_times") {
       await page.waitForFunction(() => window.livebake.lastFrameMean != null, null, { timeout });
