@@ -529,12 +529,12 @@ fn a_malformed_message_closes_that_client_only() {
         // (Reading keeps its queue flowing.)
         first.get_mut().set_read_timeout(Some(Duration::from_millis(50))).unwrap();
         let _ = first.read();
+        // The others' threads notice their ends on their own time: wait for both facts.
         let s = served.status();
-        if s["last_pose"][0] == json!([0.5, 1.0, 1.5]) {
-            assert_eq!(s["clients_now"], 1, "{s}");
+        if s["last_pose"][0] == json!([0.5, 1.0, 1.5]) && s["clients_now"] == 1 {
             break;
         }
-        assert!(Instant::now() < deadline, "the first client's pose never arrived: {s}");
+        assert!(Instant::now() < deadline, "the first client's pose never arrived, or the others stayed: {s}");
     }
 }
 
