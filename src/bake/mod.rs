@@ -444,6 +444,8 @@ pub struct RegionShardBake {
     pub whole_texels: usize,
     /// Bytes of what the share's bake held for its texels and the foreign lookup.
     pub held_bytes: usize,
+    /// What it was expected to hold at its peak ([`region_shard::estimate`]).
+    pub memory: memory::MemoryEstimate,
     pub report: BakeReport,
 }
 
@@ -456,7 +458,7 @@ pub fn bake_region_shard(
     config: &BakeConfig,
     round: u32,
     share: (u32, u32),
-    previous: Option<&crate::bundle::progressive::ProgressiveEstimate>,
+    previous: Option<crate::bundle::progressive::ProgressiveEstimate>,
     progress: &dyn Progress,
 ) -> Result<RegionShardBake, BakeError> {
     config.validate()?;
@@ -469,13 +471,26 @@ pub fn bake_region_shard(
     let started = Instant::now();
     let geom = SceneGeometry::new(scene);
     config.atlas.validate()?;
-    check_memory_early(scene, &geom, config)?;
+    // The single bake's early guard would count the whole LOD: a region shard is checked
+    // against its own estimate once the atlas says how many texels the LOD has.
+
     let atlas = Atlas::build(scene, &geom, &config.atlas)?;
     check_lod_sizes(&atlas, 1)?;
+    let expected = region_shard::estimate(atlas.stats.covered_texels_lod0, share.1, previous.is_some(), config);
+    tracing::info!(
+        lod_texels = expected.texels,
+        shares = share.1,
+        texel_bytes = expected.texel_bytes,
+        bytes = expected.bytes,
+        "region shard memory estimate"
+    );
+    refuse_over_limit(&expected, config, false, config.atlas.texel_size, "")?;
     let t0 = Instant::now();
-    let texels = TexelMap::build(scene, &geom, &atlas, 0);
+    // No positions or normals: the rounds read neither (the punctual pass reads faces and
+    // pixels), and the albedo and emission are the same values `TexelMap::build` makes.
+    let texels = TexelMap::build_with(scene, &geom, &atlas, 0, crate::atlas::texels::Restore::Albedo);
     let texel_seconds = t0.elapsed().as_secs_f64();
-    if let Some(p) = previous
+    if let Some(p) = &previous
         && p.len() != texels.len()
     {
         return Err(BakeError::PreviousRound { texels: texels.len(), previous: p.len() });
@@ -486,25 +501,23 @@ pub fn bake_region_shard(
     let mut report = BakeReport::new(scene, &atlas, config);
     let (bundle, bvh, mut backend) = bundle_setup(scene, &geom, &atlas, &whole, &mut report)?;
     let threads = config.threads();
+    let whole_texels = texels.len();
     let r = region_shard::bake_region_round(
         &bundle,
         &bvh,
         &mut *backend,
-        &texels,
+        texels,
         previous,
         round,
         share,
         threads,
         progress,
     );
-    let region_shard::RegionRound { estimate, stats, charts, texels: keep, held_bytes } = r;
+    let region_shard::RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes } = r;
     if stats.pass.unplanned_directions > 0 {
         let (count, directions) = (stats.pass.unplanned_directions, stats.directions);
         return Err(BakeError::UnplannedDirections { lod: 0, count, directions });
     }
-    let whole_texels = texels.len();
-    let sub = region_shard::subset_map(&texels, &keep);
-    drop(texels);
     let irradiance = estimate.irradiance();
     let backend_stats = BackendStats {
         samples_per_texel: config.samples,
@@ -515,7 +528,7 @@ pub fn bake_region_shard(
     report.total_seconds = started.elapsed().as_secs_f64();
     report.memory.measure();
     report.bytes_per_texel = report.memory.measured_bytes_per_texel;
-    Ok(RegionShardBake { atlas, estimate, charts, texels: keep, whole_texels, held_bytes, report })
+    Ok(RegionShardBake { atlas, estimate, charts, texels: keep, whole_texels, held_bytes, memory: expected, report })
 }
 
 impl BakeConfig {

@@ -176,6 +176,53 @@ impl ForeignSource<'_> {
     }
 }
 
+/// Bytes a texel of the share takes in its map (pixel, face, albedo, emission, area; no
+/// positions or normals), its id in the whole LOD, and its own source.
+pub const SHARE_MAP_BYTES: u64 = 4 + 4 + 12 + 12 + 4 + 4 + 12;
+
+/// Bytes a texel of the whole LOD takes in a region shard while its bundles run: its
+/// source (f32 RGB) in [`ForeignSource`], plus the whole LOD's lookup table (24 B an 8×8
+/// block of pixels, 4 B a gutter pixel) and 16 B an emitting texel.
+pub const FOREIGN_BYTES: u64 = 12;
+
+/// Bytes a texel of the whole LOD takes while a region shard sets up: its map without
+/// positions and normals (pixel, face, albedo, emission, area: 36 B, plus 8 B a gutter
+/// pixel, about 0.25 a texel) and its source (12 B).
+pub const SETUP_BYTES: f64 = 36.0 + 8.0 * crate::bake::memory::GUTTER_PER_TEXEL + 12.0;
+
+/// Bytes a texel of the whole LOD takes in a merged previous round read whole
+/// ([`crate::shard::merge_bytes`]): the global bundles' sums, the light pass's, the
+/// punctual part.
+pub const PREVIOUS_BYTES: u64 = 16 + 12 + 12;
+
+/// The peak a region shard of `count` shares of a LOD of `texels` texels is expected to
+/// hold, before it allocates anything per texel: the larger of its set-up (the whole map
+/// without positions and normals, the whole source, and the previous round's estimate when
+/// it reads one) and its bundles (the whole source and lookup table, and 1/`count` of what
+/// a single-machine bake of the LOD holds per texel: [`crate::bake::memory::estimate_from_lod0`]).
+pub fn estimate(
+    texels: u64,
+    count: u32,
+    previous: bool,
+    config: &crate::bake::BakeConfig,
+) -> crate::bake::memory::MemoryEstimate {
+    use crate::bake::memory::{SceneTraits, TABLE_BLOCK_BYTES, estimate_from_lod0};
+    let single = estimate_from_lod0(texels, None, config, SceneTraits::LEAST);
+    let t = texels as f64;
+    let setup = t * SETUP_BYTES + if previous { t * PREVIOUS_BYTES as f64 } else { 0.0 };
+    let table = t * TABLE_BLOCK_BYTES as f64 / 64.0 + t * crate::bake::memory::GUTTER_PER_TEXEL * 4.0;
+    let run = t * FOREIGN_BYTES as f64 + table + single.texel_bytes as f64 / count.max(1) as f64;
+    let texel_bytes = setup.max(run) as u64;
+    let bytes = texel_bytes + single.thread_bytes + single.texture_bytes + single.passing_bytes;
+    crate::bake::memory::MemoryEstimate {
+        texels,
+        texel_bytes,
+        bytes,
+        bytes_per_texel: bytes as f64 / texels.max(1) as f64,
+        ..single
+    }
+}
+
 /// One region shard's round: the sums of its texels, which texels and charts they are.
 pub struct RegionRound {
     pub estimate: ProgressiveEstimate,
@@ -184,7 +231,10 @@ pub struct RegionRound {
     pub charts: Vec<u32>,
     /// The share's texels: ids in the whole LOD's map (ascending).
     pub texels: Vec<u32>,
-    /// Bytes of the subset's map, its table and the foreign source, as built.
+    /// The share's map (its texels in the order of the estimate).
+    pub map: TexelMap,
+    /// Bytes of the share's map, its table, the foreign source and the importance's
+    /// triangles while the bundles ran.
     pub held_bytes: usize,
 }
 
@@ -199,33 +249,45 @@ pub fn bake_region_round(
     bundle: &BundleScene,
     bvh: &Bvh,
     backend: &mut dyn BundleBackend,
-    map: &TexelMap,
-    previous: Option<&ProgressiveEstimate>,
+    map: TexelMap,
+    previous: Option<ProgressiveEstimate>,
     round: u32,
     (index, count): (u32, u32),
     threads: usize,
     progress: &dyn Progress,
 ) -> RegionRound {
     let atlas = &*bundle.atlas;
-    let owner = deal_charts(&chart_texels(map, atlas), count);
+    let owner = deal_charts(&chart_texels(&map, atlas), count);
     let charts: Vec<u32> = (0..owner.len() as u32).filter(|&c| owner[c as usize] == index).collect();
-    let keep = share_texels(map, atlas, &owner, index);
+    let keep = share_texels(&map, atlas, &owner, index);
+    drop(owner);
     let triangles = target_triangles(atlas, &map.face);
-    let whole_source = round_source(bundle, map, previous);
+    let whole_source = round_source(bundle, &map, previous.as_ref());
     let own_source: Vec<Rgb> = keep.iter().map(|&i| whole_source[i as usize]).collect();
-    let foreign = ForeignSource::new(atlas, map, whole_source);
-    let sub = subset_map(map, &keep);
+    let carried_punctual: Option<Vec<Rgb>> = previous.as_ref().map(|p| match p.punctual() {
+        [] => Vec::new(),
+        all => keep.iter().map(|&i| all[i as usize]).collect(),
+    });
+    // What the bundles read of the whole LOD from here on: its source and its lookup. The
+    // whole map and the previous round's estimate are given up before they run.
+    drop(previous);
+    let foreign = ForeignSource::new(atlas, &map, whole_source);
+    let sub = subset_map(&map, &keep);
+    drop(map);
     let tables = [TexelTable::of_map(&sub)];
-    let punctual = match previous {
-        Some(p) if !p.punctual().is_empty() => keep.iter().map(|&i| p.punctual()[i as usize]).collect(),
-        Some(_) => Vec::new(),
+    let punctual = match carried_punctual {
+        Some(p) => p,
         None => {
             let w = sub.width;
             let pixel = |i: usize| [sub.pixel[i] % w, sub.pixel[i] / w];
             PunctualPass::of(bundle, bvh, sub.lod, &sub.face, &pixel, |_| &tables[0], threads).irradiance
         }
     };
-    let held_bytes = foreign.bytes() + tables[0].bytes() + sub.len() * (4 + 4 + 12 + 12 + 4 + 12) + keep.len() * 4;
+    let held_bytes = foreign.bytes()
+        + tables[0].bytes()
+        + sub.len() * SHARE_MAP_BYTES as usize
+        + sub.gutter.len() * 8
+        + triangles.len() * 4;
     let region = Region {
         texels: sub.view(),
         tables: &tables,
@@ -249,7 +311,8 @@ pub fn bake_region_round(
         &mut |_| std::ops::ControlFlow::Continue(()),
     );
     let Ok(Traced { estimate, stats, .. }) = traced else { unreachable!("a round is never cancelled") };
-    RegionRound { estimate, stats, charts, texels: keep, held_bytes }
+    drop(tables);
+    RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes }
 }
 
 #[cfg(test)]

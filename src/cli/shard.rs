@@ -224,26 +224,29 @@ pub fn bake(
     let config = livebake::bake::BakeConfig { memory_limit, ..options.bake_config(default_samples)? };
     let (scene, _) = load_scene(scene_path, options, memory_limit)?;
     let t0 = Instant::now();
-    let previous_estimate = previous.as_ref().map(|p| &p.estimate);
     let failed = || format!("cannot bake share {}/{} of {}", share.0, share.1, scene_path.display());
     let (estimate, report, regions) = match by {
         ShardBy::Directions => {
-            let baked = bake_shard(&scene, &config, round, share, previous_estimate, ui).with_context(failed)?;
+            let previous = previous.as_ref().map(|p| &p.estimate);
+            let baked = bake_shard(&scene, &config, round, share, previous, ui).with_context(failed)?;
             (baked.estimate, baked.report, None)
         }
         ShardBy::Regions => {
-            let baked = bake_region_shard(&scene, &config, round, share, previous_estimate, ui).with_context(failed)?;
+            // The previous round is given up once its source is made.
+            let previous = previous.map(|p| p.estimate);
+            let baked = bake_region_shard(&scene, &config, round, share, previous, ui).with_context(failed)?;
             tracing::info!(
                 texels = baked.texels.len(),
                 lod_texels = baked.whole_texels,
                 charts = baked.charts.len(),
                 held_bytes = baked.held_bytes,
+                expected_peak = baked.memory.bytes,
+                peak_resident = livebake::bake::memory::peak_resident_bytes().unwrap_or(0),
                 "region shard"
             );
             (baked.estimate, baked.report, Some((baked.charts, baked.whole_texels as u64)))
         }
     };
-    drop(previous);
     let seconds = t0.elapsed().as_secs_f64();
     let stats = report.lods.first().and_then(|l| l.bundle.as_ref()).map(|b| b.stats.clone());
     let record = JobRecord { job, stats: stats.unwrap_or_default(), seconds };
