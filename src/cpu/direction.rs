@@ -237,6 +237,7 @@ fn line<'a>(
         frame,
         viewport,
         foreign,
+        foreign_as_own: ctx.source.foreign.is_some_and(|f| f.by_lod_pixel()),
         cx,
         cy,
     }
