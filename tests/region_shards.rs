@@ -71,6 +71,10 @@ fn four_region_shards_merged_equal_one_bake_round_by_round() {
     let (e1, e2) = (exr(&d.join("merged1/lightmap_lod0.exr")), exr(&d.join("merged2/lightmap_lod0.exr")));
     let total = |m: &[[f32; 3]]| m.iter().map(|p| p.iter().map(|&c| c as f64).sum::<f64>()).sum::<f64>();
     assert!(total(&e2) > total(&e1) * 1.05, "round 2 adds no bounce: {} against {}", total(&e2), total(&e1));
+    // The report says the round's directions, as a single bake's does.
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("merged2/report.json")).expect("report")).expect("JSON");
+    assert_eq!(report["lods"][0]["bundle"]["directions"], 64, "{report}");
     // Each region shard holds about a quarter of the texels.
     let texels = |f: &str| {
         let b = std::fs::read(d.join(f)).expect("shard");

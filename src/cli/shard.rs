@@ -317,6 +317,15 @@ pub fn merge(files: &[PathBuf], out: &Path, export: Option<&Path>, memory_limit:
     for r in &records {
         add_round_stats(&mut stats, &r.stats);
     }
+    if first.kind == ShardKind::Regions {
+        // Every region shard traced every direction of the round: the round's directions
+        // are one shard's (the work, times and pass counters, stay summed).
+        stats.directions = records[0].stats.directions;
+        stats.batches = records[0].stats.batches;
+        stats.light_directions_per_group = records[0].stats.light_directions_per_group;
+        // Each shard counted its own texels that no bundle reached.
+        stats.unsampled_texels = records.iter().map(|r| r.stats.unsampled_texels).sum();
+    }
     let shard_seconds: f64 = records.iter().map(|r| r.seconds).sum();
     let backend_stats = BackendStats {
         samples_per_texel: config.samples,
