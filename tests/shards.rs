@@ -186,6 +186,7 @@ fn shards_that_do_not_belong_together_are_refused() {
     // anything of that size is allocated.
     let mut huge = bytes.clone();
     huge[48..56].copy_from_slice(&(u64::MAX / 64).to_le_bytes());
+    huge[80..88].copy_from_slice(&(u64::MAX / 64).to_le_bytes());
     std::fs::write(d.join("huge.lbshard"), &huge).expect("write");
     fails(d, &args(&[names[0], names[1], "huge.lbshard", names[3]]), &["huge.lbshard", "truncated"]);
     assert!(!d.join("m").exists(), "a refused merge wrote something");

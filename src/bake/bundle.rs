@@ -91,7 +91,7 @@ pub fn bake_lod_observed(
     let tables = [TexelTable::of_map(texels)];
     let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
     let punctual = PunctualPass::of_map(bundle, bvh, texels, threads);
-    let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None };
+    let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None, triangles: None };
     bake_region_observed(bundle, backend, &region, converged, punctual, threads, progress, cancel, observe)
 }
 
@@ -157,7 +157,7 @@ pub fn bake_lod_lean(
         if let Some(t) = &textured {
             view.albedo = TexelAlbedo::Textured(t);
         }
-        let region = Region { texels: view, tables: &tables, window: None, foreign: None };
+        let region = Region { texels: view, tables: &tables, window: None, foreign: None, triangles: None };
         let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
         bake_region_observed(bundle, backend, &region, converged, punctual, threads, progress, cancel, never_stop)
     };
@@ -242,6 +242,10 @@ pub struct Region<'a> {
     pub window: Option<(Vec3, Vec3)>,
     /// The radiance of lit faces outside the region (`None`: the region is every lit face).
     pub foreign: Option<&'a dyn SurfaceRadiance>,
+    /// The triangles whose texel density sets the bundles' resolution (ascending; `None`:
+    /// those holding the region's texels). A region shard gives the whole LOD's, so that its
+    /// bundles are laid out as the whole LOD's are.
+    pub triangles: Option<&'a [u32]>,
 }
 
 /// Bakes a region's texels: their punctual pass (made by the caller), then batches of
@@ -345,14 +349,21 @@ pub(super) fn trace_region(
     let carried = |i: usize| bundle.carried(texels.face[i]);
     let uniform = UniformAlbedos::new(&bundle.scene);
     let albedo = |i: usize| texels.albedo.at(i, texels.face[i], &uniform, &bundle.geom, &bundle.atlas);
-    let triangles = crate::bundle::target::target_triangles(&bundle.atlas, texels.face);
+    let own_triangles;
+    let triangles = match region.triangles {
+        Some(t) => t,
+        None => {
+            own_triangles = crate::bundle::target::target_triangles(&bundle.atlas, texels.face);
+            &own_triangles
+        }
+    };
     let target = BakeTarget {
         lod: texels.lod,
         face: texels.face,
         emission: texels.emission,
         tables: region.tables,
         window: region.window,
-        triangles: &triangles,
+        triangles,
     };
 
     let kind = if converged.is_some() { SourceKind::Converged } else { SourceKind::Progressive };

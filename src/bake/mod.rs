@@ -6,6 +6,7 @@ mod backend;
 pub mod bundle;
 pub mod memory;
 mod reference;
+pub mod region_shard;
 pub mod report;
 pub mod rounds;
 
@@ -429,6 +430,105 @@ pub fn bake_shard(
     report.memory.measure();
     report.bytes_per_texel = report.memory.measured_bytes_per_texel;
     Ok(ShardBake { atlas, estimate, report })
+}
+
+/// One region shard's round (see [`region_shard`]): its texels' sums, which charts and
+/// texels of LOD 0 they are, and the report.
+pub struct RegionShardBake {
+    pub atlas: Atlas,
+    pub estimate: crate::bundle::progressive::ProgressiveEstimate,
+    /// The share's charts (ascending) and its texels' ids in the whole LOD (ascending).
+    pub charts: Vec<u32>,
+    pub texels: Vec<u32>,
+    /// Texels of the whole LOD.
+    pub whole_texels: usize,
+    /// Bytes of what the share's bake held for its texels and the foreign lookup.
+    pub held_bytes: usize,
+    /// What it was expected to hold at its peak ([`region_shard::estimate`]).
+    pub memory: memory::MemoryEstimate,
+    pub report: BakeReport,
+}
+
+/// Bakes one region shard: share `share.0` of `share.1` of LOD 0's texels (whole charts,
+/// [`region_shard::deal_charts`]), every batch of round `round`, the rest of the scene
+/// seen through `previous` (round − 1's merged estimate; the carried emission alone in
+/// round 1). Each share holds its own texels' punctual part.
+pub fn bake_region_shard(
+    scene: &Arc<Scene>,
+    config: &BakeConfig,
+    round: u32,
+    share: (u32, u32),
+    previous: Option<crate::bundle::progressive::ProgressiveEstimate>,
+    progress: &dyn Progress,
+) -> Result<RegionShardBake, BakeError> {
+    config.validate()?;
+    if config.lods != 1 {
+        return Err(BakeError::ShardLods(config.lods));
+    }
+    if !matches!(config.backend, BackendKind::Cpu) {
+        return Err(BakeError::ShardBackend(config.backend.name()));
+    }
+    let started = Instant::now();
+    let geom = SceneGeometry::new(scene);
+    config.atlas.validate()?;
+    // The single bake's early guard would count the whole LOD: a region shard is checked
+    // against its own estimate once the atlas says how many texels the LOD has.
+
+    let atlas = Atlas::build(scene, &geom, &config.atlas)?;
+    check_lod_sizes(&atlas, 1)?;
+    let expected = region_shard::estimate(atlas.stats.covered_texels_lod0, share.1, previous.is_some(), config);
+    tracing::info!(
+        lod_texels = expected.texels,
+        shares = share.1,
+        texel_bytes = expected.texel_bytes,
+        bytes = expected.bytes,
+        "region shard memory estimate"
+    );
+    refuse_over_limit(&expected, config, false, config.atlas.texel_size, "")?;
+    let t0 = Instant::now();
+    // No positions or normals: the rounds read neither (the punctual pass reads faces and
+    // pixels), and the albedo and emission are the same values `TexelMap::build` makes.
+    let texels = TexelMap::build_with(scene, &geom, &atlas, 0, crate::atlas::texels::Restore::Albedo);
+    let texel_seconds = t0.elapsed().as_secs_f64();
+    if let Some(p) = &previous
+        && p.len() != texels.len()
+    {
+        return Err(BakeError::PreviousRound { texels: texels.len(), previous: p.len() });
+    }
+    // The bundles are laid out as the whole LOD's: its lane count, not the share's.
+    let mut whole = config.clone();
+    whole.bundle.lanes = crate::bundle::Lanes::Fixed(config.bundle.lanes.for_texels(texels.len() as u64));
+    let mut report = BakeReport::new(scene, &atlas, config);
+    let (bundle, bvh, mut backend) = bundle_setup(scene, &geom, &atlas, &whole, &mut report)?;
+    let threads = config.threads();
+    let whole_texels = texels.len();
+    let r = region_shard::bake_region_round(
+        &bundle,
+        &bvh,
+        &mut *backend,
+        texels,
+        previous,
+        round,
+        share,
+        threads,
+        progress,
+    );
+    let region_shard::RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes } = r;
+    if stats.pass.unplanned_directions > 0 {
+        let (count, directions) = (stats.pass.unplanned_directions, stats.directions);
+        return Err(BakeError::UnplannedDirections { lod: 0, count, directions });
+    }
+    let irradiance = estimate.irradiance();
+    let backend_stats = BackendStats {
+        samples_per_texel: config.samples,
+        rays: stats.pass.covered_pixels,
+        seconds: stats.bundle_seconds + stats.punctual_seconds,
+    };
+    report.lods.push(LodReport::new(&sub, texel_seconds, &backend_stats, &irradiance, Some(stats)));
+    report.total_seconds = started.elapsed().as_secs_f64();
+    report.memory.measure();
+    report.bytes_per_texel = report.memory.measured_bytes_per_texel;
+    Ok(RegionShardBake { atlas, estimate, charts, texels: keep, whole_texels, held_bytes, memory: expected, report })
 }
 
 impl BakeConfig {

@@ -51,7 +51,11 @@ pub struct RoundSums {
 
 /// Source radiance of a round: each texel's carried emission plus, after round 1, its
 /// reflection of the previous round's irradiance `previous`.
-fn round_source(bundle: &BundleScene, texels: &TexelMap, previous: Option<&ProgressiveEstimate>) -> Vec<Rgb> {
+pub(super) fn round_source(
+    bundle: &BundleScene,
+    texels: &TexelMap,
+    previous: Option<&ProgressiveEstimate>,
+) -> Vec<Rgb> {
     (0..texels.len())
         .map(|i| {
             let emitted = if bundle.carried(texels.face[i]) { texels.emission[i] } else { Rgb::ZERO };
@@ -82,7 +86,7 @@ pub fn bake_round(
 ) -> RoundSums {
     let source = round_source(bundle, texels, previous);
     let tables = [TexelTable::of_map(texels)];
-    let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None };
+    let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None, triangles: None };
     let share = DirectionShare { seed: round_seed(bundle.config.seed, round), index, count };
     let punctual = PunctualPass { irradiance: punctual, buried: Vec::new(), seconds: 0.0 };
     let never = AtomicBool::new(false);

@@ -139,6 +139,18 @@ pub trait SurfaceRadiance: Sync {
     fn radiance(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb;
     /// Emitted radiance (the light pass's emitters).
     fn emission(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb;
+    /// Whether the source is held per texel of the whole LOD being baked (a region shard's,
+    /// [`crate::bake::region_shard`]): a backend then asks [`texel_at`](Self::texel_at)
+    /// with the LOD pixel its own lookup would read, so that a foreign side reads the very
+    /// texel a whole-LOD bake's table gives there.
+    fn by_lod_pixel(&self) -> bool {
+        false
+    }
+    /// The radiance and emission of the texel at LOD pixel (x, y) (zero where none is);
+    /// asked only of a source that is [`by_lod_pixel`](Self::by_lod_pixel).
+    fn texel_at(&self, _x: i64, _y: i64) -> (Rgb, Rgb) {
+        (Rgb::ZERO, Rgb::ZERO)
+    }
     /// The concrete source, for a backend that evaluates some sources in its own kernels
     /// (the GPU resolve evaluates the runtime's shown-light-map source); `None`: backends
     /// call the methods above.

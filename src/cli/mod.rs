@@ -61,6 +61,11 @@ enum Command {
         /// with the scene exported as --export-gltf does (DIR/scene.gltf).
         #[arg(long, value_name = "DIR")]
         export_web: Option<PathBuf>,
+        /// With --shard: what a share is a share of. `directions`: every texel, share I of
+        /// the round's batches; `regions`: share I of LOD 0's texels (whole charts), every
+        /// batch, for scenes whose texels exceed one machine's memory (docs/SHARDS.md).
+        #[arg(long, value_name = "KIND", value_enum, default_value_t = shard::ShardBy::Directions, requires = "shard")]
+        shard_by: shard::ShardBy,
         #[command(flatten)]
         options: SceneOptions,
     },
@@ -179,7 +184,7 @@ pub fn run() -> Result<()> {
     match cli.command {
         None => run_default(&ui),
         Some(Command::Run { scene, options, run }) => run::run(&scene, &options, &run, &ui),
-        Some(Command::Bake { scene, outputs, bounce_rounds, shard, previous, export_web, options }) => {
+        Some(Command::Bake { scene, outputs, bounce_rounds, shard, previous, export_web, shard_by, options }) => {
             let Outputs { out, export_gltf, memory_limit } = outputs;
             let Some(share) = shard else {
                 let exports = bake::Exports { gltf: export_gltf.as_deref(), web: export_web.as_deref() };
@@ -195,7 +200,7 @@ pub fn run() -> Result<()> {
                     "a shard bakes one bounce round (round 1, or the one after --previous): --bounce-rounds is for a bake on one machine"
                 );
             }
-            let request = shard::ShardRequest { share, previous: previous.as_deref() };
+            let request = shard::ShardRequest { share, previous: previous.as_deref(), by: shard_by };
             shard::bake(&scene, &out, request, memory_limit, &options, &raw_args, &ui)
         }
         Some(Command::Merge { shards, outputs: Outputs { out, export_gltf, memory_limit } }) => {

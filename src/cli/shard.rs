@@ -17,12 +17,13 @@ use livebake::bake::bundle::BundleLodStats;
 use livebake::bake::memory::{LimitSource, memory_limit};
 use livebake::bake::report::LodReport;
 use livebake::bake::rounds::add_round_stats;
-use livebake::bake::{BackendStats, BakeOutput, BakeReport, BakedLod, bake_shard, check_finite};
+use livebake::bake::{BackendStats, BakeOutput, BakeReport, BakedLod, bake_region_shard, bake_shard, check_finite};
 use livebake::export::{ExportOptions, export_gltf};
 use livebake::output::{irradiance_image, write_json, write_lightmaps};
 use livebake::scene::{SceneGeometry, external_files};
 use livebake::shard::{
-    self, MERGED_STATE, ShardFile, ShardState, WordHash, check_set, read_header, shard_file_name, write_state,
+    self, MERGED_STATE, ShardFile, ShardKind, ShardState, WordHash, check_set, read_header, region_placement,
+    shard_file_name, write_state,
 };
 
 use super::SceneOptions;
@@ -59,8 +60,8 @@ struct StoredBake {
 }
 
 /// Options left out of a stored job: with a value, and without.
-const DROPPED_WITH_VALUE: [&str; 6] =
-    ["--shard", "--previous", "--out", "--threads", "--memory-limit", "--export-gltf"];
+const DROPPED_WITH_VALUE: [&str; 7] =
+    ["--shard", "--shard-by", "--previous", "--out", "--threads", "--memory-limit", "--export-gltf"];
 const DROPPED_FLAGS: [&str; 4] = ["-q", "--quiet", "-v", "--verbose"];
 
 impl Job {
@@ -167,7 +168,10 @@ fn read_previous(path: &Path, scene_hash: u64, options_hash: u64, memory_limit: 
     if h.options_hash != options_hash {
         bail!("--previous {} was baked with other options", path.display());
     }
-    let estimate = shard::merge(std::slice::from_ref(&file), limit(memory_limit))?;
+    if h.kind != ShardKind::Directions {
+        bail!("--previous {}: a region shard, not a merged round; give the merge's {MERGED_STATE}", path.display());
+    }
+    let estimate = shard::merge(std::slice::from_ref(&file), None, limit(memory_limit))?;
     Ok(ShardState { header: file.header.clone(), job: file.job.clone(), estimate })
 }
 
@@ -178,17 +182,27 @@ fn limit(configured: Option<u64>) -> (u64, &'static str) {
     }
 }
 
-/// What `--shard` and `--previous` ask for.
+/// What a share is a share of (`--shard-by`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ShardBy {
+    /// Every texel, share I of the round's batches.
+    Directions,
+    /// Share I of LOD 0's texels (whole charts), every batch.
+    Regions,
+}
+
+/// What `--shard`, `--shard-by` and `--previous` ask for.
 pub struct ShardRequest<'a> {
     pub share: (u32, u32),
     pub previous: Option<&'a Path>,
+    pub by: ShardBy,
 }
 
 /// `livebake bake SCENE --shard I/N [--previous STATE] --out DIR`.
 pub fn bake(
     scene_path: &Path,
     out: &Path,
-    ShardRequest { share, previous }: ShardRequest,
+    ShardRequest { share, previous, by }: ShardRequest,
     memory_limit: Option<u64>,
     options: &SceneOptions,
     raw_args: &[OsString],
@@ -210,17 +224,42 @@ pub fn bake(
     let config = livebake::bake::BakeConfig { memory_limit, ..options.bake_config(default_samples)? };
     let (scene, _) = load_scene(scene_path, options, memory_limit)?;
     let t0 = Instant::now();
-    let baked = bake_shard(&scene, &config, round, share, previous.as_ref().map(|p| &p.estimate), ui)
-        .with_context(|| format!("cannot bake share {}/{} of {}", share.0, share.1, scene_path.display()))?;
+    let failed = || format!("cannot bake share {}/{} of {}", share.0, share.1, scene_path.display());
+    let (estimate, report, regions) = match by {
+        ShardBy::Directions => {
+            let previous = previous.as_ref().map(|p| &p.estimate);
+            let baked = bake_shard(&scene, &config, round, share, previous, ui).with_context(failed)?;
+            (baked.estimate, baked.report, None)
+        }
+        ShardBy::Regions => {
+            // The previous round is given up once its source is made.
+            let previous = previous.map(|p| p.estimate);
+            let baked = bake_region_shard(&scene, &config, round, share, previous, ui).with_context(failed)?;
+            tracing::info!(
+                texels = baked.texels.len(),
+                lod_texels = baked.whole_texels,
+                charts = baked.charts.len(),
+                held_bytes = baked.held_bytes,
+                expected_peak = baked.memory.bytes,
+                peak_resident = livebake::bake::memory::peak_resident_bytes().unwrap_or(0),
+                "region shard"
+            );
+            (baked.estimate, baked.report, Some((baked.charts, baked.whole_texels as u64)))
+        }
+    };
     let seconds = t0.elapsed().as_secs_f64();
-    let stats = baked.report.lods.first().and_then(|l| l.bundle.as_ref()).map(|b| b.stats.clone());
+    let stats = report.lods.first().and_then(|l| l.bundle.as_ref()).map(|b| b.stats.clone());
     let record = JobRecord { job, stats: stats.unwrap_or_default(), seconds };
-    let state = ShardState::new(scene_hash, hash, 0, round, share, serde_json::to_string(&record)?, baked.estimate);
+    let mut state = ShardState::new(scene_hash, hash, 0, round, share, serde_json::to_string(&record)?, estimate);
+    if let Some((charts, lod_texels)) = regions {
+        state = state.of_regions(charts, lod_texels);
+    }
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let path = out.join(shard_file_name(share.0, share.1));
     write_state(&path, &state)?;
     ui.say(format!(
-        "livebake: share {}/{} of round {round} of {}: {} batches, {} texels, {seconds:.2} s",
+        "livebake: {} share {}/{} of round {round} of {}: {} batches, {} texels, {seconds:.2} s",
+        state.header.kind.name(),
         share.0,
         share.1,
         scene_path.display(),
@@ -259,15 +298,33 @@ pub fn merge(files: &[PathBuf], out: &Path, export: Option<&Path>, memory_limit:
     let t0 = Instant::now();
     let texels = TexelMap::build_with(&scene, &geom, &atlas, 0, Restore::Albedo);
     let texel_seconds = t0.elapsed().as_secs_f64();
-    if texels.len() as u64 != first.texels {
-        bail!("the shards hold {} texels, this atlas {}: not the same bake", first.texels, texels.len());
+    if texels.len() as u64 != first.lod_texels {
+        bail!("the shards hold {} texels, this atlas {}: not the same bake", first.lod_texels, texels.len());
     }
-    let estimate = shard::merge(&files, limit(memory_limit))?;
+    let placement = match first.kind {
+        ShardKind::Directions => None,
+        ShardKind::Regions => {
+            let faces = &atlas.faces;
+            let chart_of = |i: usize| faces[texels.face[i] as usize].chart;
+            Some(region_placement(&files, texels.len(), atlas.charts.len(), chart_of)?)
+        }
+    };
+    let estimate = shard::merge(&files, placement.as_deref(), limit(memory_limit))?;
+    drop(placement);
     let irradiance = estimate.irradiance();
     check_finite(0, &irradiance)?;
     let mut stats = BundleLodStats::default();
     for r in &records {
         add_round_stats(&mut stats, &r.stats);
+    }
+    if first.kind == ShardKind::Regions {
+        // Every region shard traced every direction of the round: the round's directions
+        // are one shard's (the work, times and pass counters, stay summed).
+        stats.directions = records[0].stats.directions;
+        stats.batches = records[0].stats.batches;
+        stats.light_directions_per_group = records[0].stats.light_directions_per_group;
+        // Each shard counted its own texels that no bundle reached.
+        stats.unsampled_texels = records.iter().map(|r| r.stats.unsampled_texels).sum();
     }
     let shard_seconds: f64 = records.iter().map(|r| r.seconds).sum();
     let backend_stats = BackendStats {
@@ -309,11 +366,12 @@ pub fn merge(files: &[PathBuf], out: &Path, export: Option<&Path>, memory_limit:
     let report_path = out.join("report.json");
     write_json(&report_path, &baked.report)?;
     ui.say(format!(
-        "livebake: merged {} shares of round {} of {} ({} texels) in {:.2} s",
+        "livebake: merged {} {} shares of round {} of {} ({} texels) in {:.2} s",
         files.len(),
+        first.kind.name(),
         first.round,
         job.scene.display(),
-        first.texels,
+        first.lod_texels,
         started.elapsed().as_secs_f64()
     ));
     for f in written.iter().chain([&report_path]) {

@@ -23,7 +23,7 @@ use crate::bundle::target::{BakeTarget, Cancelled, SourceRadiance};
 use crate::bundle::tiles::{Tile, TilePlanner, TilingMode, bundle_resolution};
 use crate::bundle::window::{WindowSource, split_overflowed, tile_viewport, unplanned};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
-use crate::scene::{Rgb, Side};
+use crate::scene::Rgb;
 
 /// Read-only inputs shared by every thread of a batch.
 pub struct PassContext<'a> {
@@ -189,7 +189,7 @@ fn seen(
         return source.own[code as usize];
     }
     debug_assert!(code >= FOREIGN);
-    seen_foreign(source, || foreign.locate(code, cx, cy), lookups)
+    seen_foreign(source, foreign, code, cx, cy, lookups)
 }
 
 /// [`seen`] of a foreign side at the surface point `at` gives, out of line: a whole LOD has
@@ -197,13 +197,19 @@ fn seen(
 #[inline(never)]
 fn seen_foreign(
     source: &SourceRadiance,
-    at: impl FnOnce() -> (u32, Side, f32, f32),
+    foreign: &ForeignSides,
+    code: u32,
+    cx: f32,
+    cy: f32,
     lookups: &mut ForeignLookups,
 ) -> Rgb {
     match source.foreign {
         Some(f) => {
             lookups.resolved += 1;
-            let (tri, side, u, v) = at();
+            if f.by_lod_pixel() {
+                return foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| f.texel_at(x, y).0);
+            }
+            let (tri, side, u, v) = foreign.locate(code, cx, cy);
             f.radiance(tri, side, u, v)
         }
         None => {
@@ -231,6 +237,7 @@ fn line<'a>(
         frame,
         viewport,
         foreign,
+        foreign_as_own: ctx.source.foreign.is_some_and(|f| f.by_lod_pixel()),
         cx,
         cy,
     }
@@ -510,6 +517,9 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
                     return own.at(code as usize);
                 }
                 match source.foreign {
+                    Some(src) if src.by_lod_pixel() => {
+                        foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| src.texel_at(x, y).1)
+                    }
                     Some(src) => {
                         let (tri, side, u, v) = foreign.locate(code, cx, cy);
                         src.emission(tri, side, u, v)

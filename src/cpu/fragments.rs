@@ -397,6 +397,25 @@ impl ForeignSides<'_> {
         let (u, v) = self.planes[k].planes.barycentrics(cx, cy);
         (tri.index, side, u, v)
     }
+
+    /// The LOD pixel a side with a table looks up at grid centre (cx, cy), computed as the
+    /// span's [`TexelCursor`] computes it (the same float operations, so the same pixel);
+    /// `None` for a side without a table, or a UV outside every table.
+    #[inline]
+    pub fn lod_pixel(&self, code: u32, cx: f32, cy: f32) -> Option<(i64, i64)> {
+        let k = ((code - FOREIGN) >> 1) as usize;
+        let p = &self.planes[k];
+        let lookup = if code & 1 == 1 { &p.minus } else { &p.plus };
+        let SideLookup::Table { uv, .. } = lookup else { return None };
+        let (_, dy) = p.planes.local(0.0, cy);
+        let (dx, _) = p.planes.local(cx, 0.0);
+        let at = uv[0] * dx + uv[1] * dy + uv[2];
+        if !(at.x >= 0.0 && at.y >= 0.0 && at.x < 1.6e7 && at.y < 1.6e7) {
+            return None;
+        }
+        let pixel = at.floor();
+        Some((pixel.x as i64, pixel.y as i64))
+    }
 }
 
 /// The codes of one side along a span: its texel under each pixel centre, or `foreign`

@@ -61,6 +61,11 @@ pub struct Line<'a> {
     pub frame: &'a BundleFrame,
     pub viewport: &'a Viewport,
     pub foreign: &'a ForeignSides<'a>,
+    /// Whether foreign sides are texels of the LOD being baked by another region shard
+    /// ([`crate::bundle::SurfaceRadiance::by_lod_pixel`]): their transmittance is then
+    /// sampled where a target texel's is (the line's projection), so that it is the same
+    /// bits as in the whole LOD's bake.
+    pub foreign_as_own: bool,
     /// The pixel's grid centre.
     pub cx: f32,
     pub cy: f32,
@@ -92,7 +97,7 @@ impl Passing {
             (line.atlas.faces[line.target.face[code as usize] as usize].tri, None)
         } else {
             let (tri, _, u, v) = line.foreign.locate(code, line.cx, line.cy);
-            (tri, Some((u, v)))
+            (tri, (!line.foreign_as_own).then_some((u, v)))
         };
         let m = self.material[tri as usize];
         if m == OPAQUE {

@@ -515,6 +515,7 @@ fn relight(
         tables: &texels.tables,
         window: Some((lo - reach, hi + reach)),
         foreign: Some(&source),
+        triangles: None,
     };
     lap(&mut steps.region);
     let punctual =

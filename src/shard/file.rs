@@ -8,14 +8,15 @@ use std::path::{Path, PathBuf};
 
 use crate::scene::Rgb;
 
-use super::{MergedSums, ShardError, ShardHeader, ShardState, WordHash};
+use super::{MergedSums, ShardError, ShardHeader, ShardKind, ShardState, WordHash};
 
 /// The file's first eight bytes.
 pub const MAGIC: [u8; 8] = *b"LBSHARD\0";
-/// The format this build writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+/// The format this build writes and reads (2: the shard kind, the LOD's texel count and a
+/// region shard's charts).
+pub const FORMAT_VERSION: u32 = 2;
 /// Bytes of the fixed header.
-pub const HEADER_BYTES: u64 = 80;
+pub const HEADER_BYTES: u64 = 96;
 /// Most bytes of the job JSON (a scene path and the bake's options: a few hundred bytes).
 pub const MAX_JOB_BYTES: u32 = 1 << 20;
 
@@ -28,11 +29,6 @@ impl ShardHeader {
     pub fn payload_bytes(&self) -> Option<u64> {
         let per_texel = 16 + 12 * u64::from(self.has_light) + 12 * u64::from(self.has_punctual);
         self.texels.checked_mul(per_texel)
-    }
-
-    /// The whole file's size: header, job, sums, checksum.
-    fn file_bytes(&self, job_bytes: u32) -> Option<u64> {
-        self.payload_bytes()?.checked_add(HEADER_BYTES + job_bytes as u64 + 8)
     }
 
     fn encode(&self, job_bytes: u32) -> [u8; HEADER_BYTES as usize] {
@@ -51,6 +47,13 @@ impl ShardHeader {
         h[56..64].copy_from_slice(&self.batches.to_le_bytes());
         h[64..72].copy_from_slice(&self.light_directions.to_le_bytes());
         h[72..76].copy_from_slice(&job_bytes.to_le_bytes());
+        let kind: u32 = match self.kind {
+            ShardKind::Directions => 0,
+            ShardKind::Regions => 1,
+        };
+        h[76..80].copy_from_slice(&kind.to_le_bytes());
+        h[80..88].copy_from_slice(&self.lod_texels.to_le_bytes());
+        h[88..92].copy_from_slice(&(self.charts.len() as u32).to_le_bytes());
         h
     }
 }
@@ -91,8 +94,14 @@ fn write_body(w: &mut impl Write, state: &ShardState) -> std::io::Result<()> {
     let job_bytes = u32::try_from(job.len()).ok().filter(|&n| n <= MAX_JOB_BYTES).ok_or_else(|| {
         std::io::Error::other(format!("the job description is {} bytes, more than {MAX_JOB_BYTES}", job.len()))
     })?;
+    if h.charts.len() > u32::MAX as usize {
+        return Err(std::io::Error::other("more charts than a shard file can name"));
+    }
     w.write_all(&h.encode(job_bytes))?;
     w.write_all(job)?;
+    for c in &h.charts {
+        w.write_all(&c.to_le_bytes())?;
+    }
     let e = &state.estimate;
     for i in 0..e.len() {
         for v in e.bundle_sums(i) {
@@ -161,7 +170,16 @@ pub fn read_header(path: &Path) -> Result<ShardFile, ShardError> {
     if flags & !(FLAG_LIGHT | FLAG_PUNCTUAL) != 0 {
         return Err(bad(format!("unknown flags {flags:#x}")));
     }
-    let header = ShardHeader {
+    let kind = match u32_at(76) {
+        0 => ShardKind::Directions,
+        1 => ShardKind::Regions,
+        k => return Err(bad(format!("unknown shard kind {k} (0: directions, 1: regions)"))),
+    };
+    if u32_at(92) != 0 {
+        return Err(bad("its reserved header word is not zero".into()));
+    }
+    let chart_count = u32_at(88);
+    let mut header = ShardHeader {
         scene_hash: u64_at(16),
         options_hash: u64_at(24),
         lod: u32_at(32),
@@ -173,7 +191,22 @@ pub fn read_header(path: &Path) -> Result<ShardFile, ShardError> {
         light_directions: u64_at(64),
         has_light: flags & FLAG_LIGHT != 0,
         has_punctual: flags & FLAG_PUNCTUAL != 0,
+        kind,
+        lod_texels: u64_at(80),
+        charts: Vec::new(),
     };
+    match kind {
+        ShardKind::Directions if chart_count != 0 || header.texels != header.lod_texels => {
+            return Err(bad(format!(
+                "a direction shard of {} texels (of {}) naming {chart_count} charts",
+                header.texels, header.lod_texels
+            )));
+        }
+        ShardKind::Regions if header.texels > header.lod_texels => {
+            return Err(bad(format!("a region of {} texels in a LOD of {}", header.texels, header.lod_texels)));
+        }
+        _ => {}
+    }
     if header.count == 0 || header.index >= header.count || header.round == 0 {
         return Err(bad(format!("share {}/{} of round {} is not a share", header.index, header.count, header.round)));
     }
@@ -181,8 +214,11 @@ pub fn read_header(path: &Path) -> Result<ShardFile, ShardError> {
     if job_bytes > MAX_JOB_BYTES {
         return Err(bad(format!("a job description of {job_bytes} bytes (at most {MAX_JOB_BYTES})")));
     }
+    // The charts' bytes count in the size checked below (read after it).
+    let charts_bytes = 4 * chart_count as u64;
     let expected = header
-        .file_bytes(job_bytes)
+        .payload_bytes()
+        .and_then(|p| p.checked_add(HEADER_BYTES + job_bytes as u64 + charts_bytes + 8))
         .ok_or_else(|| bad(format!("{} texels is more than a file can hold", header.texels)))?;
     if size != expected {
         let what = if size < expected { "truncated" } else { "longer than its header says" };
@@ -191,32 +227,45 @@ pub fn read_header(path: &Path) -> Result<ShardFile, ShardError> {
     let mut job = vec![0u8; job_bytes as usize];
     file.read_exact(&mut job).map_err(io)?;
     let job = String::from_utf8(job).map_err(|_| bad("its job description is not UTF-8".into()))?;
+    let mut charts = vec![0u8; charts_bytes as usize];
+    file.read_exact(&mut charts).map_err(io)?;
+    header.charts = charts.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+    if header.charts.windows(2).any(|w| w[0] >= w[1]) {
+        return Err(bad("its charts are not in ascending order (or one is named twice)".into()));
+    }
     Ok(ShardFile { path: path.to_path_buf(), header, job, job_bytes })
 }
 
 impl ShardFile {
-    /// Adds the file's sums to `sums` texel by texel, then checks the checksum. The caller
-    /// has checked the texel count against the atlas (`sums` is of that size) and the
-    /// memory it takes.
-    pub fn add_sums_to(&self, sums: &mut MergedSums) -> Result<(), ShardError> {
+    /// Adds the file's sums to `sums` texel by texel, then checks the checksum: its texel k
+    /// to texel `place[k]` of `sums` (a region shard's), or to texel k. The caller has
+    /// checked the texel count against the atlas (`sums` is of that size) and the memory
+    /// it takes.
+    pub fn add_sums_to(&self, sums: &mut MergedSums, place: Option<&[u32]>) -> Result<(), ShardError> {
         let io = |source| ShardError::Io { path: self.path.clone(), source };
         let n = self.header.texels as usize;
-        if sums.bundle.len() != n {
+        let whole = sums.bundle.len();
+        let fits = match place {
+            Some(p) => p.len() == n && p.iter().all(|&i| (i as usize) < whole),
+            None => whole == n,
+        };
+        if !fits {
             return Err(ShardError::Invalid {
                 path: self.path.clone(),
-                why: format!("{n} texels where the merge holds {}", sums.bundle.len()),
+                why: format!("{n} texels where the merge holds {whole}"),
             });
         }
+        let at = |k: usize| place.map_or(k, |p| p[k] as usize);
         let file = File::open(&self.path).map_err(io)?;
         let mut r = HashingReader { inner: BufReader::with_capacity(1 << 20, file), hash: WordHash::new() };
-        let mut skip = vec![0u8; HEADER_BYTES as usize + self.job_bytes as usize];
+        let mut skip = vec![0u8; HEADER_BYTES as usize + self.job_bytes as usize + 4 * self.header.charts.len()];
         r.read_exact(&mut skip).map_err(io)?;
         let mut buf = [0u8; 16];
         let f32_at =
             |buf: &[u8; 16], k: usize| f32::from_le_bytes([buf[4 * k], buf[4 * k + 1], buf[4 * k + 2], buf[4 * k + 3]]);
-        for b in sums.bundle.iter_mut() {
+        for t in 0..n {
             r.read_exact(&mut buf).map_err(io)?;
-            for (k, v) in b.iter_mut().enumerate() {
+            for (k, v) in sums.bundle[at(t)].iter_mut().enumerate() {
                 *v += f32_at(&buf, k);
             }
         }
@@ -227,11 +276,11 @@ impl ShardFile {
                 continue;
             }
             if part.is_empty() {
-                part.resize(n, Rgb::ZERO);
+                part.resize(whole, Rgb::ZERO);
             }
-            for c in part.iter_mut() {
+            for t in 0..n {
                 r.read_exact(&mut buf[..12]).map_err(io)?;
-                *c += Rgb::new(f32_at(&buf, 0), f32_at(&buf, 1), f32_at(&buf, 2));
+                part[at(t)] += Rgb::new(f32_at(&buf, 0), f32_at(&buf, 1), f32_at(&buf, 2));
             }
         }
         sums.batches += self.header.batches;

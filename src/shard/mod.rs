@@ -34,6 +34,32 @@ pub struct ShardHeader {
     pub light_directions: u64,
     pub has_light: bool,
     pub has_punctual: bool,
+    /// What the share is a share of: directions (every texel, some batches; a merged state
+    /// too) or regions (some texels, every batch).
+    pub kind: ShardKind,
+    /// Texels of the whole LOD (a direction shard's `texels`).
+    pub lod_texels: u64,
+    /// A region shard's charts (ascending): its texels are theirs, in the order of their
+    /// ids in the whole LOD's map. Empty for a direction shard.
+    pub charts: Vec<u32>,
+}
+
+/// How a round was cut into shares.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShardKind {
+    /// Share I of N of the batches, every texel (a merged state is share 0 of 1).
+    Directions,
+    /// Share I of N of the texels (whole charts), every batch.
+    Regions,
+}
+
+impl ShardKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            ShardKind::Directions => "direction",
+            ShardKind::Regions => "region",
+        }
+    }
 }
 
 /// A shard's (or a merge's) state: its header, the job that made it (JSON: the scene and
@@ -67,8 +93,20 @@ impl ShardState {
             light_directions: estimate.light_directions(),
             has_light: !estimate.light_sums().is_empty(),
             has_punctual: !estimate.punctual().is_empty(),
+            kind: ShardKind::Directions,
+            lod_texels: estimate.len() as u64,
+            charts: Vec::new(),
         };
         ShardState { header, job, estimate }
+    }
+
+    /// Marks the state a region shard's: it holds the texels of `charts` (ascending) of a
+    /// LOD of `lod_texels` texels.
+    pub fn of_regions(mut self, charts: Vec<u32>, lod_texels: u64) -> Self {
+        self.header.kind = ShardKind::Regions;
+        self.header.charts = charts;
+        self.header.lod_texels = lod_texels;
+        self
     }
 }
 
@@ -87,6 +125,12 @@ pub enum ShardError {
     Missing { missing: usize, count: u32, round: u32, list: String, expected: String },
     #[error("no shard files given")]
     NoFiles,
+    #[error("{path} is a {kind} shard and {first} a {first_kind} shard: one merge takes shards of one kind")]
+    MixedKinds { path: PathBuf, kind: &'static str, first: PathBuf, first_kind: &'static str },
+    #[error("{second} and {first} both hold chart {chart} (region shards must hold disjoint charts)")]
+    Overlap { first: PathBuf, second: PathBuf, chart: u32 },
+    #[error("no region shard holds chart {chart} ({texels} texels): the shares do not cover the atlas")]
+    Uncovered { chart: u32, texels: u64 },
     #[error("merging {texels} texels takes {need} bytes, more than the limit of {limit} bytes ({source_of_limit})")]
     OutOfMemory { texels: u64, need: u64, limit: u64, source_of_limit: &'static str },
 }
@@ -138,11 +182,25 @@ pub fn check_set(mut files: Vec<ShardFile>) -> Result<Vec<ShardFile>, ShardError
         if (h.lod, h.round) != (f.lod, f.round) {
             return Err(foreign(format!("LOD {} round {} against LOD {} round {}", h.lod, h.round, f.lod, f.round)));
         }
+        if h.kind != f.kind {
+            return Err(ShardError::MixedKinds {
+                path: s.path.clone(),
+                kind: h.kind.name(),
+                first: fp.clone(),
+                first_kind: f.kind.name(),
+            });
+        }
         if h.count != f.count {
             return Err(foreign(format!("a share of {} against a share of {}", h.count, f.count)));
         }
-        if h.texels != f.texels {
-            return Err(foreign(format!("{} texels against {}", h.texels, f.texels)));
+        if h.lod_texels != f.lod_texels || (h.kind == ShardKind::Directions && h.texels != f.texels) {
+            return Err(foreign(format!("a LOD of {} texels against {}", h.lod_texels, f.lod_texels)));
+        }
+        if h.kind == ShardKind::Regions && (h.batches, h.light_directions) != (f.batches, f.light_directions) {
+            return Err(foreign(format!(
+                "{} batches and {} light directions against {} and {}",
+                h.batches, h.light_directions, f.batches, f.light_directions
+            )));
         }
     }
     files.sort_by_key(|s| s.header.index);
@@ -184,15 +242,74 @@ pub struct MergedSums {
 
 /// Bytes a merge of shards like `header` holds while it adds them up (its sums, whole).
 pub fn merge_bytes(header: &ShardHeader) -> Option<u64> {
-    header.texels.checked_mul(16 + 12 + 12)
+    header.lod_texels.checked_mul(16 + 12 + 12)
+}
+
+/// Where each region shard's texels go (ids in the whole LOD's map, ascending), from the
+/// charts each holds: `files` checked by [`check_set`] (in share order), `chart_of(i)` the
+/// chart of texel `i` of the whole LOD's `texels`, `charts` the atlas's chart count. The
+/// shards' charts must be disjoint, cover every chart holding texels, and hold the texel
+/// counts the shards say.
+pub fn region_placement(
+    files: &[ShardFile],
+    texels: usize,
+    charts: usize,
+    chart_of: impl Fn(usize) -> u32,
+) -> Result<Vec<Vec<u32>>, ShardError> {
+    const FREE: u32 = u32::MAX;
+    let mut owner = vec![FREE; charts];
+    for (k, f) in files.iter().enumerate() {
+        for &c in &f.header.charts {
+            let Some(o) = owner.get_mut(c as usize) else {
+                return Err(ShardError::Invalid {
+                    path: f.path.clone(),
+                    why: format!("it holds chart {c}, and the atlas has {charts} charts"),
+                });
+            };
+            if *o != FREE {
+                return Err(ShardError::Overlap {
+                    first: files[*o as usize].path.clone(),
+                    second: f.path.clone(),
+                    chart: c,
+                });
+            }
+            *o = k as u32;
+        }
+    }
+    let mut lists: Vec<Vec<u32>> = files.iter().map(|f| Vec::with_capacity(f.header.texels as usize)).collect();
+    for i in 0..texels {
+        let c = chart_of(i);
+        match owner.get(c as usize) {
+            Some(&o) if o != FREE => lists[o as usize].push(i as u32),
+            _ => {
+                let texels = (0..texels).filter(|&j| chart_of(j) == c).count() as u64;
+                return Err(ShardError::Uncovered { chart: c, texels });
+            }
+        }
+    }
+    for (f, l) in files.iter().zip(&lists) {
+        if l.len() as u64 != f.header.texels {
+            return Err(ShardError::Invalid {
+                path: f.path.clone(),
+                why: format!("it holds {} texels, and its charts hold {} in this atlas", f.header.texels, l.len()),
+            });
+        }
+    }
+    Ok(lists)
 }
 
 /// Adds up `files` (checked by [`check_set`], in share order) in share order: each texel's
-/// sums are added in float, starting from zero, shard 0 first. `limit`: the most bytes the
+/// sums are added in float, starting from zero, shard 0 first. Region shards
+/// (`placement`: each one's texels, [`region_placement`]) each hold their own texels'
+/// sums over every batch: they are put in place, not added. `limit`: the most bytes the
 /// sums may take, checked before they are allocated (with where the limit comes from).
-pub fn merge(files: &[ShardFile], limit: (u64, &'static str)) -> Result<ProgressiveEstimate, ShardError> {
+pub fn merge(
+    files: &[ShardFile],
+    placement: Option<&[Vec<u32>]>,
+    limit: (u64, &'static str),
+) -> Result<ProgressiveEstimate, ShardError> {
     let first = files.first().ok_or(ShardError::NoFiles)?;
-    let texels = first.header.texels;
+    let texels = first.header.lod_texels;
     let need = merge_bytes(&first.header).unwrap_or(u64::MAX);
     if need > limit.0 {
         return Err(ShardError::OutOfMemory { texels, need, limit: limit.0, source_of_limit: limit.1 });
@@ -204,11 +321,15 @@ pub fn merge(files: &[ShardFile], limit: (u64, &'static str)) -> Result<Progress
         batches: 0,
         light_directions: 0,
     };
-    for f in files {
-        f.add_sums_to(&mut sums)?;
+    for (k, f) in files.iter().enumerate() {
+        f.add_sums_to(&mut sums, placement.and_then(|p| p.get(k)).map(Vec::as_slice))?;
     }
-    // Every shard's light directions count for every group, so the merged count is their
-    // sum; the batches too.
+    // Every direction shard's light directions count for every group, so the merged count
+    // is their sum; the batches too. Every region shard traced every batch.
+    if placement.is_some() {
+        sums.batches = first.header.batches;
+        sums.light_directions = first.header.light_directions;
+    }
     Ok(ProgressiveEstimate::from_sums(
         SourceKind::Converged,
         sums.bundle,

@@ -56,3 +56,15 @@ pub fn worst_relative(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
     }
     worst
 }
+
+/// The bound of region shards merged against one machine's bake, per texel: none, in every
+/// round (docs/SHARDS.md). A region shard lays its bundles out as the whole LOD's (the
+/// whole LOD's importance and lane count, a whole-LOD-shaped table), so each texel's hits
+/// come in the same order and read the same source values (a foreign side reads the texel
+/// at the pixel the whole bake's table lookup computes, from the same float operations);
+/// its batch sums are the same bits, added in the same batch order, and the merge puts
+/// them in place without arithmetic. Round r's source is then the same bits too. (Textured
+/// translucent surfaces are the exception the docs state; the box has none.)
+pub fn region_bound(_round: u32) -> f64 {
+    0.0
+}

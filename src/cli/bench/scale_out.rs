@@ -1,6 +1,7 @@
-//! Direction shards against one machine (docs/SHARDS.md): a bake of `ROUNDS` bounce rounds
-//! on a real scene, once as `livebake bake --bounce-rounds` and once as N = 4 shards run one
-//! after another plus a merge per round, each a process of its own. Per process the CPU time
+//! Direction and region shards against one machine (docs/SHARDS.md): a bake of `ROUNDS`
+//! bounce rounds on a real scene, once as `livebake bake --bounce-rounds`, once as N = 4
+//! direction shards and once as N = 4 region shards (`--shard-by regions`), run one after
+//! another plus a merge per round, each a process of its own. Per process the CPU time
 //! (user + system) and peak resident memory come from `wait4`'s resource usage. The two
 //! ways alternate, and the figures are medians over the repeats: the ratio of the shards'
 //! CPU time (merges included) to the single bake's, the merges' share of the single bake's
@@ -67,13 +68,26 @@ fn measured(livebake: &Path, dir: &Path, args: &[String]) -> Result<Usage> {
     })
 }
 
-/// One bake both ways: the single bake's usage, the shards' (each, per round) and the
+/// Shards and merges of one way of sharding: the shards' usage (each, per round) and the
 /// merges' (per round).
-struct Pair {
-    single: Usage,
+#[derive(Default)]
+struct Way {
     shards: Vec<Usage>,
     merges: Vec<Usage>,
 }
+
+/// One bake every way: the single bake's usage, the direction shards' and the region
+/// shards', and the region shards' merged light map's worst relative difference per texel
+/// from the single bake's.
+struct Pair {
+    single: Usage,
+    directions: Way,
+    regions: Way,
+    regions_worst: f64,
+}
+
+/// The ways of sharding measured (`--shard-by`).
+const WAYS: [&str; 2] = ["directions", "regions"];
 
 fn bake_both(bench: &Bench, dir: &Path, scene_args: &[String]) -> Result<Pair> {
     let lb = bench.livebake;
@@ -85,24 +99,47 @@ fn bake_both(bench: &Bench, dir: &Path, scene_args: &[String]) -> Result<Pair> {
     };
     let rounds = ROUNDS.to_string();
     let single = measured(lb, dir, &with(&["--bounce-rounds", &rounds, "--out", "single"]))?;
-    let (mut shards, mut merges) = (Vec::new(), Vec::new());
-    for round in 1..=ROUNDS {
-        let out = format!("r{round}");
-        let previous = format!("m{}/merged.lbshard", round - 1);
-        for i in 0..SHARDS {
-            let share = format!("{i}/{SHARDS}");
-            let mut extra = vec!["--shard", share.as_str(), "--out", out.as_str()];
-            if round > 1 {
-                extra.extend(["--previous", previous.as_str()]);
+    let mut ways = Vec::new();
+    for by in WAYS {
+        let mut way = Way::default();
+        for round in 1..=ROUNDS {
+            let out = format!("{by}-r{round}");
+            let previous = format!("{by}-m{}/merged.lbshard", round - 1);
+            for i in 0..SHARDS {
+                let share = format!("{i}/{SHARDS}");
+                let mut extra = vec!["--shard", share.as_str(), "--shard-by", by, "--out", out.as_str()];
+                if round > 1 {
+                    extra.extend(["--previous", previous.as_str()]);
+                }
+                way.shards.push(measured(lb, dir, &with(&extra))?);
             }
-            shards.push(measured(lb, dir, &with(&extra))?);
+            let mut merge = vec!["-q".to_string(), "merge".into()];
+            merge.extend((0..SHARDS).map(|i| format!("{out}/{}", livebake::shard::shard_file_name(i, SHARDS))));
+            merge.extend(["--out".into(), format!("{by}-m{round}")]);
+            way.merges.push(measured(lb, dir, &merge)?);
         }
-        let mut merge = vec!["-q".to_string(), "merge".into()];
-        merge.extend((0..SHARDS).map(|i| format!("{out}/{}", livebake::shard::shard_file_name(i, SHARDS))));
-        merge.extend(["--out".into(), format!("m{round}")]);
-        merges.push(measured(lb, dir, &merge)?);
+        ways.push(way);
     }
-    Ok(Pair { single, shards, merges })
+    let map = |d: &str| -> Result<Vec<f32>> {
+        let path = dir.join(d).join("lightmap_lod0.exr");
+        let img = image::open(&path).with_context(|| format!("cannot read {}", path.display()))?.into_rgb32f();
+        Ok(img.into_raw())
+    };
+    let regions_worst = worst_relative(&map("single")?, &map(&format!("regions-m{ROUNDS}"))?);
+    let regions = ways.pop().unwrap_or_default();
+    let directions = ways.pop().unwrap_or_default();
+    Ok(Pair { single, directions, regions, regions_worst })
+}
+
+/// Largest relative difference of two maps' values (both zero: none).
+fn worst_relative(a: &[f32], b: &[f32]) -> f64 {
+    if a.len() != b.len() {
+        return f64::INFINITY;
+    }
+    a.iter().zip(b).fold(0.0f64, |w, (&x, &y)| {
+        let scale = x.abs().max(y.abs()) as f64;
+        if scale > 0.0 { w.max((x as f64 - y as f64).abs() / scale) } else { w }
+    })
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -137,23 +174,45 @@ pub fn run(bench: &Bench) -> Result<Value> {
     }
     let _ = std::fs::remove_dir_all(&dir);
     let cpu = |u: &[Usage]| u.iter().map(|u| u.cpu_seconds).sum::<f64>();
-    let ratio = median(pairs.iter().map(|p| (cpu(&p.shards) + cpu(&p.merges)) / p.single.cpu_seconds).collect());
-    let merge_share = median(pairs.iter().map(|p| cpu(&p.merges) / p.single.cpu_seconds).collect());
-    let shard_peak =
-        median(pairs.iter().map(|p| p.shards.iter().map(|u| u.peak_bytes).max().unwrap_or(0) as f64).collect());
     let single_peak = median(pairs.iter().map(|p| p.single.peak_bytes as f64).collect());
-    let merge_peak =
-        median(pairs.iter().map(|p| p.merges.iter().map(|u| u.peak_bytes).max().unwrap_or(0) as f64).collect());
+    let single_cpu = median(pairs.iter().map(|p| p.single.cpu_seconds).collect());
+    let summary = |way: &dyn Fn(&Pair) -> &Way| {
+        let ratio =
+            median(pairs.iter().map(|p| (cpu(&way(p).shards) + cpu(&way(p).merges)) / p.single.cpu_seconds).collect());
+        let merge_share = median(pairs.iter().map(|p| cpu(&way(p).merges) / p.single.cpu_seconds).collect());
+        let peak = |u: &[Usage]| u.iter().map(|u| u.peak_bytes).max().unwrap_or(0) as f64;
+        let shard_peak = median(pairs.iter().map(|p| peak(&way(p).shards)).collect());
+        let merge_peak = median(pairs.iter().map(|p| peak(&way(p).merges)).collect());
+        json!({
+            "shards_cpu_seconds": median(pairs.iter().map(|p| cpu(&way(p).shards)).collect()),
+            "merge_cpu_seconds": median(pairs.iter().map(|p| cpu(&way(p).merges)).collect()),
+            "cpu_ratio": ratio,
+            "merge_share": merge_share,
+            "shard_peak_bytes": shard_peak,
+            "merge_peak_bytes": merge_peak,
+            "shard_peak_over_single": shard_peak / single_peak,
+        })
+    };
+    let directions = summary(&|p: &Pair| &p.directions);
+    let regions = summary(&|p: &Pair| &p.regions);
     let runs: Vec<Value> = pairs
         .iter()
         .map(|p| {
+            let way = |w: &Way| {
+                json!({
+                    "shards": w.shards.iter().map(usage_json).collect::<Vec<_>>(),
+                    "merges": w.merges.iter().map(usage_json).collect::<Vec<_>>(),
+                })
+            };
             json!({
                 "single": usage_json(&p.single),
-                "shards": p.shards.iter().map(usage_json).collect::<Vec<_>>(),
-                "merges": p.merges.iter().map(usage_json).collect::<Vec<_>>(),
+                "directions": way(&p.directions),
+                "regions": way(&p.regions),
+                "regions_worst_relative_difference": p.regions_worst,
             })
         })
         .collect();
+    let field = |v: &Value, k: &str| v.get(k).cloned().unwrap_or(Value::Null);
     Ok(json!({
         "scene": scene.file_name().map(|f| f.to_string_lossy().into_owned()),
         "texel_budget": budget,
@@ -161,17 +220,20 @@ pub fn run(bench: &Bench) -> Result<Value> {
         "rounds": ROUNDS,
         "shards": SHARDS,
         "repeats": repeats,
-        "single_cpu_seconds": median(pairs.iter().map(|p| p.single.cpu_seconds).collect()),
-        "shards_cpu_seconds": median(pairs.iter().map(|p| cpu(&p.shards)).collect()),
-        "merge_cpu_seconds": median(pairs.iter().map(|p| cpu(&p.merges)).collect()),
-        "cpu_ratio": ratio,
+        "single_cpu_seconds": single_cpu,
+        "shards_cpu_seconds": field(&directions, "shards_cpu_seconds"),
+        "merge_cpu_seconds": field(&directions, "merge_cpu_seconds"),
+        "cpu_ratio": field(&directions, "cpu_ratio"),
         "goal_cpu_ratio": GOAL_CPU_RATIO,
-        "merge_share": merge_share,
+        "merge_share": field(&directions, "merge_share"),
         "goal_merge_share": GOAL_MERGE_SHARE,
         "single_peak_bytes": single_peak,
-        "shard_peak_bytes": shard_peak,
-        "merge_peak_bytes": merge_peak,
-        "shard_peak_over_single": shard_peak / single_peak,
+        "shard_peak_bytes": field(&directions, "shard_peak_bytes"),
+        "merge_peak_bytes": field(&directions, "merge_peak_bytes"),
+        "shard_peak_over_single": field(&directions, "shard_peak_over_single"),
+        "regions": regions,
+        "goal_region_peak_over_single": 1.0 / SHARDS as f64,
+        "regions_worst_relative_difference": median(pairs.iter().map(|p| p.regions_worst).collect()),
         "runs": runs,
     }))
 }

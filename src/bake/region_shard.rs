@@ -1,0 +1,350 @@
+//! Region shards (docs/SHARDS.md): one round of a bounce-rounds bake
+//! ([`super::rounds`]) cut into N disjoint shares of LOD 0's texels, each share a set of
+//! whole charts (spatially coherent, and a chart's texels only ever read their own chart's
+//! neighbours). A region shard traces every batch of the round, for its own texels only;
+//! the rest of the scene is seen through [`ForeignSource`]: the round's source (the
+//! previous round's merged irradiance as reflected light, plus the carried emission) of
+//! every texel, looked up at the fragment's surface point through the whole LOD's table.
+//!
+//! Why the merge equals the single-machine round: within a round the source is fixed, so a
+//! texel's sums depend on the source and the geometry alone, not on which texels are baked
+//! beside it, provided the bundles are laid out the same. They are: the importance (the
+//! bundles' resolution) is set from every texel-holding triangle of the LOD (not the
+//! share's alone), the lane count is the whole LOD's, the lookup table is whole-LOD shaped
+//! (a fragment of any chart finds the same pixel; a pixel of another share's texel gives
+//! the foreign code instead of that texel's id). What differs: a foreign side's pixel is
+//! found from its barycentrics at the bundle pixel's centre rather than from the UV the
+//! span interpolates, the same point in two float roundings: a fragment within ~10⁻⁵ of a
+//! pixel's edge may read the neighbouring texel's source.
+
+use std::sync::atomic::AtomicBool;
+
+use glam::Vec2;
+
+use crate::atlas::lookup::TexelTable;
+use crate::atlas::texels::NO_TEXEL;
+use crate::atlas::{Atlas, TexelMap};
+use crate::bundle::progressive::ProgressiveEstimate;
+use crate::bundle::target::target_triangles;
+use crate::bundle::{BundleBackend, BundleScene, SurfaceRadiance};
+use crate::progress::Progress;
+use crate::reference::Bvh;
+use crate::scene::{Rgb, Side};
+
+use super::bundle::{BundleLodStats, DirectionShare, PunctualPass, Region, Traced, trace_region};
+use super::rounds::{round_seed, round_source};
+
+/// Per chart of `atlas`: how many texels of `map` it holds.
+pub fn chart_texels(map: &TexelMap, atlas: &Atlas) -> Vec<u64> {
+    let mut count = vec![0u64; atlas.charts.len()];
+    for &f in &map.face {
+        count[atlas.faces[f as usize].chart as usize] += 1;
+    }
+    count
+}
+
+/// Deals charts to `count` shares so that each gets about 1/count of the texels: charts by
+/// decreasing texel count (ties: lower chart id first), each to the share holding the
+/// fewest texels so far (ties: the lower share). Deterministic. Every share's texels are
+/// within the largest chart of the mean: `max ≤ T/count + largest chart`. Charts without
+/// texels go to share 0. Returns the share of each chart.
+pub fn deal_charts(chart_texels: &[u64], count: u32) -> Vec<u32> {
+    let count = count.max(1);
+    let mut order: Vec<u32> = (0..chart_texels.len() as u32).collect();
+    order.sort_by_key(|&c| (std::cmp::Reverse(chart_texels[c as usize]), c));
+    let mut load: std::collections::BinaryHeap<std::cmp::Reverse<(u64, u32)>> =
+        (0..count).map(|s| std::cmp::Reverse((0, s))).collect();
+    let mut owner = vec![0u32; chart_texels.len()];
+    for c in order {
+        let n = chart_texels[c as usize];
+        if n == 0 {
+            continue;
+        }
+        let Some(std::cmp::Reverse((held, s))) = load.pop() else { break };
+        owner[c as usize] = s;
+        load.push(std::cmp::Reverse((held + n, s)));
+    }
+    owner
+}
+
+/// The texels of `map` whose chart `owner` gives to share `index` (ascending ids).
+pub fn share_texels(map: &TexelMap, atlas: &Atlas, owner: &[u32], index: u32) -> Vec<u32> {
+    (0..map.len() as u32)
+        .filter(|&i| owner[atlas.faces[map.face[i as usize] as usize].chart as usize] == index)
+        .collect()
+}
+
+/// The map of texels `keep` (ascending ids) of `map`: their per-texel values in the same
+/// order, and the gutter pixels copying them (renumbered). Its ids still follow the pixel
+/// blocks, so its [`TexelTable::of_map`] is a ranked whole-LOD table holding these texels
+/// alone (24 B an 8×8 block and 4 B a gutter pixel).
+pub fn subset_map(map: &TexelMap, keep: &[u32]) -> TexelMap {
+    let pick = |v: &Vec<_>| -> Vec<_> {
+        if v.is_empty() { Vec::new() } else { keep.iter().map(|&i| v[i as usize]).collect() }
+    };
+    let pick_rgb = |v: &Vec<Rgb>| -> Vec<Rgb> {
+        if v.is_empty() { Vec::new() } else { keep.iter().map(|&i| v[i as usize]).collect() }
+    };
+    let pick_f = |v: &Vec<f32>| -> Vec<f32> {
+        if v.is_empty() { Vec::new() } else { keep.iter().map(|&i| v[i as usize]).collect() }
+    };
+    let gutter = map.gutter.iter().filter_map(|&(p, t)| keep.binary_search(&t).ok().map(|k| (p, k as u32))).collect();
+    TexelMap {
+        lod: map.lod,
+        width: map.width,
+        height: map.height,
+        pixel: pick(&map.pixel),
+        face: pick(&map.face),
+        position: if map.position.is_empty() {
+            Vec::new()
+        } else {
+            keep.iter().map(|&i| map.position[i as usize]).collect()
+        },
+        normal: if map.normal.is_empty() { Vec::new() } else { keep.iter().map(|&i| map.normal[i as usize]).collect() },
+        albedo: pick_rgb(&map.albedo),
+        emission: pick_rgb(&map.emission),
+        area: pick_f(&map.area),
+        gutter,
+    }
+}
+
+/// What a region shard sees of the texels outside its share: the round's source of every
+/// texel of the LOD (12 B a texel) found through the whole LOD's lookup table (24 B an 8×8
+/// block of pixels, 4 B a gutter pixel), and the emission of the emitting texels (for the
+/// light pass; 16 B an emitting texel). A side whose pixel holds no texel is black, as a
+/// whole-LOD bake's lost lookup is.
+pub struct ForeignSource<'a> {
+    atlas: &'a Atlas,
+    table: TexelTable,
+    source: Vec<Rgb>,
+    emitting: Vec<(u32, Rgb)>,
+    scale: f32,
+}
+
+impl<'a> ForeignSource<'a> {
+    /// The foreign source of `map` (a whole LOD) whose texels send `source`.
+    pub fn new(atlas: &'a Atlas, map: &TexelMap, source: Vec<Rgb>) -> Self {
+        let emitting =
+            map.emission.iter().enumerate().filter(|(_, e)| **e != Rgb::ZERO).map(|(i, &e)| (i as u32, e)).collect();
+        ForeignSource { atlas, table: TexelTable::of_map(map), source, emitting, scale: (1u64 << map.lod) as f32 }
+    }
+
+    /// The texel under barycentrics `(u, v)` of `tri`'s side `side`, if any.
+    fn texel(&self, tri: u32, side: Side, u: f32, v: f32) -> Option<u32> {
+        let f = self.atlas.face(tri, side)?;
+        let p: Vec2 = self.atlas.faces[f as usize].uv_at(u, v) * self.scale;
+        if !(p.x >= 0.0 && p.y >= 0.0 && p.x < 1.6e7 && p.y < 1.6e7) {
+            return None;
+        }
+        let p = p.floor();
+        match self.table.get(p.x as i64, p.y as i64) {
+            NO_TEXEL => None,
+            t => Some(t),
+        }
+    }
+
+    /// Bytes held (the source, the table, the emitting texels).
+    pub fn bytes(&self) -> usize {
+        self.source.len() * 12 + self.table.bytes() + self.emitting.len() * 16
+    }
+}
+
+impl SurfaceRadiance for ForeignSource<'_> {
+    fn radiance(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb {
+        self.texel(tri, side, u, v).map_or(Rgb::ZERO, |t| self.source[t as usize])
+    }
+
+    fn emission(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb {
+        self.texel(tri, side, u, v).map_or(Rgb::ZERO, |t| self.emission_of(t))
+    }
+
+    fn by_lod_pixel(&self) -> bool {
+        true
+    }
+
+    fn texel_at(&self, x: i64, y: i64) -> (Rgb, Rgb) {
+        match self.table.get(x, y) {
+            NO_TEXEL => (Rgb::ZERO, Rgb::ZERO),
+            t => (self.source[t as usize], self.emission_of(t)),
+        }
+    }
+}
+
+impl ForeignSource<'_> {
+    fn emission_of(&self, t: u32) -> Rgb {
+        self.emitting.binary_search_by_key(&t, |&(i, _)| i).map_or(Rgb::ZERO, |k| self.emitting[k].1)
+    }
+}
+
+/// Bytes a texel of the share takes in its map (pixel, face, albedo, emission, area; no
+/// positions or normals), its id in the whole LOD, and its own source.
+pub const SHARE_MAP_BYTES: u64 = 4 + 4 + 12 + 12 + 4 + 4 + 12;
+
+/// Bytes a texel of the whole LOD takes in a region shard while its bundles run: its
+/// source (f32 RGB) in [`ForeignSource`], plus the whole LOD's lookup table (24 B an 8×8
+/// block of pixels, 4 B a gutter pixel) and 16 B an emitting texel.
+pub const FOREIGN_BYTES: u64 = 12;
+
+/// Bytes a texel of the whole LOD takes while a region shard sets up: its map without
+/// positions and normals (pixel, face, albedo, emission, area: 36 B, plus 8 B a gutter
+/// pixel, about 0.25 a texel) and its source (12 B).
+pub const SETUP_BYTES: f64 = 36.0 + 8.0 * crate::bake::memory::GUTTER_PER_TEXEL + 12.0;
+
+/// Bytes a texel of the whole LOD takes in a merged previous round read whole
+/// ([`crate::shard::merge_bytes`]): the global bundles' sums, the light pass's, the
+/// punctual part.
+pub const PREVIOUS_BYTES: u64 = 16 + 12 + 12;
+
+/// The peak a region shard of `count` shares of a LOD of `texels` texels is expected to
+/// hold, before it allocates anything per texel: the larger of its set-up (the whole map
+/// without positions and normals, the whole source, and the previous round's estimate when
+/// it reads one) and its bundles (the whole source and lookup table, and 1/`count` of what
+/// a single-machine bake of the LOD holds per texel: [`crate::bake::memory::estimate_from_lod0`]).
+pub fn estimate(
+    texels: u64,
+    count: u32,
+    previous: bool,
+    config: &crate::bake::BakeConfig,
+) -> crate::bake::memory::MemoryEstimate {
+    use crate::bake::memory::{SceneTraits, TABLE_BLOCK_BYTES, estimate_from_lod0};
+    let single = estimate_from_lod0(texels, None, config, SceneTraits::LEAST);
+    let t = texels as f64;
+    let setup = t * SETUP_BYTES + if previous { t * PREVIOUS_BYTES as f64 } else { 0.0 };
+    let table = t * TABLE_BLOCK_BYTES as f64 / 64.0 + t * crate::bake::memory::GUTTER_PER_TEXEL * 4.0;
+    let run = t * FOREIGN_BYTES as f64 + table + single.texel_bytes as f64 / count.max(1) as f64;
+    let texel_bytes = setup.max(run) as u64;
+    let bytes = texel_bytes + single.thread_bytes + single.texture_bytes + single.passing_bytes;
+    crate::bake::memory::MemoryEstimate {
+        texels,
+        texel_bytes,
+        bytes,
+        bytes_per_texel: bytes as f64 / texels.max(1) as f64,
+        ..single
+    }
+}
+
+/// One region shard's round: the sums of its texels, which texels and charts they are.
+pub struct RegionRound {
+    pub estimate: ProgressiveEstimate,
+    pub stats: BundleLodStats,
+    /// The share's charts (ascending).
+    pub charts: Vec<u32>,
+    /// The share's texels: ids in the whole LOD's map (ascending).
+    pub texels: Vec<u32>,
+    /// The share's map (its texels in the order of the estimate).
+    pub map: TexelMap,
+    /// Bytes of the share's map, its table, the foreign source and the importance's
+    /// triangles while the bundles ran.
+    pub held_bytes: usize,
+}
+
+/// Bakes round `round` (from 1) of share `index` of `count` of `map`'s texels (a whole LOD
+/// with its albedo and emission) over every batch of the round. `previous`: round
+/// `round − 1`'s merged estimate (whole LOD), none in round 1; its punctual part is carried,
+/// and in round 1 the share's punctual pass is made here (each share holds its own texels'
+/// part). The backend must lay bundles out as for the whole LOD: the caller makes it with
+/// the whole LOD's lane count ([`crate::bundle::Lanes::for_texels`] of `map.len()`).
+#[allow(clippy::too_many_arguments)]
+pub fn bake_region_round(
+    bundle: &BundleScene,
+    bvh: &Bvh,
+    backend: &mut dyn BundleBackend,
+    map: TexelMap,
+    previous: Option<ProgressiveEstimate>,
+    round: u32,
+    (index, count): (u32, u32),
+    threads: usize,
+    progress: &dyn Progress,
+) -> RegionRound {
+    let atlas = &*bundle.atlas;
+    let owner = deal_charts(&chart_texels(&map, atlas), count);
+    let charts: Vec<u32> = (0..owner.len() as u32).filter(|&c| owner[c as usize] == index).collect();
+    let keep = share_texels(&map, atlas, &owner, index);
+    drop(owner);
+    let triangles = target_triangles(atlas, &map.face);
+    let whole_source = round_source(bundle, &map, previous.as_ref());
+    let own_source: Vec<Rgb> = keep.iter().map(|&i| whole_source[i as usize]).collect();
+    let carried_punctual: Option<Vec<Rgb>> = previous.as_ref().map(|p| match p.punctual() {
+        [] => Vec::new(),
+        all => keep.iter().map(|&i| all[i as usize]).collect(),
+    });
+    // What the bundles read of the whole LOD from here on: its source and its lookup. The
+    // whole map and the previous round's estimate are given up before they run.
+    drop(previous);
+    let foreign = ForeignSource::new(atlas, &map, whole_source);
+    let sub = subset_map(&map, &keep);
+    drop(map);
+    let tables = [TexelTable::of_map(&sub)];
+    let punctual = match carried_punctual {
+        Some(p) => p,
+        None => {
+            let w = sub.width;
+            let pixel = |i: usize| [sub.pixel[i] % w, sub.pixel[i] / w];
+            PunctualPass::of(bundle, bvh, sub.lod, &sub.face, &pixel, |_| &tables[0], threads).irradiance
+        }
+    };
+    let held_bytes = foreign.bytes()
+        + tables[0].bytes()
+        + sub.len() * SHARE_MAP_BYTES as usize
+        + sub.gutter.len() * 8
+        + triangles.len() * 4;
+    let region = Region {
+        texels: sub.view(),
+        tables: &tables,
+        window: None,
+        foreign: Some(&foreign),
+        triangles: Some(&triangles),
+    };
+    let share = DirectionShare::whole(round_seed(bundle.config.seed, round));
+    let punctual = PunctualPass { irradiance: punctual, buried: Vec::new(), seconds: 0.0 };
+    let never = AtomicBool::new(false);
+    let traced = trace_region(
+        bundle,
+        backend,
+        &region,
+        Some(own_source),
+        punctual,
+        share,
+        threads,
+        progress,
+        &never,
+        &mut |_| std::ops::ControlFlow::Continue(()),
+    );
+    let Ok(Traced { estimate, stats, .. }) = traced else { unreachable!("a round is never cancelled") };
+    drop(tables);
+    RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Dealing is a partition (every chart with texels in exactly one share), deterministic,
+    /// and balanced: every share within the largest chart of the mean.
+    #[test]
+    fn charts_are_dealt_disjoint_complete_and_balanced() {
+        let charts: Vec<u64> = (0..500u64).map(|c| 1 + crate::sampling::mix64(c) % 300).collect();
+        let total: u64 = charts.iter().sum();
+        let largest = *charts.iter().max().expect("charts");
+        for n in [1u32, 2, 3, 4, 7, 16] {
+            let owner = deal_charts(&charts, n);
+            assert_eq!(owner, deal_charts(&charts, n), "deterministic");
+            let mut held = vec![0u64; n as usize];
+            for (c, &o) in owner.iter().enumerate() {
+                assert!(o < n);
+                held[o as usize] += charts[c];
+            }
+            assert_eq!(held.iter().sum::<u64>(), total, "complete and disjoint");
+            let mean = total as f64 / n as f64;
+            for h in &held {
+                assert!((*h as f64) <= mean + largest as f64, "{h} texels, mean {mean}, largest chart {largest}");
+            }
+            // Many small charts: greedy dealing is far tighter than the bound (within 2%).
+            let max = *held.iter().max().expect("shares") as f64;
+            assert!(max <= mean * 1.02 + largest as f64 / 2.0, "share of {max} texels against a mean of {mean}");
+        }
+        // More shares than charts: the extra shares hold nothing, nothing is lost.
+        let owner = deal_charts(&[5, 0, 3], 4);
+        assert_eq!(owner, vec![0, 0, 1]);
+    }
+}
