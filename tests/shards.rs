@@ -113,6 +113,13 @@ fn four_shards_merged_equal_one_bake_round_by_round() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(d.join("merged2/report.json")).expect("report")).expect("JSON");
     assert_eq!(report["lods"][0]["bundle"]["directions"], 64, "{report}");
+    // Texels no bundle reached are counted on the merged sums, as the single bake counts
+    // them on its own (not the last shard's count).
+    let single: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("single2/report.json")).expect("report")).expect("JSON");
+    let unsampled = |r: &serde_json::Value| r["lods"][0]["bundle"]["unsampled_texels"].clone();
+    assert!(unsampled(&single).is_u64(), "{single}");
+    assert_eq!(unsampled(&report), unsampled(&single));
 }
 
 #[test]

@@ -323,9 +323,10 @@ pub fn merge(files: &[PathBuf], out: &Path, export: Option<&Path>, memory_limit:
         stats.directions = records[0].stats.directions;
         stats.batches = records[0].stats.batches;
         stats.light_directions_per_group = records[0].stats.light_directions_per_group;
-        // Each shard counted its own texels that no bundle reached.
-        stats.unsampled_texels = records.iter().map(|r| r.stats.unsampled_texels).sum();
     }
+    // Texels no bundle reached, counted on the merged sums (a shard's own count is only of
+    // its directions, or of its texels).
+    stats.unsampled_texels = estimate.unsampled();
     let shard_seconds: f64 = records.iter().map(|r| r.seconds).sum();
     let backend_stats = BackendStats {
         samples_per_texel: config.samples,
