@@ -5,28 +5,10 @@
 
 mod support;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use support::shards::{exr, region_bound, worst_relative};
+use support::shards::{OPTIONS, bake, exr, region_bound, scene, worst_relative};
 use support::{fails, ok};
-
-const CORNELL: &str = "assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf";
-
-fn scene() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(CORNELL)
-}
-
-/// As tests/shards.rs: 64 directions in 32 batches of 2, the box's lamp through the light
-/// pass, a sky and a sun (a punctual light: each region shard holds its own texels' part).
-const OPTIONS: [&str; 8] = ["--texel-budget", "20000", "--samples", "64", "--sky", "0.2,0.3,0.4", "--sun", "35,20"];
-
-fn bake(dir: &Path, extra: &[&str]) -> String {
-    let scene = scene();
-    let mut args = vec!["-q", "bake", scene.to_str().expect("UTF-8 path")];
-    args.extend(OPTIONS);
-    args.extend(extra);
-    ok(dir, &args)
-}
 
 fn shards(dir: &Path, out: &str, by: &str, n: u32, extra: &[&str]) -> Vec<String> {
     (0..n)

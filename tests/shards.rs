@@ -7,29 +7,10 @@
 
 mod support;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-use support::shards::{exr, round_one_bound, round_two_bound, worst_relative};
+use support::shards::{OPTIONS, bake, exr, round_one_bound, round_two_bound, scene, worst_relative};
 use support::{fails, ok};
-
-const CORNELL: &str = "assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf";
-
-fn scene() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(CORNELL)
-}
-
-/// A small bake: 64 directions in 32 batches of 2 (`BundleConfig::batch_size`, the bounds'
-/// B), the box's lamp through the light pass, a sky and a sun (a punctual light, held by
-/// share 0 alone).
-const OPTIONS: [&str; 8] = ["--texel-budget", "20000", "--samples", "64", "--sky", "0.2,0.3,0.4", "--sun", "35,20"];
-
-fn bake(dir: &Path, extra: &[&str]) -> String {
-    let scene = scene();
-    let mut args = vec!["-q", "bake", scene.to_str().expect("UTF-8 path")];
-    args.extend(OPTIONS);
-    args.extend(extra);
-    ok(dir, &args)
-}
 
 fn shards(dir: &Path, out: &str, n: u32, extra: &[&str]) -> Vec<String> {
     (0..n)

@@ -13,11 +13,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use support::ok;
-use support::shards::{exr, round_one_bound, round_two_bound, worst_relative};
-
-const CORNELL: &str = "assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf";
-/// The bake of tests/shards.rs: 64 directions in 32 batches, a sky, a sun and the lamp.
-const OPTIONS: [&str; 8] = ["--texel-budget", "20000", "--samples", "64", "--sky", "0.2,0.3,0.4", "--sun", "35,20"];
+use support::shards::{CORNELL, OPTIONS, exr, round_one_bound, round_two_bound, worst_relative};
 
 fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -99,6 +99,33 @@ impl Default for BakeConfig {
     }
 }
 
+/// A shard's round in its report: refused when some directions found no tile plan;
+/// otherwise the LOD's figures, the time so far and the measured memory.
+fn report_shard_round(
+    report: &mut BakeReport,
+    texels: &TexelMap,
+    texel_seconds: f64,
+    config: &BakeConfig,
+    stats: bundle::BundleLodStats,
+    irradiance: &[Rgb],
+    started: Instant,
+) -> Result<(), BakeError> {
+    if stats.pass.unplanned_directions > 0 {
+        let (count, directions) = (stats.pass.unplanned_directions, stats.directions);
+        return Err(BakeError::UnplannedDirections { lod: 0, count, directions });
+    }
+    let backend_stats = BackendStats {
+        samples_per_texel: config.samples,
+        rays: stats.pass.covered_pixels,
+        seconds: stats.bundle_seconds + stats.punctual_seconds,
+    };
+    report.lods.push(LodReport::new(texels, texel_seconds, &backend_stats, irradiance, Some(stats)));
+    report.total_seconds = started.elapsed().as_secs_f64();
+    report.memory.measure();
+    report.bytes_per_texel = report.memory.measured_bytes_per_texel;
+    Ok(())
+}
+
 impl BakeConfig {
     /// The bundle parameters with this config's sample count and seed.
     pub fn bundle_config(&self) -> BundleConfig {
@@ -415,20 +442,7 @@ pub fn bake_shard(
     let rounds::RoundSums { estimate, mut stats } =
         rounds::bake_round(&bundle, &mut *backend, &texels, previous, punctual, round, share, threads, progress);
     stats.punctual_seconds = punctual_seconds;
-    if stats.pass.unplanned_directions > 0 {
-        let (count, directions) = (stats.pass.unplanned_directions, stats.directions);
-        return Err(BakeError::UnplannedDirections { lod: 0, count, directions });
-    }
-    let irradiance = estimate.irradiance();
-    let backend_stats = BackendStats {
-        samples_per_texel: config.samples,
-        rays: stats.pass.covered_pixels,
-        seconds: stats.bundle_seconds + stats.punctual_seconds,
-    };
-    report.lods.push(LodReport::new(&texels, texel_seconds, &backend_stats, &irradiance, Some(stats)));
-    report.total_seconds = started.elapsed().as_secs_f64();
-    report.memory.measure();
-    report.bytes_per_texel = report.memory.measured_bytes_per_texel;
+    report_shard_round(&mut report, &texels, texel_seconds, config, stats, &estimate.irradiance(), started)?;
     Ok(ShardBake { atlas, estimate, report })
 }
 
@@ -514,20 +528,7 @@ pub fn bake_region_shard(
         progress,
     );
     let region_shard::RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes } = r;
-    if stats.pass.unplanned_directions > 0 {
-        let (count, directions) = (stats.pass.unplanned_directions, stats.directions);
-        return Err(BakeError::UnplannedDirections { lod: 0, count, directions });
-    }
-    let irradiance = estimate.irradiance();
-    let backend_stats = BackendStats {
-        samples_per_texel: config.samples,
-        rays: stats.pass.covered_pixels,
-        seconds: stats.bundle_seconds + stats.punctual_seconds,
-    };
-    report.lods.push(LodReport::new(&sub, texel_seconds, &backend_stats, &irradiance, Some(stats)));
-    report.total_seconds = started.elapsed().as_secs_f64();
-    report.memory.measure();
-    report.bytes_per_texel = report.memory.measured_bytes_per_texel;
+    report_shard_round(&mut report, &sub, texel_seconds, config, stats, &estimate.irradiance(), started)?;
     Ok(RegionShardBake { atlas, estimate, charts, texels: keep, whole_texels, held_bytes, memory: expected, report })
 }
 

@@ -3,6 +3,27 @@
 
 use std::path::Path;
 
+/// The scene the shard tests bake: the Cornell box.
+pub const CORNELL: &str = "assets/cornell_box/cornellBox-2.79-Cycles-gltf.gltf";
+
+pub fn scene() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(CORNELL)
+}
+
+/// A small bake: 64 directions in 32 batches of 2 (`BundleConfig::batch_size`, the bounds'
+/// B), the box's lamp through the light pass, a sky and a sun (a punctual light: share 0 of
+/// direction shards holds it, each region shard its own texels' part).
+pub const OPTIONS: [&str; 8] = ["--texel-budget", "20000", "--samples", "64", "--sky", "0.2,0.3,0.4", "--sun", "35,20"];
+
+/// `livebake -q bake` of the shard tests' scene with [`OPTIONS`] and `extra`, in `dir`.
+pub fn bake(dir: &Path, extra: &[&str]) -> String {
+    let scene = scene();
+    let mut args = vec!["-q", "bake", scene.to_str().expect("UTF-8 path")];
+    args.extend(OPTIONS);
+    args.extend(extra);
+    super::ok(dir, &args)
+}
+
 /// Batches of the bakes compared: 64 directions in batches of 2.
 pub const BATCHES: f64 = 32.0;
 
