@@ -15,6 +15,8 @@ pub struct TexelTable {
     /// The chart whose faces this table serves; `None` for a whole-LOD table serving all.
     pub chart: Option<u32>,
     pub rect: PixelRect,
+    /// The rect's sides, for the bounds test of every lookup.
+    size: (u64, u64),
     blocks_x: i64,
     storage: Storage,
 }
@@ -43,11 +45,28 @@ struct RankedBlock {
 }
 
 /// Z-order index inside a block of the pixel at `(x, y)` from the block's corner: x's bits
-/// at the even positions, y's at the odd ones.
+/// at the even positions, y's at the odd ones. A 64-entry table (one cache line), indexed
+/// by the row-major position: spreading the bits took a tenth of the bundle fill's time.
 #[inline(always)]
 fn z_index(x: i64, y: i64) -> u32 {
-    let spread = |v: i64| ((v & 1) | (v & 2) << 1 | (v & 4) << 2) as u32;
-    spread(x & 7) | spread(y & 7) << 1
+    Z_OF_ROW_MAJOR[((y & 7) << 3 | (x & 7)) as usize] as u32
+}
+
+const Z_OF_ROW_MAJOR: [u8; 64] = {
+    const fn spread(v: usize) -> u8 {
+        ((v & 1) | (v & 2) << 1 | (v & 4) << 2) as u8
+    }
+    let mut table = [0u8; 64];
+    let mut i = 0;
+    while i < 64 {
+        table[i] = spread(i & 7) | spread(i >> 3) << 1;
+        i += 1;
+    }
+    table
+};
+
+fn sides(rect: PixelRect) -> (u64, u64) {
+    (rect.width() as u64, rect.height() as u64)
 }
 
 /// The coordinate in a block whose bits are the even ones of `m` (the inverse of `z_index`).
@@ -69,7 +88,7 @@ impl TexelTable {
         let blocks_x = (rect.width() + 7) >> 3;
         let blocks_y = (rect.height() + 7) >> 3;
         let entries = vec![NO_TEXEL; (blocks_x * blocks_y * 64) as usize];
-        TexelTable { chart, rect, blocks_x, storage: Storage::Dense(entries) }
+        TexelTable { chart, rect, size: sides(rect), blocks_x, storage: Storage::Dense(entries) }
     }
 
     /// The table of a whole-LOD texel map: every texel and gutter pixel, for all charts.
@@ -103,10 +122,12 @@ impl TexelTable {
     /// The entry of LOD pixel `(x, y)`; [`NO_TEXEL`] outside the table.
     #[inline(always)]
     pub fn get(&self, x: i64, y: i64) -> u32 {
-        if !self.rect.contains(x, y) {
+        // Inside the rect ⇔ both offsets from its corner, as unsigned, are below its sides
+        // (a negative offset wraps to a huge one): two compares, not four.
+        let (x, y) = (x.wrapping_sub(self.rect.x0), y.wrapping_sub(self.rect.y0));
+        if x as u64 >= self.size.0 || y as u64 >= self.size.1 {
             return NO_TEXEL;
         }
-        let (x, y) = (x - self.rect.x0, y - self.rect.y0);
         match &self.storage {
             Storage::Dense(entries) => entries[self.dense_index(x, y)],
             Storage::Ranked { blocks, gutter_texels } => {
@@ -283,7 +304,13 @@ fn ranked(map: &TexelMap, rect: PixelRect) -> Option<TexelTable> {
         block.gutter |= 1 << m;
         gutter_texels.push(texel);
     }
-    Some(TexelTable { chart: None, rect, blocks_x, storage: Storage::Ranked { blocks, gutter_texels } })
+    Some(TexelTable {
+        chart: None,
+        rect,
+        size: sides(rect),
+        blocks_x,
+        storage: Storage::Ranked { blocks, gutter_texels },
+    })
 }
 
 #[cfg(test)]

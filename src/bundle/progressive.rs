@@ -329,14 +329,14 @@ impl ProgressiveEstimate {
     /// running indirect estimate.
     pub fn source_radiance(
         &self,
-        albedo: &(dyn Fn(usize) -> Rgb + Sync),
+        albedo: &(impl Fn(usize) -> Rgb + Sync),
         emission: TexelEmission,
-        carried: &(dyn Fn(usize) -> bool + Sync),
+        carried: &(impl Fn(usize) -> bool + Sync),
         last: Option<&BatchSums>,
         threads: usize,
         out: &mut Vec<Rgb>,
     ) {
-        out.clear();
+        // Every entry is written below: no need to clear what a previous batch left.
         out.resize(self.len(), Rgb::ZERO);
         par_chunks_mut(out, threads, |start, chunk| {
             for (k, o) in chunk.iter_mut().enumerate() {

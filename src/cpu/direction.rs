@@ -11,7 +11,7 @@ use glam::Vec2;
 
 use super::analysis::Analysis;
 use super::emitter_rows::EmitterRows;
-use super::fragments::{ForeignSides, TileFragments, Visit};
+use super::fragments::{ForeignSides, TileFragments};
 use super::scene::CpuScene;
 use super::through::{Line, ThroughScratch};
 use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own, side_code};
@@ -377,18 +377,17 @@ fn trace_tile(
         let t = Instant::now();
         let a_px = vp.pixel_area();
         let (sky, source, layering) = (plan.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel).layering());
-        stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, |visit| match visit {
+        stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, |row| {
             // The row's pixels will add to their target sides' sums and read those sides'
             // sources, both scattered over arrays of megabytes: fetching them while the
             // row's first pixels are sorted and exchanged hides most of the misses (12%
             // of a Cornell bake's CPU time).
-            Visit::Row(frags) => {
-                for code in frags.iter().flat_map(|f| [side_code(f.plus), side_code(f.minus)]).filter(|&c| is_own(c)) {
-                    sink.prefetch(code);
-                    prefetch(source.own.as_ptr().wrapping_add(code as usize));
-                }
+            let codes = row.fragments().iter().flat_map(|f| [side_code(f.plus), side_code(f.minus)]);
+            for code in codes.filter(|&c| is_own(c)) {
+                sink.prefetch(code);
+                prefetch(source.own.as_ptr().wrapping_add(code as usize));
             }
-            Visit::Pixel(f, foreign, cx, cy) => match &ctx.scene.passing {
+            row.for_each_pixel(|f, foreign, cx, cy| match &ctx.scene.passing {
                 None => {
                     exchange(f, layering, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), sink)
                 }
@@ -397,7 +396,7 @@ fn trace_tile(
                     let seen = |code| seen(source, foreign, code, cx, cy, &mut lookups);
                     passing.exchange(f, &line, layering, a_px, sky, seen, sink, &mut w.through)
                 }
-            },
+            });
         });
         stats.resolve_seconds += seconds(t);
     }
@@ -509,34 +508,35 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
         let a_px = vp.pixel_area();
         let layering = ctx.scene.coincidence_at(vp.pixel).layering();
         let (own, source) = (ctx.target.emission, ctx.source);
-        s.fragments.resolve(ctx.scene, ctx.target, |visit| {
-            let Visit::Pixel(f, foreign, cx, cy) = visit else { return };
-            stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
-            let emission = |code| {
-                if is_own(code) {
-                    return own.at(code as usize);
-                }
-                match source.foreign {
-                    Some(src) if src.by_lod_pixel() => {
-                        foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| src.texel_at(x, y).1)
+        s.fragments.resolve(ctx.scene, ctx.target, |row| {
+            row.for_each_pixel(|f, foreign, cx, cy| {
+                stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
+                let emission = |code| {
+                    if is_own(code) {
+                        return own.at(code as usize);
                     }
-                    Some(src) => {
-                        let (tri, side, u, v) = foreign.locate(code, cx, cy);
-                        src.emission(tri, side, u, v)
+                    match source.foreign {
+                        Some(src) if src.by_lod_pixel() => {
+                            foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| src.texel_at(x, y).1)
+                        }
+                        Some(src) => {
+                            let (tri, side, u, v) = foreign.locate(code, cx, cy);
+                            src.emission(tri, side, u, v)
+                        }
+                        None => {
+                            lost += 1;
+                            Rgb::ZERO
+                        }
                     }
-                    None => {
-                        lost += 1;
-                        Rgb::ZERO
+                };
+                match &ctx.scene.passing {
+                    None => emit(f, layering, a_px, emission, sink),
+                    Some(passing) => {
+                        let line = line(ctx, &frame, &vp, foreign, cx, cy);
+                        passing.emit(f, &line, layering, a_px, emission, sink, &mut s.through)
                     }
                 }
-            };
-            match &ctx.scene.passing {
-                None => emit(f, layering, a_px, emission, sink),
-                Some(passing) => {
-                    let line = line(ctx, &frame, &vp, foreign, cx, cy);
-                    passing.emit(f, &line, layering, a_px, emission, sink, &mut s.through)
-                }
-            }
+            });
         });
     }
     s.stats.lost_lookups += lost;

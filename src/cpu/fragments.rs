@@ -20,7 +20,7 @@ use super::scene::CpuScene;
 use crate::atlas::lookup::TexelTable;
 use crate::atlas::texels::NO_TEXEL;
 use crate::bundle::estimator::{
-    EMITTER_FLAG, FOREIGN, FRONT_LOOKS_PLUS, Fragment, NO_SIDE, pack_normal, sort_by_depth,
+    EMITTER_FLAG, FOREIGN, FRONT_LOOKS_PLUS, Fragment, Layering, NO_SIDE, pack_normal, sort_by_depth,
 };
 use crate::bundle::raster::{BundleFrame, Planes, ScreenTriangle, Viewport, eval, grid_centre};
 use crate::bundle::target::{BakeTarget, NO_GROUP};
@@ -206,32 +206,34 @@ impl TileFragments {
     }
 
     /// Resolves the tile counted by [`prepare`](Self::prepare) (the caller has checked the
-    /// count against the node budget) for `target`: calls `visit(fragments, foreign, cx, cy)`
-    /// with the depth-sorted fragments of every covered pixel — in a light pass, of every
-    /// pixel an emitter covers (at least) — and the pixel's grid centre, strip by strip, row
-    /// by row. `foreign` locates the surface point of a foreign side code at that centre.
-    /// Returns how many pixels it visited.
-    pub fn resolve(&mut self, scene: &CpuScene, target: &BakeTarget, mut visit: impl FnMut(Visit)) -> u64 {
+    /// count against the node budget) for `target`: calls `visit` with each row of each
+    /// strip that holds pixels to resolve — in a light pass, the pixels an emitter covers (at
+    /// least) — strip by strip, row by row; see [`Row`]. Returns how many pixels the visits
+    /// went through with [`Row::for_each_pixel`].
+    ///
+    /// One call a row, not a pixel: a call per pixel was not inlined (the visits are large)
+    /// and cost its set-up, and a stall reading back the pixel centre it had just been
+    /// given, on every pixel — about a third of the exchange's time on the Cornell box.
+    pub fn resolve(&mut self, scene: &CpuScene, target: &BakeTarget, mut visit: impl FnMut(&mut Row)) -> u64 {
         self.set_up_planes(scene, target);
         let layering = scene.coincidence_at(self.pixel).layering();
         let mut covered = 0;
         for bucket in 0..self.bucket_len.len() {
             let Some((lo, hi)) = self.window(bucket) else { continue };
             self.fill(target, bucket, lo, hi);
-            visit(Visit::Row(&self.frags[..self.ends[(hi - lo) as usize] as usize]));
-            let cy = grid_centre(self.offset.1, bucket as u32 % self.height);
-            let foreign = ForeignSides { tris: &self.tris, planes: &self.planes };
-            for p in 0..(hi - lo) as usize {
-                let (a, b) = (self.ends[p] as usize, self.ends[p + 1] as usize);
-                if b > a {
-                    let frags = &mut self.frags[a..b];
-                    if frags.len() > 1 {
-                        sort_by_depth(frags, layering);
-                    }
-                    visit(Visit::Pixel(frags, &foreign, grid_centre(self.offset.0, lo + p as u32), cy));
-                    covered += 1;
-                }
-            }
+            let ends = &self.ends[..=(hi - lo) as usize];
+            let mut row = Row {
+                frags: &mut self.frags[..ends[(hi - lo) as usize] as usize],
+                ends,
+                foreign: ForeignSides { tris: &self.tris, planes: &self.planes },
+                layering,
+                lo,
+                offset: self.offset.0,
+                cy: grid_centre(self.offset.1, bucket as u32 % self.height),
+                covered: 0,
+            };
+            visit(&mut row);
+            covered += row.covered;
         }
         covered
     }
@@ -369,14 +371,44 @@ impl TileFragments {
     }
 }
 
-/// What [`TileFragments::resolve`] shows its caller: a row's fragments once they are built,
-/// before any of its pixels, then each covered pixel of the row in turn.
-pub enum Visit<'a> {
+/// One row of a strip as [`TileFragments::resolve`] shows it: its fragments once they are
+/// built, then each covered pixel's in depth order.
+pub struct Row<'a> {
+    /// Pixel p of the row (from `lo`) owns `frags[ends[p]..ends[p + 1]]`.
+    frags: &'a mut [Fragment],
+    ends: &'a [u32],
+    foreign: ForeignSides<'a>,
+    layering: Layering,
+    lo: u32,
+    /// The viewport's x offset in its grid, and the row's grid centre.
+    offset: u32,
+    cy: f32,
+    /// Pixels visited by [`for_each_pixel`](Self::for_each_pixel).
+    covered: u64,
+}
+
+impl Row<'_> {
     /// Every fragment of the row, in no particular order: what its pixels will read.
-    Row(&'a [Fragment]),
-    /// A pixel's depth-sorted fragments, how to locate their foreign sides, and the pixel's
-    /// grid centre.
-    Pixel(&'a [Fragment], &'a ForeignSides<'a>, f32, f32),
+    pub fn fragments(&self) -> &[Fragment] {
+        self.frags
+    }
+
+    /// Calls `visit(fragments, foreign, cx, cy)` with the depth-sorted fragments of every
+    /// covered pixel, how to locate their foreign sides, and the pixel's grid centre.
+    #[inline(always)]
+    pub fn for_each_pixel(&mut self, mut visit: impl FnMut(&[Fragment], &ForeignSides, f32, f32)) {
+        for (p, w) in self.ends.windows(2).enumerate() {
+            let (a, b) = (w[0] as usize, w[1] as usize);
+            if b > a {
+                let frags = &mut self.frags[a..b];
+                if frags.len() > 1 {
+                    sort_by_depth(frags, self.layering);
+                }
+                visit(frags, &self.foreign, grid_centre(self.offset, self.lo + p as u32), self.cy);
+                self.covered += 1;
+            }
+        }
+    }
 }
 
 /// Where the surface point of a foreign side code lies, for the tile being resolved.
@@ -429,16 +461,16 @@ struct TexelCursor<'a> {
     uv: [Vec2; 3],
     dy: f32,
     foreign: u32,
-    /// The atlas pixel last looked up (its corner, as floats: compared before any
-    /// conversion) and its code.
-    last: Vec2,
+    /// The atlas pixel last looked up, its coordinates packed (x low, y high; `u64::MAX`:
+    /// none yet), and its code.
+    last: u64,
     code: u32,
 }
 
 impl<'a> TexelCursor<'a> {
     #[inline(always)]
     fn new(table: &'a TexelTable, uv: &[Vec2; 3], dy: f32, foreign: u32) -> Self {
-        TexelCursor { table, uv: *uv, dy, foreign, last: Vec2::NEG_ONE, code: foreign }
+        TexelCursor { table, uv: *uv, dy, foreign, last: u64::MAX, code: foreign }
     }
 
     /// The code at pixel centre x `dx` (relative to the anchor).
@@ -450,10 +482,15 @@ impl<'a> TexelCursor<'a> {
         if !(p.x >= 0.0 && p.y >= 0.0 && p.x < 1.6e7 && p.y < 1.6e7) {
             return self.foreign;
         }
-        let pixel = p.floor();
-        if pixel != self.last {
-            self.last = pixel;
-            self.code = match self.table.get(pixel.x as i64, pixel.y as i64) {
+        // Truncation is ⌊p⌋ here (p ≥ 0), as `ForeignSides::lod_pixel` takes it. `as`
+        // would clamp (a third of the cursor's instructions), which the test above makes
+        // needless.
+        // SAFETY: 0 ≤ p < 1.6e7 (not NaN) on both axes, so both truncate to a u32.
+        let (x, y) = unsafe { (p.x.to_int_unchecked::<u32>(), p.y.to_int_unchecked::<u32>()) };
+        let key = (y as u64) << 32 | x as u64;
+        if key != self.last {
+            self.last = key;
+            self.code = match self.table.get(x as i64, y as i64) {
                 NO_TEXEL => self.foreign,
                 t => t,
             };
@@ -481,8 +518,13 @@ impl SpanFill<'_> {
     #[inline(always)]
     fn fill(self, mut sides: impl FnMut(f32) -> (u32, u32)) {
         let p = self.planes;
-        for (x, cursor) in (self.x0..).zip(self.cursors.iter_mut()) {
-            let (dx, _) = p.planes.local(grid_centre(self.offset, x), 0.0);
+        // Pixel centres are whole numbers and a half, exact in f32 far beyond any grid
+        // (2^23), so stepping by 1 gives each [`grid_centre`] exactly, without converting.
+        let mut cx = grid_centre(self.offset, self.x0);
+        debug_assert!(cx + (self.cursors.len() as f32) < (1 << 23) as f32);
+        for cursor in self.cursors.iter_mut() {
+            let (dx, _) = p.planes.local(cx, 0.0);
+            cx += 1.0;
             let (plus, minus) = sides(dx);
             self.frags[*cursor as usize] = Fragment {
                 depth: eval(&p.depth, dx, self.dy),
