@@ -176,6 +176,8 @@ pub enum BakeError {
     ShardBackend(&'static str),
     #[error("the previous round's state has {previous} texels, this bake's atlas {texels}: not the same bake")]
     PreviousRound { texels: usize, previous: usize },
+    #[error("cannot read the previous round's state: {0}")]
+    PreviousState(#[from] crate::shard::ShardError),
     #[error("bounce rounds need a bundle backend (--backend cpu or gpu), not the reference path tracer")]
     RoundsNeedBundles,
     #[error("--samples must be at most {max}, got {got}")]
@@ -387,7 +389,7 @@ fn bundle_setup(
 }
 
 /// One direction shard's bake: share `share` (index, count) of round `round` of LOD 0
-/// ([`rounds`], docs/SHARDS.md), reading `previous`, round `round − 1`'s merged estimate.
+/// ([`rounds`], docs/SHARDS.md), reading `previous`, round `round − 1`'s merged state.
 pub struct ShardBake {
     pub atlas: Atlas,
     pub estimate: crate::bundle::progressive::ProgressiveEstimate,
@@ -396,13 +398,15 @@ pub struct ShardBake {
 
 /// Bakes one direction shard (see [`ShardBake`]). Share 0 holds the punctual part (made in
 /// round 1, taken from `previous` after), the other shares none, so that the merge counts
-/// it once.
+/// it once. The texel map has no positions and normals (the round and the punctual pass
+/// read neither: 24 B a texel less), and the previous round is streamed from its file
+/// (its irradiance, 12 B a texel, made into the round's source in place).
 pub fn bake_shard(
     scene: &Arc<Scene>,
     config: &BakeConfig,
     round: u32,
     share: (u32, u32),
-    previous: Option<&crate::bundle::progressive::ProgressiveEstimate>,
+    previous: Option<&crate::shard::PreviousRound>,
     progress: &dyn Progress,
 ) -> Result<ShardBake, BakeError> {
     config.validate()?;
@@ -421,17 +425,17 @@ pub fn bake_shard(
     let mut report = BakeReport::new(scene, &atlas, config);
     let (bundle, bvh, mut backend) = bundle_setup(scene, &geom, &atlas, config, &mut report)?;
     let t0 = Instant::now();
-    let texels = TexelMap::build(scene, &geom, &atlas, 0);
+    let mut texels = TexelMap::build_with(scene, &geom, &atlas, 0, crate::atlas::texels::Restore::Albedo);
     let texel_seconds = t0.elapsed().as_secs_f64();
     if let Some(p) = previous
-        && p.len() != texels.len()
+        && p.texels() != texels.len()
     {
-        return Err(BakeError::PreviousRound { texels: texels.len(), previous: p.len() });
+        return Err(BakeError::PreviousRound { texels: texels.len(), previous: p.texels() });
     }
     let threads = config.threads();
     let mut punctual_seconds = 0.0;
     let punctual = match (share.0, previous) {
-        (0, Some(p)) => p.punctual().to_vec(),
+        (0, Some(p)) => p.punctual(None)?,
         (0, None) => {
             let pass = bundle::PunctualPass::of_map(&bundle, &bvh, &texels, threads);
             punctual_seconds = pass.seconds;
@@ -439,8 +443,21 @@ pub fn bake_shard(
         }
         _ => Vec::new(),
     };
-    let rounds::RoundSums { estimate, mut stats } =
-        rounds::bake_round(&bundle, &mut *backend, &texels, previous, punctual, round, share, threads, progress);
+    let irradiance = previous.map(|p| p.irradiance()).transpose()?;
+    let source = rounds::round_source(&bundle, &texels, irradiance);
+    // The round reads its source, not the albedo it was made from.
+    texels.drop_albedo();
+    let rounds::RoundSums { estimate, mut stats } = rounds::bake_round_from_source(
+        &bundle,
+        &mut *backend,
+        &texels,
+        source,
+        punctual,
+        round,
+        share,
+        threads,
+        progress,
+    );
     stats.punctual_seconds = punctual_seconds;
     report_shard_round(&mut report, &texels, texel_seconds, config, stats, &estimate.irradiance(), started)?;
     Ok(ShardBake { atlas, estimate, report })
@@ -465,14 +482,15 @@ pub struct RegionShardBake {
 
 /// Bakes one region shard: share `share.0` of `share.1` of LOD 0's texels (whole charts,
 /// [`region_shard::deal_charts`]), every batch of round `round`, the rest of the scene
-/// seen through `previous` (round − 1's merged estimate; the carried emission alone in
-/// round 1). Each share holds its own texels' punctual part.
+/// seen through `previous` (round − 1's merged state, streamed: its irradiance and the
+/// share's punctual part; the carried emission alone in round 1). Each share holds its own
+/// texels' punctual part.
 pub fn bake_region_shard(
     scene: &Arc<Scene>,
     config: &BakeConfig,
     round: u32,
     share: (u32, u32),
-    previous: Option<crate::bundle::progressive::ProgressiveEstimate>,
+    previous: Option<&crate::shard::PreviousRound>,
     progress: &dyn Progress,
 ) -> Result<RegionShardBake, BakeError> {
     config.validate()?;
@@ -488,8 +506,10 @@ pub fn bake_region_shard(
     // The single bake's early guard would count the whole LOD: a region shard is checked
     // against its own estimate once the atlas says how many texels the LOD has.
 
+    region_shard::stage("geometry");
     let atlas = Atlas::build(scene, &geom, &config.atlas)?;
     check_lod_sizes(&atlas, 1)?;
+    region_shard::stage("atlas");
     let expected = region_shard::estimate(atlas.stats.covered_texels_lod0, share.1, previous.is_some(), config);
     tracing::info!(
         lod_texels = expected.texels,
@@ -504,10 +524,11 @@ pub fn bake_region_shard(
     // pixels), and the albedo and emission are the same values `TexelMap::build` makes.
     let texels = TexelMap::build_with(scene, &geom, &atlas, 0, crate::atlas::texels::Restore::Albedo);
     let texel_seconds = t0.elapsed().as_secs_f64();
-    if let Some(p) = &previous
-        && p.len() != texels.len()
+    region_shard::stage("map");
+    if let Some(p) = previous
+        && p.texels() != texels.len()
     {
-        return Err(BakeError::PreviousRound { texels: texels.len(), previous: p.len() });
+        return Err(BakeError::PreviousRound { texels: texels.len(), previous: p.texels() });
     }
     // The bundles are laid out as the whole LOD's: its lane count, not the share's.
     let mut whole = config.clone();
@@ -516,6 +537,7 @@ pub fn bake_region_shard(
     let (bundle, bvh, mut backend) = bundle_setup(scene, &geom, &atlas, &whole, &mut report)?;
     let threads = config.threads();
     let whole_texels = texels.len();
+    region_shard::stage("setup");
     let r = region_shard::bake_region_round(
         &bundle,
         &bvh,
@@ -526,7 +548,7 @@ pub fn bake_region_shard(
         share,
         threads,
         progress,
-    );
+    )?;
     let region_shard::RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes } = r;
     report_shard_round(&mut report, &sub, texel_seconds, config, stats, &estimate.irradiance(), started)?;
     Ok(RegionShardBake { atlas, estimate, charts, texels: keep, whole_texels, held_bytes, memory: expected, report })

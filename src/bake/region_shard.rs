@@ -34,6 +34,17 @@ use crate::scene::{Rgb, Side};
 use super::bundle::{BundleLodStats, DirectionShare, PunctualPass, Region, Traced, trace_region};
 use super::rounds::{round_seed, round_source};
 
+/// Logs the resident set and its peak so far at a step of a region shard (debug).
+pub(super) fn stage(step: &str) {
+    let mb = |b: Option<u64>| b.unwrap_or(0) as f64 / 1e6;
+    tracing::debug!(
+        step,
+        resident_mb = mb(crate::bake::memory::resident_bytes()),
+        peak_mb = mb(crate::bake::memory::peak_resident_bytes()),
+        "region shard memory"
+    );
+}
+
 /// Per chart of `atlas`: how many texels of `map` it holds.
 pub fn chart_texels(map: &TexelMap, atlas: &Atlas) -> Vec<u64> {
     let mut count = vec![0u64; atlas.charts.len()];
@@ -176,9 +187,10 @@ impl ForeignSource<'_> {
     }
 }
 
-/// Bytes a texel of the share takes in its map (pixel, face, albedo, emission, area; no
-/// positions or normals), its id in the whole LOD, and its own source.
-pub const SHARE_MAP_BYTES: u64 = 4 + 4 + 12 + 12 + 4 + 4 + 12;
+/// Bytes a texel of the share takes in its map while its bundles run (pixel, face,
+/// emission, area; no positions, normals or albedo), its id in the whole LOD, and its own
+/// source.
+pub const SHARE_MAP_BYTES: u64 = 4 + 4 + 12 + 4 + 4 + 12;
 
 /// Bytes a texel of the whole LOD takes in a region shard while its bundles run: its
 /// source (f32 RGB) in [`ForeignSource`], plus the whole LOD's lookup table (24 B an 8×8
@@ -190,10 +202,11 @@ pub const FOREIGN_BYTES: u64 = 12;
 /// pixel, about 0.25 a texel) and its source (12 B).
 pub const SETUP_BYTES: f64 = 36.0 + 8.0 * crate::bake::memory::GUTTER_PER_TEXEL + 12.0;
 
-/// Bytes a texel of the whole LOD takes in a merged previous round read whole
-/// ([`crate::shard::merge_bytes`]): the global bundles' sums, the light pass's, the
-/// punctual part.
-pub const PREVIOUS_BYTES: u64 = 16 + 12 + 12;
+/// Bytes a texel of the share takes of a merged previous round: its punctual part. The
+/// previous round is streamed ([`crate::shard::PreviousRound`]): its irradiance is read
+/// into the buffer that becomes the round's source (counted in [`SETUP_BYTES`]), its sums
+/// are never held.
+pub const PREVIOUS_BYTES: u64 = 12;
 
 /// The peak a region shard of `count` shares of a LOD of `texels` texels is expected to
 /// hold, before it allocates anything per texel: the larger of its set-up (the whole map
@@ -209,7 +222,8 @@ pub fn estimate(
     use crate::bake::memory::{SceneTraits, TABLE_BLOCK_BYTES, estimate_from_lod0};
     let single = estimate_from_lod0(texels, None, config, SceneTraits::LEAST);
     let t = texels as f64;
-    let setup = t * SETUP_BYTES + if previous { t * PREVIOUS_BYTES as f64 } else { 0.0 };
+    let share = t / count.max(1) as f64;
+    let setup = t * SETUP_BYTES + if previous { share * PREVIOUS_BYTES as f64 } else { 0.0 };
     let table = t * TABLE_BLOCK_BYTES as f64 / 64.0 + t * crate::bake::memory::GUTTER_PER_TEXEL * 4.0;
     let run = t * FOREIGN_BYTES as f64 + table + single.texel_bytes as f64 / count.max(1) as f64;
     let texel_bytes = setup.max(run) as u64;
@@ -240,7 +254,7 @@ pub struct RegionRound {
 
 /// Bakes round `round` (from 1) of share `index` of `count` of `map`'s texels (a whole LOD
 /// with its albedo and emission) over every batch of the round. `previous`: round
-/// `round − 1`'s merged estimate (whole LOD), none in round 1; its punctual part is carried,
+/// `round − 1`'s merged state (whole LOD, streamed), none in round 1; its punctual part is carried,
 /// and in round 1 the share's punctual pass is made here (each share holds its own texels'
 /// part). The backend must lay bundles out as for the whole LOD: the caller makes it with
 /// the whole LOD's lane count ([`crate::bundle::Lanes::for_texels`] of `map.len()`).
@@ -250,30 +264,33 @@ pub fn bake_region_round(
     bvh: &Bvh,
     backend: &mut dyn BundleBackend,
     map: TexelMap,
-    previous: Option<ProgressiveEstimate>,
+    previous: Option<&crate::shard::PreviousRound>,
     round: u32,
     (index, count): (u32, u32),
     threads: usize,
     progress: &dyn Progress,
-) -> RegionRound {
+) -> Result<RegionRound, crate::shard::ShardError> {
     let atlas = &*bundle.atlas;
     let owner = deal_charts(&chart_texels(&map, atlas), count);
     let charts: Vec<u32> = (0..owner.len() as u32).filter(|&c| owner[c as usize] == index).collect();
     let keep = share_texels(&map, atlas, &owner, index);
     drop(owner);
+    stage("dealt");
     let triangles = target_triangles(atlas, &map.face);
-    let whole_source = round_source(bundle, &map, previous.as_ref());
+    // The previous round's irradiance, read into the buffer that becomes the source.
+    let whole_source = round_source(bundle, &map, previous.map(|p| p.irradiance()).transpose()?);
+    stage("source");
     let own_source: Vec<Rgb> = keep.iter().map(|&i| whole_source[i as usize]).collect();
-    let carried_punctual: Option<Vec<Rgb>> = previous.as_ref().map(|p| match p.punctual() {
-        [] => Vec::new(),
-        all => keep.iter().map(|&i| all[i as usize]).collect(),
-    });
+    let carried_punctual: Option<Vec<Rgb>> = previous.map(|p| p.punctual(Some(&keep))).transpose()?;
     // What the bundles read of the whole LOD from here on: its source and its lookup. The
-    // whole map and the previous round's estimate are given up before they run.
-    drop(previous);
+    // whole map is given up before they run.
     let foreign = ForeignSource::new(atlas, &map, whole_source);
-    let sub = subset_map(&map, &keep);
+    stage("foreign");
+    let mut sub = subset_map(&map, &keep);
     drop(map);
+    // The share's source is made: its bundles read that, not the albedo.
+    sub.drop_albedo();
+    stage("subset");
     let tables = [TexelTable::of_map(&sub)];
     let punctual = match carried_punctual {
         Some(p) => p,
@@ -311,8 +328,9 @@ pub fn bake_region_round(
         &mut |_| std::ops::ControlFlow::Continue(()),
     );
     let Ok(Traced { estimate, stats, .. }) = traced else { unreachable!("a round is never cancelled") };
+    stage("traced");
     drop(tables);
-    RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes }
+    Ok(RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes })
 }
 
 #[cfg(test)]

@@ -50,26 +50,24 @@ pub struct RoundSums {
 }
 
 /// Source radiance of a round: each texel's carried emission plus, after round 1, its
-/// reflection of the previous round's irradiance `previous`.
-pub(super) fn round_source(
-    bundle: &BundleScene,
-    texels: &TexelMap,
-    previous: Option<&ProgressiveEstimate>,
-) -> Vec<Rgb> {
-    (0..texels.len())
-        .map(|i| {
-            let emitted = if bundle.carried(texels.face[i]) { texels.emission[i] } else { Rgb::ZERO };
-            match previous {
-                Some(p) => texels.albedo[i] * p.irradiance_of(i) * std::f32::consts::FRAC_1_PI + emitted,
-                None => emitted,
+/// reflection of the previous round's irradiance `previous` (one per texel, made in its
+/// place: a round holds 12 B a texel of the previous round, not its estimate).
+pub(super) fn round_source(bundle: &BundleScene, texels: &TexelMap, previous: Option<Vec<Rgb>>) -> Vec<Rgb> {
+    let emitted = |i: usize| if bundle.carried(texels.face[i]) { texels.emission[i] } else { Rgb::ZERO };
+    match previous {
+        Some(mut e) => {
+            for (i, e) in e.iter_mut().enumerate() {
+                *e = texels.albedo[i] * *e * std::f32::consts::FRAC_1_PI + emitted(i);
             }
-        })
-        .collect()
+            e
+        }
+        None => (0..texels.len()).map(emitted).collect(),
+    }
 }
 
 /// Bakes round `round` (from 1) of `texels` (a whole LOD's map with its albedo and emission)
-/// over the batches of share `index` of `count`. `previous`: round `round − 1`'s whole
-/// estimate (all shares merged), none in round 1. `punctual`: the exact punctual part the
+/// over the batches of share `index` of `count`. `previous`: round `round − 1`'s
+/// irradiance (all shares merged), none in round 1. `punctual`: the exact punctual part the
 /// estimate holds (empty: none; shards other than the first hold none, so that the merge
 /// counts it once).
 #[allow(clippy::too_many_arguments)]
@@ -77,7 +75,7 @@ pub fn bake_round(
     bundle: &BundleScene,
     backend: &mut dyn BundleBackend,
     texels: &TexelMap,
-    previous: Option<&ProgressiveEstimate>,
+    previous: Option<Vec<Rgb>>,
     punctual: Vec<Rgb>,
     round: u32,
     (index, count): (u32, u32),
@@ -85,6 +83,24 @@ pub fn bake_round(
     progress: &dyn Progress,
 ) -> RoundSums {
     let source = round_source(bundle, texels, previous);
+    bake_round_from_source(bundle, backend, texels, source, punctual, round, (index, count), threads, progress)
+}
+
+/// [`bake_round`] from the round's `source` ([`round_source`]), made by the caller: a
+/// shard gives up its map's albedo once the source is made (12 B a texel; the round reads
+/// the source alone).
+#[allow(clippy::too_many_arguments)]
+pub(super) fn bake_round_from_source(
+    bundle: &BundleScene,
+    backend: &mut dyn BundleBackend,
+    texels: &TexelMap,
+    source: Vec<Rgb>,
+    punctual: Vec<Rgb>,
+    round: u32,
+    (index, count): (u32, u32),
+    threads: usize,
+    progress: &dyn Progress,
+) -> RoundSums {
     let tables = [TexelTable::of_map(texels)];
     let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None, triangles: None };
     let share = DirectionShare { seed: round_seed(bundle.config.seed, round), index, count };
@@ -114,7 +130,13 @@ pub fn bake_lod_rounds(
     let mut stats = BundleLodStats { punctual_seconds: seconds, ..BundleLodStats::default() };
     let mut last: Option<ProgressiveEstimate> = None;
     for round in 1..=rounds.max(1) {
-        let r = bake_round(bundle, backend, texels, last.as_ref(), punctual.clone(), round, (0, 1), threads, progress);
+        // The round reads the last one's irradiance alone (12 B a texel, not its 40 B of sums).
+        let previous = last.take().map(|e| {
+            let mut irradiance = Vec::new();
+            e.irradiance_into(threads, &mut irradiance);
+            irradiance
+        });
+        let r = bake_round(bundle, backend, texels, previous, punctual.clone(), round, (0, 1), threads, progress);
         add_round_stats(&mut stats, &r.stats);
         last = Some(r.estimate);
     }

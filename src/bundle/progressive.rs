@@ -119,6 +119,33 @@ struct TexelTotals {
     bundle_weight: f32,
 }
 
+/// The global bundles' irradiance `π·Σw·S/Σw·A` of sums `(sum, weight)` (zero unsampled).
+#[inline]
+fn bundle_irradiance(sum: Rgb, weight: f32) -> Rgb {
+    if weight > 0.0 { sum * (std::f32::consts::PI / weight) } else { Rgb::ZERO }
+}
+
+/// The light pass's irradiance `2π/N_l · Σ a·Le / A_texel` (zero without light-pass sums).
+#[inline]
+fn light_irradiance(light: Option<Rgb>, light_directions: u64) -> Rgb {
+    match light {
+        Some(l) if light_directions > 0 => l * (std::f64::consts::TAU / light_directions as f64) as f32,
+        _ => Rgb::ZERO,
+    }
+}
+
+/// The irradiance of a texel whose sums are `bundle` (`Σw·S rgb, Σw·A`), `light` (the light
+/// pass's `Σ a·Le / A`, none without a light pass) after `light_directions`, and
+/// `punctual`: what [`ProgressiveEstimate::irradiance_of`] gives for a texel holding them,
+/// the same float operations in the same order (a round reading its previous round's
+/// merged file texel by texel, [`crate::shard::PreviousRound`], makes the bits a single
+/// bake makes from its whole estimate).
+#[inline]
+pub fn irradiance_of_sums(bundle: [f32; 4], light: Option<Rgb>, light_directions: u64, punctual: Option<Rgb>) -> Rgb {
+    (punctual.unwrap_or(Rgb::ZERO) + light_irradiance(light, light_directions))
+        + bundle_irradiance(Rgb::new(bundle[0], bundle[1], bundle[2]), bundle[3])
+}
+
 /// Running irradiance estimate of one LOD's texels.
 pub struct ProgressiveEstimate {
     kind: SourceKind,
@@ -181,16 +208,13 @@ impl ProgressiveEstimate {
     #[inline]
     fn bundle_of(&self, i: usize) -> Rgb {
         let t = &self.totals[i];
-        if t.bundle_weight > 0.0 { t.bundle_sum * (std::f32::consts::PI / t.bundle_weight) } else { Rgb::ZERO }
+        bundle_irradiance(t.bundle_sum, t.bundle_weight)
     }
 
     /// The light pass's irradiance of texel `i`, `2π/N_l · Σ a·Le / A_texel`.
     #[inline]
     fn light_of(&self, i: usize) -> Rgb {
-        match self.light.get(i) {
-            Some(&l) if self.light_directions > 0 => l * (std::f64::consts::TAU / self.light_directions as f64) as f32,
-            _ => Rgb::ZERO,
-        }
+        light_irradiance(self.light.get(i).copied(), self.light_directions)
     }
 
     /// Irradiance from punctual lights per texel (exact, noise-free); empty when the

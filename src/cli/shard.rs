@@ -22,8 +22,8 @@ use livebake::export::{ExportOptions, export_gltf};
 use livebake::output::{irradiance_image, write_json, write_lightmaps};
 use livebake::scene::{SceneGeometry, external_files};
 use livebake::shard::{
-    self, MERGED_STATE, ShardFile, ShardKind, ShardState, WordHash, check_set, read_header, region_placement,
-    shard_file_name, write_state,
+    self, MERGED_STATE, PreviousRound, ShardFile, ShardKind, ShardState, WordHash, check_set, read_header,
+    region_placement, shard_file_name, write_state,
 };
 
 use super::SceneOptions;
@@ -150,8 +150,9 @@ fn job_of(file: &ShardFile) -> Result<JobRecord> {
         .with_context(|| format!("{}: its job description is not valid", file.path.display()))
 }
 
-/// Reads a whole state (the previous round's merge) after checking it against this bake.
-fn read_previous(path: &Path, scene_hash: u64, options_hash: u64, memory_limit: Option<u64>) -> Result<ShardState> {
+/// Opens a whole state (the previous round's merge) after checking it against this bake:
+/// its header here, its checksum by [`PreviousRound::open`]; the round streams its sums.
+fn read_previous(path: &Path, scene_hash: u64, options_hash: u64, memory_limit: Option<u64>) -> Result<PreviousRound> {
     let file = read_header(path)?;
     let h = &file.header;
     if h.count != 1 {
@@ -171,8 +172,7 @@ fn read_previous(path: &Path, scene_hash: u64, options_hash: u64, memory_limit: 
     if h.kind != ShardKind::Directions {
         bail!("--previous {}: a region shard, not a merged round; give the merge's {MERGED_STATE}", path.display());
     }
-    let estimate = shard::merge(std::slice::from_ref(&file), None, limit(memory_limit))?;
-    Ok(ShardState { header: file.header.clone(), job: file.job.clone(), estimate })
+    Ok(PreviousRound::open(file, limit(memory_limit))?)
 }
 
 fn limit(configured: Option<u64>) -> (u64, &'static str) {
@@ -220,21 +220,18 @@ pub fn bake(
     }
     let scene_hash = scene_hash(&job.scene, &here)?;
     let previous = previous.map(|p| read_previous(p, scene_hash, hash, memory_limit)).transpose()?;
-    let round = previous.as_ref().map_or(1, |p| p.header.round + 1);
+    let round = previous.as_ref().map_or(1, |p| p.header().round + 1);
     let config = livebake::bake::BakeConfig { memory_limit, ..options.bake_config(default_samples)? };
     let (scene, _) = load_scene(scene_path, options, memory_limit)?;
     let t0 = Instant::now();
     let failed = || format!("cannot bake share {}/{} of {}", share.0, share.1, scene_path.display());
     let (estimate, report, regions) = match by {
         ShardBy::Directions => {
-            let previous = previous.as_ref().map(|p| &p.estimate);
-            let baked = bake_shard(&scene, &config, round, share, previous, ui).with_context(failed)?;
+            let baked = bake_shard(&scene, &config, round, share, previous.as_ref(), ui).with_context(failed)?;
             (baked.estimate, baked.report, None)
         }
         ShardBy::Regions => {
-            // The previous round is given up once its source is made.
-            let previous = previous.map(|p| p.estimate);
-            let baked = bake_region_shard(&scene, &config, round, share, previous, ui).with_context(failed)?;
+            let baked = bake_region_shard(&scene, &config, round, share, previous.as_ref(), ui).with_context(failed)?;
             tracing::info!(
                 texels = baked.texels.len(),
                 lod_texels = baked.whole_texels,

@@ -237,6 +237,38 @@ pub fn read_header(path: &Path) -> Result<ShardFile, ShardError> {
 }
 
 impl ShardFile {
+    /// Where the texels' sums start: after the header, the job and a region shard's charts.
+    pub fn sums_offset(&self) -> u64 {
+        HEADER_BYTES + self.job_bytes as u64 + 4 * self.header.charts.len() as u64
+    }
+
+    /// Reads the whole file once, holding nothing but a buffer, and checks its checksum:
+    /// what a reader that takes the sums section by section
+    /// ([`super::PreviousRound`]) checks before it reads them.
+    pub fn verify(&self) -> Result<(), ShardError> {
+        let io = |source| ShardError::Io { path: self.path.clone(), source };
+        let file = File::open(&self.path).map_err(io)?;
+        let size = file.metadata().map_err(io)?.len();
+        let mut r = HashingReader { inner: BufReader::with_capacity(1 << 16, file), hash: WordHash::new() };
+        let mut left = size.saturating_sub(8);
+        let mut buf = vec![0u8; 1 << 16];
+        while left > 0 {
+            let n = left.min(buf.len() as u64) as usize;
+            r.read_exact(&mut buf[..n]).map_err(io)?;
+            left -= n as u64;
+        }
+        let computed = r.hash.finish();
+        let mut sum = [0u8; 8];
+        r.inner.read_exact(&mut sum).map_err(io)?;
+        if u64::from_le_bytes(sum) != computed {
+            return Err(ShardError::Invalid {
+                path: self.path.clone(),
+                why: "its checksum does not match its contents (the file is damaged)".into(),
+            });
+        }
+        Ok(())
+    }
+
     /// Adds the file's sums to `sums` texel by texel, then checks the checksum: its texel k
     /// to texel `place[k]` of `sums` (a region shard's), or to texel k. The caller has
     /// checked the texel count against the atlas (`sums` is of that size) and the memory

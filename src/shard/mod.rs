@@ -4,6 +4,7 @@
 //! together and adds them up.
 
 pub mod file;
+pub mod previous;
 
 use std::path::PathBuf;
 
@@ -11,6 +12,7 @@ use crate::bundle::progressive::{ProgressiveEstimate, SourceKind};
 use crate::scene::Rgb;
 
 pub use file::{ShardFile, read_header, write_state};
+pub use previous::PreviousRound;
 
 /// Most shares a round may be cut into.
 pub const MAX_SHARDS: u32 = 1 << 16;
