@@ -4,7 +4,10 @@
 // texture of 16×16-texel pages, a page table per layer and LOD, a shown LOD per cell and
 // layer), sampled by a GLSL twin of the viewer's shaders/lightmap.inc.wgsl, so that the
 // page shows what `livebake view` shows. Each socket update writes exactly the pages it
-// carries into the pool (texSubImage2D) and the table entries and cell LODs it changes.
+// carries into the pool and the table entries and cell LODs it changes, as soon as it
+// arrives (the socket lives in a worker, web/socket.js), outside the frame loop: one
+// texSubImage2D per pool row of pages it touches, then a fence; the page acknowledges the
+// update twice, once the upload calls returned and once the fence says the GPU did them.
 // "Enter VR" opens a WebXR immersive-vr session: teleport (trigger, aiming at the floor)
 // and snap turn (thumbstick left/right) on the controllers. On a desktop: the fly camera of
 // `view` (drag to look, WASD/QE to move, wheel for speed).
@@ -140,21 +143,64 @@ class LightMap {
     this.poolData = new Float32Array(0);
     this.pool = null;
     this.grow(16);
+    this.uploadPool();
+    // Per pool row of pages, the columns written since the last upload.
+    this.dirty = new Map();
+    this.uploadCalls = 0;
   }
-  // The pool holds POOL_COLUMNS × rows pages; growing re-uploads the mirror.
+  // The pool holds POOL_COLUMNS × rows pages (its mirror here); growing makes a new texture,
+  // which uploadPool() fills with the whole mirror.
   grow(rows) {
-    const gl = this.gl;
     const data = new Float32Array(POOL_COLUMNS * PAGE_SIDE * rows * PAGE_SIDE * 4);
     data.set(this.poolData);
     for (let s = POOL_COLUMNS * rows - 1; s >= POOL_COLUMNS * this.capacityRows; s--) this.free.push(s);
     this.poolData = data;
     this.capacityRows = rows;
+    this.regrown = true;
+  }
+  uploadPool() {
+    const gl = this.gl;
     if (this.pool) gl.deleteTexture(this.pool);
     this.pool = gl.createTexture();
     gl.bindTexture(gl.TEXTURE_2D, this.pool);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
-    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, POOL_COLUMNS * PAGE_SIDE, rows * PAGE_SIDE, 0, gl.RGBA, gl.FLOAT, data);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, POOL_COLUMNS * PAGE_SIDE, this.capacityRows * PAGE_SIDE, 0, gl.RGBA, gl.FLOAT, this.poolData);
+    this.regrown = false;
+    return this.poolData.length * 4;
+  }
+  // Uploads the written pages: one texSubImage2D per run of adjacent pages of a pool row
+  // (new pages take consecutive free slots, so a publish's new pages are a few runs; a
+  // rewritten page lies where it was), exactly the pages written; the whole pool after a
+  // growth. Returns the bytes handed to the GL.
+  uploadDirty() {
+    const gl = this.gl;
+    let bytes = 0;
+    if (this.regrown) {
+      bytes = this.uploadPool();
+      this.uploadCalls++;
+    }
+    else if (this.dirty.size > 0) {
+      const width = POOL_COLUMNS * PAGE_SIDE;
+      gl.bindTexture(gl.TEXTURE_2D, this.pool);
+      gl.pixelStorei(gl.UNPACK_ROW_LENGTH, width);
+      for (const [row, set] of this.dirty) {
+        const columns = [...set].sort((a, b) => a - b);
+        for (let i = 0; i < columns.length;) {
+          let j = i + 1;
+          while (j < columns.length && columns[j] === columns[j - 1] + 1) j++;
+          const lo = columns[i], w = (j - i) * PAGE_SIDE;
+          gl.texSubImage2D(gl.TEXTURE_2D, 0, lo * PAGE_SIDE, row * PAGE_SIDE, w, PAGE_SIDE, gl.RGBA, gl.FLOAT,
+            this.poolData, (row * PAGE_SIDE * width + lo * PAGE_SIDE) * 4);
+          bytes += w * PAGE_SIDE * 16;
+          this.uploadCalls++;
+          i = j;
+        }
+      }
+      gl.pixelStorei(gl.UNPACK_ROW_LENGTH, 0);
+    }
+    this.dirty.clear();
+    return bytes;
   }
   entry(layer, lod, px, py) {
     return this.levels[(layer * MAX_LODS + lod) * 4 + 2] + py * this.levels[(layer * MAX_LODS + lod) * 4] + px;
@@ -165,9 +211,8 @@ class LightMap {
     }
     for (let i = 0; i < 2 * this.cellCount; i++) this.cells.set(i, 0);
   }
-  // Applies an UPDATE message; returns the number of pages written.
+  // Applies an UPDATE message; returns the number of pages written and the bytes uploaded.
   apply(buf) {
-    const gl = this.gl;
     const dv = new DataView(buf);
     const flags = dv.getUint8(1);
     const nCells = dv.getUint32(20, true), nPages = dv.getUint32(24, true), nDropped = dv.getUint32(28, true);
@@ -177,7 +222,6 @@ class LightMap {
       const cell = dv.getUint32(at, true), layer = dv.getUint8(at + 4), lod = dv.getUint8(at + 5);
       if (cell < this.cellCount && layer < 2) this.cells.set(layer * this.cellCount + cell, lod);
     }
-    gl.bindTexture(gl.TEXTURE_2D, this.pool);
     for (let i = 0; i < nPages; i++) {
       const layer = dv.getUint8(at), lod = dv.getUint8(at + 1);
       const px = dv.getUint32(at + 4, true), py = dv.getUint32(at + 8, true);
@@ -188,20 +232,19 @@ class LightMap {
       const e = this.entry(layer, lod, px, py);
       let slot = this.table.data[e];
       if (slot === NO_PAGE) {
-        if (this.free.length === 0) {
-          this.grow(this.capacityRows * 2);
-          gl.bindTexture(gl.TEXTURE_2D, this.pool);
-        }
+        if (this.free.length === 0) this.grow(this.capacityRows * 2);
         slot = this.free.pop();
         this.table.set(e, slot);
       }
-      const sx = (slot % POOL_COLUMNS) * PAGE_SIDE, sy = Math.floor(slot / POOL_COLUMNS) * PAGE_SIDE;
-      // The mirror (for a pool that grows), then exactly this page in the texture.
+      const column = slot % POOL_COLUMNS, poolRow = Math.floor(slot / POOL_COLUMNS);
+      const sx = column * PAGE_SIDE, sy = poolRow * PAGE_SIDE;
+      // Into the mirror; the texture gets the touched rows' spans below.
       for (let row = 0; row < PAGE_SIDE; row++) {
         this.poolData.set(texels.subarray(row * PAGE_SIDE * 4, (row + 1) * PAGE_SIDE * 4),
           ((sy + row) * POOL_COLUMNS * PAGE_SIDE + sx) * 4);
       }
-      gl.texSubImage2D(gl.TEXTURE_2D, 0, sx, sy, PAGE_SIDE, PAGE_SIDE, gl.RGBA, gl.FLOAT, texels);
+      if (!this.dirty.has(poolRow)) this.dirty.set(poolRow, new Set());
+      this.dirty.get(poolRow).add(column);
     }
     for (let i = 0; i < nDropped; i++, at += 12) {
       const layer = dv.getUint8(at), lod = dv.getUint8(at + 1);
@@ -210,9 +253,10 @@ class LightMap {
       const e = this.entry(layer, lod, px, py);
       if (this.table.data[e] !== NO_PAGE) { this.free.push(this.table.data[e]); this.table.set(e, NO_PAGE); }
     }
+    const bytes = this.uploadDirty();
     this.table.upload();
     this.cells.upload();
-    return nPages;
+    return { pages: nPages, bytes };
   }
   dispose() {
     this.gl.deleteTexture(this.pool);
@@ -247,7 +291,7 @@ export function start(canvas, ui = {}) {
   const params = new URLSearchParams(location.search);
   const state = {
     scene: null, vao: null, buffer: null, textures: [], lightmap: null,
-    updates: 0, pagesWritten: 0, lastSeq: -1, fullSeen: 0, generation: 0,
+    updates: 0, pagesWritten: 0, bytesUploaded: 0, uploadCalls: 0, fenced: 0, pendingFences: [], lastSeq: -1, fullSeen: 0, generation: 0,
     eye: [0, 0, 0], yaw: 0, pitch: 0, speed: 1, frames: 0, frameMs: [],
     xr: null, xrFrames: 0, lastViews: null, capture: null, socket: null, connected: false,
     scenesReceived: 0, errors: [],
@@ -303,28 +347,58 @@ export function start(canvas, ui = {}) {
     state.textures[i] = makeTexture(gl, w, h, new Uint8Array(buf, 16, w * h * 4), info.srgb, info.wrap);
   }
 
+  // Applied as soon as it arrives (the socket's handler, not the frame loop).
   function onUpdate(buf) {
     if (!state.lightmap) return;
     const dv = new DataView(buf);
     const seq = dv.getUint32(4, true), generation = dv.getUint32(16, true);
     if (generation !== state.generation) return;
-    const pages = state.lightmap.apply(buf);
+    const calls = state.lightmap.uploadCalls;
+    const { pages, bytes } = state.lightmap.apply(buf);
+    state.uploadCalls += state.lightmap.uploadCalls - calls;
     state.updates++;
     state.pagesWritten += pages;
+    state.bytesUploaded += bytes;
     state.lastSeq = seq;
     if (dv.getUint8(1) & 1) state.fullSeen++;
-    // The pages are in the texture: tell the server (its publish-to-texture latency).
-    const ack = new ArrayBuffer(16);
-    const a = new DataView(ack);
-    a.setUint8(0, 2);
-    a.setUint32(4, seq, true);
-    a.setFloat64(8, performance.now(), true);
-    send(ack);
+    // The upload calls returned (stage 0); the GPU has done them once a fence placed after
+    // them is signalled (stage 1): the server's publish-to-texture latency.
+    ack(seq, 0);
+    state.pendingFences.push({ seq, sync: gl.fenceSync(gl.SYNC_GPU_COMMANDS_COMPLETE, 0) });
+    gl.flush();
+    pollFences();
     if (state.onUpdate) state.onUpdate(buf);
   }
 
+  function ack(seq, stage) {
+    const b = new ArrayBuffer(16);
+    const a = new DataView(b);
+    a.setUint8(0, 2);
+    a.setUint8(1, stage);
+    a.setUint32(4, seq, true);
+    a.setFloat64(8, performance.now(), true);
+    send(b);
+  }
+
+  // WebGL updates a fence's status only between tasks: polled on timeouts while any is
+  // pending (fences signal in order).
+  let polling = false;
+  function pollFences() {
+    const f = state.pendingFences;
+    while (f.length > 0 && gl.getSyncParameter(f[0].sync, gl.SYNC_STATUS) === gl.SIGNALED) {
+      const { seq, sync } = f.shift();
+      gl.deleteSync(sync);
+      state.fenced++;
+      ack(seq, 1);
+    }
+    if (f.length > 0 && !polling) {
+      polling = true;
+      setTimeout(() => { polling = false; pollFences(); }, 1);
+    }
+  }
+
   function send(buf) {
-    if (state.socket && state.socket.readyState === 1) state.socket.send(buf);
+    if (state.socket && state.connected) state.socket.postMessage(buf, [buf]);
   }
 
   let lastPose = 0;
@@ -345,28 +419,75 @@ export function start(canvas, ui = {}) {
   function connect() {
     if (params.has("static")) return loadStatic();
     const proto = location.protocol === "https:" ? "wss:" : "ws:";
-    const ws = new WebSocket(`${proto}//${location.host}/socket${location.search}`);
-    ws.binaryType = "arraybuffer";
-    state.socket = ws;
-    ws.onopen = () => { state.connected = true; setStatus("waiting for first light…"); };
-    ws.onclose = () => { state.connected = false; setStatus("disconnected"); };
-    ws.onmessage = (ev) => {
+    const worker = new Worker(new URL("socket.js", import.meta.url));
+    state.socket = worker;
+    let shared = null;
+    if (self.crossOriginIsolated) {
+      shared = { data: new SharedArrayBuffer(RING_BYTES), state: new SharedArrayBuffer(4) };
+      ring = { bytes: new Uint8Array(shared.data), state: new Int32Array(shared.state), read: 0 };
+    }
+    state.sharedRing = !!ring;
+    worker.postMessage({ connect: `${proto}//${location.host}/socket${location.search}`, ring: shared });
+    worker.onmessage = (ev) => {
+      const m = ev.data;
+      if (m.open) { state.connected = true; setStatus("waiting for first light…"); return; }
+      if (m.closed) { state.connected = false; setStatus("disconnected"); return; }
+      if (m.index !== undefined) posted.set(m.index, m);
+      drain();
+    };
+  }
+
+  // The socket's messages in the worker's order: posted ones, and those in the shared ring
+  // (read here whenever the page runs: a message's task, a frame's start).
+  const RING_BYTES = 16 << 20;
+  let ring = null, nextIndex = 0;
+  const posted = new Map();
+  function ringRead(n) {
+    const cap = ring.bytes.length, out = new Uint8Array(n);
+    const first = Math.min(n, cap - ring.read);
+    out.set(ring.bytes.subarray(ring.read, ring.read + first));
+    out.set(ring.bytes.subarray(0, n - first), first);
+    ring.read = (ring.read + n) % cap;
+    return out;
+  }
+  function ringPeekIndex() {
+    if (!ring || Atomics.load(ring.state, 0) === 0) return -1;
+    const at = ring.read;
+    const head = ringRead(4);
+    ring.read = at;
+    return new DataView(head.buffer).getUint32(0, true);
+  }
+  function drain() {
+    for (;;) {
+      let m = posted.get(nextIndex);
+      if (m) posted.delete(nextIndex);
+      else if (ringPeekIndex() === nextIndex) {
+        const head = new DataView(ringRead(8).buffer);
+        const n = head.getUint32(4, true), need = 8 + ((n + 3) & ~3);
+        m = { binary: ringRead(n).buffer };
+        ring.read = (ring.read + (need - 8 - n)) % ring.bytes.length;
+        Atomics.sub(ring.state, 0, need);
+      } else return;
+      nextIndex++;
+      handle(m);
+    }
+  }
+  function handle(m) {
       try {
-        if (typeof ev.data === "string") {
-          const m = JSON.parse(ev.data);
-          if (m.type === "scene") onScene(m);
+        if (m.text !== undefined) {
+          const d = JSON.parse(m.text);
+          if (d.type === "scene") onScene(d);
           return;
         }
-        const kind = new Uint8Array(ev.data, 0, 1)[0];
-        if (kind === 1) onGeometry(ev.data);
-        else if (kind === 2) onTexture(ev.data);
-        else if (kind === 3) onUpdate(ev.data);
+        const kind = new Uint8Array(m.binary, 0, 1)[0];
+        if (kind === 1) onGeometry(m.binary);
+        else if (kind === 2) onTexture(m.binary);
+        else if (kind === 3) onUpdate(m.binary);
         setStatus(`${state.updates} updates, ${state.pagesWritten} pages`);
       } catch (e) {
         state.errors.push(String(e));
         console.error(e);
       }
-    };
   }
 
   // --export-web: scene.json, geometry.bin, texture-N.bin and lightmap.bin beside the page.
@@ -450,6 +571,8 @@ export function start(canvas, ui = {}) {
 
   let lastT = performance.now();
   function desktopFrame(t) {
+    drain();
+    pollFences();
     const dt = Math.min(0.1, (t - lastT) / 1000);
     lastT = t;
     if (!state.xr) {
@@ -466,13 +589,20 @@ export function start(canvas, ui = {}) {
       const w = Math.max(1, Math.round(canvas.clientWidth * devicePixelRatio));
       const h = Math.max(1, Math.round(canvas.clientHeight * devicePixelRatio));
       if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
-      if (state.scene) {
+      // At most one frame in flight: a slow GPU (software GL) queues frames otherwise, and
+      // an update's upload waits behind all of them.
+      if (state.frameFence && gl.getSyncParameter(state.frameFence, gl.SYNC_STATUS) === gl.SIGNALED) {
+        gl.deleteSync(state.frameFence);
+        state.frameFence = null;
+      }
+      if (state.scene && !state.frameFence) {
         const s = state.scene.start;
         const t0 = performance.now();
         const vp = mul(perspective(s.yfov, w / h, s.znear, s.zfar), lookAt(state.eye, add(state.eye, f), [0, 1, 0]));
         gl.bindFramebuffer(gl.FRAMEBUFFER, null);
         drawScene(vp, [0, 0, w, h]);
         countFrame(performance.now() - t0);
+        state.frameFence = gl.fenceSync(gl.SYNC_GPU_COMMANDS_COMPLETE, 0);
         sendPose(state.eye, f, s.yfov, w / h, h);
       }
     }
@@ -581,6 +711,10 @@ export function start(canvas, ui = {}) {
     if (!xr) return;
     xr.session.requestAnimationFrame(xrFrame);
     try {
+      // What arrived while the main thread was held (by the last frame's GPU work, in the
+      // emulator) goes into the textures before this frame's draws.
+      drain();
+      pollFences();
       drawXR(frame);
     } catch (e) {
       if (state.errors.length < 10) state.errors.push(String(e && e.stack || e));

@@ -18,7 +18,12 @@ pub const PAGE_FILES: &[(&str, &str, &[u8])] = &[
     ("/index.html", "text/html; charset=utf-8", include_bytes!("../../web/index.html")),
     ("/livebake.js", "text/javascript; charset=utf-8", include_bytes!("../../web/livebake.js")),
     ("/shaders.js", "text/javascript; charset=utf-8", include_bytes!("../../web/shaders.js")),
+    ("/socket.js", "text/javascript; charset=utf-8", include_bytes!("../../web/socket.js")),
 ];
+
+/// Headers that make the page cross-origin isolated (`SharedArrayBuffer` allowed).
+pub const ISOLATION: [&str; 2] =
+    ["Cross-Origin-Opener-Policy: same-origin", "Cross-Origin-Embedder-Policy: require-corp"];
 
 /// Largest request head read.
 const MAX_HEAD: usize = 16 * 1024;

@@ -12,7 +12,7 @@ use glam::Vec3;
 use serde::Serialize;
 use tungstenite::{Bytes, Message};
 
-use super::protocol::{ClientMessage, StartPose, changed_cells, encode_update};
+use super::protocol::{AckStage, ClientMessage, StartPose, changed_cells, encode_update};
 use super::scene::{scene_messages, start_pose};
 use super::{ServeConfig, ServeError};
 use crate::runtime::shown::{Page, PageChange, ShownLightmap};
@@ -54,9 +54,13 @@ pub struct ServeStats {
     /// What those updates' pages hold (their texels alone): `update_bytes` minus this is
     /// the headers'.
     pub update_page_bytes: u64,
-    /// Runtime publish (the hub's noticing of the new snapshot) to the page's
-    /// acknowledgement that the pages are in its texture, ms, one a received ack.
+    /// Publish to texture: the runtime's publish (the hub's noticing of the new snapshot) to
+    /// the page's acknowledgement that a fence placed after the update's upload calls is
+    /// signalled (the GPU has written the pages), ms, one a received ack.
     pub ack_latency_ms: Vec<f64>,
+    /// The runtime's publish to the page's acknowledgement that the update's upload calls
+    /// returned (the GL has the texels; its GPU may still be drawing earlier frames), ms.
+    pub upload_latency_ms: Vec<f64>,
     /// Frame times the pages reported (mean over their reports, ms) and frames counted.
     pub page_frame_ms: Option<f64>,
     pub page_frames: u64,
@@ -193,7 +197,12 @@ impl Hub<'_> {
                     });
                     self.stats.last_pose = Some((p.eye.to_array(), p.target.to_array()));
                 }
-                ClientMessage::Ack { seq, .. } => {
+                ClientMessage::Ack { seq, stage: AckStage::Uploaded, .. } => {
+                    if let Some(t) = self.sent_at.get(&seq) {
+                        self.stats.upload_latency_ms.push(now_ms(self.runtime) - t);
+                    }
+                }
+                ClientMessage::Ack { seq, stage: AckStage::Done, .. } => {
                     if let Some(t) = self.sent_at.remove(&seq) {
                         self.stats.ack_latency_ms.push(now_ms(self.runtime) - t);
                     }
@@ -320,9 +329,12 @@ pub fn run(
         hub.stats.clients_now = hub.clients.len();
         if let Ok(mut s) = status.lock() {
             let latencies = std::mem::take(&mut hub.stats.ack_latency_ms);
+            let uploads = std::mem::take(&mut hub.stats.upload_latency_ms);
             *s = hub.stats.clone();
             s.ack_latency_ms = latencies.iter().rev().take(64).copied().collect();
+            s.upload_latency_ms = uploads.iter().rev().take(64).copied().collect();
             hub.stats.ack_latency_ms = latencies;
+            hub.stats.upload_latency_ms = uploads;
         }
         if stop(&hub.stats) {
             return Ok(hub.stats);

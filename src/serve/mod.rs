@@ -216,7 +216,12 @@ fn handle(mut stream: TcpStream, shared: &Shared) {
         .map(|t| format!("Set-Cookie: {}={t}; HttpOnly; SameSite=Strict; Path=/", http::TOKEN_COOKIE))
         .collect();
     if let Some((_, ty, body)) = http::PAGE_FILES.iter().find(|(p, _, _)| *p == req.path) {
-        http::respond(&mut stream, "200 OK", ty, &cookie, body, head_only);
+        // Cross-origin isolation (the page loads nothing from elsewhere anyway): it lets the
+        // page share memory with its socket's worker (web/socket.js), so that a frame picks
+        // up the updates that arrived while the main thread was busy.
+        let mut extra = cookie;
+        extra.extend(http::ISOLATION.iter().map(|h| h.to_string()));
+        http::respond(&mut stream, "200 OK", ty, &extra, body, head_only);
         return;
     }
     if req.path == "/status.json" {

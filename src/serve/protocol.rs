@@ -7,9 +7,9 @@
 //! updates ([`UPDATE`]): the first is the whole shown map (flag [`FULL`]), every later one
 //! the pages one publish wrote and the cells whose shown LOD changed.
 //!
-//! Page to server: its pose ([`POSE`]), the acknowledgement of an update once its pages
-//! are in the page's texture ([`ACK`]) and its frame times ([`FRAMES`]). Anything else is
-//! malformed and closes that client.
+//! Page to server: its pose ([`POSE`]), the acknowledgements of an update (once its upload
+//! calls returned, and once the GPU has done them: [`ACK`], [`AckStage`]) and its frame
+//! times ([`FRAMES`]). Anything else is malformed and closes that client.
 
 use std::sync::Arc;
 
@@ -29,7 +29,8 @@ pub const FULL: u8 = 1;
 
 /// Page → server: the viewer's pose.
 pub const POSE: u8 = 1;
-/// Page → server: an update's pages are in the page's texture (seq 0: a whole map's).
+/// Page → server: an update's pages reached the page's texture (seq 0: a whole map's), at
+/// the stage its second byte says ([`AckStage`]).
 pub const ACK: u8 = 2;
 /// Page → server: frame times.
 pub const FRAMES: u8 = 3;
@@ -129,9 +130,10 @@ pub struct Pose {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ClientMessage {
     Pose(Pose),
-    /// Update `seq` is in the page's texture; `page_ms` is the page's clock then.
+    /// Update `seq` reached the page's texture at `stage`; `page_ms` is the page's clock then.
     Ack {
         seq: u32,
+        stage: AckStage,
         page_ms: f64,
     },
     /// `frames` frames drawn, their mean time in milliseconds.
@@ -139,6 +141,16 @@ pub enum ClientMessage {
         frames: u32,
         mean_ms: f64,
     },
+}
+
+/// How far an update has got into the page's texture when the page acknowledges it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AckStage {
+    /// The upload calls (`texSubImage2D`) returned: the GL has the texels, its GPU may not
+    /// have written them yet (byte 0).
+    Uploaded,
+    /// A fence placed after those calls is signalled: the texture holds them (byte 1).
+    Done,
 }
 
 /// Why a page's message was refused (the client is closed).
@@ -156,6 +168,8 @@ pub enum ProtocolError {
     BadPose,
     #[error("frame statistics with non-finite values")]
     BadFrames,
+    #[error("an acknowledgement of unknown stage {0}")]
+    BadAckStage(u8),
 }
 
 fn f32_at(b: &[u8], at: usize) -> f32 {
@@ -209,7 +223,12 @@ pub fn parse_client(b: &[u8]) -> Result<ClientMessage, ProtocolError> {
             if !page_ms.is_finite() {
                 return Err(ProtocolError::BadFrames);
             }
-            Ok(ClientMessage::Ack { seq: u32_at(b, 4), page_ms })
+            let stage = match b[1] {
+                0 => AckStage::Uploaded,
+                1 => AckStage::Done,
+                s => return Err(ProtocolError::BadAckStage(s)),
+            };
+            Ok(ClientMessage::Ack { seq: u32_at(b, 4), stage, page_ms })
         }
         _ => {
             let mean_ms = f64_at(b, 8);
@@ -392,6 +411,19 @@ mod tests {
         assert_eq!(parse_client(&[9, 0, 0]), Err(ProtocolError::UnknownKind(9)));
         let same = Pose { target: p.eye, ..p };
         assert_eq!(parse_client(&encode_pose(&same)), Err(ProtocolError::BadPose));
+    }
+
+    #[test]
+    fn acks_say_their_stage_and_an_unknown_one_is_refused() {
+        let ack = |stage: u8| {
+            let mut b = vec![ACK, stage, 0, 0];
+            b.extend(7u32.to_le_bytes());
+            b.extend(12.5f64.to_le_bytes());
+            parse_client(&b)
+        };
+        assert_eq!(ack(0), Ok(ClientMessage::Ack { seq: 7, stage: AckStage::Uploaded, page_ms: 12.5 }));
+        assert_eq!(ack(1), Ok(ClientMessage::Ack { seq: 7, stage: AckStage::Done, page_ms: 12.5 }));
+        assert_eq!(ack(2), Err(ProtocolError::BadAckStage(2)));
     }
 
     #[test]

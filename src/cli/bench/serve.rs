@@ -2,10 +2,13 @@
 //! emulated headset (npm iwer, Quest 3 config, stereo; tests/web/xr_driver.mjs), while the
 //! runtime refines. Figures, from the server's `--stats`:
 //! - publish-to-texture latency: the hub seeing a publish → the page's acknowledgement that
-//!   its pages are in its textures (goal ≤ 100 ms median; it includes the ack's trip back);
+//!   a fence placed after the update's upload calls is signalled, i.e. the GPU has written
+//!   the pages (goal ≤ 100 ms median; it includes the ack's trip back); beside it, the hub
+//!   seeing a publish → the page's acknowledgement that the upload calls returned;
 //! - bytes per publish against the published pages' own bytes (goal: the pages plus a small
 //!   header);
-//! - the page's frame time in the emulator (both eyes, `gl.finish()` included: software GL).
+//! - the page's draw time (both eyes, `gl.finish()` included: software GL) and its frame
+//!   interval, in the emulator and on the desktop page.
 //!
 //! Needs what scripts/test installs: Chromium, Node.js and the npm packages iwer and
 //! playwright-core (in `$LIVEBAKE_NODE_TOOLS`, default `~/.cache/livebake-node`).
@@ -103,37 +106,48 @@ fn session(bench: &Bench, tools: &std::path::Path, seconds: f64, eye: [u32; 2], 
     if !status.success() {
         bail!("livebake serve exited with {status}");
     }
-    // Frames the emulated headset drew during the sleep (its frame loop is the browser's
-    // animation frames).
+    // Frames the page drew during the sleep (the emulated headset's frame loop, or the
+    // desktop page's, both the browser's animation frames), and what its uploads handed to
+    // the GL.
     let statuses: Vec<&Value> =
         page["steps"].as_array().map(|a| a.iter().filter(|s| s["step"] == "status").collect()).unwrap_or_default();
-    let frame_interval_ms = match statuses.as_slice() {
+    let frames_key = if desktop { "frames" } else { "xr_frames" };
+    let (frame_interval_ms, uploaded_per_update, calls_per_update) = match statuses.as_slice() {
         [a, b] => {
-            let frames =
-                b["after"]["xr_frames"].as_f64().unwrap_or(0.0) - a["after"]["xr_frames"].as_f64().unwrap_or(0.0);
-            let ms = b["after"]["now"].as_f64().unwrap_or(0.0) - a["after"]["now"].as_f64().unwrap_or(0.0);
-            (frames > 0.0).then(|| ms / frames)
+            let delta = |k: &str| b["after"][k].as_f64().unwrap_or(0.0) - a["after"][k].as_f64().unwrap_or(0.0);
+            let (frames, ms, updates) = (delta(frames_key), delta("now"), delta("updates"));
+            let per = |k: &str| (updates > 0.0).then(|| delta(k) / updates);
+            ((frames > 0.0).then(|| ms / frames), per("bytes_uploaded"), per("upload_calls"))
         }
-        _ => None,
+        _ => (None, None, None),
     };
     let s: Value = serde_json::from_slice(&std::fs::read(&stats_path)?).context("serve's stats")?;
     let _ = std::fs::remove_dir_all(&dir);
-    let latencies: Vec<f64> =
-        s["ack_latency_ms"].as_array().map(|a| a.iter().filter_map(Value::as_f64).collect()).unwrap_or_default();
+    let series = |k: &str| -> Vec<f64> {
+        s[k].as_array().map(|a| a.iter().filter_map(Value::as_f64).collect()).unwrap_or_default()
+    };
+    let (latencies, uploads) = (series("ack_latency_ms"), series("upload_latency_ms"));
     let updates = s["updates"].as_f64().unwrap_or(0.0);
     let per = |k: &str| (updates > 0.0).then(|| s[k].as_f64().unwrap_or(0.0) / updates);
     let (bytes, page_bytes) = (per("update_bytes"), per("update_page_bytes"));
     Ok(json!({
         "updates": s["updates"],
         "pages_per_update": per("update_pages"),
+        // Confirmed by a fence the page polls (between tasks and at each frame's start).
         "publish_to_texture_ms": { "median": quantile(&latencies, 0.5), "p90": quantile(&latencies, 0.9), "samples": latencies.len() },
+        // Only the upload calls returned (the GPU may still be busy with earlier frames).
+        "publish_to_upload_call_ms": { "median": quantile(&uploads, 0.5), "p90": quantile(&uploads, 0.9), "samples": uploads.len() },
         "bytes_per_update": bytes,
         "page_bytes_per_update": page_bytes,
         "header_bytes_per_update": bytes.zip(page_bytes).map(|(b, p)| b - p),
+        // What the page's texSubImage2D calls carried (one a run of adjacent pages of a pool
+        // row), and how many calls, per update it applied.
+        "uploaded_bytes_per_update": uploaded_per_update,
+        "upload_calls_per_update": calls_per_update,
         // The draw (both eyes in the headset), gl.finish() included, as the page times it.
         "page_frame_ms": s["page_frame_ms"],
-        // Between the headset's frames (the emulator's pacing, the browser's animation
-        // frames); null on the desktop page.
+        // Between the page's frames (the browser's animation frames: the emulator's pacing in
+        // the headset; on the desktop page at most one frame in flight).
         "page_frame_interval_ms": frame_interval_ms,
     }))
 }
