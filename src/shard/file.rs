@@ -242,6 +242,21 @@ impl ShardFile {
         HEADER_BYTES + self.job_bytes as u64 + 4 * self.header.charts.len() as u64
     }
 
+    /// Reads the checksum that ends the file from `r`, which has hashed everything before
+    /// it, and compares.
+    fn check_trailer<R: Read>(&self, mut r: HashingReader<R>) -> Result<(), ShardError> {
+        let computed = r.hash.finish();
+        let mut sum = [0u8; 8];
+        r.inner.read_exact(&mut sum).map_err(|source| ShardError::Io { path: self.path.clone(), source })?;
+        if u64::from_le_bytes(sum) != computed {
+            return Err(ShardError::Invalid {
+                path: self.path.clone(),
+                why: "its checksum does not match its contents (the file is damaged)".into(),
+            });
+        }
+        Ok(())
+    }
+
     /// Reads the whole file once, holding nothing but a buffer, and checks its checksum:
     /// what a reader that takes the sums section by section
     /// ([`super::PreviousRound`]) checks before it reads them.
@@ -257,16 +272,7 @@ impl ShardFile {
             r.read_exact(&mut buf[..n]).map_err(io)?;
             left -= n as u64;
         }
-        let computed = r.hash.finish();
-        let mut sum = [0u8; 8];
-        r.inner.read_exact(&mut sum).map_err(io)?;
-        if u64::from_le_bytes(sum) != computed {
-            return Err(ShardError::Invalid {
-                path: self.path.clone(),
-                why: "its checksum does not match its contents (the file is damaged)".into(),
-            });
-        }
-        Ok(())
+        self.check_trailer(r)
     }
 
     /// Adds the file's sums to `sums` texel by texel, then checks the checksum: its texel k
@@ -317,16 +323,7 @@ impl ShardFile {
         }
         sums.batches += self.header.batches;
         sums.light_directions += self.header.light_directions;
-        let computed = r.hash.finish();
-        let mut sum = [0u8; 8];
-        r.inner.read_exact(&mut sum).map_err(io)?;
-        if u64::from_le_bytes(sum) != computed {
-            return Err(ShardError::Invalid {
-                path: self.path.clone(),
-                why: "its checksum does not match its contents (the file is damaged)".into(),
-            });
-        }
-        Ok(())
+        self.check_trailer(r)
     }
 }
 
