@@ -323,11 +323,6 @@ pub(super) fn plus_side(f: &Fragment) -> u32 {
 /// Receives hits. `texel` is a lit face's texel.
 pub trait HitSink {
     fn hit(&mut self, texel: u32, weighted_radiance: Rgb, weight: f32);
-
-    /// A hint that `texel` will be hit soon (a sink whose sums are far in memory may start
-    /// fetching them).
-    #[inline(always)]
-    fn prefetch(&self, _texel: u32) {}
 }
 
 /// Global-bundle exchange over one pixel's depth-sorted fragments (sorted with

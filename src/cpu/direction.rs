@@ -14,7 +14,7 @@ use super::emitter_rows::EmitterRows;
 use super::fragments::{ForeignSides, TileFragments};
 use super::scene::CpuScene;
 use super::through::{Line, ThroughScratch};
-use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own, side_code};
+use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own};
 use crate::bundle::mips::MipChain;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::sky::{BundleSky, SkySeen};
@@ -105,22 +105,7 @@ const SPLIT_TILE_SHARE: f64 = 0.25;
 /// Global-bundle hits added straight to the sums.
 pub struct BundleHits<'a>(pub &'a mut [[f32; 4]]);
 
-/// Asks the processor to start loading the cache line at `p` (never faults, whatever `p`).
-#[inline(always)]
-pub fn prefetch<T>(p: *const T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch is a hint; it reads nothing and faults on no address.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p.cast())
-    };
-}
-
 impl HitSink for BundleHits<'_> {
-    #[inline]
-    fn prefetch(&self, texel: u32) {
-        prefetch(self.0.as_ptr().wrapping_add(texel as usize));
-    }
-
     #[inline]
     fn hit(&mut self, texel: u32, l: Rgb, a: f32) {
         let s = &mut self.0[texel as usize];
@@ -378,15 +363,6 @@ fn trace_tile(
         let a_px = vp.pixel_area();
         let (sky, source, layering) = (plan.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel).layering());
         stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, |row| {
-            // The row's pixels will add to their target sides' sums and read those sides'
-            // sources, both scattered over arrays of megabytes: fetching them while the
-            // row's first pixels are sorted and exchanged hides most of the misses (12%
-            // of a Cornell bake's CPU time).
-            let codes = row.fragments().iter().flat_map(|f| [side_code(f.plus), side_code(f.minus)]);
-            for code in codes.filter(|&c| is_own(c)) {
-                sink.prefetch(code);
-                prefetch(source.own.as_ptr().wrapping_add(code as usize));
-            }
             row.for_each_pixel(|f, foreign, cx, cy| match &ctx.scene.passing {
                 None => {
                     exchange(f, layering, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), sink)

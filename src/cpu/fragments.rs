@@ -371,8 +371,8 @@ impl TileFragments {
     }
 }
 
-/// One row of a strip as [`TileFragments::resolve`] shows it: its fragments once they are
-/// built, then each covered pixel's in depth order.
+/// One row of a strip as [`TileFragments::resolve`] shows it: each covered pixel's fragments
+/// in depth order.
 pub struct Row<'a> {
     /// Pixel p of the row (from `lo`) owns `frags[ends[p]..ends[p + 1]]`.
     frags: &'a mut [Fragment],
@@ -388,11 +388,6 @@ pub struct Row<'a> {
 }
 
 impl Row<'_> {
-    /// Every fragment of the row, in no particular order: what its pixels will read.
-    pub fn fragments(&self) -> &[Fragment] {
-        self.frags
-    }
-
     /// Calls `visit(fragments, foreign, cx, cy)` with the depth-sorted fragments of every
     /// covered pixel, how to locate their foreign sides, and the pixel's grid centre.
     #[inline(always)]
