@@ -388,6 +388,18 @@ fn bundle_setup(
     Ok((bundle, bvh, backend))
 }
 
+/// What both kinds of shard ask of their options: valid, LOD 0 alone, one of `backends`.
+fn check_shard_config(config: &BakeConfig, backends: &[BackendKind]) -> Result<(), BakeError> {
+    config.validate()?;
+    if config.lods != 1 {
+        return Err(BakeError::ShardLods(config.lods));
+    }
+    if !backends.contains(&config.backend) {
+        return Err(BakeError::ShardBackend(config.backend.name()));
+    }
+    Ok(())
+}
+
 /// One direction shard's bake: share `share` (index, count) of round `round` of LOD 0
 /// ([`rounds`], docs/SHARDS.md), reading `previous`, round `round − 1`'s merged state.
 pub struct ShardBake {
@@ -409,13 +421,7 @@ pub fn bake_shard(
     previous: Option<&crate::shard::PreviousRound>,
     progress: &dyn Progress,
 ) -> Result<ShardBake, BakeError> {
-    config.validate()?;
-    if config.lods != 1 {
-        return Err(BakeError::ShardLods(config.lods));
-    }
-    if !matches!(config.backend, BackendKind::Cpu | BackendKind::Gpu) {
-        return Err(BakeError::ShardBackend(config.backend.name()));
-    }
+    check_shard_config(config, &[BackendKind::Cpu, BackendKind::Gpu])?;
     let started = Instant::now();
     let geom = SceneGeometry::new(scene);
     config.atlas.validate()?;
@@ -493,13 +499,7 @@ pub fn bake_region_shard(
     previous: Option<&crate::shard::PreviousRound>,
     progress: &dyn Progress,
 ) -> Result<RegionShardBake, BakeError> {
-    config.validate()?;
-    if config.lods != 1 {
-        return Err(BakeError::ShardLods(config.lods));
-    }
-    if !matches!(config.backend, BackendKind::Cpu) {
-        return Err(BakeError::ShardBackend(config.backend.name()));
-    }
+    check_shard_config(config, &[BackendKind::Cpu])?;
     let started = Instant::now();
     let geom = SceneGeometry::new(scene);
     config.atlas.validate()?;
