@@ -56,6 +56,38 @@ pub struct SparseTexels {
     pub gutter: Vec<([u32; 2], u32)>,
     /// One lookup table per chart holding region texels, ascending by chart.
     pub tables: Vec<TexelTable>,
+    /// A world box holding every surface point whose atlas pixel is one of the texels: the
+    /// part of each face touching a texel's pixel (see [`face_in_pixel_box`]); gutter pixels
+    /// touch no face. `None` without texels. Where a chart stretches a face (a face steep to the chart's plane), this
+    /// reaches several texels beyond the texels' own points.
+    pub footprint: Option<(Vec3, Vec3)>,
+}
+
+/// A world box holding the part of face `uv` (LOD pixels) of triangle `corners` that lies in
+/// pixel (x, y): the box of the pixel square mapped through the face's affine UV-to-world map,
+/// cut to the triangle's box (the part lies in both; the map alone reaches far past a face
+/// whose UVs are nearly degenerate, and is not defined for one whose UVs are).
+fn face_in_pixel_box(corners: &[Vec3; 3], uv: &[DVec2; 3], x: i64, y: i64) -> (Vec3, Vec3) {
+    let p = corners.map(|c| c.as_dvec3());
+    let (tri_lo, tri_hi) = (p[0].min(p[1]).min(p[2]), p[0].max(p[1]).max(p[2]));
+    let (e1, e2) = (uv[1] - uv[0], uv[2] - uv[0]);
+    let det = e1.perp_dot(e2);
+    let (mut lo, mut hi) = (tri_lo, tri_hi);
+    if det != 0.0 {
+        let (mut a, mut b) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+            let d = DVec2::new((x + dx) as f64, (y + dy) as f64) - uv[0];
+            let (u, v) = (d.perp_dot(e2) / det, e1.perp_dot(d) / det);
+            let q = p[0] + (p[1] - p[0]) * u + (p[2] - p[0]) * v;
+            a = a.min(q);
+            b = b.max(q);
+        }
+        if a.is_finite() && b.is_finite() {
+            lo = lo.max(a);
+            hi = hi.min(b);
+        }
+    }
+    (lo.as_vec3(), hi.as_vec3())
 }
 
 /// A pixel's candidate from one face.
@@ -111,6 +143,7 @@ impl SparseTexels {
         // (block key, pixel, face, area, attributes)
         let mut texels: Vec<(u64, [u32; 2], FaceId, f32, TexelAttributes)> = Vec::new();
         let mut gutters: Vec<([u32; 2], [u32; 2], u32)> = Vec::new(); // (gutter pixel, copied pixel, chart)
+        let mut texel_box: Option<(Vec3, Vec3)> = None;
         for (&chart_id, &window) in &windows {
             let chart = &atlas.charts[chart_id as usize];
             let interior = chart.interior(lod);
@@ -187,6 +220,13 @@ impl SparseTexels {
                 state[at(x, y)] = if ours { OURS } else { OTHERS };
                 if ours {
                     texels.push((block_key(x as u32, y as u32), [x as u32, y as u32], face, area as f32, attributes));
+                    // Every face touching the pixel credits the texel where a bundle line
+                    // crosses it inside the pixel.
+                    for t in group {
+                        let f = &atlas.faces[t.face as usize];
+                        let (a, b) = face_in_pixel_box(&geom.corners[f.tri as usize], &f.uv_lod(lod), x, y);
+                        texel_box = Some(texel_box.map_or((a, b), |(lo, hi)| (a.min(lo), b.max(hi))));
+                    }
                 }
             }
             touches.clear();
@@ -254,6 +294,7 @@ impl SparseTexels {
         let index: BTreeMap<u32, u32> = tables.keys().enumerate().map(|(i, &c)| (c, i as u32)).collect();
         out.table = out.face.iter().map(|&f| index[&atlas.faces[f as usize].chart]).collect();
         out.tables = tables.into_values().collect();
+        out.footprint = texel_box;
         out
     }
 

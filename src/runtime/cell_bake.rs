@@ -72,6 +72,17 @@ pub struct UnitStats {
     pub texel_samples: u64,
 }
 
+/// The window of a bake of `texels` (texel side `texel`, metres): their footprint, where every
+/// bundle line crediting one of them crosses its surface (a line outside it credits none:
+/// bundle windows, and the CPU's outline of the window, rest on that), padded by a hundredth
+/// of a texel for the footprint's rounding to f32. A box of the texels' points grown by a
+/// texel and a half, as it was, missed lines on faces a chart stretches (zdm2).
+pub fn bundle_window(texels: &SparseTexels, texel: f32) -> (Vec3, Vec3) {
+    let (lo, hi) = texels.footprint.unwrap_or((Vec3::ZERO, Vec3::ZERO));
+    let pad = Vec3::splat(texel * 0.01) + (lo.abs().max(hi.abs()) * f32::EPSILON * 4.0);
+    (lo - pad, hi + pad)
+}
+
 /// Seed of the direction sequence of `cell` at `lod`: independent per cell and level.
 pub fn cell_seed(seed: u64, cell: CellId, lod: u32) -> u64 {
     mix64(seed ^ mix64(((lod as u64) << 32 | cell as u64) + 0x5EED))
@@ -82,16 +93,13 @@ impl CellBake {
     /// the bundles will see `shown`.
     pub fn new(world: &World, cells: &[CellId], lod: u32, shown: Arc<ShownLightmap>, seed: u64) -> CellBake {
         assert!(!cells.is_empty() && cells.len() <= MAX_GROUP, "a bake of {} cells", cells.len());
-        let (texels, (lo, hi)) = world.cells_texels(cells, lod);
+        let (texels, _) = world.cells_texels(cells, lod);
         let grid = world.grid;
         let owner = texels
             .position
             .iter()
             .map(|&p| cells.iter().position(|&m| m == grid.cell_of(p)).unwrap_or(0) as u16)
             .collect();
-        // The window holds every texel's footprint: a texel's square reaches half a diagonal
-        // beyond its surface point, which is in one of the cells.
-        let reach = Vec3::splat(world.texel_size(lod) * 1.5);
         let carried = texels.face.iter().map(|&f| world.bundle.carried(f)).collect();
         let config = &world.bundle.config;
         let n = texels.len();
@@ -101,7 +109,7 @@ impl CellBake {
             owner,
             lod,
             triangles: target_triangles(&world.atlas, &texels.face),
-            window: (lo - reach, hi + reach),
+            window: bundle_window(&texels, world.texel_size(lod)),
             carried,
             // Punctual lights are the shown map's other layer (`runtime::punctual`): the bake
             // holds the bundles' part of the light only.
@@ -123,6 +131,11 @@ impl CellBake {
 
     pub fn directions(&self) -> u64 {
         self.directions
+    }
+
+    /// The world box the bake's bundles are windowed to ([`bundle_window`]).
+    pub fn window(&self) -> (Vec3, Vec3) {
+        self.window
     }
 
     /// The leading cell (see [`CellBake::cells`]).

@@ -508,12 +508,11 @@ fn relight(
     let texels = SparseTexels::build(&world.scene, &world.geom, &world.atlas, 0, &core, lo, hi, |p| {
         is_invalid[grid.cell_of(p) as usize]
     });
-    let reach = Vec3::splat(world.texel_size(0) * 1.5);
     let source = ShownSource { shown: Arc::new(map.clone()), bundle: world.bundle.clone() };
     let region = Region {
         texels: texels.view(),
         tables: &texels.tables,
-        window: Some((lo - reach, hi + reach)),
+        window: Some(crate::runtime::cell_bake::bundle_window(&texels, world.texel_size(0))),
         foreign: Some(&source),
         triangles: None,
     };
