@@ -5,7 +5,7 @@
 use glam::{Vec2, Vec3};
 
 use super::BundleConfig;
-use super::raster::{BundleFrame, Viewport};
+use super::raster::{BundleFrame, Viewport, grid_centre};
 use super::stats::PassStats;
 use super::tiles::Tile;
 
@@ -69,6 +69,72 @@ impl WindowSource {
     }
 }
 
+/// A target's window seen along a direction: the outline of the box's eight corners on the
+/// projection plane. Every line crediting a target texel crosses its surface inside the box
+/// (`BakeTarget::window`), so no line outside the outline credits one: a windowed pass builds
+/// fragments only inside it. The square around it ([`WindowSource::square`]) has up to
+/// several times its pixels (a slab of floor seen at a grazing angle), each with the whole
+/// prism's depth of occluders.
+#[derive(Clone, Copy, Debug)]
+pub struct WindowOutline {
+    /// The box's corners in frame coordinates (along t, along b).
+    corners: [Vec2; 8],
+}
+
+/// Pixels the outline is widened by on every side: far more than the 1/256-pixel vertex snap
+/// or the rounding of the projection can move a pixel centre.
+const OUTLINE_MARGIN: f32 = 1.0;
+
+impl WindowOutline {
+    pub fn new(frame: &BundleFrame, (lo, hi): (Vec3, Vec3)) -> Self {
+        let corners = std::array::from_fn(|i| {
+            let p = Vec3::new(
+                if i & 1 == 0 { lo.x } else { hi.x },
+                if i & 2 == 0 { lo.y } else { hi.y },
+                if i & 4 == 0 { lo.z } else { hi.z },
+            );
+            let c = frame.coords(p);
+            Vec2::new(c.x, c.y)
+        });
+        WindowOutline { corners }
+    }
+
+    /// Per row of `viewport`, the pixels `x0..x1` of the rectangle (`x0 == x1` when none)
+    /// whose centres lie within the outline widened by [`OUTLINE_MARGIN`] pixels.
+    ///
+    /// The outline is the convex hull of the corners, and a hull's extent over a band of rows
+    /// is that of the segments between its points (every hull edge is one): each of the 28
+    /// segments (and 8 points) is cut to the band of the row's centre ± the margin.
+    pub fn rows(&self, viewport: &Viewport, out: &mut Vec<(u32, u32)>) {
+        let p = self.corners.map(|c| viewport.grid_position(c));
+        out.clear();
+        for row in 0..viewport.height {
+            let cy = grid_centre(viewport.offset.1, row);
+            let (y0, y1) = (cy - OUTLINE_MARGIN, cy + OUTLINE_MARGIN);
+            let (mut a, mut b) = (f32::INFINITY, f32::NEG_INFINITY);
+            for i in 0..8 {
+                for j in i..8 {
+                    let (u, v) = if p[i].y <= p[j].y { (p[i], p[j]) } else { (p[j], p[i]) };
+                    if v.y < y0 || u.y > y1 {
+                        continue;
+                    }
+                    // The segment's x at the band's clamped ends (a point when i == j).
+                    let at = |y: f32| if v.y > u.y { u.x + (v.x - u.x) * ((y - u.y) / (v.y - u.y)) } else { u.x };
+                    let (xa, xb) = (at(y0.max(u.y)), at(y1.min(v.y)));
+                    a = a.min(xa.min(xb));
+                    b = b.max(xa.max(xb));
+                }
+            }
+            // Columns whose centre (grid x + 0.5) is in [a − margin, b + margin].
+            let first = (a - OUTLINE_MARGIN - 0.5 - viewport.offset.0 as f32).ceil();
+            let last = (b + OUTLINE_MARGIN - 0.5 - viewport.offset.0 as f32).floor();
+            let clamp = |v: f32| if v.is_nan() { 0 } else { v.clamp(0.0, viewport.width as f32) as u32 };
+            let (x0, x1) = (clamp(first), clamp(last + 1.0));
+            out.push(if x0 < x1 { (x0, x1) } else { (0, 0) });
+        }
+    }
+}
+
 /// The bundle viewport of planned tile `tile` of the analysis window `global`.
 pub fn tile_viewport(global: &Viewport, tile: &Tile) -> Viewport {
     let w = tile.window();
@@ -107,4 +173,111 @@ pub fn split_overflowed(
 pub fn unplanned(stats: &mut PassStats, error: &dyn std::fmt::Display) {
     tracing::error!("bundle direction not planned: {error}");
     stats.unplanned_directions += 1;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sampling::Rng;
+
+    /// A random box, direction and viewport grid (the box somewhere inside the grid or
+    /// reaching out of it), for the outline tests.
+    fn random_case(rng: &mut Rng) -> (BundleFrame, (Vec3, Vec3), Viewport) {
+        let mut v = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+        let lo = (v() - 0.5) * 10.0;
+        // Slabs as well as cubes: one side may be a hundredth of the others.
+        let mut size = v() * 4.0 + 0.05;
+        let thin = (v().x * 3.0) as usize;
+        size[thin.min(2)] *= 0.01;
+        let dir = (v() - 0.5).normalize_or(Vec3::Z);
+        let frame = BundleFrame::new(dir);
+        let square =
+            WindowSource { target: Some((lo, lo + size)), centre: Vec3::ZERO, radius: 1.0, bundle_pixel: 0.01 }
+                .square(&frame);
+        let res = 32 + (v().x * 96.0) as u32;
+        let pixel = square.1 / res as f32 * (0.8 + v().y * 0.4);
+        let origin = square.0 - Vec2::splat(v().z * 4.0 * pixel);
+        let grid = Viewport::square(origin, pixel, res);
+        // A part of the grid, as overflowed tiles are.
+        let (ox, oy) = ((v().x * res as f32 * 0.3) as u32, (v().y * res as f32 * 0.3) as u32);
+        let vp = Viewport { offset: (ox, oy), width: res - ox, height: res - oy, ..grid };
+        (frame, (lo, lo + size), vp)
+    }
+
+    /// No pixel whose centre is within half a pixel of a point of the box (where a line
+    /// through the box crosses the pixel) is left out, whatever the box, direction and part
+    /// of the grid.
+    #[test]
+    fn the_outline_holds_every_pixel_a_point_of_the_box_falls_in() {
+        let mut rng = Rng::new(41, 3);
+        let mut out = Vec::new();
+        for _ in 0..300 {
+            let (frame, (lo, hi), vp) = random_case(&mut rng);
+            WindowOutline::new(&frame, (lo, hi)).rows(&vp, &mut out);
+            assert_eq!(out.len(), vp.height as usize);
+            for _ in 0..2000 {
+                let t = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+                let c = frame.coords(lo + (hi - lo) * t);
+                let g = vp.grid_position(Vec2::new(c.x, c.y));
+                let (x, y) = (g.x.floor() - vp.offset.0 as f32, g.y.floor() - vp.offset.1 as f32);
+                if x < 0.0 || y < 0.0 || x >= vp.width as f32 || y >= vp.height as f32 {
+                    continue;
+                }
+                let (x0, x1) = out[y as usize];
+                assert!((x0..x1).contains(&(x as u32)), "pixel ({x}, {y}) of a box point is outside {x0}..{x1}");
+            }
+        }
+    }
+
+    /// The outline keeps no more pixels than the box's projection grown by the margin and
+    /// half a pixel: the projected area of a box along unit ω is |ω·x|·A_yz + |ω·y|·A_xz +
+    /// |ω·z|·A_xy (its faces' shadows, each counted once from either side), and growing a
+    /// convex shape of width w and height h by r on every side adds at most 2r(w + h) + 4r².
+    #[test]
+    fn the_outline_is_the_boxs_shadow_not_its_square() {
+        let mut rng = Rng::new(43, 5);
+        let (mut kept, mut square) = (0u64, 0u64);
+        let mut out = Vec::new();
+        for _ in 0..300 {
+            let (frame, (lo, hi), vp) = random_case(&mut rng);
+            let grid =
+                Viewport { offset: (0, 0), width: vp.width + vp.offset.0, height: vp.height + vp.offset.1, ..vp };
+            WindowOutline::new(&frame, (lo, hi)).rows(&grid, &mut out);
+            let count: u64 = out.iter().map(|&(a, b)| (b - a) as u64).sum();
+            let s = (hi - lo) / grid.pixel;
+            let d = frame.dir.abs();
+            let area = (d.x * s.y * s.z + d.y * s.x * s.z + d.z * s.x * s.y) as f64;
+            let side = WindowSource { target: Some((lo, hi)), centre: Vec3::ZERO, radius: 1.0, bundle_pixel: 0.01 }
+                .square(&frame)
+                .1;
+            let corners: Vec<Vec2> = (0..8)
+                .map(|i| {
+                    let p = Vec3::new(
+                        if i & 1 == 0 { lo.x } else { hi.x },
+                        if i & 2 == 0 { lo.y } else { hi.y },
+                        if i & 4 == 0 { lo.z } else { hi.z },
+                    );
+                    let c = frame.coords(p);
+                    grid.grid_position(Vec2::new(c.x, c.y))
+                })
+                .collect();
+            let ext = corners.iter().fold(Vec2::splat(f32::MIN), |m, c| m.max(*c))
+                - corners.iter().fold(Vec2::splat(f32::MAX), |m, c| m.min(*c));
+            let r = (OUTLINE_MARGIN + 0.5) as f64;
+            let bound = area + 2.0 * r * (ext.x + ext.y) as f64 + 4.0 * r * r;
+            assert!(count as f64 <= bound + 1e-3 * bound, "{count} pixels kept, the grown shadow holds {bound:.1}");
+            // The whole box in the grid: the outline's share of its square.
+            if corners
+                .iter()
+                .all(|c| c.min_element() > 2.0 && c.x < grid.width as f32 - 2.0 && c.y < grid.height as f32 - 2.0)
+            {
+                kept += count;
+                square += ((side / grid.pixel) as f64).powi(2) as u64;
+            }
+        }
+        assert!(
+            square > 0 && (kept as f64) < 0.8 * square as f64,
+            "the outlines kept {kept} of their squares' {square} pixels"
+        );
+    }
 }

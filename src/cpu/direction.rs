@@ -21,7 +21,7 @@ use crate::bundle::sky::{BundleSky, SkySeen};
 use crate::bundle::stats::PassStats;
 use crate::bundle::target::{BakeTarget, Cancelled, SourceRadiance};
 use crate::bundle::tiles::{Tile, TilePlanner, TilingMode, bundle_resolution};
-use crate::bundle::window::{WindowSource, split_overflowed, tile_viewport, unplanned};
+use crate::bundle::window::{WindowOutline, WindowSource, split_overflowed, tile_viewport, unplanned};
 use crate::bundle::{BundleConfig, DirectionJob, LightJob};
 use crate::scene::Rgb;
 
@@ -47,6 +47,8 @@ pub struct PassContext<'a> {
     /// behind them. Decided by the lanes, not the threads, since it changes the order hits
     /// are added in.
     pub split_large_tiles: bool,
+    /// Whether a windowed target's fragments are built only inside its outline.
+    pub outline_clip: bool,
 }
 
 /// One thread's scratch buffers, reused across units, and the statistics of its units.
@@ -142,6 +144,11 @@ fn window(ctx: &PassContext) -> WindowSource {
         radius: ctx.scene.radius,
         bundle_pixel: ctx.light_pixel,
     }
+}
+
+/// The outline of the target's window along `frame` (a windowed pass; see [`WindowOutline`]).
+fn target_outline(ctx: &PassContext, frame: &BundleFrame) -> Option<WindowOutline> {
+    ctx.target.window.filter(|_| ctx.outline_clip).map(|w| WindowOutline::new(frame, w))
 }
 
 /// The triangles that may touch `vp`, from the analysis bins over `global`.
@@ -342,13 +349,14 @@ fn trace_tile(
 ) -> Result<(), Cancelled> {
     let cfg = ctx.config;
     let mut lookups = ForeignLookups::default();
+    let outline = target_outline(ctx, &plan.frame);
     w.queue.clear();
     w.queue.push(*tile);
     while let Some(vp) = w.queue.pop() {
         check(ctx)?;
         gather(&plan.analysis, &plan.global, &vp, &mut w.collected, &mut w.candidates);
         let t = Instant::now();
-        let count = w.fragments.prepare(ctx.scene, &plan.frame, &vp, &w.candidates, None);
+        let count = w.fragments.prepare(ctx.scene, &plan.frame, &vp, &w.candidates, None, outline.as_ref());
         let stats = &mut w.stats;
         if count > cfg.node_capacity && split_overflowed(&vp, count, cfg.node_capacity, &mut w.queue, stats) {
             stats.build_seconds += seconds(t);
@@ -392,6 +400,7 @@ fn count_false_alarms(
     w: &mut Worker,
 ) -> Result<(), Cancelled> {
     let (frame, global) = (&plan.frame, &plan.global);
+    let outline = target_outline(ctx, frame);
     let mut seen = std::collections::BTreeSet::new();
     let top_level = global.width.trailing_zeros();
     for tile in tiles {
@@ -412,7 +421,7 @@ fn count_false_alarms(
                 let res = bundle_resolution(rays, w2);
                 let vp = tile_viewport(global, &Tile { level: level as i32, x, y, res });
                 gather(&plan.analysis, global, &vp, &mut w.collected, &mut w.candidates);
-                let count = w.fragments.prepare(ctx.scene, frame, &vp, &w.candidates, None);
+                let count = w.fragments.prepare(ctx.scene, frame, &vp, &w.candidates, None, outline.as_ref());
                 if count <= ctx.config.node_capacity {
                     w.stats.false_alarms += 1;
                 }
@@ -459,6 +468,7 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
     let rows = &s.emitter_rows;
     ctx.scene.bounds.select(&frame, |lo, hi| rows.reaches(lo, hi), &mut s.bounds_stack, &mut s.candidates);
     let candidates = std::mem::take(&mut s.candidates);
+    let outline = target_outline(ctx, &frame);
     s.queue.clear();
     for ty in (0..per_side).rev() {
         for tx in (0..per_side).rev() {
@@ -473,7 +483,7 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
             result = Err(c);
             break;
         }
-        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group));
+        let count = s.fragments.prepare(ctx.scene, &frame, &vp, &candidates, Some(job.group), outline.as_ref());
         let stats = &mut s.stats;
         if count > cfg.node_capacity && split_overflowed(&vp, count, cfg.node_capacity, &mut s.queue, stats) {
             continue;

@@ -24,6 +24,7 @@ use crate::bundle::estimator::{
 };
 use crate::bundle::raster::{BundleFrame, Planes, ScreenTriangle, Viewport, eval, grid_centre};
 use crate::bundle::target::{BakeTarget, NO_GROUP};
+use crate::bundle::window::WindowOutline;
 use crate::scene::Side;
 use glam::Vec2;
 
@@ -105,6 +106,9 @@ pub struct TileFragments {
     bucket_start: Vec<u32>,
     bucket_len: Vec<u32>,
     spans: Vec<Span>,
+    /// Per row, the pixels inside the target's outline (a windowed pass; see
+    /// [`WindowOutline`]): spans are cut to them. Empty: no cut.
+    outline_rows: Vec<(u32, u32)>,
     /// Row buffer: pixel p of the resolved window owns `frags[ends[p]..ends[p + 1]]`.
     ends: Vec<u32>,
     frags: Vec<Fragment>,
@@ -117,8 +121,9 @@ fn side_uv(planes: &Planes, uv: [Vec2; 3]) -> [Vec2; 3] {
 }
 
 impl TileFragments {
-    /// Sets up `candidates` for `viewport`, keeps their covered spans and counts their
-    /// fragments. `emitter_group` makes this a light pass of that group. Returns the count.
+    /// Sets up `candidates` for `viewport`, keeps their covered spans (inside `outline` when
+    /// given: no other pixel can credit a target texel) and counts their fragments.
+    /// `emitter_group` makes this a light pass of that group. Returns the count.
     pub fn prepare(
         &mut self,
         scene: &CpuScene,
@@ -126,7 +131,12 @@ impl TileFragments {
         viewport: &Viewport,
         candidates: &[u32],
         emitter_group: Option<u32>,
+        outline: Option<&WindowOutline>,
     ) -> u64 {
+        match outline {
+            Some(o) => o.rows(viewport, &mut self.outline_rows),
+            None => self.outline_rows.clear(),
+        }
         self.width = viewport.width;
         self.height = viewport.height;
         self.offset = viewport.offset;
@@ -187,8 +197,16 @@ impl TileFragments {
     fn bucket_spans(&mut self) -> u64 {
         let height = self.height;
         let mut total = 0u64;
+        let outline = &self.outline_rows;
         for (k, tri) in self.tris.iter().enumerate() {
             tri.screen.for_each_span(|y, x0, x1| {
+                let (x0, x1) = match outline.get(y as usize) {
+                    Some(&(a, b)) => (x0.max(a), x1.min(b)),
+                    None => (x0, x1),
+                };
+                if x0 >= x1 {
+                    return;
+                }
                 total += (x1 - x0) as u64;
                 let mut x = x0;
                 while x < x1 {

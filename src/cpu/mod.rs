@@ -38,13 +38,23 @@ pub struct CpuBundleBackend {
     lane_sums: Vec<BatchSums>,
     /// Per triangle: the current target's importance (rays per m²); zero outside it.
     importance: Vec<f32>,
+    /// Whether a windowed target's fragments are built only inside its outline
+    /// ([`crate::bundle::window::WindowOutline`]).
+    outline_clip: bool,
 }
 
 impl CpuBundleBackend {
     pub fn new(scene: Arc<CpuScene>, threads: usize) -> Self {
         let workers = (0..threads.max(1)).map(|_| Worker::default()).collect();
         let importance = vec![0.0; scene.bundle.geom.len()];
-        CpuBundleBackend { scene, workers, lane_sums: Vec::new(), importance }
+        CpuBundleBackend { scene, workers, lane_sums: Vec::new(), importance, outline_clip: true }
+    }
+
+    /// With `false`, a windowed target's fragments fill the window's whole square, as the
+    /// GPU backend's do: what the outline must not change (tests/runtime.rs).
+    pub fn with_outline_clip(mut self, on: bool) -> Self {
+        self.outline_clip = on;
+        self
     }
 
     /// Sets the importance of `target`'s triangles (LOD-k texel density × oversampling²).
@@ -122,6 +132,7 @@ impl CpuBundleBackend {
             cancel,
             global,
             split_large_tiles: lanes == 1,
+            outline_clip: self.outline_clip,
         };
         // Lane 0 accumulates into `sums` itself (the caller is done with the last batch's),
         // the others into buffers of their own, zeroed when they were last added.

@@ -395,7 +395,7 @@ pub(crate) mod tests {
             assert!(viewports.len() > 1, "direction {i} has tiles");
             for vp in viewports.iter() {
                 let count = pass.build(&gpu, &tris, &frame, vp, &out).unwrap();
-                assert_eq!(count, cpu.prepare(&scene, &frame, vp, &all, None), "tile {vp:?}");
+                assert_eq!(count, cpu.prepare(&scene, &frame, vp, &all, None, None), "tile {vp:?}");
                 let mut got = out.read_lists(&gpu, vp.width, vp.height).unwrap();
                 let want = cpu_lists(&scene, &frame, vp);
                 for (p, (g, w)) in got.iter_mut().zip(&want).enumerate() {
@@ -446,7 +446,7 @@ pub(crate) mod tests {
             let mut expected = Vec::new();
             let mut queue = vec![*vp];
             while let Some(part) = queue.pop() {
-                let count = cpu.prepare(&scene, &frame, &part, &all, None);
+                let count = cpu.prepare(&scene, &frame, &part, &all, None, None);
                 if count > capacity
                     && let Some(parts) = part.split()
                 {
