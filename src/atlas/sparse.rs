@@ -58,8 +58,8 @@ pub struct SparseTexels {
     pub tables: Vec<TexelTable>,
     /// A world box holding every surface point whose atlas pixel is one of the texels: the
     /// part of each face touching a texel's pixel (see [`face_in_pixel_box`]); gutter pixels
-    /// touch no face. `None` without texels. Where a chart stretches a face (a face steep to the chart's plane), this
-    /// reaches several texels beyond the texels' own points.
+    /// touch no face. `None` without texels. Where a chart stretches a face (a face steep to
+    /// the chart's plane), this reaches several texels beyond the texels' own points.
     pub footprint: Option<(Vec3, Vec3)>,
 }
 

@@ -34,17 +34,9 @@ impl WindowSource {
                 (Vec2::new(c.x - r, c.y - r), 2.0 * r)
             }
             Some((lo, hi)) => {
-                let (mut a, mut b) = (Vec2::splat(f32::MAX), Vec2::splat(f32::MIN));
-                for i in 0..8 {
-                    let p = Vec3::new(
-                        if i & 1 == 0 { lo.x } else { hi.x },
-                        if i & 2 == 0 { lo.y } else { hi.y },
-                        if i & 4 == 0 { lo.z } else { hi.z },
-                    );
-                    let c = frame.coords(p);
-                    a = a.min(Vec2::new(c.x, c.y));
-                    b = b.max(Vec2::new(c.x, c.y));
-                }
+                let corners = WindowOutline::new(frame, (lo, hi)).corners;
+                let a = corners.iter().fold(Vec2::splat(f32::MAX), |m, c| m.min(*c));
+                let b = corners.iter().fold(Vec2::splat(f32::MIN), |m, c| m.max(*c));
                 let side = (b - a).max_element().max(1e-6);
                 let centre = (a + b) * 0.5;
                 (centre - Vec2::splat(side * 0.5), side)
@@ -250,17 +242,7 @@ mod tests {
             let side = WindowSource { target: Some((lo, hi)), centre: Vec3::ZERO, radius: 1.0, bundle_pixel: 0.01 }
                 .square(&frame)
                 .1;
-            let corners: Vec<Vec2> = (0..8)
-                .map(|i| {
-                    let p = Vec3::new(
-                        if i & 1 == 0 { lo.x } else { hi.x },
-                        if i & 2 == 0 { lo.y } else { hi.y },
-                        if i & 4 == 0 { lo.z } else { hi.z },
-                    );
-                    let c = frame.coords(p);
-                    grid.grid_position(Vec2::new(c.x, c.y))
-                })
-                .collect();
+            let corners = WindowOutline::new(&frame, (lo, hi)).corners.map(|c| grid.grid_position(c));
             let ext = corners.iter().fold(Vec2::splat(f32::MIN), |m, c| m.max(*c))
                 - corners.iter().fold(Vec2::splat(f32::MAX), |m, c| m.min(*c));
             let r = (OUTLINE_MARGIN + 0.5) as f64;

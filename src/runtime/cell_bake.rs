@@ -93,7 +93,7 @@ impl CellBake {
     /// the bundles will see `shown`.
     pub fn new(world: &World, cells: &[CellId], lod: u32, shown: Arc<ShownLightmap>, seed: u64) -> CellBake {
         assert!(!cells.is_empty() && cells.len() <= MAX_GROUP, "a bake of {} cells", cells.len());
-        let (texels, _) = world.cells_texels(cells, lod);
+        let texels = world.cells_texels(cells, lod);
         let grid = world.grid;
         let owner = texels
             .position

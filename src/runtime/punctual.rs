@@ -23,7 +23,7 @@ pub struct PunctualBake {
 
 impl PunctualBake {
     pub fn new(world: &World, cell: CellId, lod: u32) -> PunctualBake {
-        let (texels, _) = world.cells_texels(&[cell], lod);
+        let texels = world.cells_texels(&[cell], lod);
         let (mut irradiance, buried) = punctual_irradiance_of_texels(
             &world.scene,
             &world.geom,

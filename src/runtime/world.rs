@@ -111,9 +111,8 @@ impl World {
         (lo - m, hi + m)
     }
 
-    /// The texels of LOD `lod` whose surface points lie in `cells` (made for them alone), and
-    /// the box holding those cells (see [`World::cell_box`]).
-    pub fn cells_texels(&self, cells: &[CellId], lod: u32) -> (SparseTexels, (Vec3, Vec3)) {
+    /// The texels of LOD `lod` whose surface points lie in `cells` (made for them alone).
+    pub fn cells_texels(&self, cells: &[CellId], lod: u32) -> SparseTexels {
         let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
         for &c in cells {
             let (a, b) = self.cell_box(c);
@@ -126,9 +125,8 @@ impl World {
             core.dedup();
         }
         let grid = self.grid;
-        let texels = SparseTexels::build(&self.scene, &self.geom, &self.atlas, lod, &core, lo, hi, |p| {
+        SparseTexels::build(&self.scene, &self.geom, &self.atlas, lod, &core, lo, hi, |p| {
             cells.contains(&grid.cell_of(p))
-        });
-        (texels, (lo, hi))
+        })
     }
 }
