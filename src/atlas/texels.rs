@@ -140,7 +140,8 @@ impl TexelMap {
                         best[i] = best[i].min(((d2 as f32).to_bits() as u64) << 32 | fi as u64);
                     });
                 }
-                *areas = area.into_iter().map(|a| a as f32).collect();
+                // A new buffer: collected in place, the f32s would keep the f64s' 8 B a pixel.
+                *areas = area.iter().map(|&a| a as f32).collect();
                 let mut n = 0;
                 for (o, &k) in owner.iter_mut().zip(&best) {
                     *o = if k == u64::MAX { NO_TEXEL } else { k as u32 };

@@ -95,8 +95,9 @@ pub fn bake_lod_observed(
     bake_region_observed(bundle, backend, &region, converged, punctual, threads, progress, cancel, observe)
 }
 
-/// [`bake_lod`] holding less at its peak: the punctual pass first, then the texels'
-/// positions and normals (read by nothing else) are given up while the bundles run and
+/// [`bake_lod`] holding less at its peak: the punctual pass first (it reads the texels'
+/// faces and pixels), then the texels' positions and normals (read by nothing the bake
+/// runs) are given up while the bundles run and
 /// recomputed at the end ([`TexelMap::restore_geometry`]: the same values), and their
 /// emission is held for the emitting texels alone ([`TexelMap::take_emission`]). With a
 /// coarser LOD, whose radiance is made the source once, before the bundles, the albedo is
@@ -106,8 +107,7 @@ pub fn bake_lod_observed(
 /// says what is ([`Restore::Albedo`]: the positions and normals stay given up, and the
 /// areas, which the light pass alone reads, are given up too, before the bundles when the
 /// scene has no light pass). A map built without positions and normals
-/// ([`TexelMap::build_with`]) gets them for the punctual pass when the scene has punctual
-/// lights. Same result, except that the punctual part is empty where the scene has no
+/// ([`TexelMap::build_with`]) bakes the same. Same result, except that the punctual part is empty where the scene has no
 /// punctual lights (no 12 B a texel of zeros at the end, when the texel map is whole
 /// again).
 #[allow(clippy::too_many_arguments)]
@@ -564,10 +564,9 @@ mod tests {
                 (&lean_map.pixel, &lean_map.face, &lean_map.gutter),
                 (&plain_map.pixel, &plain_map.face, &plain_map.gutter)
             );
-            // As `livebake bake` does it: a map built without positions unless the punctual
-            // pass reads them, its output without positions and areas.
-            let made = if lights == 0 { Restore::Albedo } else { Restore::All };
-            let mut out_map = TexelMap::build_with(&scene, &geom, &atlas, lod, made);
+            // As `livebake bake` does it: a map built without positions (the punctual pass
+            // reads faces and pixels), its output without positions and areas.
+            let mut out_map = TexelMap::build_with(&scene, &geom, &atlas, lod, Restore::Albedo);
             let c = coarser.as_ref().map(|(t, e)| CoarserLod { texels: t, irradiance: e });
             let out =
                 bake_lod_lean(&bundle, &bvh, &mut backend, &mut out_map, c, Restore::Albedo, 2, &NoProgress, &never)

@@ -16,7 +16,7 @@
 //! | texel map: area (f32), read by the light pass alone; an output map of `livebake bake` keeps none | 4 (light pass, or kept), 0 |
 //! | texel map: albedo (Vec3); at LOD 0 held for the texels of textured materials alone while the bundles run (12 B each and a bit a texel; the others' is their material's, asked of their face: [`crate::atlas::TexelMap::take_albedo`]); given up while the bundles of a LOD reading a coarser one run (its source is made before them) and recomputed after | 12 × textured share + 0.19 (LOD 0), 0 |
 //! | texel map: emission (Vec3), held for the emitting texels alone while the bundles run ([`crate::atlas::TexelMap::take_emission`]) | 0 |
-//! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]); `livebake bake` builds its maps without them where no punctual pass reads them | 0 |
+//! | texel map: position, normal (2 × Vec3), given up after the punctual pass and recomputed after the bundles ([`super::bundle::bake_lod_lean`]); `livebake bake` builds its maps without them | 0 |
 //! | punctual irradiance (Rgb), only in a scene with punctual lights | 12 |
 //! | progressive totals: Σw·S (rgb) and Σw·A, f32 | 16 |
 //! | progressive totals: light-pass Σ a·Le/A_texel (rgb, f32), only with a light pass | 12 |

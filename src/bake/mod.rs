@@ -310,13 +310,12 @@ pub fn bake(scene: &Arc<Scene>, config: &BakeConfig, progress: &dyn Progress) ->
             let (bundle, bvh, mut backend) = bundle_setup(scene, &geom, &atlas, config, &mut report)?;
             for lod in 0..config.lods {
                 let t0 = Instant::now();
-                // Positions and normals only where something reads them: the punctual
-                // pass, or the caller.
+                // Positions and normals only for a caller that keeps them: nothing the bake
+                // runs reads them (the punctual pass places its points from each texel's
+                // face and pixel; rounds read the albedo and emission).
                 let restore = if config.keep_texel_positions { Restore::All } else { Restore::Albedo };
                 let rounds = config.bounce_rounds.filter(|_| lod == 0);
-                // Rounds read the map's albedo and emission: a whole map.
-                let made = if scene.lights.is_empty() && rounds.is_none() { restore } else { Restore::All };
-                let mut texels = TexelMap::build_with(scene, &geom, &atlas, lod, made);
+                let mut texels = TexelMap::build_with(scene, &geom, &atlas, lod, restore);
                 let texel_seconds = t0.elapsed().as_secs_f64();
                 let coarser = lods.last().map(|l| bundle::CoarserLod { texels: &l.texels, irradiance: &l.irradiance });
                 let never = std::sync::atomic::AtomicBool::new(false);
