@@ -64,7 +64,8 @@ pub struct BundleReport {
     pub per_direction_ms: PhaseMs,
     pub tiles_per_direction: f64,
     pub overflow_ratio: f64,
-    pub false_alarm_ratio: f64,
+    /// `None` unless measured ([`crate::bundle::BundleConfig::measure_false_alarms`]).
+    pub false_alarm_ratio: Option<f64>,
     pub fragments_per_second: f64,
     /// Global-bundle pixels with at least one fragment per second of bundle time.
     pub effective_rays_per_second: f64,

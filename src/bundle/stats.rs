@@ -127,9 +127,11 @@ impl PassStats {
         ratio(self.overflow_fragments, self.fragments + self.overflow_fragments)
     }
 
-    /// Paper Table 2: unnecessary splits / all splits.
-    pub fn false_alarm_ratio(&self) -> f64 {
-        ratio(self.false_alarms, self.splits_for_importance + self.splits_for_memory)
+    /// Paper Table 2: unnecessary splits / all splits; `None` when splits for memory were
+    /// made but not re-counted ([`BundleConfig::measure_false_alarms`](super::BundleConfig) off).
+    pub fn false_alarm_ratio(&self) -> Option<f64> {
+        let measured = self.splits_for_memory == 0 || self.memory_splits_checked > 0;
+        measured.then(|| ratio(self.false_alarms, self.splits_for_importance + self.splits_for_memory))
     }
 }
 

@@ -26,6 +26,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
     base.atlas.texel_size = Some(0.02);
     base.bundle.head_side = 256;
     base.bundle.node_capacity = 1 << 17;
+    base.bundle.measure_false_alarms = true;
     let modes =
         [("none", TilingMode::None), ("uniform:4", TilingMode::Uniform { k: 4 }), ("adaptive", TilingMode::Adaptive)];
     let mut bakes = Vec::new();
