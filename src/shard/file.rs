@@ -103,19 +103,29 @@ fn write_body(w: &mut impl Write, state: &ShardState) -> std::io::Result<()> {
         w.write_all(&c.to_le_bytes())?;
     }
     let e = &state.estimate;
-    for i in 0..e.len() {
-        for v in e.bundle_sums(i) {
-            w.write_all(&v.to_le_bytes())?;
-        }
-    }
+    let mut buf = Vec::with_capacity(F32_CHUNK_BYTES + 16);
+    write_f32s(w, (0..e.len()).flat_map(|i| e.bundle_sums(i)), &mut buf)?;
     for part in [e.light_sums(), e.punctual()] {
-        for c in part {
-            for v in c.to_array() {
-                w.write_all(&v.to_le_bytes())?;
-            }
-        }
+        write_f32s(w, part.iter().flat_map(|c| c.to_array()), &mut buf)?;
     }
     Ok(())
+}
+
+/// Bytes of f32s [`write_f32s`] encodes before each write.
+const F32_CHUNK_BYTES: usize = 1 << 16;
+
+/// Writes `values` as little-endian f32s, encoded a chunk at a time into `buf`: a write of
+/// four bytes through the hashing writer cost more than the encoding (the same bytes).
+fn write_f32s(w: &mut impl Write, values: impl Iterator<Item = f32>, buf: &mut Vec<u8>) -> std::io::Result<()> {
+    buf.clear();
+    for v in values {
+        buf.extend_from_slice(&v.to_le_bytes());
+        if buf.len() >= F32_CHUNK_BYTES {
+            w.write_all(buf)?;
+            buf.clear();
+        }
+    }
+    w.write_all(buf)
 }
 
 struct HashingWriter<W: Write> {
