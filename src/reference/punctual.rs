@@ -25,22 +25,14 @@ pub fn punctual_irradiance(
     if scene.lights.is_empty() || n == 0 {
         return vec![Rgb::ZERO; n];
     }
-    // Texels in a worker's chunk are neighbours in space (texel order is atlas order, which
-    // mixes rooms and instances): sorted along a Morton curve (the order changes no value,
-    // only how often the cache hits).
-    let order = spatial_order(positions);
-    let chunks: Vec<&[u32]> = order.chunks(CHUNK).collect();
-    let per_chunk = par_map(chunks, threads, |chunk| {
-        let mut cache = vec![NO_OCCLUDER; scene.lights.len()];
-        chunk
-            .iter()
-            .map(|&i| point_irradiance(scene, bvh, positions[i as usize], normals[i as usize], epsilon, &mut cache))
-            .collect::<Vec<_>>()
-    });
     let mut out = vec![Rgb::ZERO; n];
-    for (&i, e) in order.iter().zip(per_chunk.into_iter().flatten()) {
-        out[i as usize] = e;
-    }
+    in_spatial_order(
+        &spatial_order(positions.len(), |i| positions[i], bounds(positions.iter().copied())),
+        threads,
+        scene.lights.len(),
+        |i, cache| point_irradiance(scene, bvh, positions[i], normals[i], epsilon, cache),
+        |i, e| out[i] = e,
+    );
     out
 }
 
@@ -91,42 +83,37 @@ pub fn punctual_irradiance_of_texels(
         let (u, v) = (u as f32, v as f32);
         (f.tri, u, v, geom.point(f.tri, u, v), geom.normals[f.tri as usize] * f.side.sign())
     };
-    let centres: Vec<Vec3> = (0..n).map(|i| point(i, 0.5, 0.5).3).collect();
-    let order = spatial_order(&centres);
-    drop(centres);
-    let chunks: Vec<&[u32]> = order.chunks(CHUNK).collect();
-    let per_chunk = par_map(chunks, threads, |chunk| {
-        let mut cache = vec![NO_OCCLUDER; scene.lights.len()];
-        chunk
-            .iter()
-            .map(|&i| {
-                let (mut sum, mut seen) = (Rgb::ZERO, 0u32);
-                for (dx, dy) in SUBPIXELS {
-                    let (tri, u, v, p, nrm) = point(i as usize, dx, dy);
-                    // A point in a cut-out is no surface: nothing is lit there (as the
-                    // bundles drop the fragments there).
-                    if bvh.alpha().opaque_at(tri, u, v) && !is_buried(scene, geom, bvh, tri, p, nrm, epsilon) {
-                        sum += point_irradiance(scene, bvh, p, nrm, epsilon, &mut cache);
-                        seen += 1;
-                    }
-                }
-                if seen > 0 {
-                    (sum / seen as f32, false)
-                } else {
-                    let (_, _, _, p, nrm) = point(i as usize, 0.5, 0.5);
-                    (point_irradiance(scene, bvh, p, nrm, epsilon, &mut cache), true)
-                }
-            })
-            .collect::<Vec<_>>()
-    });
     let mut out = vec![Rgb::ZERO; n];
     let mut buried = Vec::new();
-    for (&i, (e, b)) in order.iter().zip(per_chunk.into_iter().flatten()) {
-        out[i as usize] = e;
-        if b {
-            buried.push(i);
+    let irradiance = |i: usize, cache: &mut [u32]| {
+        let (mut sum, mut seen) = (Rgb::ZERO, 0u32);
+        for (dx, dy) in SUBPIXELS {
+            let (tri, u, v, p, nrm) = point(i, dx, dy);
+            // A point in a cut-out is no surface: nothing is lit there (as the bundles drop
+            // the fragments there).
+            if bvh.alpha().opaque_at(tri, u, v) && !is_buried(scene, geom, bvh, tri, p, nrm, epsilon) {
+                sum += point_irradiance(scene, bvh, p, nrm, epsilon, cache);
+                seen += 1;
+            }
         }
-    }
+        if seen > 0 {
+            (sum / seen as f32, false)
+        } else {
+            let (_, _, _, p, nrm) = point(i, 0.5, 0.5);
+            (point_irradiance(scene, bvh, p, nrm, epsilon, cache), true)
+        }
+    };
+    let store = |i: usize, (e, b): (Rgb, bool)| {
+        out[i] = e;
+        if b {
+            buried.push(i as u32);
+        }
+    };
+    // Over the box of the texels' faces, which holds their centres: the centres are made
+    // once, as their keys are (held, they were 12 B a texel at the pass's peak).
+    let corners = faces.iter().flat_map(|&f| geom.corners[atlas.faces[f as usize].tri as usize]);
+    let order = spatial_order(n, |i| point(i, 0.5, 0.5).3, bounds(corners));
+    in_spatial_order(&order, threads, scene.lights.len(), irradiance, store);
     buried.sort_unstable();
     (out, buried)
 }
@@ -164,12 +151,43 @@ pub fn is_buried(scene: &Scene, geom: &SceneGeometry, bvh: &Bvh, tri: u32, p: Ve
     false
 }
 
-/// Indices of `positions` sorted by the Morton code of their cell in a 1024³ grid over their
-/// bounds.
-fn spatial_order(positions: &[Vec3]) -> Vec<u32> {
-    let (lo, hi) = positions.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| {
-        if p.is_finite() { (lo.min(*p), hi.max(*p)) } else { (lo, hi) }
-    });
+/// Calls `f(i, cache)` for every index of `order` ([`spatial_order`]) on `threads` threads,
+/// [`CHUNK`] consecutive ones a worker (texel order is atlas order, which mixes rooms and
+/// instances; neighbours in space meet the same occluders, so the shadow cache hits), and
+/// `store(i, result)` for each, [`BATCH`] indices at a time: one batch's results are held,
+/// not a result per index beside the caller's output. The order changes no value, only how
+/// often the cache hits.
+fn in_spatial_order<R: Send>(
+    order: &[u64],
+    threads: usize,
+    lights: usize,
+    f: impl Fn(usize, &mut [u32]) -> R + Sync,
+    mut store: impl FnMut(usize, R),
+) {
+    for batch in order.chunks(BATCH) {
+        let chunks: Vec<&[u64]> = batch.chunks(CHUNK).collect();
+        let results = par_map(chunks, threads, |chunk| {
+            let mut cache = vec![NO_OCCLUDER; lights];
+            chunk.iter().map(|&k| f(k as u32 as usize, &mut cache)).collect::<Vec<_>>()
+        });
+        for (&k, r) in batch.iter().zip(results.into_iter().flatten()) {
+            store(k as u32 as usize, r);
+        }
+    }
+}
+
+/// The box of the finite points of `points`.
+fn bounds(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
+    points.fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| {
+        if p.is_finite() { (lo.min(p), hi.max(p)) } else { (lo, hi) }
+    })
+}
+
+/// `0..n` sorted by the Morton code of `position(i)`'s cell in a 1024³ grid over the box
+/// `(lo, hi)` (positions outside it take the nearest cell), each as `code << 32 | index`
+/// (8 B an index).
+fn spatial_order(n: usize, position: impl Fn(usize) -> Vec3, (lo, hi): (Vec3, Vec3)) -> Vec<u64> {
+    debug_assert!(n <= u32::MAX as usize + 1);
     let scale = 1023.0 / (hi - lo).max_element().max(f32::MIN_POSITIVE);
     let spread = |x: u32| -> u64 {
         let mut v = x as u64 & 0x3ff;
@@ -178,23 +196,24 @@ fn spatial_order(positions: &[Vec3]) -> Vec<u32> {
         v = (v | (v << 4)) & 0x030c_30c3;
         (v | (v << 2)) & 0x0924_9249
     };
-    let mut keyed: Vec<(u64, u32)> = positions
-        .iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let q = ((*p - lo) * scale).clamp(Vec3::ZERO, Vec3::splat(1023.0));
+    let mut keyed: Vec<u64> = (0..n)
+        .map(|i| {
+            let p = position(i);
+            let q = ((p - lo) * scale).clamp(Vec3::ZERO, Vec3::splat(1023.0));
             let key =
                 if p.is_finite() { spread(q.x as u32) | spread(q.y as u32) << 1 | spread(q.z as u32) << 2 } else { 0 };
-            (key, i as u32)
+            key << 32 | i as u64
         })
         .collect();
     keyed.sort_unstable();
-    keyed.into_iter().map(|(_, i)| i).collect()
+    keyed
 }
 
 /// Texels a worker takes at once: neighbours in a texel map, whose shadow rays toward a
 /// light mostly meet the same occluder.
 const CHUNK: usize = 1024;
+/// Indices [`in_spatial_order`] hands out before it stores their results.
+const BATCH: usize = 256 * CHUNK;
 const NO_OCCLUDER: u32 = u32::MAX;
 
 /// `cache[l]`: the last triangle (BVH slot) found occluding light `l` (a shadow cache): the
