@@ -90,7 +90,7 @@ pub fn bake_lod_observed(
 ) -> Result<LodIrradiance, Cancelled> {
     let tables = [TexelTable::of_map(texels)];
     let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
-    let punctual = PunctualPass::of_map(bundle, bvh, texels, threads);
+    let punctual = PunctualPass::of_map(bundle, bvh, texels, &tables[0], threads);
     let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None, triangles: None };
     bake_region_observed(bundle, backend, &region, converged, punctual, threads, progress, cancel, observe)
 }
@@ -107,9 +107,9 @@ pub fn bake_lod_observed(
 /// says what is ([`Restore::Albedo`]: the positions and normals stay given up, and the
 /// areas, which the light pass alone reads, are given up too, before the bundles when the
 /// scene has no light pass). A map built without positions and normals
-/// ([`TexelMap::build_with`]) bakes the same. Same result, except that the punctual part is empty where the scene has no
-/// punctual lights (no 12 B a texel of zeros at the end, when the texel map is whole
-/// again).
+/// ([`TexelMap::build_with`]) bakes the same. Same result, except that the punctual part is
+/// empty where the scene has no punctual lights (no 12 B a texel of zeros at the end, when
+/// the texel map is whole again).
 #[allow(clippy::too_many_arguments)]
 pub fn bake_lod_lean(
     bundle: &BundleScene,
@@ -125,7 +125,10 @@ pub fn bake_lod_lean(
     // A scene without punctual lights gets no punctual array (zero everywhere, 12 B a texel
     // at the peak): the estimate reads a missing one as zero. The pass reads faces and
     // pixels, not the map's positions.
-    let punctual = PunctualPass::of_map(bundle, bvh, texels, threads);
+    // The lookup table holds the texels' pixels and the gutters while the bundles run (given
+    // up by the map meanwhile); the punctual pass reads it first.
+    let tables = [TexelTable::of_map(texels)];
+    let punctual = PunctualPass::of_map(bundle, bvh, texels, &tables[0], threads);
     texels.drop_geometry();
     // Emission read from the coarser LOD's source before the dense array goes.
     let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
@@ -140,8 +143,6 @@ pub fn bake_lod_lean(
         texels.take_albedo(&bundle.scene, &bundle.geom, &bundle.atlas)
     };
     let emitting = texels.take_emission();
-    // The lookup table holds the texels' pixels and the gutters, given up meanwhile.
-    let tables = [TexelTable::of_map(texels)];
     let pixels_given_up = texels.drop_pixels(&tables[0]);
     // The light pass alone reads the areas; an output map without positions keeps none.
     let light_pass = !bundle.emitters.small.is_empty();
@@ -221,15 +222,21 @@ impl PunctualPass {
         PunctualPass { irradiance, buried, seconds: t0.elapsed().as_secs_f64() }
     }
 
-    /// The pass over a whole-LOD texel map (its pixels held).
-    pub fn of_map(bundle: &BundleScene, bvh: &Bvh, texels: &TexelMap, threads: usize) -> PunctualPass {
+    /// The pass over a whole-LOD texel map (its pixels held) whose lookup table is `table`
+    /// ([`TexelTable::of_map`], which the bundles read too).
+    pub fn of_map(
+        bundle: &BundleScene,
+        bvh: &Bvh,
+        texels: &TexelMap,
+        table: &TexelTable,
+        threads: usize,
+    ) -> PunctualPass {
         if bundle.scene.lights.is_empty() {
             return PunctualPass { irradiance: Vec::new(), buried: Vec::new(), seconds: 0.0 };
         }
         let w = texels.width;
         let pixel = |i: usize| [texels.pixel[i] % w, texels.pixel[i] / w];
-        let table = TexelTable::of_map(texels);
-        PunctualPass::of(bundle, bvh, texels.lod, &texels.face, &pixel, |_| &table, threads)
+        PunctualPass::of(bundle, bvh, texels.lod, &texels.face, &pixel, |_| table, threads)
     }
 }
 

@@ -16,6 +16,7 @@ use serde::Serialize;
 
 use std::sync::Arc;
 
+use crate::atlas::lookup::TexelTable;
 use crate::atlas::texels::Restore;
 use crate::atlas::{Atlas, AtlasConfig, AtlasError, TexelMap};
 use crate::bundle::{BundleConfig, BundleConfigError, BundleScene};
@@ -442,7 +443,7 @@ pub fn bake_shard(
     let punctual = match (share.0, previous) {
         (0, Some(p)) => p.punctual(None)?,
         (0, None) => {
-            let pass = bundle::PunctualPass::of_map(&bundle, &bvh, &texels, threads);
+            let pass = bundle::PunctualPass::of_map(&bundle, &bvh, &texels, &TexelTable::of_map(&texels), threads);
             punctual_seconds = pass.seconds;
             pass.irradiance
         }

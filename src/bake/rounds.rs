@@ -126,7 +126,8 @@ pub fn bake_lod_rounds(
     threads: usize,
     progress: &dyn Progress,
 ) -> Result<LodIrradiance, Cancelled> {
-    let PunctualPass { irradiance: punctual, buried, seconds } = PunctualPass::of_map(bundle, bvh, texels, threads);
+    let PunctualPass { irradiance: punctual, buried, seconds } =
+        PunctualPass::of_map(bundle, bvh, texels, &TexelTable::of_map(texels), threads);
     let mut stats = BundleLodStats { punctual_seconds: seconds, ..BundleLodStats::default() };
     let mut last: Option<ProgressiveEstimate> = None;
     for round in 1..=rounds.max(1) {
