@@ -323,6 +323,36 @@ pub(super) fn plus_side(f: &Fragment) -> u32 {
 /// Receives hits. `texel` is a lit face's texel.
 pub trait HitSink {
     fn hit(&mut self, texel: u32, weighted_radiance: Rgb, weight: f32);
+    /// Where the sink's per-texel sums lie, for a CPU resolve to prefetch them ahead of its
+    /// hits; none by default.
+    fn sums_layout(&self) -> SumsLayout {
+        SumsLayout::NONE
+    }
+}
+
+/// Where per-texel values lie in memory: texel t's at address `base + t · stride`. A hint
+/// for prefetching only: nothing is ever read or written through it, so it holds addresses,
+/// not pointers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SumsLayout {
+    base: usize,
+    stride: usize,
+}
+
+impl SumsLayout {
+    /// No values to prefetch.
+    pub const NONE: SumsLayout = SumsLayout { base: 0, stride: 0 };
+
+    /// The layout of `values`, one a texel.
+    pub fn of<T>(values: &[T]) -> Self {
+        SumsLayout { base: values.as_ptr() as usize, stride: std::mem::size_of::<T>() }
+    }
+
+    /// The address of texel `t`'s value (`None` for [`NONE`](Self::NONE)).
+    #[inline(always)]
+    pub fn address(&self, t: u32) -> Option<usize> {
+        (self.base != 0).then(|| self.base.wrapping_add(t as usize * self.stride))
+    }
 }
 
 /// Global-bundle exchange over one pixel's depth-sorted fragments (sorted with

@@ -18,8 +18,9 @@ use std::sync::atomic::{AtomicU64, Ordering as AtomicOrdering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 
 use super::direction::{BundleHits, DirectionPlan, LightHits, PassContext, Worker, plan_direction, trace_unit};
+use super::prefetch::for_each_ahead;
 use crate::bundle::DirectionJob;
-use crate::bundle::estimator::HitSink;
+use crate::bundle::estimator::{HitSink, SumsLayout};
 use crate::bundle::progressive::BatchSums;
 use crate::bundle::target::Cancelled;
 use crate::scene::Rgb;
@@ -63,6 +64,8 @@ struct RecordSink<'a> {
     unit: u64,
     due: &'a AtomicU64,
     sums: &'a SumsPtr,
+    /// Where its kind's sums lie (see [`HitSink::sums_layout`]).
+    layout: SumsLayout,
     /// A global-bundle tile (else a light bundle).
     tile: bool,
     /// Whether the unit's hits go straight to the sums now.
@@ -87,8 +90,8 @@ impl RecordSink<'_> {
     fn go_straight(&mut self) {
         self.most = self.most.max(self.records.len);
         let records = std::mem::take(&mut self.records);
-        for hit in records.chunks.iter().flatten() {
-            self.add(hit.texel, hit.radiance, hit.weight);
+        for chunk in &records.chunks {
+            for_each_ahead(chunk, self.layout, |h| h.texel, |h| self.add(h.texel, h.radiance, h.weight));
         }
         self.pool.give(records);
         self.straight = true;
@@ -96,6 +99,10 @@ impl RecordSink<'_> {
 }
 
 impl HitSink for RecordSink<'_> {
+    fn sums_layout(&self) -> SumsLayout {
+        self.layout
+    }
+
     #[inline]
     fn hit(&mut self, texel: u32, radiance: Rgb, weight: f32) {
         if self.straight {
@@ -212,6 +219,10 @@ struct Shared<'a> {
     /// lock (written under it).
     due: AtomicU64,
     most_waiting: u64,
+    /// [`HitSink::sums_layout`] of the global and the light-pass sums, taken before any
+    /// thread starts (the sums are never reallocated while the batch runs).
+    bundle_layout: SumsLayout,
+    light_layout: SumsLayout,
 }
 
 /// What a thread does next.
@@ -230,6 +241,7 @@ pub fn trace_batch(
     workers: &mut [Worker],
 ) -> Result<(), Cancelled> {
     let threads = workers.len().max(1) as u64;
+    let (bundle_layout, light_layout) = (SumsLayout::of(&sums.bundle), SumsLayout::of(&sums.light));
     let shared = Shared {
         ctx,
         batch,
@@ -249,6 +261,8 @@ pub fn trace_batch(
         sums: SumsPtr(sums),
         due: AtomicU64::new(packed((0, 0))),
         most_waiting: ctx.config.node_capacity.saturating_mul(WAITING_HITS_PER_THREAD * (threads - 1)),
+        bundle_layout,
+        light_layout,
     };
     match workers {
         [] => {}
@@ -372,6 +386,7 @@ fn trace(shared: &Shared, unit: UnitId, plan: &DirectionPlan, due: bool, w: &mut
         unit: packed(unit),
         due: &shared.due,
         sums: &shared.sums,
+        layout: if tile { shared.bundle_layout } else { shared.light_layout },
         tile,
         straight: false,
         most: 0,
@@ -426,8 +441,9 @@ fn add_waiting(shared: &Shared, st: &mut State) {
 }
 
 fn add_records(records: &Records, sink: &mut impl HitSink) {
-    for hit in records.chunks.iter().flatten() {
-        sink.hit(hit.texel, hit.radiance, hit.weight);
+    let layout = sink.sums_layout();
+    for chunk in &records.chunks {
+        for_each_ahead(chunk, layout, |h| h.texel, |h| sink.hit(h.texel, h.radiance, h.weight));
     }
 }
 

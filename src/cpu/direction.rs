@@ -12,9 +12,10 @@ use glam::Vec2;
 use super::analysis::Analysis;
 use super::emitter_rows::EmitterRows;
 use super::fragments::{ForeignSides, TileFragments};
+use super::prefetch::prefetcher;
 use super::scene::CpuScene;
 use super::through::{Line, ThroughScratch};
-use crate::bundle::estimator::{FOREIGN, HitSink, emit, exchange, is_own};
+use crate::bundle::estimator::{FOREIGN, HitSink, SumsLayout, emit, exchange, is_own};
 use crate::bundle::mips::MipChain;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::sky::{BundleSky, SkySeen};
@@ -116,6 +117,10 @@ impl HitSink for BundleHits<'_> {
         s[2] += l.z;
         s[3] += a;
     }
+
+    fn sums_layout(&self) -> SumsLayout {
+        SumsLayout::of(self.0)
+    }
 }
 
 /// Light-pass hits added straight to the sums.
@@ -125,6 +130,10 @@ impl HitSink for LightHits<'_> {
     #[inline]
     fn hit(&mut self, texel: u32, l: Rgb, _a: f32) {
         self.0[texel as usize] += l;
+    }
+
+    fn sums_layout(&self) -> SumsLayout {
+        SumsLayout::of(self.0)
     }
 }
 
@@ -370,7 +379,8 @@ fn trace_tile(
         let t = Instant::now();
         let a_px = vp.pixel_area();
         let (sky, source, layering) = (plan.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel).layering());
-        stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, |row| {
+        let prefetch = prefetcher(SumsLayout::of(ctx.source.own), sink.sums_layout());
+        stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, prefetch, |row| {
             row.for_each_pixel(|f, foreign, cx, cy| match &ctx.scene.passing {
                 None => {
                     exchange(f, layering, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), sink)
@@ -439,6 +449,7 @@ fn count_false_alarms(
 /// target's window, where only target texels can be lit), in tiles of at most W×W pixels;
 /// emitter fragments light the neighbours facing them.
 fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut impl HitSink) -> Result<(), Cancelled> {
+    let sums = sink.sums_layout();
     let cfg = ctx.config;
     let group = &ctx.scene.bundle.emitters.small[job.group as usize];
     let frame = BundleFrame::new(job.dir);
@@ -494,7 +505,9 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
         let a_px = vp.pixel_area();
         let layering = ctx.scene.coincidence_at(vp.pixel).layering();
         let (own, source) = (ctx.target.emission, ctx.source);
-        s.fragments.resolve(ctx.scene, ctx.target, |row| {
+        // Emission is read for emitter texels alone: only the sums are worth fetching.
+        let prefetch = prefetcher(SumsLayout::NONE, sums);
+        s.fragments.resolve(ctx.scene, ctx.target, prefetch, |row| {
             row.for_each_pixel(|f, foreign, cx, cy| {
                 stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
                 let emission = |code| {

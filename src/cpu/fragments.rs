@@ -227,18 +227,25 @@ impl TileFragments {
     /// count against the node budget) for `target`: calls `visit` with each row of each
     /// strip that holds pixels to resolve — in a light pass, the pixels an emitter covers (at
     /// least) — strip by strip, row by row; see [`Row`]. Returns how many pixels the visits
-    /// went through with [`Row::for_each_pixel`].
+    /// went through with [`Row::for_each_pixel`]. `prefetch(t)` is called with each target
+    /// texel as a row's fill meets it, before the row is visited (see [`super::prefetch`]).
     ///
     /// One call a row, not a pixel: a call per pixel was not inlined (the visits are large)
     /// and cost its set-up, and a stall reading back the pixel centre it had just been
     /// given, on every pixel — about a third of the exchange's time on the Cornell box.
-    pub fn resolve(&mut self, scene: &CpuScene, target: &BakeTarget, mut visit: impl FnMut(&mut Row)) -> u64 {
+    pub fn resolve(
+        &mut self,
+        scene: &CpuScene,
+        target: &BakeTarget,
+        prefetch: impl Fn(u32),
+        mut visit: impl FnMut(&mut Row),
+    ) -> u64 {
         self.set_up_planes(scene, target);
         let layering = scene.coincidence_at(self.pixel).layering();
         let mut covered = 0;
         for bucket in 0..self.bucket_len.len() {
             let Some((lo, hi)) = self.window(bucket) else { continue };
-            self.fill(target, bucket, lo, hi);
+            self.fill(target, bucket, lo, hi, &prefetch);
             let ends = &self.ends[..=(hi - lo) as usize];
             let mut row = Row {
                 frags: &mut self.frags[..ends[(hi - lo) as usize] as usize],
@@ -314,7 +321,7 @@ impl TileFragments {
     }
 
     /// Builds the per-pixel fragment lists of pixels `lo..hi` of a bucket in the row buffer.
-    fn fill(&mut self, target: &BakeTarget, bucket: usize, lo: u32, hi: u32) {
+    fn fill(&mut self, target: &BakeTarget, bucket: usize, lo: u32, hi: u32, prefetch: &impl Fn(u32)) {
         let start = self.bucket_start[bucket] as usize;
         let spans = &self.spans[start..start + self.bucket_len[bucket] as usize];
         let row = bucket as u32 % self.height;
@@ -367,17 +374,18 @@ impl TileFragments {
                     SideLookup::Table { uv: a, table: ta, foreign: fa },
                     SideLookup::Table { uv: b, table: tb, foreign: fb },
                 ) => {
-                    let mut a = TexelCursor::new(&target.tables[*ta as usize], a, dy, *fa);
-                    let mut b = TexelCursor::new(&target.tables[*tb as usize], b, dy, *fb);
+                    let mut a = TexelCursor::new(&target.tables[*ta as usize], a, dy, *fa, prefetch);
+                    let mut b = TexelCursor::new(&target.tables[*tb as usize], b, dy, *fb, prefetch);
                     span.fill(|dx| (a.at(dx), b.at(dx)))
                 }
                 (SideLookup::Table { uv, table, foreign }, other) => {
-                    let (mut t, m) = (TexelCursor::new(&target.tables[*table as usize], uv, dy, *foreign), code(other));
+                    let (mut t, m) =
+                        (TexelCursor::new(&target.tables[*table as usize], uv, dy, *foreign, prefetch), code(other));
                     span.fill(|dx| (t.at(dx), m))
                 }
                 (other, SideLookup::Table { uv, table, foreign }) => {
                     let (mut t, pl) =
-                        (TexelCursor::new(&target.tables[*table as usize], uv, dy, *foreign), code(other));
+                        (TexelCursor::new(&target.tables[*table as usize], uv, dy, *foreign, prefetch), code(other));
                     span.fill(|dx| (pl, t.at(dx)))
                 }
                 (a, b) => {
@@ -467,8 +475,9 @@ impl ForeignSides<'_> {
 /// where its table holds none (a pixel of the chart owned by another region, or a UV that
 /// rounds outside every texel). Bundle pixels are about half a texel wide, so consecutive
 /// pixels often fall in the same atlas pixel: its code is remembered, not looked up again.
-struct TexelCursor<'a> {
+struct TexelCursor<'a, P> {
     table: &'a TexelTable,
+    prefetch: &'a P,
     /// The side's UV in LOD pixels as an affine function of the pixel centre (dx, dy)
     /// relative to the triangle's anchor (see `Planes`), on this span's row.
     uv: [Vec2; 3],
@@ -480,10 +489,10 @@ struct TexelCursor<'a> {
     code: u32,
 }
 
-impl<'a> TexelCursor<'a> {
+impl<'a, P: Fn(u32)> TexelCursor<'a, P> {
     #[inline(always)]
-    fn new(table: &'a TexelTable, uv: &[Vec2; 3], dy: f32, foreign: u32) -> Self {
-        TexelCursor { table, uv: *uv, dy, foreign, last: u64::MAX, code: foreign }
+    fn new(table: &'a TexelTable, uv: &[Vec2; 3], dy: f32, foreign: u32, prefetch: &'a P) -> Self {
+        TexelCursor { table, prefetch, uv: *uv, dy, foreign, last: u64::MAX, code: foreign }
     }
 
     /// The code at pixel centre x `dx` (relative to the anchor).
@@ -505,7 +514,10 @@ impl<'a> TexelCursor<'a> {
             self.last = key;
             self.code = match self.table.get(x as i64, y as i64) {
                 NO_TEXEL => self.foreign,
-                t => t,
+                t => {
+                    (self.prefetch)(t);
+                    t
+                }
             };
         }
         self.code

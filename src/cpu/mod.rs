@@ -13,6 +13,7 @@ mod bounds_tree;
 pub(crate) mod direction;
 mod emitter_rows;
 pub(crate) mod fragments;
+mod prefetch;
 pub mod scene;
 mod through;
 
