@@ -128,6 +128,30 @@ fn write_f32s(w: &mut impl Write, values: impl Iterator<Item = f32>, buf: &mut V
     w.write_all(buf)
 }
 
+/// Reads `n` records of `size` bytes from `r`, [`F32_CHUNK_BYTES`] or so at a time into
+/// `buf`, and calls `f(k, record k)` on each: a read of a record at a time through the hashing
+/// reader cost more than the merge's additions (the same bytes, hashed the same).
+fn read_records(
+    r: &mut impl Read,
+    n: usize,
+    size: usize,
+    buf: &mut Vec<u8>,
+    mut f: impl FnMut(usize, &[u8]),
+) -> std::io::Result<()> {
+    let per_chunk = (F32_CHUNK_BYTES / size).max(1);
+    buf.resize(per_chunk * size, 0);
+    let mut k = 0;
+    while k < n {
+        let m = per_chunk.min(n - k);
+        r.read_exact(&mut buf[..m * size])?;
+        for (j, record) in buf[..m * size].chunks_exact(size).enumerate() {
+            f(k + j, record);
+        }
+        k += m;
+    }
+    Ok(())
+}
+
 struct HashingWriter<W: Write> {
     inner: W,
     hash: WordHash,
@@ -308,15 +332,14 @@ impl ShardFile {
         let mut r = HashingReader { inner: BufReader::with_capacity(1 << 20, file), hash: WordHash::new() };
         let mut skip = vec![0u8; HEADER_BYTES as usize + self.job_bytes as usize + 4 * self.header.charts.len()];
         r.read_exact(&mut skip).map_err(io)?;
-        let mut buf = [0u8; 16];
-        let f32_at =
-            |buf: &[u8; 16], k: usize| f32::from_le_bytes([buf[4 * k], buf[4 * k + 1], buf[4 * k + 2], buf[4 * k + 3]]);
-        for t in 0..n {
-            r.read_exact(&mut buf).map_err(io)?;
+        let f32_at = |b: &[u8], k: usize| f32::from_le_bytes([b[4 * k], b[4 * k + 1], b[4 * k + 2], b[4 * k + 3]]);
+        let mut buf = Vec::new();
+        read_records(&mut r, n, 16, &mut buf, |t, b| {
             for (k, v) in sums.bundle[at(t)].iter_mut().enumerate() {
-                *v += f32_at(&buf, k);
+                *v += f32_at(b, k);
             }
-        }
+        })
+        .map_err(io)?;
         for (present, part) in
             [(self.header.has_light, &mut sums.light), (self.header.has_punctual, &mut sums.punctual)]
         {
@@ -326,10 +349,10 @@ impl ShardFile {
             if part.is_empty() {
                 part.resize(whole, Rgb::ZERO);
             }
-            for t in 0..n {
-                r.read_exact(&mut buf[..12]).map_err(io)?;
-                part[at(t)] += Rgb::new(f32_at(&buf, 0), f32_at(&buf, 1), f32_at(&buf, 2));
-            }
+            read_records(&mut r, n, 12, &mut buf, |t, b| {
+                part[at(t)] += Rgb::new(f32_at(b, 0), f32_at(b, 1), f32_at(b, 2));
+            })
+            .map_err(io)?;
         }
         sums.batches += self.header.batches;
         sums.light_directions += self.header.light_directions;
