@@ -325,8 +325,8 @@ pub trait HitSink {
     fn hit(&mut self, texel: u32, weighted_radiance: Rgb, weight: f32);
     /// Where the sink's per-texel sums lie, for a CPU resolve to prefetch them ahead of its
     /// hits; none by default.
-    fn sums_layout(&self) -> SumsLayout {
-        SumsLayout::NONE
+    fn sums_layout(&self) -> TexelLayout {
+        TexelLayout::NONE
     }
 }
 
@@ -334,18 +334,18 @@ pub trait HitSink {
 /// for prefetching only: nothing is ever read or written through it, so it holds addresses,
 /// not pointers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct SumsLayout {
+pub struct TexelLayout {
     base: usize,
     stride: usize,
 }
 
-impl SumsLayout {
+impl TexelLayout {
     /// No values to prefetch.
-    pub const NONE: SumsLayout = SumsLayout { base: 0, stride: 0 };
+    pub const NONE: TexelLayout = TexelLayout { base: 0, stride: 0 };
 
     /// The layout of `values`, one a texel.
     pub fn of<T>(values: &[T]) -> Self {
-        SumsLayout { base: values.as_ptr() as usize, stride: std::mem::size_of::<T>() }
+        TexelLayout { base: values.as_ptr() as usize, stride: std::mem::size_of::<T>() }
     }
 
     /// The address of texel `t`'s value (`None` for [`NONE`](Self::NONE)).
@@ -712,6 +712,17 @@ mod tests {
             "the dark floor sees the lit room: {:?}",
             log.0
         );
+    }
+
+    /// A layout gives each value's own address (what a prefetch asks for), and none gives none.
+    #[test]
+    fn texel_layouts_address_their_values() {
+        let sums = vec![[0.0f32; 4]; 10];
+        let layout = TexelLayout::of(&sums);
+        for t in [0u32, 1, 9] {
+            assert_eq!(layout.address(t), Some(&sums[t as usize] as *const [f32; 4] as usize));
+        }
+        assert_eq!(TexelLayout::NONE.address(3), None);
     }
 
     #[test]

@@ -20,7 +20,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use super::direction::{BundleHits, DirectionPlan, LightHits, PassContext, Worker, plan_direction, trace_unit};
 use super::prefetch::for_each_ahead;
 use crate::bundle::DirectionJob;
-use crate::bundle::estimator::{HitSink, SumsLayout};
+use crate::bundle::estimator::{HitSink, TexelLayout};
 use crate::bundle::progressive::BatchSums;
 use crate::bundle::target::Cancelled;
 use crate::scene::Rgb;
@@ -65,7 +65,7 @@ struct RecordSink<'a> {
     due: &'a AtomicU64,
     sums: &'a SumsPtr,
     /// Where its kind's sums lie (see [`HitSink::sums_layout`]).
-    layout: SumsLayout,
+    layout: TexelLayout,
     /// A global-bundle tile (else a light bundle).
     tile: bool,
     /// Whether the unit's hits go straight to the sums now.
@@ -99,7 +99,7 @@ impl RecordSink<'_> {
 }
 
 impl HitSink for RecordSink<'_> {
-    fn sums_layout(&self) -> SumsLayout {
+    fn sums_layout(&self) -> TexelLayout {
         self.layout
     }
 
@@ -221,8 +221,8 @@ struct Shared<'a> {
     most_waiting: u64,
     /// [`HitSink::sums_layout`] of the global and the light-pass sums, taken before any
     /// thread starts (the sums are never reallocated while the batch runs).
-    bundle_layout: SumsLayout,
-    light_layout: SumsLayout,
+    bundle_layout: TexelLayout,
+    light_layout: TexelLayout,
 }
 
 /// What a thread does next.
@@ -241,7 +241,7 @@ pub fn trace_batch(
     workers: &mut [Worker],
 ) -> Result<(), Cancelled> {
     let threads = workers.len().max(1) as u64;
-    let (bundle_layout, light_layout) = (SumsLayout::of(&sums.bundle), SumsLayout::of(&sums.light));
+    let (bundle_layout, light_layout) = (TexelLayout::of(&sums.bundle), TexelLayout::of(&sums.light));
     let shared = Shared {
         ctx,
         batch,

@@ -15,7 +15,7 @@ use super::fragments::{ForeignSides, TileFragments};
 use super::prefetch::prefetcher;
 use super::scene::CpuScene;
 use super::through::{Line, ThroughScratch};
-use crate::bundle::estimator::{FOREIGN, HitSink, SumsLayout, emit, exchange, is_own};
+use crate::bundle::estimator::{FOREIGN, HitSink, TexelLayout, emit, exchange, is_own};
 use crate::bundle::mips::MipChain;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::sky::{BundleSky, SkySeen};
@@ -118,8 +118,8 @@ impl HitSink for BundleHits<'_> {
         s[3] += a;
     }
 
-    fn sums_layout(&self) -> SumsLayout {
-        SumsLayout::of(self.0)
+    fn sums_layout(&self) -> TexelLayout {
+        TexelLayout::of(self.0)
     }
 }
 
@@ -132,8 +132,8 @@ impl HitSink for LightHits<'_> {
         self.0[texel as usize] += l;
     }
 
-    fn sums_layout(&self) -> SumsLayout {
-        SumsLayout::of(self.0)
+    fn sums_layout(&self) -> TexelLayout {
+        TexelLayout::of(self.0)
     }
 }
 
@@ -379,7 +379,7 @@ fn trace_tile(
         let t = Instant::now();
         let a_px = vp.pixel_area();
         let (sky, source, layering) = (plan.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel).layering());
-        let prefetch = prefetcher(SumsLayout::of(ctx.source.own), sink.sums_layout());
+        let prefetch = prefetcher(TexelLayout::of(ctx.source.own), sink.sums_layout());
         stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, prefetch, |row| {
             row.for_each_pixel(|f, foreign, cx, cy| match &ctx.scene.passing {
                 None => {
@@ -506,7 +506,7 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
         let layering = ctx.scene.coincidence_at(vp.pixel).layering();
         let (own, source) = (ctx.target.emission, ctx.source);
         // Emission is read for emitter texels alone: only the sums are worth fetching.
-        let prefetch = prefetcher(SumsLayout::NONE, sums);
+        let prefetch = prefetcher(TexelLayout::NONE, sums);
         s.fragments.resolve(ctx.scene, ctx.target, prefetch, |row| {
             row.for_each_pixel(|f, foreign, cx, cy| {
                 stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;

@@ -4,12 +4,12 @@
 //! row's fill before its exchange, a unit's records before they are added), asking for
 //! their lines then hides part of the wait.
 
-use crate::bundle::estimator::SumsLayout;
+use crate::bundle::estimator::TexelLayout;
 
 /// What a tile's resolve prefetches for a texel when its fill first meets it: the texel's
 /// source (what its neighbours along a line see of it) and its sums (where its hits go).
 /// The fill of a row runs a row's fragments ahead of their exchange.
-pub(super) fn prefetcher(source: SumsLayout, sums: SumsLayout) -> impl Fn(u32) {
+pub(super) fn prefetcher(source: TexelLayout, sums: TexelLayout) -> impl Fn(u32) {
     move |t| {
         for layout in [source, sums] {
             if let Some(at) = layout.address(t) {
@@ -21,7 +21,7 @@ pub(super) fn prefetcher(source: SumsLayout, sums: SumsLayout) -> impl Fn(u32) {
 
 /// Asks the cache for the line at address `at` ahead of its use: a hint, nothing is read.
 #[inline(always)]
-pub(super) fn prefetch(at: usize) {
+fn prefetch(at: usize) {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: a prefetch reads no memory and cannot fault, whatever the address.
     unsafe {
@@ -38,7 +38,7 @@ const RECORDS_AHEAD: usize = 16;
 /// Calls `f` on each of `items` in order, having asked for the sums (`layout`) of the texel
 /// of the item [`RECORDS_AHEAD`] further on.
 #[inline]
-pub(super) fn for_each_ahead<T>(items: &[T], layout: SumsLayout, texel: impl Fn(&T) -> u32, mut f: impl FnMut(&T)) {
+pub(super) fn for_each_ahead<T>(items: &[T], layout: TexelLayout, texel: impl Fn(&T) -> u32, mut f: impl FnMut(&T)) {
     for (i, item) in items.iter().enumerate() {
         if let Some(at) = items.get(i + RECORDS_AHEAD).and_then(|a| layout.address(texel(a))) {
             prefetch(at);
