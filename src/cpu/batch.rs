@@ -96,6 +96,21 @@ impl RecordSink<'_> {
         self.pool.give(records);
         self.straight = true;
     }
+
+    /// A hit when the records' last chunk is full (or there is none): goes straight if the
+    /// unit's turn has come, else opens a chunk.
+    #[cold]
+    #[inline(never)]
+    fn hit_at_full_chunk(&mut self, texel: u32, radiance: Rgb, weight: f32) {
+        if self.due.load(AtomicOrdering::Acquire) == self.unit {
+            self.go_straight();
+            return self.add(texel, radiance, weight);
+        }
+        let mut chunk = self.pool.take();
+        chunk.push(Hit { texel, radiance, weight });
+        self.records.chunks.push(chunk);
+        self.records.len += 1;
+    }
 }
 
 impl HitSink for RecordSink<'_> {
@@ -118,23 +133,6 @@ impl HitSink for RecordSink<'_> {
             return;
         }
         self.hit_at_full_chunk(texel, radiance, weight);
-    }
-}
-
-impl RecordSink<'_> {
-    /// A hit when the records' last chunk is full (or there is none): goes straight if the
-    /// unit's turn has come, else opens a chunk.
-    #[cold]
-    #[inline(never)]
-    fn hit_at_full_chunk(&mut self, texel: u32, radiance: Rgb, weight: f32) {
-        if self.due.load(AtomicOrdering::Acquire) == self.unit {
-            self.go_straight();
-            return self.add(texel, radiance, weight);
-        }
-        let mut chunk = self.pool.take();
-        chunk.push(Hit { texel, radiance, weight });
-        self.records.chunks.push(chunk);
-        self.records.len += 1;
     }
 }
 
