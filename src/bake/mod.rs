@@ -440,10 +440,12 @@ pub fn bake_shard(
     }
     let threads = config.threads();
     let mut punctual_seconds = 0.0;
+    // Read by the punctual pass and the round's bundles.
+    let table = TexelTable::of_map(&texels);
     let punctual = match (share.0, previous) {
         (0, Some(p)) => p.punctual(None)?,
         (0, None) => {
-            let pass = bundle::PunctualPass::of_map(&bundle, &bvh, &texels, &TexelTable::of_map(&texels), threads);
+            let pass = bundle::PunctualPass::of_map(&bundle, &bvh, &texels, &table, threads);
             punctual_seconds = pass.seconds;
             pass.irradiance
         }
@@ -457,6 +459,7 @@ pub fn bake_shard(
         &bundle,
         &mut *backend,
         &texels,
+        &table,
         source,
         punctual,
         round,

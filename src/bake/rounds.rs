@@ -65,7 +65,8 @@ pub(super) fn round_source(bundle: &BundleScene, texels: &TexelMap, previous: Op
     }
 }
 
-/// Bakes round `round` (from 1) of `texels` (a whole LOD's map with its albedo and emission)
+/// Bakes round `round` (from 1) of `texels` (a whole LOD's map with its albedo and emission;
+/// `table` its [`TexelTable::of_map`], built once for the punctual pass and every round)
 /// over the batches of share `index` of `count`. `previous`: round `round − 1`'s
 /// irradiance (all shares merged), none in round 1. `punctual`: the exact punctual part the
 /// estimate holds (empty: none; shards other than the first hold none, so that the merge
@@ -75,6 +76,7 @@ pub fn bake_round(
     bundle: &BundleScene,
     backend: &mut dyn BundleBackend,
     texels: &TexelMap,
+    table: &TexelTable,
     previous: Option<Vec<Rgb>>,
     punctual: Vec<Rgb>,
     round: u32,
@@ -83,7 +85,7 @@ pub fn bake_round(
     progress: &dyn Progress,
 ) -> RoundSums {
     let source = round_source(bundle, texels, previous);
-    bake_round_from_source(bundle, backend, texels, source, punctual, round, (index, count), threads, progress)
+    bake_round_from_source(bundle, backend, texels, table, source, punctual, round, (index, count), threads, progress)
 }
 
 /// [`bake_round`] from the round's `source` ([`round_source`]), made by the caller: a
@@ -94,6 +96,7 @@ pub(super) fn bake_round_from_source(
     bundle: &BundleScene,
     backend: &mut dyn BundleBackend,
     texels: &TexelMap,
+    table: &TexelTable,
     source: Vec<Rgb>,
     punctual: Vec<Rgb>,
     round: u32,
@@ -101,8 +104,8 @@ pub(super) fn bake_round_from_source(
     threads: usize,
     progress: &dyn Progress,
 ) -> RoundSums {
-    let tables = [TexelTable::of_map(texels)];
-    let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None, triangles: None };
+    let tables = std::slice::from_ref(table);
+    let region = Region { texels: texels.view(), tables, window: None, foreign: None, triangles: None };
     let share = DirectionShare { seed: round_seed(bundle.config.seed, round), index, count };
     let punctual = PunctualPass { irradiance: punctual, buried: Vec::new(), seconds: 0.0 };
     let never = AtomicBool::new(false);
@@ -126,8 +129,9 @@ pub fn bake_lod_rounds(
     threads: usize,
     progress: &dyn Progress,
 ) -> Result<LodIrradiance, Cancelled> {
+    let table = TexelTable::of_map(texels);
     let PunctualPass { irradiance: punctual, buried, seconds } =
-        PunctualPass::of_map(bundle, bvh, texels, &TexelTable::of_map(texels), threads);
+        PunctualPass::of_map(bundle, bvh, texels, &table, threads);
     let mut stats = BundleLodStats { punctual_seconds: seconds, ..BundleLodStats::default() };
     let mut last: Option<ProgressiveEstimate> = None;
     for round in 1..=rounds.max(1) {
@@ -137,7 +141,8 @@ pub fn bake_lod_rounds(
             e.irradiance_into(threads, &mut irradiance);
             irradiance
         });
-        let r = bake_round(bundle, backend, texels, previous, punctual.clone(), round, (0, 1), threads, progress);
+        let r =
+            bake_round(bundle, backend, texels, &table, previous, punctual.clone(), round, (0, 1), threads, progress);
         add_round_stats(&mut stats, &r.stats);
         last = Some(r.estimate);
     }
