@@ -91,7 +91,8 @@ pub fn bake_lod_observed(
     let tables = [TexelTable::of_map(texels)];
     let converged = coarser.map(|c| source_from_coarser(bundle, texels, &c));
     let punctual = PunctualPass::of_map(bundle, bvh, texels, &tables[0], threads);
-    let region = Region { texels: texels.view(), tables: &tables, window: None, foreign: None, triangles: None };
+    let region =
+        Region { texels: texels.view(), tables: &tables, window: None, foreign: None, triangles: None, reach: None };
     bake_region_observed(bundle, backend, &region, converged, punctual, threads, progress, cancel, observe)
 }
 
@@ -158,7 +159,8 @@ pub fn bake_lod_lean(
         if let Some(t) = &textured {
             view.albedo = TexelAlbedo::Textured(t);
         }
-        let region = Region { texels: view, tables: &tables, window: None, foreign: None, triangles: None };
+        let region =
+            Region { texels: view, tables: &tables, window: None, foreign: None, triangles: None, reach: None };
         let never_stop = &mut |_: &BatchDone| ControlFlow::Continue(());
         bake_region_observed(bundle, backend, &region, converged, punctual, threads, progress, cancel, never_stop)
     };
@@ -253,6 +255,9 @@ pub struct Region<'a> {
     /// those holding the region's texels). A region shard gives the whole LOD's, so that its
     /// bundles are laid out as the whole LOD's are.
     pub triangles: Option<&'a [u32]>,
+    /// Per face, whether its lookups may find a texel of the region, when its one table is
+    /// whole-LOD shaped (see [`BakeTarget::reach`]); `None`: every face may.
+    pub reach: Option<&'a [bool]>,
 }
 
 /// Bakes a region's texels: their punctual pass (made by the caller), then batches of
@@ -371,6 +376,7 @@ pub(super) fn trace_region(
         tables: region.tables,
         window: region.window,
         triangles,
+        reach: region.reach,
     };
 
     let kind = if converged.is_some() { SourceKind::Converged } else { SourceKind::Progressive };

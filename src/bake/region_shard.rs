@@ -19,17 +19,17 @@
 
 use std::sync::atomic::AtomicBool;
 
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 
 use crate::atlas::lookup::TexelTable;
-use crate::atlas::texels::NO_TEXEL;
+use crate::atlas::texels::{NO_TEXEL, TexelSubset};
 use crate::atlas::{Atlas, TexelMap};
 use crate::bundle::progressive::ProgressiveEstimate;
-use crate::bundle::target::target_triangles;
+use crate::bundle::target::{faces_reaching, target_triangles};
 use crate::bundle::{BundleBackend, BundleScene, SurfaceRadiance};
 use crate::progress::Progress;
 use crate::reference::Bvh;
-use crate::scene::{Rgb, Side};
+use crate::scene::{Rgb, SceneGeometry, Side};
 
 use super::bundle::{BundleLodStats, DirectionShare, PunctualPass, Region, Traced, trace_region};
 use super::rounds::{round_seed, round_source};
@@ -54,28 +54,65 @@ pub fn chart_texels(map: &TexelMap, atlas: &Atlas) -> Vec<u64> {
     count
 }
 
-/// Deals charts to `count` shares so that each gets about 1/count of the texels: charts by
-/// decreasing texel count (ties: lower chart id first), each to the share holding the
-/// fewest texels so far (ties: the lower share). Deterministic. Every share's texels are
-/// within the largest chart of the mean: `max ≤ T/count + largest chart`. Charts without
-/// texels go to share 0. Returns the share of each chart.
-pub fn deal_charts(chart_texels: &[u64], count: u32) -> Vec<u32> {
-    let count = count.max(1);
-    let mut order: Vec<u32> = (0..chart_texels.len() as u32).collect();
-    order.sort_by_key(|&c| (std::cmp::Reverse(chart_texels[c as usize]), c));
-    let mut load: std::collections::BinaryHeap<std::cmp::Reverse<(u64, u32)>> =
-        (0..count).map(|s| std::cmp::Reverse((0, s))).collect();
-    let mut owner = vec![0u32; chart_texels.len()];
-    for c in order {
-        let n = chart_texels[c as usize];
-        if n == 0 {
-            continue;
+/// Per chart of `atlas`: the centre of the box of its faces' triangles (the origin for a
+/// chart without faces).
+pub fn chart_centres(atlas: &Atlas, geom: &SceneGeometry) -> Vec<Vec3> {
+    let mut bounds = vec![(Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)); atlas.charts.len()];
+    for face in &atlas.faces {
+        let b = &mut bounds[face.chart as usize];
+        for &c in &geom.corners[face.tri as usize] {
+            *b = (b.0.min(c), b.1.max(c));
         }
-        let Some(std::cmp::Reverse((held, s))) = load.pop() else { break };
-        owner[c as usize] = s;
-        load.push(std::cmp::Reverse((held + n, s)));
+    }
+    bounds.iter().map(|&(lo, hi)| if lo.cmple(hi).all() { (lo + hi) * 0.5 } else { Vec3::ZERO }).collect()
+}
+
+/// Deals charts to `count` shares of about 1/count of the texels each, in space: the charts
+/// holding texels are ordered along a Z-order curve through their centres (`centres`, per
+/// chart; ties by chart id), and the curve is cut in `count` runs: a chart goes to the share
+/// its middle texel falls in (share k holds the texels k·T/count … (k+1)·T/count of the
+/// curve). Deterministic. Neighbouring charts share a run, so a share's charts lie together
+/// and a bundle line crosses them in a few places: a region shard resolves only the pixels
+/// where its faces lie ([`faces_reaching`]). Every share holds within the largest chart of
+/// T/count (its ends each move by at most half a chart). Charts without texels go to share 0.
+/// Returns the share of each chart.
+pub fn deal_charts(chart_texels: &[u64], centres: &[Vec3], count: u32) -> Vec<u32> {
+    let count = count.max(1) as u128;
+    let held: Vec<u32> = (0..chart_texels.len() as u32).filter(|&c| chart_texels[c as usize] > 0).collect();
+    let (lo, hi) = held
+        .iter()
+        .map(|&c| centres[c as usize])
+        .filter(|p| p.is_finite())
+        .fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(lo, hi), p| (lo.min(p), hi.max(p)));
+    // 21 bits an axis: a 63-bit key.
+    let scale = ((1u32 << 21) - 1) as f32 / (hi - lo).max_element().max(f32::MIN_POSITIVE);
+    let key = |c: u32| -> u64 {
+        let p = centres[c as usize];
+        let q = if p.is_finite() { ((p - lo) * scale).max(Vec3::ZERO) } else { Vec3::ZERO };
+        spread_bits(q.x as u32) | spread_bits(q.y as u32) << 1 | spread_bits(q.z as u32) << 2
+    };
+    let mut order: Vec<(u64, u32)> = held.iter().map(|&c| (key(c), c)).collect();
+    order.sort_unstable();
+    let total: u128 = held.iter().map(|&c| chart_texels[c as usize] as u128).sum();
+    let mut owner = vec![0u32; chart_texels.len()];
+    let mut before = 0u128;
+    for (_, c) in order {
+        let n = chart_texels[c as usize] as u128;
+        // The middle texel's share: ⌊(before + n/2)·count / T⌋, in halves to stay exact.
+        owner[c as usize] = ((2 * before + n) * count / (2 * total)).min(count - 1) as u32;
+        before += n;
     }
     owner
+}
+
+/// Spreads the low 21 bits of `v` to every third bit of a u64 (a Z-order key's axis).
+fn spread_bits(v: u32) -> u64 {
+    let mut v = v as u64 & 0x1f_ffff;
+    v = (v | v << 32) & 0x1f_0000_0000_ffff;
+    v = (v | v << 16) & 0x1f_0000_ff00_00ff;
+    v = (v | v << 8) & 0x100f_00f0_0f00_f00f;
+    v = (v | v << 4) & 0x10c3_0c30_c30c_30c3;
+    (v | v << 2) & 0x1249_2492_4924_9249
 }
 
 /// The texels of `map` whose chart `owner` gives to share `index` (ascending ids).
@@ -122,21 +159,20 @@ pub fn subset_map(map: &TexelMap, keep: &[u32]) -> TexelMap {
 /// What a region shard sees of the texels outside its share: the round's source of every
 /// texel of the LOD (12 B a texel) found through the whole LOD's lookup table (24 B an 8×8
 /// block of pixels, 4 B a gutter pixel), and the emission of the emitting texels (for the
-/// light pass; 16 B an emitting texel). A side whose pixel holds no texel is black, as a
-/// whole-LOD bake's lost lookup is.
+/// light pass; 12 B an emitting texel and ~0.2 B a texel, [`TexelSubset`]). A side whose
+/// pixel holds no texel is black, as a whole-LOD bake's lost lookup is.
 pub struct ForeignSource<'a> {
     atlas: &'a Atlas,
     table: TexelTable,
     source: Vec<Rgb>,
-    emitting: Vec<(u32, Rgb)>,
+    emitting: TexelSubset,
     scale: f32,
 }
 
 impl<'a> ForeignSource<'a> {
     /// The foreign source of `map` (a whole LOD) whose texels send `source`.
     pub fn new(atlas: &'a Atlas, map: &TexelMap, source: Vec<Rgb>) -> Self {
-        let emitting =
-            map.emission.iter().enumerate().filter(|(_, e)| **e != Rgb::ZERO).map(|(i, &e)| (i as u32, e)).collect();
+        let emitting = TexelSubset::from_dense(&map.emission);
         ForeignSource { atlas, table: TexelTable::of_map(map), source, emitting, scale: (1u64 << map.lod) as f32 }
     }
 
@@ -156,7 +192,7 @@ impl<'a> ForeignSource<'a> {
 
     /// Bytes held (the source, the table, the emitting texels).
     pub fn bytes(&self) -> usize {
-        self.source.len() * 12 + self.table.bytes() + self.emitting.len() * 16
+        self.source.len() * 12 + self.table.bytes() + self.emitting.bytes()
     }
 }
 
@@ -166,24 +202,25 @@ impl SurfaceRadiance for ForeignSource<'_> {
     }
 
     fn emission(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb {
-        self.texel(tri, side, u, v).map_or(Rgb::ZERO, |t| self.emission_of(t))
+        self.texel(tri, side, u, v).map_or(Rgb::ZERO, |t| self.emitting.at(t))
     }
 
     fn by_lod_pixel(&self) -> bool {
         true
     }
 
-    fn texel_at(&self, x: i64, y: i64) -> (Rgb, Rgb) {
+    fn radiance_at(&self, x: i64, y: i64) -> Rgb {
         match self.table.get(x, y) {
-            NO_TEXEL => (Rgb::ZERO, Rgb::ZERO),
-            t => (self.source[t as usize], self.emission_of(t)),
+            NO_TEXEL => Rgb::ZERO,
+            t => self.source[t as usize],
         }
     }
-}
 
-impl ForeignSource<'_> {
-    fn emission_of(&self, t: u32) -> Rgb {
-        self.emitting.binary_search_by_key(&t, |&(i, _)| i).map_or(Rgb::ZERO, |k| self.emitting[k].1)
+    fn emission_at(&self, x: i64, y: i64) -> Rgb {
+        match self.table.get(x, y) {
+            NO_TEXEL => Rgb::ZERO,
+            t => self.emitting.at(t),
+        }
     }
 }
 
@@ -194,7 +231,8 @@ pub const SHARE_MAP_BYTES: u64 = 4 + 4 + 12 + 4 + 4 + 12;
 
 /// Bytes a texel of the whole LOD takes in a region shard while its bundles run: its
 /// source (f32 RGB) in [`ForeignSource`], plus the whole LOD's lookup table (24 B an 8×8
-/// block of pixels, 4 B a gutter pixel) and 16 B an emitting texel.
+/// block of pixels, 4 B a gutter pixel) and the emitting texels' emission (12 B each and
+/// ~0.2 B a texel).
 pub const FOREIGN_BYTES: u64 = 12;
 
 /// Bytes a texel of the whole LOD takes while a region shard sets up: its map without
@@ -225,7 +263,9 @@ pub fn estimate(
     let share = t / count.max(1) as f64;
     let setup = t * SETUP_BYTES + if previous { share * PREVIOUS_BYTES as f64 } else { 0.0 };
     let table = t * TABLE_BLOCK_BYTES as f64 / 64.0 + t * crate::bake::memory::GUTTER_PER_TEXEL * 4.0;
-    let run = t * FOREIGN_BYTES as f64 + table + single.texel_bytes as f64 / count.max(1) as f64;
+    // The emitting texels' bit and word counts (12 B a 64-texel word; their values are few).
+    let emitting = t * 12.0 / 64.0;
+    let run = t * FOREIGN_BYTES as f64 + table + emitting + single.texel_bytes as f64 / count.max(1) as f64;
     let texel_bytes = setup.max(run) as u64;
     let bytes = texel_bytes + single.thread_bytes + single.texture_bytes + single.passing_bytes;
     crate::bake::memory::MemoryEstimate {
@@ -271,7 +311,7 @@ pub fn bake_region_round(
     progress: &dyn Progress,
 ) -> Result<RegionRound, crate::shard::ShardError> {
     let atlas = &*bundle.atlas;
-    let owner = deal_charts(&chart_texels(&map, atlas), count);
+    let owner = deal_charts(&chart_texels(&map, atlas), &chart_centres(atlas, &bundle.geom), count);
     let charts: Vec<u32> = (0..owner.len() as u32).filter(|&c| owner[c as usize] == index).collect();
     let keep = share_texels(&map, atlas, &owner, index);
     drop(owner);
@@ -292,6 +332,7 @@ pub fn bake_region_round(
     sub.drop_albedo();
     stage("subset");
     let tables = [TexelTable::of_map(&sub)];
+    let reach = faces_reaching(atlas, &tables[0], sub.lod);
     let punctual = match carried_punctual {
         Some(p) => p,
         None => {
@@ -304,13 +345,15 @@ pub fn bake_region_round(
         + tables[0].bytes()
         + sub.len() * SHARE_MAP_BYTES as usize
         + sub.gutter.len() * 8
-        + triangles.len() * 4;
+        + triangles.len() * 4
+        + reach.len();
     let region = Region {
         texels: sub.view(),
         tables: &tables,
         window: None,
         foreign: Some(&foreign),
         triangles: Some(&triangles),
+        reach: Some(&reach),
     };
     let share = DirectionShare::whole(round_seed(bundle.config.seed, round));
     let punctual = PunctualPass { irradiance: punctual, buried: Vec::new(), seconds: 0.0 };
@@ -342,11 +385,17 @@ mod tests {
     #[test]
     fn charts_are_dealt_disjoint_complete_and_balanced() {
         let charts: Vec<u64> = (0..500u64).map(|c| 1 + crate::sampling::mix64(c) % 300).collect();
+        let centres: Vec<Vec3> = (0..500u64)
+            .map(|c| {
+                let m = crate::sampling::mix64(c ^ 0xC0FFEE);
+                Vec3::new((m & 0xffff) as f32, (m >> 16 & 0xffff) as f32, (m >> 32 & 0xffff) as f32) * 1e-3
+            })
+            .collect();
         let total: u64 = charts.iter().sum();
         let largest = *charts.iter().max().expect("charts");
         for n in [1u32, 2, 3, 4, 7, 16] {
-            let owner = deal_charts(&charts, n);
-            assert_eq!(owner, deal_charts(&charts, n), "deterministic");
+            let owner = deal_charts(&charts, &centres, n);
+            assert_eq!(owner, deal_charts(&charts, &centres, n), "deterministic");
             let mut held = vec![0u64; n as usize];
             for (c, &o) in owner.iter().enumerate() {
                 assert!(o < n);
@@ -355,14 +404,33 @@ mod tests {
             assert_eq!(held.iter().sum::<u64>(), total, "complete and disjoint");
             let mean = total as f64 / n as f64;
             for h in &held {
-                assert!((*h as f64) <= mean + largest as f64, "{h} texels, mean {mean}, largest chart {largest}");
+                assert!((*h as f64 - mean).abs() <= largest as f64, "{h} texels, mean {mean}, largest chart {largest}");
             }
-            // Many small charts: greedy dealing is far tighter than the bound (within 2%).
-            let max = *held.iter().max().expect("shares") as f64;
-            assert!(max <= mean * 1.02 + largest as f64 / 2.0, "share of {max} texels against a mean of {mean}");
         }
-        // More shares than charts: the extra shares hold nothing, nothing is lost.
-        let owner = deal_charts(&[5, 0, 3], 4);
-        assert_eq!(owner, vec![0, 0, 1]);
+        // More shares than charts: the extra shares hold nothing, nothing is lost; a chart
+        // without texels goes to share 0.
+        // Chart 0's middle texel is texel 2.5 of 8 (share 1 of 4), chart 2's 6.5 (share 3).
+        let owner = deal_charts(&[5, 0, 3], &[Vec3::ZERO, Vec3::ONE, Vec3::X], 4);
+        assert_eq!(owner, vec![1, 0, 3]);
+    }
+
+    /// Shares are compact: charts on a line, dealt in two, split at the middle (a Z-order
+    /// curve visits one half-space of the first axis bit before the other).
+    #[test]
+    fn charts_are_dealt_by_place() {
+        let centres: Vec<Vec3> = (0..64).map(|i| Vec3::new(((i * 37) % 64) as f32, 0.0, 0.0)).collect();
+        let owner = deal_charts(&[10; 64], &centres, 2);
+        for (c, p) in centres.iter().enumerate() {
+            assert_eq!(owner[c], u32::from(p.x >= 32.0), "chart {c} at x = {}", p.x);
+        }
+    }
+
+    /// The Z-order key's axes interleave: bit i of an axis lands on bit 3i.
+    #[test]
+    fn spread_bits_interleaves() {
+        for i in 0..21 {
+            assert_eq!(spread_bits(1 << i), 1u64 << (3 * i));
+        }
+        assert_eq!(spread_bits(u32::MAX), 0x1249_2492_4924_9249);
     }
 }

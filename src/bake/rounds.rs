@@ -105,7 +105,7 @@ pub(super) fn bake_round_from_source(
     progress: &dyn Progress,
 ) -> RoundSums {
     let tables = std::slice::from_ref(table);
-    let region = Region { texels: texels.view(), tables, window: None, foreign: None, triangles: None };
+    let region = Region { texels: texels.view(), tables, window: None, foreign: None, triangles: None, reach: None };
     let share = DirectionShare { seed: round_seed(bundle.config.seed, round), index, count };
     let punctual = PunctualPass { irradiance: punctual, buried: Vec::new(), seconds: 0.0 };
     let never = AtomicBool::new(false);

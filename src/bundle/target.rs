@@ -77,6 +77,11 @@ pub struct BakeTarget<'a> {
     /// Triangles holding target texels (ascending): the importance of Sect. 3 is their texel
     /// density; other triangles only occlude and are seen.
     pub triangles: &'a [u32],
+    /// With one whole-LOD table holding some of the LOD's texels (a region shard's share),
+    /// per face id: whether the face's lookups may find one of them ([`faces_reaching`]). A
+    /// face that may not is foreign without a lookup, and the resolve skips the pixels where
+    /// no face that may lies (no target texel can be credited there). `None`: every face may.
+    pub reach: Option<&'a [bool]>,
 }
 
 impl BakeTarget<'_> {
@@ -86,6 +91,12 @@ impl BakeTarget<'_> {
 
     pub fn is_empty(&self) -> bool {
         self.face.is_empty()
+    }
+
+    /// Whether face `f`'s lookups may find a target texel (see [`reach`](Self::reach)).
+    #[inline]
+    pub fn reaches(&self, f: FaceId) -> bool {
+        self.reach.is_none_or(|r| r.get(f as usize) == Some(&true))
     }
 
     /// The index in [`tables`](Self::tables) of the table serving chart `chart`, if any.
@@ -118,8 +129,34 @@ impl WholeLod {
             tables: &self.tables,
             window: None,
             triangles: &self.triangles,
+            reach: None,
         }
     }
+}
+
+/// Per face of `atlas`: whether a lookup of one of its points at `lod` may find an entry
+/// (texel or gutter pixel) of `table`: whether the table holds an entry within a pixel of the
+/// face's UV bounds. A fragment's lookup reads the pixel under the UV interpolated at a pixel
+/// centre inside the triangle, which is within the bounds up to float rounding; the pixel of
+/// margin covers that. (Chart membership is not enough: a chart's edge pixel may belong to a
+/// neighbouring chart's texel or gutter, and a whole-LOD bake credits that texel there.)
+pub fn faces_reaching(atlas: &Atlas, table: &TexelTable, lod: u32) -> Vec<bool> {
+    use crate::atlas::texels::NO_TEXEL;
+    let scale = (1u64 << lod) as f32;
+    atlas
+        .faces
+        .iter()
+        .map(|face| {
+            let uv = face.uv.map(|p| p * scale);
+            let lo = uv[0].min(uv[1]).min(uv[2]).floor();
+            let hi = uv[0].max(uv[1]).max(uv[2]).floor();
+            if !(lo.is_finite() && hi.is_finite()) {
+                return true;
+            }
+            let (x0, y0, x1, y1) = (lo.x as i64 - 1, lo.y as i64 - 1, hi.x as i64 + 1, hi.y as i64 + 1);
+            (y0..=y1).any(|y| (x0..=x1).any(|x| table.get(x, y) != NO_TEXEL))
+        })
+        .collect()
 }
 
 /// The triangles holding texels of faces `faces` (ascending, once each): a target's
@@ -140,16 +177,22 @@ pub trait SurfaceRadiance: Sync {
     /// Emitted radiance (the light pass's emitters).
     fn emission(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb;
     /// Whether the source is held per texel of the whole LOD being baked (a region shard's,
-    /// [`crate::bake::region_shard`]): a backend then asks [`texel_at`](Self::texel_at)
-    /// with the LOD pixel its own lookup would read, so that a foreign side reads the very
-    /// texel a whole-LOD bake's table gives there.
+    /// [`crate::bake::region_shard`]): a backend then asks [`radiance_at`](Self::radiance_at)
+    /// and [`emission_at`](Self::emission_at) with the LOD pixel its own lookup would read,
+    /// so that a foreign side reads the very texel a whole-LOD bake's table gives there.
     fn by_lod_pixel(&self) -> bool {
         false
     }
-    /// The radiance and emission of the texel at LOD pixel (x, y) (zero where none is);
-    /// asked only of a source that is [`by_lod_pixel`](Self::by_lod_pixel).
-    fn texel_at(&self, _x: i64, _y: i64) -> (Rgb, Rgb) {
-        (Rgb::ZERO, Rgb::ZERO)
+    /// The radiance of the texel at LOD pixel (x, y) (zero where none is); asked only of a
+    /// source that is [`by_lod_pixel`](Self::by_lod_pixel).
+    fn radiance_at(&self, _x: i64, _y: i64) -> Rgb {
+        Rgb::ZERO
+    }
+    /// The emission of the texel at LOD pixel (x, y), as [`radiance_at`](Self::radiance_at).
+    /// Apart from it because the global bundles never need it, and finding it costs a search
+    /// among the emitting texels.
+    fn emission_at(&self, _x: i64, _y: i64) -> Rgb {
+        Rgb::ZERO
     }
     /// The concrete source, for a backend that evaluates some sources in its own kernels
     /// (the GPU resolve evaluates the runtime's shown-light-map source); `None`: backends

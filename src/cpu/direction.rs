@@ -208,7 +208,7 @@ fn seen_foreign(
         Some(f) => {
             lookups.resolved += 1;
             if f.by_lod_pixel() {
-                return foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| f.texel_at(x, y).0);
+                return foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| f.radiance_at(x, y));
             }
             let (tri, side, u, v) = foreign.locate(code, cx, cy);
             f.radiance(tri, side, u, v)
@@ -516,7 +516,7 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
                     }
                     match source.foreign {
                         Some(src) if src.by_lod_pixel() => {
-                            foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| src.texel_at(x, y).1)
+                            foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| src.emission_at(x, y))
                         }
                         Some(src) => {
                             let (tri, side, u, v) = foreign.locate(code, cx, cy);

@@ -65,6 +65,10 @@ enum SideLookup {
     Dark,
     /// A lit face whose chart holds no target texel: always this foreign code.
     Foreign(u32),
+    /// A lit face served by the whole-LOD table whose lookups cannot find a target texel
+    /// ([`BakeTarget::reach`]): always its foreign code, its UV (as in `Table`) kept for
+    /// [`ForeignSides::lod_pixel`].
+    Elsewhere { uv: [Vec2; 3], foreign: u32 },
     /// A lit face of a chart with a target table (an index into the target's tables): its
     /// UV, an affine function of grid pixel coordinates in LOD pixels, finds the texel; a
     /// pixel the table does not hold gives the foreign code.
@@ -244,8 +248,9 @@ impl TileFragments {
         let layering = scene.coincidence_at(self.pixel).layering();
         let mut covered = 0;
         for bucket in 0..self.bucket_len.len() {
-            let Some((lo, hi)) = self.window(bucket) else { continue };
-            self.fill(target, bucket, lo, hi, &prefetch);
+            let Some(pixels) = self.pixels_to_resolve(bucket) else { continue };
+            let (lo, hi) = pixels.bounds();
+            self.fill(target, bucket, pixels, &prefetch);
             let ends = &self.ends[..=(hi - lo) as usize];
             let mut row = Row {
                 frags: &mut self.frags[..ends[(hi - lo) as usize] as usize],
@@ -271,6 +276,7 @@ impl TileFragments {
             let Some(f) = atlas.face(tri, side) else { return SideLookup::Dark };
             let face = &atlas.faces[f as usize];
             match target.table_index(face.chart) {
+                Some(_) if !target.reaches(f) => SideLookup::Elsewhere { uv: face.uv.map(|p| p * scale), foreign },
                 Some(table) => SideLookup::Table { uv: face.uv.map(|p| p * scale), table: table as u32, foreign },
                 None => SideLookup::Foreign(foreign),
             }
@@ -284,6 +290,7 @@ impl TileFragments {
                 SideLookup::Table { uv, table, foreign } => {
                     SideLookup::Table { uv: side_uv(&planes, uv), table, foreign }
                 }
+                SideLookup::Elsewhere { uv, foreign } => SideLookup::Elsewhere { uv: side_uv(&planes, uv), foreign },
                 other => other,
             };
             self.planes.push(FragmentPlanes {
@@ -303,28 +310,34 @@ impl TileFragments {
         &self.spans[start..start + self.bucket_len[bucket] as usize]
     }
 
-    /// The pixels `lo..hi` of a bucket to resolve: the hull of the spans of triangles with a
-    /// side in a chart of the target's tables (no other pixel can credit a target texel; a
-    /// triangle that holds no target texel may still show one, where the texel's square
-    /// reaches over it from a neighbour in its chart), in a light pass cut to the hull of
-    /// its emitter spans (no other pixel can receive its light). `None` when that is empty.
-    fn window(&self, bucket: usize) -> Option<(u32, u32)> {
+    /// The pixels of a bucket to resolve: those covered by a span of a triangle with a side
+    /// that may show a target texel (a `Table` side: no other pixel holds a fragment that
+    /// can be credited; a triangle that holds no target texel may still show one, where the
+    /// texel's square reaches over it from a neighbour in its chart), in a light pass cut to
+    /// the hull of its emitter spans (no other pixel can receive its light). `None` when
+    /// that is empty.
+    fn pixels_to_resolve(&self, bucket: usize) -> Option<StripPixels> {
         let spans = self.bucket_spans_of(bucket);
-        let hull = |(lo, hi): (u32, u32), s: &Span| (lo.min(s.x0), hi.max(s.x1));
-        let shows_targets = |s: &&Span| self.planes[s.tri as usize].shows_targets();
-        let (mut lo, mut hi) = spans.iter().filter(shows_targets).fold((u32::MAX, 0), hull);
+        let base = (bucket / self.height as usize) as u32 * STRIP;
+        let mut mask = spans
+            .iter()
+            .filter(|s| self.planes[s.tri as usize].shows_targets())
+            .fold(0u64, |m, s| m | run_bits(s.x0 - base, s.x1 - base));
         if self.emitters_only {
+            let hull = |(lo, hi): (u32, u32), s: &Span| (lo.min(s.x0), hi.max(s.x1));
             let (a, b) = spans.iter().filter(|s| self.tris[s.tri as usize].emitter).fold((u32::MAX, 0), hull);
-            (lo, hi) = (lo.max(a), hi.min(b));
+            mask &= if a < b { run_bits(a - base, b - base) } else { 0 };
         }
-        (lo < hi).then_some((lo, hi))
+        (mask != 0).then_some(StripPixels { base, mask })
     }
 
-    /// Builds the per-pixel fragment lists of pixels `lo..hi` of a bucket in the row buffer.
-    fn fill(&mut self, target: &BakeTarget, bucket: usize, lo: u32, hi: u32, prefetch: &impl Fn(u32)) {
+    /// Builds the per-pixel fragment lists of a bucket's `pixels` (from the first to the
+    /// last, the others left empty) in the row buffer.
+    fn fill(&mut self, target: &BakeTarget, bucket: usize, pixels: StripPixels, prefetch: &impl Fn(u32)) {
         let start = self.bucket_start[bucket] as usize;
         let spans = &self.spans[start..start + self.bucket_len[bucket] as usize];
         let row = bucket as u32 % self.height;
+        let (lo, hi) = pixels.bounds();
         let clip = |s: &Span| (s.x0.max(lo), s.x1.min(hi));
         // Per-pixel counts as a difference array, turned into pixel p's first slot at
         // `ends[p + 1]`: filling through `ends[p + 1]` as p's cursor then leaves
@@ -335,8 +348,11 @@ impl TileFragments {
         for s in spans {
             let (x0, x1) = clip(s);
             if x0 < x1 {
-                self.ends[(x0 - lo) as usize + 1] = self.ends[(x0 - lo) as usize + 1].wrapping_add(1);
-                self.ends[(x1 - lo) as usize + 1] = self.ends[(x1 - lo) as usize + 1].wrapping_sub(1);
+                for_each_run(pixels.within(x0, x1), |a, b| {
+                    let (a, b) = ((x0 + a - lo) as usize + 1, (x0 + b - lo) as usize + 1);
+                    self.ends[a] = self.ends[a].wrapping_add(1);
+                    self.ends[b] = self.ends[b].wrapping_sub(1);
+                });
             }
         }
         let (mut running, mut total) = (0u32, 0u32);
@@ -358,6 +374,7 @@ impl TileFragments {
             let span = SpanFill {
                 frags: &mut self.frags,
                 cursors: &mut self.ends[(x0 - lo) as usize + 1..(x1 - lo) as usize + 1],
+                runs: pixels.within(x0, x1),
                 x0,
                 offset: self.offset.0,
                 dy,
@@ -367,7 +384,7 @@ impl TileFragments {
             let code = |l: &SideLookup| match *l {
                 SideLookup::Dark => NO_SIDE,
                 SideLookup::Foreign(c) => c,
-                SideLookup::Table { foreign, .. } => foreign,
+                SideLookup::Table { foreign, .. } | SideLookup::Elsewhere { foreign, .. } => foreign,
             };
             match (&p.plus, &p.minus) {
                 (
@@ -459,7 +476,7 @@ impl ForeignSides<'_> {
         let k = ((code - FOREIGN) >> 1) as usize;
         let p = &self.planes[k];
         let lookup = if code & 1 == 1 { &p.minus } else { &p.plus };
-        let SideLookup::Table { uv, .. } = lookup else { return None };
+        let (SideLookup::Table { uv, .. } | SideLookup::Elsewhere { uv, .. }) = lookup else { return None };
         let (_, dy) = p.planes.local(0.0, cy);
         let (dx, _) = p.planes.local(cx, 0.0);
         let at = uv[0] * dx + uv[1] * dy + uv[2];
@@ -529,6 +546,8 @@ struct SpanFill<'a> {
     frags: &'a mut [Fragment],
     /// Per pixel of the span: its next free slot in `frags`.
     cursors: &'a mut [u32],
+    /// The span's pixels to write (bit j: pixel `x0 + j`); the others are not resolved.
+    runs: u64,
     /// The span's first pixel and the rectangle's offset in its grid, and the row's centre
     /// relative to the triangle's anchor.
     x0: u32,
@@ -543,22 +562,64 @@ impl SpanFill<'_> {
     #[inline(always)]
     fn fill(self, mut sides: impl FnMut(f32) -> (u32, u32)) {
         let p = self.planes;
-        // Pixel centres are whole numbers and a half, exact in f32 far beyond any grid
-        // (2^23), so stepping by 1 gives each [`grid_centre`] exactly, without converting.
-        let mut cx = grid_centre(self.offset, self.x0);
-        debug_assert!(cx + (self.cursors.len() as f32) < (1 << 23) as f32);
-        for cursor in self.cursors.iter_mut() {
-            let (dx, _) = p.planes.local(cx, 0.0);
-            cx += 1.0;
-            let (plus, minus) = sides(dx);
-            self.frags[*cursor as usize] = Fragment {
-                depth: eval(&p.depth, dx, self.dy),
-                plus: plus | p.plus_flag,
-                minus: minus | p.minus_flag,
-                normal: p.normal,
-            };
-            *cursor += 1;
-        }
+        for_each_run(self.runs, |a, b| {
+            // Pixel centres are whole numbers and a half, exact in f32 far beyond any grid
+            // (2^23), so stepping by 1 gives each [`grid_centre`] exactly, without converting.
+            let mut cx = grid_centre(self.offset, self.x0 + a);
+            debug_assert!(cx + ((b - a) as f32) < (1 << 23) as f32);
+            for cursor in self.cursors[a as usize..b as usize].iter_mut() {
+                let (dx, _) = p.planes.local(cx, 0.0);
+                cx += 1.0;
+                let (plus, minus) = sides(dx);
+                self.frags[*cursor as usize] = Fragment {
+                    depth: eval(&p.depth, dx, self.dy),
+                    plus: plus | p.plus_flag,
+                    minus: minus | p.minus_flag,
+                    normal: p.normal,
+                };
+                *cursor += 1;
+            }
+        });
+    }
+}
+
+/// Some pixels of one bucket (a row of a strip): bit i of `mask` is pixel `base + i`.
+#[derive(Clone, Copy)]
+struct StripPixels {
+    base: u32,
+    mask: u64,
+}
+
+const _: () = assert!(STRIP == u64::BITS, "a strip's row is one u64 mask");
+
+impl StripPixels {
+    /// The first pixel and one past the last (a non-empty mask).
+    fn bounds(&self) -> (u32, u32) {
+        (self.base + self.mask.trailing_zeros(), self.base + u64::BITS - self.mask.leading_zeros())
+    }
+
+    /// Which of the pixels `x0..x1` of the strip are in the mask, as bits from `x0`.
+    #[inline]
+    fn within(&self, x0: u32, x1: u32) -> u64 {
+        (self.mask >> (x0 - self.base)) & run_bits(0, x1 - x0)
+    }
+}
+
+/// Bits `a..b` of a u64 (`a ≤ b ≤ 64`).
+#[inline]
+fn run_bits(a: u32, b: u32) -> u64 {
+    let ones = if b - a >= u64::BITS { u64::MAX } else { (1u64 << (b - a)) - 1 };
+    ones << a
+}
+
+/// Calls `f(a, b)` for each run `a..b` of consecutive set bits of `bits`, lowest first.
+#[inline(always)]
+fn for_each_run(mut bits: u64, mut f: impl FnMut(u32, u32)) {
+    while bits != 0 {
+        let a = bits.trailing_zeros();
+        let b = a + (!(bits >> a)).trailing_zeros();
+        f(a, b);
+        bits &= !run_bits(a, b);
     }
 }
 
@@ -568,5 +629,33 @@ impl SpanFill<'_> {
 fn grow<T: Copy>(buffer: &mut Vec<T>, len: usize, value: T) {
     if buffer.len() < len {
         buffer.resize(len, value);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Runs come out lowest first, cover exactly the set bits, and a run may touch either end
+    /// of the word.
+    #[test]
+    fn runs_cover_the_set_bits() {
+        let mut rng = crate::sampling::Rng::new(5, 1);
+        let cases = [0u64, 1, u64::MAX, 1 << 63, 0x8000_0000_0000_0001, 0x0ff0_00ff_f000_0f0f];
+        let random = (0..200).map(|_| (rng.next_f32().to_bits() as u64) << 32 ^ rng.next_f32().to_bits() as u64);
+        for bits in cases.into_iter().chain(random) {
+            let (mut seen, mut last_end) = (0u64, 0u32);
+            for_each_run(bits, |a, b| {
+                assert!(a < b && b <= 64 && (seen == 0 || a > last_end), "{bits:#x}: run {a}..{b}");
+                let run = run_bits(a, b);
+                assert_eq!(run & bits, run, "{bits:#x}: {a}..{b} holds a clear bit");
+                seen |= run;
+                last_end = b;
+            });
+            assert_eq!(seen, bits);
+        }
+        let pixels = StripPixels { base: 128, mask: 0b1011 << 60 };
+        assert_eq!(pixels.bounds(), (188, 192));
+        assert_eq!(pixels.within(186, 192), 0b101100);
     }
 }

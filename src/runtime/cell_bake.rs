@@ -186,6 +186,7 @@ impl CellBake {
             tables: &self.texels.tables,
             window: Some(self.window),
             triangles: &self.triangles,
+            reach: None,
         };
         let source = SourceRadiance { own: &self.own_source, foreign: Some(&self.source) };
         let pass = backend.trace_batch(&target, &batch, &source, &mut self.sums, cancel)?;

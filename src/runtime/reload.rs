@@ -515,6 +515,7 @@ fn relight(
         window: Some(crate::runtime::cell_bake::bundle_window(&texels, world.texel_size(0))),
         foreign: Some(&source),
         triangles: None,
+        reach: None,
     };
     lap(&mut steps.region);
     let punctual =
