@@ -433,4 +433,40 @@ mod tests {
         }
         assert_eq!(spread_bits(u32::MAX), 0x1249_2492_4924_9249);
     }
+
+    /// `faces_reaching` misses no face: on the Van Gogh room at LOD 0, a share's table and
+    /// points sampled over every face (a 12 × 12 barycentric lattice, edges included, each
+    /// point's UV rounded down as a lookup does), a face whose point lands on an entry of the
+    /// share's table always reaches. And it leaves faces out: most of the other shares' faces.
+    #[test]
+    fn a_face_that_finds_a_share_texel_reaches() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/van_gogh_room/van_gogh_room_lit.gltf");
+        let scene = crate::scene::load_gltf(&path, &crate::scene::LoadOptions::default()).expect("bundled scene");
+        let geom = SceneGeometry::new(&scene);
+        let config = crate::atlas::AtlasConfig { texel_budget: 60_000, ..Default::default() };
+        let atlas = Atlas::build(&scene, &geom, &config).expect("atlas");
+        let map = TexelMap::build(&scene, &geom, &atlas, 0);
+        let owner = deal_charts(&chart_texels(&map, &atlas), &chart_centres(&atlas, &geom), 4);
+        let (mut found, mut left_out) = (0, 0);
+        for index in 0..4 {
+            let sub = subset_map(&map, &share_texels(&map, &atlas, &owner, index));
+            let table = TexelTable::of_map(&sub);
+            let reach = faces_reaching(&atlas, &table, 0);
+            for (f, face) in atlas.faces.iter().enumerate() {
+                let n = 12;
+                let finds = (0..=n).any(|i| {
+                    (0..=n - i).any(|j| {
+                        let p = face.uv_at(i as f32 / n as f32, j as f32 / n as f32).floor();
+                        table.get(p.x as i64, p.y as i64) != NO_TEXEL
+                    })
+                });
+                assert!(!finds || reach[f], "share {index}: face {f} finds a texel but is not reaching");
+                found += finds as u32;
+                left_out += (!reach[f] && owner[face.chart as usize] != index) as u32;
+            }
+        }
+        let faces = atlas.faces.len() as u32;
+        assert!(found >= faces * 9 / 10, "{found} of {faces} faces found a texel of their share");
+        assert!(left_out > faces * 2, "{left_out} faces of other shares left out (of {} in all)", faces * 3);
+    }
 }

@@ -348,11 +348,11 @@ impl TileFragments {
         for s in spans {
             let (x0, x1) = clip(s);
             if x0 < x1 {
-                for_each_run(pixels.within(x0, x1), |a, b| {
+                for (a, b) in Runs(pixels.within(x0, x1)) {
                     let (a, b) = ((x0 + a - lo) as usize + 1, (x0 + b - lo) as usize + 1);
                     self.ends[a] = self.ends[a].wrapping_add(1);
                     self.ends[b] = self.ends[b].wrapping_sub(1);
-                });
+                }
             }
         }
         let (mut running, mut total) = (0u32, 0u32);
@@ -562,7 +562,7 @@ impl SpanFill<'_> {
     #[inline(always)]
     fn fill(self, mut sides: impl FnMut(f32) -> (u32, u32)) {
         let p = self.planes;
-        for_each_run(self.runs, |a, b| {
+        for (a, b) in Runs(self.runs) {
             // Pixel centres are whole numbers and a half, exact in f32 far beyond any grid
             // (2^23), so stepping by 1 gives each [`grid_centre`] exactly, without converting.
             let mut cx = grid_centre(self.offset, self.x0 + a);
@@ -579,7 +579,7 @@ impl SpanFill<'_> {
                 };
                 *cursor += 1;
             }
-        });
+        }
     }
 }
 
@@ -612,14 +612,22 @@ fn run_bits(a: u32, b: u32) -> u64 {
     ones << a
 }
 
-/// Calls `f(a, b)` for each run `a..b` of consecutive set bits of `bits`, lowest first.
-#[inline(always)]
-fn for_each_run(mut bits: u64, mut f: impl FnMut(u32, u32)) {
-    while bits != 0 {
-        let a = bits.trailing_zeros();
-        let b = a + (!(bits >> a)).trailing_zeros();
-        f(a, b);
-        bits &= !run_bits(a, b);
+/// The runs `a..b` of consecutive set bits of a u64, lowest first. An iterator, not a
+/// callback: the fill's per-pixel loop is then written (and inlined) once.
+struct Runs(u64);
+
+impl Iterator for Runs {
+    type Item = (u32, u32);
+
+    #[inline(always)]
+    fn next(&mut self) -> Option<(u32, u32)> {
+        if self.0 == 0 {
+            return None;
+        }
+        let a = self.0.trailing_zeros();
+        let b = a + (!(self.0 >> a)).trailing_zeros();
+        self.0 &= !run_bits(a, b);
+        Some((a, b))
     }
 }
 
@@ -645,13 +653,13 @@ mod tests {
         let random = (0..200).map(|_| (rng.next_f32().to_bits() as u64) << 32 ^ rng.next_f32().to_bits() as u64);
         for bits in cases.into_iter().chain(random) {
             let (mut seen, mut last_end) = (0u64, 0u32);
-            for_each_run(bits, |a, b| {
+            for (a, b) in Runs(bits) {
                 assert!(a < b && b <= 64 && (seen == 0 || a > last_end), "{bits:#x}: run {a}..{b}");
                 let run = run_bits(a, b);
                 assert_eq!(run & bits, run, "{bits:#x}: {a}..{b} holds a clear bit");
                 seen |= run;
                 last_end = b;
-            });
+            }
             assert_eq!(seen, bits);
         }
         let pixels = StripPixels { base: 128, mask: 0b1011 << 60 };
