@@ -605,11 +605,12 @@ impl StripPixels {
     }
 }
 
-/// Bits `a..b` of a u64 (`a ≤ b ≤ 64`).
+/// Bits `a..b` of a u64 (`a < b ≤ 64`: never empty, so the shifts stay below 64 without a
+/// branch).
 #[inline]
 fn run_bits(a: u32, b: u32) -> u64 {
-    let ones = if b - a >= u64::BITS { u64::MAX } else { (1u64 << (b - a)) - 1 };
-    ones << a
+    debug_assert!(a < b && b <= u64::BITS);
+    (u64::MAX >> (u64::BITS - (b - a))) << a
 }
 
 /// The runs `a..b` of consecutive set bits of a u64, lowest first. An iterator, not a
