@@ -467,9 +467,13 @@ fn without_the_token_or_outside_the_scene_requests_are_refused() {
     assert_eq!(token.len(), 32);
     let addr = served.addr();
     let q = format!("?token={token}");
+    // The token with its first character changed (to '1' when it already was '0': a token
+    // starting with '0', 1 in 16, made this the token itself).
+    let wrong = format!("{}{}", if token.starts_with('0') { '1' } else { '0' }, &token[1..]);
+    assert_ne!(wrong, token);
     for path in ["/", "/livebake.js", "/shaders.js", "/status.json", "/scene/cornell_2m.gltf"] {
         assert_eq!(http_get(&addr, path, "").0, 403, "{path} without the token");
-        assert_eq!(http_get(&addr, &format!("{path}?token=0{}", &token[1..]), "").0, 403, "{path} with a wrong token");
+        assert_eq!(http_get(&addr, &format!("{path}?token={wrong}"), "").0, 403, "{path} with a wrong token");
         assert_eq!(http_get(&addr, &format!("{path}{q}"), "").0, 200, "{path} with the token");
         let cookie = format!("Cookie: livebake_token={token}\r\n");
         assert_eq!(http_get(&addr, path, &cookie).0, 200, "{path} with the cookie");
