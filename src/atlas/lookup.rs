@@ -119,6 +119,32 @@ impl TexelTable {
         self.block(x, y) << 6 | ((y & 7) << 3 | (x & 7)) as usize
     }
 
+    /// Whether one of the pixels `x0..=x1` × `y0..=y1` holds an entry. Blocks holding none
+    /// are passed over whole (64 pixels a test), so a large rectangle over empty blocks
+    /// costs its blocks, not its pixels.
+    pub fn any_in(&self, x0: i64, y0: i64, x1: i64, y1: i64) -> bool {
+        let r = self.rect;
+        let (bx0, by0) = ((x0.max(r.x0) - r.x0) >> 3, (y0.max(r.y0) - r.y0) >> 3);
+        let (bx1, by1) = (x1.min(r.x1 - 1) - r.x0, y1.min(r.y1 - 1) - r.y0);
+        if bx1 < 0 || by1 < 0 {
+            return false;
+        }
+        (by0..=by1 >> 3).any(|by| {
+            (bx0..=bx1 >> 3).any(|bx| {
+                let b = (by * self.blocks_x + bx) as usize;
+                let empty = match &self.storage {
+                    Storage::Dense(entries) => entries[b << 6..][..64].iter().all(|&e| e == NO_TEXEL),
+                    Storage::Ranked { blocks, .. } => blocks[b].texels | blocks[b].gutter == 0,
+                };
+                // The block's pixels inside the rectangle.
+                let (px, py) = (r.x0 + (bx << 3), r.y0 + (by << 3));
+                !empty
+                    && (py.max(y0)..=(py + 7).min(y1))
+                        .any(|y| (px.max(x0)..=(px + 7).min(x1)).any(|x| self.get(x, y) != NO_TEXEL))
+            })
+        })
+    }
+
     /// The entry of LOD pixel `(x, y)`; [`NO_TEXEL`] outside the table.
     #[inline(always)]
     pub fn get(&self, x: i64, y: i64) -> u32 {
@@ -395,5 +421,31 @@ mod tests {
         assert!(matches!(t.storage, Storage::Dense(_)));
         assert_eq!(t.get((map.pixel[10] % 40) as i64, (map.pixel[10] / 40) as i64), 10);
         assert_eq!(t.map_pixels(), None);
+    }
+
+    /// `any_in` gives the pixel-by-pixel answer for rectangles inside, across and outside the
+    /// table, with and without entries.
+    #[test]
+    fn any_in_is_exact() {
+        let rect = PixelRect::new(-5, 3, 60, 41);
+        let mut table = TexelTable::new(None, rect);
+        let mut rng = crate::sampling::Rng::new(3, 9);
+        for k in 0..12 {
+            let x = rect.x0 + (rng.next_f32() * rect.width() as f32) as i64 % rect.width();
+            let y = rect.y0 + (rng.next_f32() * rect.height() as f32) as i64 % rect.height();
+            table.set(x, y, k);
+        }
+        let mut yes = 0;
+        for _ in 0..4000 {
+            let x0 = -20 + (rng.next_f32() * 100.0) as i64;
+            let y0 = -10 + (rng.next_f32() * 70.0) as i64;
+            let (x1, y1) = (x0 + (rng.next_f32() * 12.0) as i64, y0 + (rng.next_f32() * 12.0) as i64);
+            let holds = (y0..=y1).any(|y| (x0..=x1).any(|x| table.get(x, y) != NO_TEXEL));
+            assert_eq!(table.any_in(x0, y0, x1, y1), holds, "({x0}, {y0})..=({x1}, {y1})");
+            yes += holds as u32;
+        }
+        assert!(yes > 100 && yes < 3900, "{yes} of 4000 rectangles held entries");
+        assert!(!table.any_in(100, 100, 120, 120));
+        assert!(!table.any_in(-50, -50, -6, 60));
     }
 }

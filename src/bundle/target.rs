@@ -135,13 +135,13 @@ impl WholeLod {
 }
 
 /// Per face of `atlas`: whether a lookup of one of its points at `lod` may find an entry
-/// (texel or gutter pixel) of `table`: whether the table holds an entry within a pixel of the
-/// face's UV bounds. A fragment's lookup reads the pixel under the UV interpolated at a pixel
-/// centre inside the triangle, which is within the bounds up to float rounding; the pixel of
-/// margin covers that. (Chart membership is not enough: a chart's edge pixel may belong to a
-/// neighbouring chart's texel or gutter, and a whole-LOD bake credits that texel there.)
+/// (texel or gutter pixel) of `table`: whether the table holds one within a pixel of the
+/// face's UV bounds ([`TexelTable::any_in`]). A fragment's lookup reads the pixel
+/// under the UV interpolated at a pixel centre inside the triangle, which is within the
+/// bounds up to float rounding; the pixel of margin covers that. (Chart membership is not
+/// enough: a chart's edge pixel may belong to a neighbouring chart's texel or gutter, and a
+/// whole-LOD bake credits that texel there.)
 pub fn faces_reaching(atlas: &Atlas, table: &TexelTable, lod: u32) -> Vec<bool> {
-    use crate::atlas::texels::NO_TEXEL;
     let scale = (1u64 << lod) as f32;
     atlas
         .faces
@@ -153,8 +153,7 @@ pub fn faces_reaching(atlas: &Atlas, table: &TexelTable, lod: u32) -> Vec<bool> 
             if !(lo.is_finite() && hi.is_finite()) {
                 return true;
             }
-            let (x0, y0, x1, y1) = (lo.x as i64 - 1, lo.y as i64 - 1, hi.x as i64 + 1, hi.y as i64 + 1);
-            (y0..=y1).any(|y| (x0..=x1).any(|x| table.get(x, y) != NO_TEXEL))
+            table.any_in(lo.x as i64 - 1, lo.y as i64 - 1, hi.x as i64 + 1, hi.y as i64 + 1)
         })
         .collect()
 }
