@@ -16,6 +16,7 @@ pub mod export;
 pub mod gpu;
 pub mod grid;
 pub mod lod;
+pub mod morton;
 pub mod output;
 pub mod parallel;
 pub mod plot;

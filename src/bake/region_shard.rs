@@ -89,7 +89,7 @@ pub fn deal_charts(chart_texels: &[u64], centres: &[Vec3], count: u32) -> Vec<u3
     let key = |c: u32| -> u64 {
         let p = centres[c as usize];
         let q = if p.is_finite() { ((p - lo) * scale).max(Vec3::ZERO) } else { Vec3::ZERO };
-        spread_bits(q.x as u32) | spread_bits(q.y as u32) << 1 | spread_bits(q.z as u32) << 2
+        crate::morton::key3(q.x as u32, q.y as u32, q.z as u32)
     };
     let mut order: Vec<(u64, u32)> = held.iter().map(|&c| (key(c), c)).collect();
     order.sort_unstable();
@@ -103,16 +103,6 @@ pub fn deal_charts(chart_texels: &[u64], centres: &[Vec3], count: u32) -> Vec<u3
         before += n;
     }
     owner
-}
-
-/// Spreads the low 21 bits of `v` to every third bit of a u64 (a Z-order key's axis).
-fn spread_bits(v: u32) -> u64 {
-    let mut v = v as u64 & 0x1f_ffff;
-    v = (v | v << 32) & 0x1f_0000_0000_ffff;
-    v = (v | v << 16) & 0x1f_0000_ff00_00ff;
-    v = (v | v << 8) & 0x100f_00f0_0f00_f00f;
-    v = (v | v << 4) & 0x10c3_0c30_c30c_30c3;
-    (v | v << 2) & 0x1249_2492_4924_9249
 }
 
 /// The texels of `map` whose chart `owner` gives to share `index` (ascending ids).
@@ -423,15 +413,6 @@ mod tests {
         for (c, p) in centres.iter().enumerate() {
             assert_eq!(owner[c], u32::from(p.x >= 32.0), "chart {c} at x = {}", p.x);
         }
-    }
-
-    /// The Z-order key's axes interleave: bit i of an axis lands on bit 3i.
-    #[test]
-    fn spread_bits_interleaves() {
-        for i in 0..21 {
-            assert_eq!(spread_bits(1 << i), 1u64 << (3 * i));
-        }
-        assert_eq!(spread_bits(u32::MAX), 0x1249_2492_4924_9249);
     }
 
     /// `faces_reaching` misses no face: on the Van Gogh room at LOD 0, a share's table and

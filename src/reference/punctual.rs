@@ -189,19 +189,11 @@ fn bounds(points: impl Iterator<Item = Vec3>) -> (Vec3, Vec3) {
 fn spatial_order(n: usize, position: impl Fn(usize) -> Vec3, (lo, hi): (Vec3, Vec3)) -> Vec<u64> {
     debug_assert!(n <= u32::MAX as usize + 1);
     let scale = 1023.0 / (hi - lo).max_element().max(f32::MIN_POSITIVE);
-    let spread = |x: u32| -> u64 {
-        let mut v = x as u64 & 0x3ff;
-        v = (v | (v << 16)) & 0x0300_00ff;
-        v = (v | (v << 8)) & 0x0300_f00f;
-        v = (v | (v << 4)) & 0x030c_30c3;
-        (v | (v << 2)) & 0x0924_9249
-    };
     let mut keyed: Vec<u64> = (0..n)
         .map(|i| {
             let p = position(i);
             let q = ((p - lo) * scale).clamp(Vec3::ZERO, Vec3::splat(1023.0));
-            let key =
-                if p.is_finite() { spread(q.x as u32) | spread(q.y as u32) << 1 | spread(q.z as u32) << 2 } else { 0 };
+            let key = if p.is_finite() { crate::morton::key3(q.x as u32, q.y as u32, q.z as u32) } else { 0 };
             key << 32 | i as u64
         })
         .collect();
