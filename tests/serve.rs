@@ -162,14 +162,14 @@ fn v3(v: &Value) -> [f32; 3] {
 
 /// The light map stays as first light made it: one LOD, every direction in first light.
 const FROZEN: [&str; 10] =
-    ["--lods", "1", "--samples", "64", "--first-light-directions", "64", "--exposure", "1.5", "--texel-size", "0.05"];
+    ["--lods", "1", "--samples", "64", "--first-light-directions", "64", "--texel-size", "0.05", "--exposure", "1.5"];
 
 /// Each eye the page draws in the emulated headset matches livebake's own render of that
 /// eye's pose (`view --stereo`, lavapipe, under Xvfb).
 ///
 /// Tolerance. Both draw albedo × E/π from the same light map (the same f32 texels, from the
-/// same seeded bake) through the same sampling formulas (the page's GLSL is a line-by-line
-/// twin of shaders/lightmap.inc.wgsl), the same tone curve and sRGB encoding. What differs:
+/// same seeded bake) through the same sampling formulas (the page's GLSL computes what
+/// shaders/lightmap.inc.wgsl does), the same tone curve and sRGB encoding. What differs:
 /// (1) rounding to 8 bits (the viewer's target encodes sRGB in hardware, the page in its
 /// shader) and the two software rasterisers' exp/pow: ±1 level, so 4 levels (of 255) per
 /// channel is a match; (2) the rasterisers place triangle edges differently by a fraction of
@@ -184,18 +184,45 @@ const FROZEN: [&str; 10] =
 /// pixels, mean 0.07 level.)
 #[test]
 fn each_eye_in_the_emulated_headset_matches_the_viewers_stereo_render() {
-    let served = Served::start(&cornell_path(), &[&FROZEN[..], &["--no-watch"]].concat());
+    eyes_match_the_viewer(&cornell_path(), "1.5", false);
+}
+
+/// The same with a point light added to the Cornell room: the page draws with its two-layer
+/// program once the punctual layer holds pages (web/shaders.js), the test above with the
+/// one-layer program. Tolerance as above (same room, same view).
+#[test]
+fn with_a_punctual_light_each_eye_matches_the_viewers_stereo_render() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut gltf: Value = serde_json::from_slice(&std::fs::read(cornell_path()).unwrap()).unwrap();
+    gltf["extensionsUsed"].as_array_mut().unwrap().push(json!("KHR_lights_punctual"));
+    gltf["extensions"] = json!({"KHR_lights_punctual": {"lights": [{"type": "point", "intensity": 2.0}]}});
+    let lamp = gltf["nodes"].as_array().unwrap().len();
+    gltf["nodes"].as_array_mut().unwrap().push(json!({"translation": [0.6, 1.4, 1.2],
+        "extensions": {"KHR_lights_punctual": {"light": 0}}}));
+    gltf["scenes"][0]["nodes"].as_array_mut().unwrap().push(json!(lamp));
+    let scene = dir.path().join("cornell_lamp.gltf");
+    std::fs::write(&scene, gltf.to_string()).unwrap();
+    eyes_match_the_viewer(&scene, "1.5", true);
+}
+
+/// `exposure` for both renders; `punctual`: whether the page shows punctual pages.
+fn eyes_match_the_viewer(scene: &Path, exposure: &str, punctual: bool) {
+    // FROZEN with this exposure.
+    let frozen = [&FROZEN[..8], &["--exposure", exposure]].concat();
+    let served = Served::start(scene, &[&frozen[..], &["--no-watch"]].concat());
     let status = served.wait_first_light();
     let yfov = status["start"]["yfov"].as_f64().unwrap();
     let (w, h) = (160u32, 120u32);
     let ipd = 0.063f32;
     let dir = tempfile::tempdir().unwrap();
     let result = drive(
-        json!({"url": served.url, "fovy": yfov, "ipd": ipd, "eye_size": [w, h], "frames": 3, "steps": ["capture"]}),
+        json!({"url": served.url, "fovy": yfov, "ipd": ipd, "eye_size": [w, h], "frames": 3, "steps": ["capture", "status"]}),
         dir.path(),
     );
     let eyes = step(&result, "capture")["eyes"].as_array().unwrap().clone();
     assert_eq!(eyes.len(), 2);
+    let punctual_pages = step(&result, "status")["after"]["layer_pages"][1].as_u64().unwrap();
+    assert_eq!(punctual_pages > 0, punctual, "{punctual_pages} punctual pages in the page");
     let (left, right) = (v3(&eyes[0]["position"]), v3(&eyes[1]["position"]));
     let forward = v3(&eyes[0]["forward"]);
     let centre: [f32; 3] = [0, 1, 2].map(|i| 0.5 * (left[i] + right[i]));
@@ -209,8 +236,8 @@ fn each_eye_in_the_emulated_headset_matches_the_viewers_stereo_render() {
     cmd.env("DISPLAY", &x.display)
         .arg("-q")
         .arg("view")
-        .arg(cornell_path())
-        .args(FROZEN)
+        .arg(scene)
+        .args(&frozen)
         .args(["--backend", "cpu", "--no-watch", "--stereo", "--ipd", &ipd.to_string(), "--camera", &camera])
         .args(["--size", &format!("{}x{h}", 2 * w)])
         .arg("--screenshot")

@@ -12,7 +12,7 @@
 // and snap turn (thumbstick left/right) on the controllers. On a desktop: the fly camera of
 // `view` (drag to look, WASD/QE to move, wheel for speed).
 
-import { FRAGMENT_SHADER, TABLE_W, VERTEX_SHADER } from "./shaders.js";
+import { fragmentShader, TABLE_W, VERTEX_SHADER } from "./shaders.js";
 
 const PAGE_SIDE = 16;
 const PAGE_FLOATS = PAGE_SIDE * PAGE_SIDE * 4;
@@ -70,10 +70,10 @@ function compile(gl, type, source) {
   return s;
 }
 
-function program(gl) {
+function program(gl, layers) {
   const p = gl.createProgram();
   gl.attachShader(p, compile(gl, gl.VERTEX_SHADER, VERTEX_SHADER));
-  gl.attachShader(p, compile(gl, gl.FRAGMENT_SHADER, FRAGMENT_SHADER));
+  gl.attachShader(p, compile(gl, gl.FRAGMENT_SHADER, fragmentShader(layers)));
   gl.linkProgram(p);
   if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(p));
   const u = {};
@@ -138,6 +138,8 @@ class LightMap {
     this.table = new IntTable(gl, offset, NO_PAGE);
     this.cells = new IntTable(gl, 2 * cells, 0);
     this.free = [];
+    // Pages each layer holds: no punctual page, the one-layer program (fragmentShader).
+    this.layerPages = [0, 0];
     this.capacityRows = 0;
     this.used = 0;
     this.poolData = new Float32Array(0);
@@ -209,6 +211,7 @@ class LightMap {
     for (let i = 0; i < this.table.data.length; i++) {
       if (this.table.data[i] !== NO_PAGE) { this.free.push(this.table.data[i]); this.table.set(i, NO_PAGE); }
     }
+    this.layerPages = [0, 0];
     for (let i = 0; i < 2 * this.cellCount; i++) this.cells.set(i, 0);
   }
   // Applies an UPDATE message; returns the number of pages written and the bytes uploaded.
@@ -235,6 +238,7 @@ class LightMap {
         if (this.free.length === 0) this.grow(this.capacityRows * 2);
         slot = this.free.pop();
         this.table.set(e, slot);
+        this.layerPages[layer]++;
       }
       const column = slot % POOL_COLUMNS, poolRow = Math.floor(slot / POOL_COLUMNS);
       const sx = column * PAGE_SIDE, sy = poolRow * PAGE_SIDE;
@@ -251,7 +255,11 @@ class LightMap {
       const px = dv.getUint32(at + 4, true), py = dv.getUint32(at + 8, true);
       if (layer > 1 || lod >= this.scene.lods) continue;
       const e = this.entry(layer, lod, px, py);
-      if (this.table.data[e] !== NO_PAGE) { this.free.push(this.table.data[e]); this.table.set(e, NO_PAGE); }
+      if (this.table.data[e] !== NO_PAGE) {
+        this.free.push(this.table.data[e]);
+        this.table.set(e, NO_PAGE);
+        this.layerPages[layer]--;
+      }
     }
     const bytes = this.uploadDirty();
     this.table.upload();
@@ -286,7 +294,8 @@ function makeTexture(gl, width, height, pixels, srgb, wrap) {
 export function start(canvas, ui = {}) {
   const gl = canvas.getContext("webgl2", { antialias: false, xrCompatible: true, preserveDrawingBuffer: true });
   if (!gl) throw new Error("WebGL 2 is not available");
-  const shader = program(gl);
+  // Index 0 samples the bundle layer alone, 1 both layers (fragmentShader).
+  const shaders = [program(gl, 1), program(gl, 2)];
   const white = makeTexture(gl, 1, 1, new Uint8Array([255, 255, 255, 255]), false);
   const params = new URLSearchParams(location.search);
   const state = {
@@ -501,6 +510,9 @@ export function start(canvas, ui = {}) {
   }
 
   function uploadUniforms() {
+    for (const shader of shaders) uploadUniformsOf(shader);
+  }
+  function uploadUniformsOf(shader) {
     const s = state.scene, lm = state.lightmap, u = shader.u;
     gl.useProgram(shader.program);
     gl.uniform3fv(u.gridOrigin, s.grid.origin);
@@ -522,7 +534,7 @@ export function start(canvas, ui = {}) {
 
   // Draws the scene with `viewProj` into the bound framebuffer's `viewport`.
   function drawScene(viewProj, viewport) {
-    const s = state.scene, lm = state.lightmap, u = shader.u;
+    const s = state.scene, lm = state.lightmap;
     gl.viewport(...viewport);
     gl.enable(gl.SCISSOR_TEST);
     gl.scissor(...viewport);
@@ -533,6 +545,7 @@ export function start(canvas, ui = {}) {
     gl.enable(gl.DEPTH_TEST);
     gl.depthFunc(gl.LESS);
     gl.frontFace(gl.CCW);
+    const shader = shaders[lm.layerPages[1] > 0 ? 1 : 0], u = shader.u;
     gl.useProgram(shader.program);
     gl.uniformMatrix4fv(u.viewProj, false, viewProj);
     gl.activeTexture(gl.TEXTURE0); gl.bindTexture(gl.TEXTURE_2D, lm.pool);

@@ -23,15 +23,22 @@ void main() {
 }`;
 
 // The twin of shaders/lightmap.inc.wgsl and surface.wgsl's lit view.
-export const FRAGMENT_SHADER = `#version 300 es
+// With the punctual layer (layers = 2) or without: the page draws with the one-layer program
+// while the punctual layer holds no page (a scene without punctual lights), which reads zero
+// there. A branch on a uniform would not do: under software GL (SwiftShader) the second
+// layer cost about half the frame until it was compiled out.
+export const fragmentShader = (layers) => `#version 300 es
+${layers > 1 ? "#define PUNCTUAL_LAYER" : ""}
 precision highp float;
 precision highp int;
 precision highp usampler2D;
 const float PI = 3.14159265358979;
 const int PAGE_SIDE = 16;
+const int PAGE_SHIFT = 4;
 const uint NO_PAGE = 0xffffffffu;
 const uint MAX_LODS = 8u;
 const uint TABLE_W = ${TABLE_W}u;
+const uint TABLE_SHIFT = ${Math.log2(TABLE_W)}u;
 uniform sampler2D pool;
 uniform usampler2D pageTable;
 uniform usampler2D cellLod;
@@ -54,18 +61,20 @@ in vec2 vFront;
 in vec2 vBack;
 out vec4 colour;
 
-uint tableEntry(uint i) { return texelFetch(pageTable, ivec2(int(i % TABLE_W), int(i / TABLE_W)), 0).r; }
-uint cellEntry(uint i) { return texelFetch(cellLod, ivec2(int(i % TABLE_W), int(i / TABLE_W)), 0).r; }
+// TABLE_W and PAGE_SIDE are powers of two: shifts and masks, not integer divisions (which
+// software GL runs lane by lane).
+uint tableEntry(uint i) { return texelFetch(pageTable, ivec2(int(i & (TABLE_W - 1u)), int(i >> TABLE_SHIFT)), 0).r; }
+uint cellEntry(uint i) { return texelFetch(cellLod, ivec2(int(i & (TABLE_W - 1u)), int(i >> TABLE_SHIFT)), 0).r; }
 
 vec4 lm_tap(uint layer, uint k, ivec2 px) {
   if (px.x < 0 || px.y < 0) return vec4(0.0);
-  ivec2 page = px / PAGE_SIDE;
+  ivec2 page = px >> PAGE_SHIFT;
   uvec4 level = levels[layer * MAX_LODS + k];
   if (uint(page.x) >= level.x || uint(page.y) >= level.y) return vec4(0.0);
   uint slot = tableEntry(level.z + uint(page.y) * level.x + uint(page.x));
   if (slot == NO_PAGE) return vec4(0.0);
   ivec2 origin = ivec2(int(slot % poolColumns), int(slot / poolColumns)) * PAGE_SIDE;
-  vec4 t = texelFetch(pool, origin + px % PAGE_SIDE, 0);
+  vec4 t = texelFetch(pool, origin + (px & (PAGE_SIDE - 1)), 0);
   if (t.a > 0.0) return vec4(t.rgb, 1.0);
   return vec4(0.0);
 }
@@ -98,38 +107,42 @@ uvec3 lm_cell_coords(vec3 p) {
 
 uint lm_cell_index(uvec3 c) { return c.x + gridDims.x * (c.y + gridDims.y * c.z); }
 
+// The neighbour n across one face of the cell, d metres from it: how much of its coarser
+// level blends in (w), and that level (kLow).
+void lm_neighbour(uint lods, uint k, uvec3 n, float d, inout float w, inout uint kLow) {
+  if (d >= blendBand) return;
+  uint kn = cellEntry(lods + lm_cell_index(n));
+  float band = blendBand / float(1u << kn);
+  if (kn >= k || d >= band) return;
+  w = max(w, clamp(1.0 - max(d, 0.0) / band, 0.0, 1.0));
+  kLow = min(kLow, kn);
+}
+
+// Ifs that most pixels do not take are loops run once or never: software GL (SwiftShader)
+// runs an if's body under a lane mask even when no pixel of the group takes it, but skips a
+// loop that no pixel enters (measured: a fifth of the frame). On a GPU the two are the same.
 vec3 lm_layer_irradiance(uint layer, uvec3 c, vec3 p, vec2 uv) {
   uint lods = layer * cellCount;
   uint k = cellEntry(lods + lm_cell_index(c));
   vec3 base = lm_value(layer, k, uv);
   vec3 lo = gridOrigin + vec3(c) * cellSize;
-  if (k == 0u || blendBand <= 0.0) return base;
+  vec3 below = p - lo;
+  vec3 above = lo + vec3(cellSize) - p;
+  // Within the band of a face of the cell: a neighbour may blend in.
+  float nearest = min(min(below.x, below.y), min(below.z, min(above.x, min(above.y, above.z))));
+  bool near = k > 0u && blendBand > 0.0 && nearest < blendBand;
   float w = 0.0;
   uint kLow = k;
-  bool nearCoarser = false;
-  for (uint axis = 0u; axis < 3u; axis++) {
-    for (uint side = 0u; side < 2u; side++) {
-      uvec3 n = c;
-      float d = 0.0;
-      if (side == 0u) {
-        if (c[axis] == 0u) continue;
-        n[axis] = c[axis] - 1u;
-        d = p[axis] - lo[axis];
-      } else {
-        if (c[axis] + 1u >= gridDims[axis]) continue;
-        n[axis] = c[axis] + 1u;
-        d = lo[axis] + cellSize - p[axis];
-      }
-      if (d >= blendBand) continue;
-      uint kn = cellEntry(lods + lm_cell_index(n));
-      float band = blendBand / float(1u << kn);
-      if (kn >= k || d >= band) continue;
-      w = max(w, clamp(1.0 - max(d, 0.0) / band, 0.0, 1.0));
-      kLow = min(kLow, kn);
-      nearCoarser = true;
-    }
+  for (int once = 0; once < (near ? 1 : 0); once++) {
+    if (c.x > 0u) lm_neighbour(lods, k, c - uvec3(1u, 0u, 0u), below.x, w, kLow);
+    if (c.x + 1u < gridDims.x) lm_neighbour(lods, k, c + uvec3(1u, 0u, 0u), above.x, w, kLow);
+    if (c.y > 0u) lm_neighbour(lods, k, c - uvec3(0u, 1u, 0u), below.y, w, kLow);
+    if (c.y + 1u < gridDims.y) lm_neighbour(lods, k, c + uvec3(0u, 1u, 0u), above.y, w, kLow);
+    if (c.z > 0u) lm_neighbour(lods, k, c - uvec3(0u, 0u, 1u), below.z, w, kLow);
+    if (c.z + 1u < gridDims.z) lm_neighbour(lods, k, c + uvec3(0u, 0u, 1u), above.z, w, kLow);
   }
-  if (nearCoarser) return base * (1.0 - w) + lm_value(layer, kLow, uv) * w;
+  // Next to a coarser neighbour: its level blends in.
+  for (int once = 0; once < (kLow < k ? 1 : 0); once++) base = base * (1.0 - w) + lm_value(layer, kLow, uv) * w;
   return base;
 }
 
@@ -147,7 +160,10 @@ void main() {
   vec3 irradiance = vec3(0.0);
   if (uv.x >= 0.0) {
     uvec3 c = lm_cell_coords(world);
-    irradiance = lm_layer_irradiance(0u, c, world, uv) + lm_layer_irradiance(1u, c, world, uv);
+    irradiance = lm_layer_irradiance(0u, c, world, uv);
+#ifdef PUNCTUAL_LAYER
+    irradiance += lm_layer_irradiance(1u, c, world, uv);
+#endif
   }
   vec3 radiance = albedo * irradiance / PI + emitted;
   vec3 toned = vec3(1.0) - exp(-max(radiance * exposure, vec3(0.0)));

@@ -44,7 +44,7 @@ try {
     const s = window.livebake;
     return { updates: s.updates, pages: s.pagesWritten, bytes_uploaded: s.bytesUploaded, upload_calls: s.uploadCalls, fenced: s.fenced, shared_ring: s.sharedRing ?? null, full: s.fullSeen, generation: s.generation,
       scenes: s.scenesReceived, xr_frames: s.xrFrames, frames: s.frames, pose: s.lastPoseSent || null,
-      frame_ms: s.lastFrameMean ?? null, connected: s.connected, errors: s.errors, now: performance.now() };
+      frame_ms: s.lastFrameMean ?? null, layer_pages: s.lightmap ? s.lightmap.layerPages : null, connected: s.connected, errors: s.errors, now: performance.now() };
   });
   for (const step of config.steps || []) {
     if (step === "capture") {
