@@ -485,6 +485,35 @@ fn updates_carry_exactly_the_published_pages() {
     assert!(stats.update_bytes > stats.update_page_bytes);
 }
 
+/// A page opened over plain http from a LAN address (not localhost) is not cross-origin
+/// isolated, so it has no shared memory: its socket's worker posts each message to it
+/// instead (web/livebake.js). It still gets the whole map, then updates, and acknowledges
+/// them once the GPU has them. The LAN address is a name Chromium resolves to 127.0.0.1
+/// (`lan_host` in the driver), so the test needs no network; the server runs with `--host`,
+/// so the page also carries the token (URL, then cookie and socket) as on a LAN.
+#[test]
+fn over_plain_http_from_a_lan_address_the_page_works_without_shared_memory() {
+    let served = Served::start(
+        &cornell_path(),
+        &["--host", "127.0.0.1", "--no-watch", "--texel-size", "0.05", "--samples", "128", "--lods", "4"],
+    );
+    assert!(served.token().is_some(), "--host prints a URL with a token");
+    served.wait_first_light();
+    let url = served.url.replacen("127.0.0.1", "lan.test", 1);
+    let dir = tempfile::tempdir().unwrap();
+    let result = drive(
+        json!({"url": url, "lan_host": "lan.test", "no_vr": true, "eye_size": [320, 240], "steps": ["wait_updates", "status"]}),
+        dir.path(),
+    );
+    let w = step(&result, "wait_updates");
+    assert!(w["after"]["updates"].as_u64() > w["before"]["updates"].as_u64(), "{w}");
+    let fin = &step(&result, "status")["after"];
+    assert_eq!(fin["shared_ring"], false, "the page had shared memory: not the fallback: {fin}");
+    assert_eq!(fin["full"], 1, "{fin}");
+    assert_eq!(fin["connected"], true, "{fin}");
+    assert!(fin["fenced"].as_u64() >= Some(1), "no update acknowledged as in the texture: {fin}");
+}
+
 /// With --host every request needs the token (page, files, status, socket); the scene's
 /// folder is all that is served of the disk, and only its own files.
 #[test]

@@ -3,7 +3,7 @@
 // installed before the page loads, the page enters an immersive-vr session and draws both
 // eyes. Software GL (SwiftShader): no GPU needed.
 //   node xr_driver.mjs CONFIG.json
-// CONFIG: {"tools": node_modules' parent, "url", "out": directory, "fovy", "ipd",
+// CONFIG: {"tools": node_modules' parent, "url", "out": directory, "fovy", "ipd", "lan_host",
 //          "eye_size": [w, h], "frames": N, "steps": ["capture", "move_head", "wait_updates",
 //          "wait_scene:G", "garbage", "frame_times", "static"]}
 // Prints one JSON object: what each step saw. Eye pixels go to OUT/eye-I.rgba (rows bottom
@@ -19,7 +19,10 @@ const iwer = fs.readFileSync(path.join(tools, "iwer", "build", "iwer.min.js"), "
 const browser = await chromium.launch({
   executablePath: config.chromium || "/usr/bin/chromium",
   headless: true,
-  args: ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"],
+  // "lan_host": a name that resolves to 127.0.0.1, an origin Chromium does not trust as it
+  // trusts localhost (plain http to a LAN address: no cross-origin isolation, no WebXR).
+  args: ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist"]
+    .concat(config.lan_host ? [`--host-resolver-rules=MAP ${config.lan_host} 127.0.0.1`] : []),
 });
 const result = { steps: [], console: [] };
 const timeout = (config.timeout_s || 120) * 1000;
