@@ -12,13 +12,12 @@
 // and snap turn (thumbstick left/right) on the controllers. On a desktop: the fly camera of
 // `view` (drag to look, WASD/QE to move, wheel for speed).
 
-import { fragmentShader, TABLE_W, VERTEX_SHADER } from "./shaders.js";
+import { fragmentShader, POOL_COLUMNS, TABLE_W, VERTEX_SHADER } from "./shaders.js";
 
 const PAGE_SIDE = 16;
 const PAGE_FLOATS = PAGE_SIDE * PAGE_SIDE * 4;
 const NO_PAGE = 0xffffffff;
 const MAX_LODS = 8;
-const POOL_COLUMNS = 64;
 const VERTEX_FLOATS = 9;
 const UPDATE_HEADER = 32;
 const SNAP_TURN = Math.PI / 6;
@@ -520,7 +519,6 @@ export function start(canvas, ui = {}) {
     gl.uniform3uiv(u.gridDims, s.grid.dims);
     gl.uniform1ui(u.lodCount, s.lods);
     gl.uniform1f(u.blendBand, s.blend_band);
-    gl.uniform1ui(u.poolColumns, POOL_COLUMNS);
     gl.uniform1ui(u.cellCount, lm.cellCount);
     gl.uniform4uiv(u.levels, lm.levels);
     gl.uniform1f(u.exposure, exposureOverride ?? s.exposure);

@@ -3,6 +3,8 @@
 
 // Columns of the integer textures holding the page tables and the cells' LODs.
 export const TABLE_W = 4096;
+// Pages a row of the pool texture holds.
+export const POOL_COLUMNS = 64;
 
 export const VERTEX_SHADER = `#version 300 es
 layout(location = 0) in vec3 position;
@@ -39,6 +41,7 @@ const uint NO_PAGE = 0xffffffffu;
 const uint MAX_LODS = 8u;
 const uint TABLE_W = ${TABLE_W}u;
 const uint TABLE_SHIFT = ${Math.log2(TABLE_W)}u;
+const uint POOL_SHIFT = ${Math.log2(POOL_COLUMNS)}u;
 uniform sampler2D pool;
 uniform usampler2D pageTable;
 uniform usampler2D cellLod;
@@ -49,7 +52,6 @@ uniform float cellSize;
 uniform uvec3 gridDims;
 uniform uint lodCount;
 uniform float blendBand;
-uniform uint poolColumns;
 uniform uint cellCount;
 uniform uvec4 levels[16]; // pages_x, pages_y, table offset (layer * MAX_LODS + lod)
 uniform vec4 baseColor;
@@ -61,18 +63,20 @@ in vec2 vFront;
 in vec2 vBack;
 out vec4 colour;
 
-// TABLE_W and PAGE_SIDE are powers of two: shifts and masks, not integer divisions.
+// TABLE_W, POOL_COLUMNS and PAGE_SIDE are powers of two: shifts and masks, not integer
+// divisions.
 uint tableEntry(uint i) { return texelFetch(pageTable, ivec2(int(i & (TABLE_W - 1u)), int(i >> TABLE_SHIFT)), 0).r; }
 uint cellEntry(uint i) { return texelFetch(cellLod, ivec2(int(i & (TABLE_W - 1u)), int(i >> TABLE_SHIFT)), 0).r; }
 
-vec4 lm_tap(uint layer, uint k, ivec2 px) {
+// One pixel of a LOD of a layer (level: its page table's pages_x, pages_y, offset): (E, 1)
+// when published, 0 outside the page table, in a missing page or where nothing was published.
+vec4 lm_tap(uvec4 level, ivec2 px) {
   if (px.x < 0 || px.y < 0) return vec4(0.0);
   ivec2 page = px >> PAGE_SHIFT;
-  uvec4 level = levels[layer * MAX_LODS + k];
   if (uint(page.x) >= level.x || uint(page.y) >= level.y) return vec4(0.0);
   uint slot = tableEntry(level.z + uint(page.y) * level.x + uint(page.x));
   if (slot == NO_PAGE) return vec4(0.0);
-  ivec2 origin = ivec2(int(slot % poolColumns), int(slot / poolColumns)) * PAGE_SIDE;
+  ivec2 origin = ivec2(int(slot & ((1u << POOL_SHIFT) - 1u)), int(slot >> POOL_SHIFT)) * PAGE_SIDE;
   vec4 t = texelFetch(pool, origin + (px & (PAGE_SIDE - 1)), 0);
   if (t.a > 0.0) return vec4(t.rgb, 1.0);
   return vec4(0.0);
@@ -85,10 +89,11 @@ vec3 lm_value(uint layer, uint lod, vec2 uv) {
     vec2 p0 = floor(p);
     vec2 f = p - p0;
     ivec2 i0 = ivec2(p0);
-    vec4 t00 = lm_tap(layer, uint(k), i0);
-    vec4 t10 = lm_tap(layer, uint(k), i0 + ivec2(1, 0));
-    vec4 t01 = lm_tap(layer, uint(k), i0 + ivec2(0, 1));
-    vec4 t11 = lm_tap(layer, uint(k), i0 + ivec2(1, 1));
+    uvec4 level = levels[layer * MAX_LODS + uint(k)];
+    vec4 t00 = lm_tap(level, i0);
+    vec4 t10 = lm_tap(level, i0 + ivec2(1, 0));
+    vec4 t01 = lm_tap(level, i0 + ivec2(0, 1));
+    vec4 t11 = lm_tap(level, i0 + ivec2(1, 1));
     float w00 = (1.0 - f.x) * (1.0 - f.y) * t00.a;
     float w10 = f.x * (1.0 - f.y) * t10.a;
     float w01 = (1.0 - f.x) * f.y * t01.a;
