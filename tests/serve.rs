@@ -14,7 +14,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use livebake::runtime::shown::{Layer, Page, ShownLightmap};
-use livebake::serve::protocol::{CELL_ENTRY, PAGE_ENTRY_HEADER, UPDATE_HEADER, Update, decode_update, encode_pose};
+use livebake::serve::protocol::{
+    AckStage, CELL_ENTRY, PAGE_ENTRY_HEADER, UPDATE_HEADER, Update, decode_update, encode_ack, encode_pose,
+};
 use serde_json::{Value, json};
 use tungstenite::Message;
 use viewer_support::{cornell_path, run_bounded, xvfb};
@@ -376,6 +378,28 @@ fn live_updates_head_pose_and_hot_reload_reach_the_page() {
 /// published pages plus its small header, never the whole map.
 #[test]
 fn updates_carry_exactly_the_published_pages() {
+    let stats = replay_updates(Duration::ZERO, livebake::serve::hub::IN_FLIGHT_BYTES);
+    eprintln!("{} updates, {} held", stats.updates, stats.updates_held);
+}
+
+/// A client slow to acknowledge (a headset on a slow link) is not sent every publish: with
+/// a budget of one byte in flight, changes wait while it holds an unacknowledged update and
+/// then go as one update against what it has. Replayed, they still give the runtime's shown
+/// map bit for bit, and the server never had more than one of them out.
+#[test]
+fn a_client_slow_to_acknowledge_gets_the_changes_merged_and_still_the_whole_map() {
+    // 400 ms an update: the runtime below publishes a cell every few tens of milliseconds
+    // (one thread, the Cornell box's cells at 64 directions), so updates must wait.
+    let stats = replay_updates(Duration::from_millis(400), 1);
+    eprintln!("{} updates, {} held", stats.updates, stats.updates_held);
+    assert!(stats.updates_held > 0, "no update waited for the slow client: {stats:?}");
+}
+
+/// Runs a runtime on the Cornell box with a server (`in_flight_bytes`) and one raw client
+/// that acknowledges each update `ack_delay` after reading it, as the page does once it
+/// uploaded it; pauses the runtime after 8 updates and checks the client's replayed mirror
+/// against the shown map. A budget under one update's size lets one out at a time.
+fn replay_updates(ack_delay: Duration, in_flight_bytes: usize) -> livebake::serve::ServeStats {
     use livebake::cpu::CpuProvider;
     use livebake::runtime::{Runtime, RuntimeConfig};
     use livebake::serve::{ServeConfig, Server};
@@ -392,7 +416,13 @@ fn updates_carry_exactly_the_published_pages() {
     let runtime = Runtime::start(scene, config, Arc::new(CpuProvider::new())).unwrap();
     let server = Server::bind(
         &cornell_path(),
-        ServeConfig { addr: "127.0.0.1:0".parse().unwrap(), token: None, exposure: Some(1.0), pose: None },
+        ServeConfig {
+            addr: "127.0.0.1:0".parse().unwrap(),
+            token: None,
+            exposure: Some(1.0),
+            pose: None,
+            in_flight_bytes,
+        },
     )
     .unwrap();
     let addr = server.local_addr().to_string();
@@ -404,14 +434,36 @@ fn updates_carry_exactly_the_published_pages() {
         let (scene, first) = read_welcome(&mut ws);
         assert!(first.full);
         let mut updates = vec![first];
-        while let Ok(m) = ws.read() {
-            if let Message::Binary(b) = m
-                && b[0] == 3
-            {
-                updates.push(decode_update(&b).expect("a well-formed update"));
+        // Updates read and not yet acknowledged: one at most under a budget below an
+        // update's size, if the server holds the rest (after the delay, a short read takes
+        // whatever the server sent meanwhile).
+        let mut most_unacknowledged = 0;
+        let mut unacknowledged: Vec<Update> = Vec::new();
+        loop {
+            let timeout = if unacknowledged.is_empty() { 120_000 } else { 100 };
+            ws.get_ref().set_read_timeout(Some(Duration::from_millis(timeout))).unwrap();
+            match ws.read() {
+                Ok(Message::Binary(b)) if b[0] == 3 => {
+                    unacknowledged.push(decode_update(&b).expect("a well-formed update"));
+                    most_unacknowledged = most_unacknowledged.max(unacknowledged.len());
+                    if unacknowledged.len() == 1 {
+                        std::thread::sleep(ack_delay);
+                    }
+                }
+                Ok(_) => {}
+                Err(tungstenite::Error::Io(e))
+                    if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) =>
+                {
+                    for u in unacknowledged.drain(..) {
+                        let _ = ws.send(Message::binary(encode_ack(u.seq, AckStage::Uploaded, 0.0)));
+                        updates.push(u);
+                    }
+                }
+                Err(_) => break,
             }
         }
-        (scene, updates)
+        updates.append(&mut unacknowledged);
+        (scene, updates, most_unacknowledged)
     });
     let mut paused_at: Option<Instant> = None;
     let mut last_shown: Option<Arc<ShownLightmap>> = None;
@@ -430,7 +482,11 @@ fn updates_carry_exactly_the_published_pages() {
             false
         })
         .unwrap();
-    let (scene, updates) = client.join().unwrap();
+    let (scene, updates, most_unacknowledged) = client.join().unwrap();
+    // Every update is at least its header: a budget below it lets one out at a time.
+    if in_flight_bytes < UPDATE_HEADER {
+        assert!(most_unacknowledged <= 1, "{most_unacknowledged} updates out at once");
+    }
     let shown = last_shown.unwrap();
     runtime.shutdown().unwrap();
     assert_eq!(scene["type"], "scene");
@@ -481,6 +537,7 @@ fn updates_carry_exactly_the_published_pages() {
     }
     assert_eq!(live, mirror.len(), "pages the runtime freed are gone from the mirror too");
     assert!(stats.update_bytes > stats.update_page_bytes);
+    stats
 }
 
 /// A page opened over plain http from a LAN address (not localhost) is not cross-origin

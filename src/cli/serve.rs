@@ -61,7 +61,16 @@ pub fn run(scene_path: &Path, serve: &ServeOptions, options: &SceneOptions, ui: 
     // A token whenever the address is chosen: --host opens the server beyond this machine.
     let token = serve.host.map(|_| random_token()).transpose()?;
     let addr = SocketAddr::new(serve.host.unwrap_or(IpAddr::V4(Ipv4Addr::LOCALHOST)), serve.port);
-    let server = Server::bind(scene_path, ServeConfig { addr, token, exposure: serve.exposure, pose: serve.camera })?;
+    let server = Server::bind(
+        scene_path,
+        ServeConfig {
+            addr,
+            token,
+            exposure: serve.exposure,
+            pose: serve.camera,
+            in_flight_bytes: livebake::serve::hub::IN_FLIGHT_BYTES,
+        },
+    )?;
     let surroundings = scene.surroundings();
     let mut runtime = super::run::start_runtime(scene, config, options.backend)
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;

@@ -1,9 +1,15 @@
 //! The glue between the runtime and the clients: one loop (the caller's thread) that reads
 //! the runtime's events and shown map, as `view` does through its `LightSource`, and
-//! broadcasts the scene and each publish's pages; the clients' poses move the runtime's
-//! camera (the latest pose of any client wins).
+//! sends each client the scene and the pages that changed since what it has; the clients'
+//! poses move the runtime's camera (the latest pose of any client wins).
+//!
+//! Flow control: while a client holds [`ServeConfig::in_flight_bytes`] of updates it has not
+//! acknowledged as uploaded, what changes waits, and goes as one update against what the
+//! client has once it acknowledges: a page that keeps up never waits; one that falls behind
+//! (a headset on a slow link) gets fewer, larger updates, each page once however often it was
+//! rewritten meanwhile, and the server keeps no growing queue of them for it.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, VecDeque};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -36,8 +42,20 @@ pub enum HubCommand {
 }
 
 /// Messages a client may have waiting before it counts as fallen behind and is let go (it
-/// can reconnect and gets the whole map again).
+/// can reconnect and gets the whole map again). Updates are flow-controlled
+/// ([`ServeConfig::in_flight_bytes`]), so only a client that stopped reading its socket
+/// fills it.
 pub const CLIENT_QUEUE: usize = 4096;
+
+/// The default [`ServeConfig::in_flight_bytes`]: the page's shared ring (`RING_BYTES` in
+/// web/livebake.js), so that what is in flight fits it. Not fewer: the page applies at each
+/// frame's start whatever arrived, so updates held for an acknowledgement would wait a whole
+/// frame more (under software GL, a real scene's burst of publishes at first light).
+pub const IN_FLIGHT_BYTES: usize = 16 << 20;
+
+/// An update unacknowledged this long (ms) stops counting as in flight: a client that never
+/// acknowledges (or lost an update to a reload) still gets the changes, this often at most.
+const IN_FLIGHT_TIMEOUT_MS: f64 = 2000.0;
 
 /// The serve run's figures (`--stats`, the bench, `/status.json`).
 #[derive(Clone, Debug, Default, Serialize)]
@@ -47,20 +65,25 @@ pub struct ServeStats {
     /// Scene generation (1 at first light, +1 a reload that replaced the world).
     pub generation: u32,
     pub reloads: u64,
-    /// Incremental updates broadcast (not the whole maps sent to joining clients).
+    /// Incremental updates sent, one per client each (not the whole maps sent to joining
+    /// clients or after a reload).
     pub updates: u64,
     pub update_pages: u64,
     pub update_bytes: u64,
     /// What those updates' pages hold (their texels alone): `update_bytes` minus this is
     /// the headers'.
     pub update_page_bytes: u64,
-    /// Publish to texture: the runtime's publish (the hub's noticing of the new snapshot) to
-    /// the page's acknowledgement that a fence placed after the update's upload calls is
-    /// signalled (the GPU has written the pages), ms, one a received ack.
+    /// Publish to texture: the runtime's publish (the hub's noticing of the new snapshot; for
+    /// an update that waited for the client's acknowledgements, of the first snapshot it
+    /// carries) to the page's acknowledgement that a fence placed after the update's upload
+    /// calls is signalled (the GPU has written the pages), ms, one a received ack.
     pub ack_latency_ms: Vec<f64>,
     /// The runtime's publish to the page's acknowledgement that the update's upload calls
     /// returned (the GL has the texels; its GPU may still be drawing earlier frames), ms.
     pub upload_latency_ms: Vec<f64>,
+    /// Updates that waited for the client's acknowledgements
+    /// ([`ServeConfig::in_flight_bytes`]) before going.
+    pub updates_held: u64,
     /// Frame times the pages reported (mean over their reports, ms) and frames counted.
     pub page_frame_ms: Option<f64>,
     pub page_frames: u64,
@@ -72,6 +95,12 @@ pub struct ServeStats {
 
 struct Client {
     to: Sender<Message>,
+    /// The shown map as this client has it: what its next update is the difference from.
+    has: Arc<ShownLightmap>,
+    /// Its updates not yet acknowledged as uploaded: sequence number, when sent (ms), bytes.
+    in_flight: VecDeque<(u32, f64, usize)>,
+    /// When the hub noticed the first snapshot this client lacks while its updates are held.
+    held_since: Option<f64>,
 }
 
 struct Hub<'a> {
@@ -84,7 +113,9 @@ struct Hub<'a> {
     scene: Vec<Message>,
     scene_of: Option<Arc<Scene>>,
     exposure: Option<f32>,
+    /// The runtime's shown map as last read, and when the hub noticed it (ms).
     last: Option<Arc<ShownLightmap>>,
+    noticed_ms: f64,
     seq: u32,
     sent_at: HashMap<u32, f64>,
     stats: ServeStats,
@@ -134,12 +165,33 @@ impl Hub<'_> {
         Some(Message::Binary(Bytes::from(bytes)))
     }
 
-    fn welcome(&mut self, id: u64) {
+    /// Takes client `id` in (its queue `to`) with the scene and the whole map: it has the
+    /// last map read, nothing in flight. Only once there is a scene (first light).
+    fn welcome(&mut self, id: u64, to: Sender<Message>) {
+        let Some(has) = self.last.clone() else { return };
+        self.clients.insert(id, Client { to, has, in_flight: VecDeque::new(), held_since: None });
         for m in self.scene.clone() {
             self.send(id, m);
         }
         if let Some(full) = self.full_update() {
             self.send(id, full);
+        }
+    }
+
+    /// Sends everyone the scene and the whole map (a reload replaced the world): each then
+    /// has the last map read, and what was in flight is of the old scene (the page drops it
+    /// unacknowledged).
+    fn rewelcome(&mut self) {
+        let Some(has) = self.last.clone() else { return };
+        let mut msgs = self.scene.clone();
+        msgs.extend(self.full_update());
+        for c in self.clients.values_mut() {
+            c.has = has.clone();
+            c.in_flight.clear();
+            c.held_since = None;
+        }
+        for m in &msgs {
+            self.broadcast(m);
         }
     }
 
@@ -167,6 +219,7 @@ impl Hub<'_> {
         self.scene_of = Some(world.scene.clone());
         // The new scene's map is sent whole.
         self.last = Some(shown);
+        self.noticed_ms = now_ms(self.runtime);
         true
     }
 
@@ -177,15 +230,14 @@ impl Hub<'_> {
                 if self.scene.is_empty() {
                     self.waiting.push((id, to));
                 } else {
-                    self.clients.insert(id, Client { to });
-                    self.welcome(id);
+                    self.welcome(id, to);
                 }
             }
             HubCommand::Leave { id } => {
                 self.clients.remove(&id);
                 self.waiting.retain(|(w, _)| *w != id);
             }
-            HubCommand::Message { message, .. } => match message {
+            HubCommand::Message { id, message } => match message {
                 ClientMessage::Pose(p) => {
                     self.runtime.set_camera(CameraView {
                         eye: p.eye,
@@ -200,6 +252,10 @@ impl Hub<'_> {
                 ClientMessage::Ack { seq, stage: AckStage::Uploaded, .. } => {
                     if let Some(t) = self.sent_at.get(&seq) {
                         self.stats.upload_latency_ms.push(now_ms(self.runtime) - t);
+                    }
+                    // The page applies updates in order: this one and every earlier one are in.
+                    if let Some(c) = self.clients.get_mut(&id) {
+                        c.in_flight.retain(|&(s, _, _)| s > seq);
                     }
                 }
                 ClientMessage::Ack { seq, stage: AckStage::Done, .. } => {
@@ -217,32 +273,51 @@ impl Hub<'_> {
         }
     }
 
-    /// Broadcasts what changed in the shown map since the last broadcast.
+    /// Reads the runtime's shown map and sends each client what changed since what it has,
+    /// unless its updates are held ([`ServeConfig::in_flight_bytes`]).
     fn publish(&mut self) {
         let Some(last) = self.last.clone() else { return };
         let now = self.runtime.shown();
-        if Arc::ptr_eq(&now, &last) || now.version == last.version {
-            return;
-        }
-        let pages = now.changed_pages(Some(&last));
-        let cells = changed_cells(&now, Some(&last));
-        self.last = Some(now);
-        if pages.is_empty() && cells.is_empty() {
-            return;
-        }
-        self.seq = self.seq.checked_add(1).unwrap_or(1);
         let t = now_ms(self.runtime);
-        let bytes = encode_update(self.seq, self.stats.generation, t, false, &cells, &pages);
-        let written = pages.iter().filter(|p| matches!(p, PageChange::Written(..))).count() as u64;
-        self.stats.updates += 1;
-        self.stats.update_pages += written;
-        self.stats.update_bytes += bytes.len() as u64;
-        self.stats.update_page_bytes += written * Page::BYTES as u64;
-        if self.sent_at.len() > 4096 {
-            self.sent_at.clear();
+        if !Arc::ptr_eq(&now, &last) && now.version != last.version {
+            self.last = Some(now.clone());
+            self.noticed_ms = t;
         }
-        self.sent_at.insert(self.seq, t);
-        self.broadcast(&Message::Binary(Bytes::from(bytes)));
+        let ids: Vec<u64> = self.clients.keys().copied().collect();
+        for id in ids {
+            let Some(c) = self.clients.get_mut(&id) else { continue };
+            if Arc::ptr_eq(&c.has, &now) || c.has.version == now.version {
+                continue;
+            }
+            c.in_flight.retain(|&(_, sent, _)| t - sent < IN_FLIGHT_TIMEOUT_MS);
+            // Since when the client lacks what it lacks: the first snapshot after its map.
+            let since = *c.held_since.get_or_insert(self.noticed_ms);
+            let out: usize = c.in_flight.iter().map(|f| f.2).sum();
+            if !c.in_flight.is_empty() && out >= self.config.in_flight_bytes {
+                continue;
+            }
+            let pages = now.changed_pages(Some(&c.has));
+            let cells = changed_cells(&now, Some(&c.has));
+            c.has = now.clone();
+            c.held_since = None;
+            if pages.is_empty() && cells.is_empty() {
+                continue;
+            }
+            self.seq = self.seq.checked_add(1).unwrap_or(1);
+            let bytes = encode_update(self.seq, self.stats.generation, since, false, &cells, &pages);
+            c.in_flight.push_back((self.seq, t, bytes.len()));
+            let written = pages.iter().filter(|p| matches!(p, PageChange::Written(..))).count() as u64;
+            self.stats.updates += 1;
+            self.stats.updates_held += u64::from(since < t);
+            self.stats.update_pages += written;
+            self.stats.update_bytes += bytes.len() as u64;
+            self.stats.update_page_bytes += written * Page::BYTES as u64;
+            if self.sent_at.len() > 4096 {
+                self.sent_at.clear();
+            }
+            self.sent_at.insert(self.seq, since);
+            self.send(id, Message::Binary(Bytes::from(bytes)));
+        }
     }
 }
 
@@ -276,6 +351,7 @@ pub fn run(
         scene_of: None,
         exposure: None,
         last: None,
+        noticed_ms: 0.0,
         seq: 0,
         sent_at: HashMap::new(),
         stats: ServeStats::default(),
@@ -302,16 +378,11 @@ pub fn run(
             hub.stats.first_light = true;
             hub.follow_world();
             for (id, to) in std::mem::take(&mut hub.waiting) {
-                hub.clients.insert(id, Client { to });
-                hub.welcome(id);
+                hub.welcome(id, to);
             }
         } else if hub.stats.first_light && reloaded && hub.follow_world() {
             // "Scene changed": the new description, geometry, textures and whole map.
-            let mut msgs = hub.scene.clone();
-            msgs.extend(hub.full_update());
-            for m in &msgs {
-                hub.broadcast(m);
-            }
+            hub.rewelcome();
         }
         if hub.stats.first_light {
             hub.publish();

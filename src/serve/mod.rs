@@ -41,6 +41,10 @@ pub struct ServeConfig {
     pub exposure: Option<f32>,
     /// Start pose (eye, target); `None`: `view`'s (glTF camera, else a framing view).
     pub pose: Option<(Vec3, Vec3)>,
+    /// Bytes of updates a client may hold unacknowledged before changes wait for it and go
+    /// merged (flow control, [`hub`]); [`hub::IN_FLIGHT_BYTES`] by default. One update is
+    /// always let through, whatever its size.
+    pub in_flight_bytes: usize,
 }
 
 #[derive(Debug, thiserror::Error)]

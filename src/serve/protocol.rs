@@ -148,9 +148,9 @@ pub enum ClientMessage {
 pub enum AckStage {
     /// The upload calls (`texSubImage2D`) returned: the GL has the texels, its GPU may not
     /// have written them yet (byte 0).
-    Uploaded,
+    Uploaded = 0,
     /// A fence placed after those calls is signalled: the texture holds them (byte 1).
-    Done,
+    Done = 1,
 }
 
 /// Why a page's message was refused (the client is closed).
@@ -247,6 +247,15 @@ pub fn encode_pose(p: &Pose) -> Vec<u8> {
         b.extend_from_slice(&v.to_le_bytes());
     }
     b.extend_from_slice(&p.height_px.to_le_bytes());
+    b
+}
+
+/// The page's acknowledgement of update `seq` at `stage` (the page's clock `page_ms`): the
+/// other half of [`parse_client`]'s [`ACK`], for clients other than the page (tests).
+pub fn encode_ack(seq: u32, stage: AckStage, page_ms: f64) -> Vec<u8> {
+    let mut b = vec![ACK, stage as u8, 0, 0];
+    b.extend_from_slice(&seq.to_le_bytes());
+    b.extend_from_slice(&page_ms.to_le_bytes());
     b
 }
 
@@ -421,6 +430,12 @@ mod tests {
             b.extend(12.5f64.to_le_bytes());
             parse_client(&b)
         };
+        for stage in [AckStage::Uploaded, AckStage::Done] {
+            assert_eq!(
+                parse_client(&encode_ack(7, stage, 12.5)),
+                Ok(ClientMessage::Ack { seq: 7, stage, page_ms: 12.5 })
+            );
+        }
         assert_eq!(ack(0), Ok(ClientMessage::Ack { seq: 7, stage: AckStage::Uploaded, page_ms: 12.5 }));
         assert_eq!(ack(1), Ok(ClientMessage::Ack { seq: 7, stage: AckStage::Done, page_ms: 12.5 }));
         assert_eq!(ack(2), Err(ProtocolError::BadAckStage(2)));
