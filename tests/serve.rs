@@ -378,7 +378,7 @@ fn live_updates_head_pose_and_hot_reload_reach_the_page() {
 /// published pages plus its small header, never the whole map.
 #[test]
 fn updates_carry_exactly_the_published_pages() {
-    let stats = replay_updates(Duration::ZERO, livebake::serve::hub::IN_FLIGHT_BYTES);
+    let (stats, _) = replay_updates(&[Duration::ZERO], livebake::serve::hub::IN_FLIGHT_BYTES);
     eprintln!("{} updates, {} held", stats.updates, stats.updates_held);
 }
 
@@ -392,16 +392,27 @@ fn a_client_slow_to_acknowledge_gets_the_changes_merged_and_still_the_whole_map(
     // the Cornell box's cells at 64 directions; 7 of the 8 updates waited when this was
     // written), so some must wait even on a slower machine. Below the hub's 2 s after which
     // an unacknowledged update stops counting, with room for a loaded one.
-    let stats = replay_updates(Duration::from_millis(1000), 1);
+    let (stats, _) = replay_updates(&[Duration::from_millis(1000)], 1);
     eprintln!("{} updates, {} held", stats.updates, stats.updates_held);
     assert!(stats.updates_held > 0, "no update waited for the slow client: {stats:?}");
 }
 
-/// Runs a runtime on the Cornell box with a server (`in_flight_bytes`) and one raw client
-/// that acknowledges each update `ack_delay` after reading it, as the page does once it
-/// uploaded it; pauses the runtime after 8 updates and checks the client's replayed mirror
-/// against the shown map. A budget under one update's size lets one out at a time.
-fn replay_updates(ack_delay: Duration, in_flight_bytes: usize) -> livebake::serve::ServeStats {
+/// Flow control is per client: beside the slow client above, a prompt one (acknowledging
+/// within ~0.1 s, the short read after each update) is not held back to its pace. Both end
+/// with the runtime's shown map.
+#[test]
+fn a_slow_client_does_not_hold_back_a_prompt_one() {
+    let (stats, counts) = replay_updates(&[Duration::ZERO, Duration::from_millis(1000)], 1);
+    eprintln!("{} updates, {} held; per client {counts:?}", stats.updates, stats.updates_held);
+    assert!(counts[0] > counts[1], "the prompt client got no more updates than the slow one: {counts:?}");
+}
+
+/// Runs a runtime on the Cornell box with a server (`in_flight_bytes`) and a raw client per
+/// entry of `ack_delays`, each acknowledging each update that long after reading it, as the
+/// page does once it uploaded it; pauses the runtime after 8 updates a client and checks
+/// each client's replayed mirror against the shown map. A budget under one update's size
+/// lets one out at a time. Returns the server's figures and each client's update count.
+fn replay_updates(ack_delays: &[Duration], in_flight_bytes: usize) -> (livebake::serve::ServeStats, Vec<usize>) {
     use livebake::cpu::CpuProvider;
     use livebake::runtime::{Runtime, RuntimeConfig};
     use livebake::serve::{ServeConfig, Server};
@@ -428,50 +439,54 @@ fn replay_updates(ack_delay: Duration, in_flight_bytes: usize) -> livebake::serv
     )
     .unwrap();
     let addr = server.local_addr().to_string();
-    // The client reads until the server lets it go (everything queued is delivered first).
-    let client = std::thread::spawn(move || {
-        let stream = TcpStream::connect(&addr).unwrap();
-        stream.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
-        let (mut ws, _) = tungstenite::client(format!("ws://{addr}/socket"), stream).unwrap();
-        let (scene, first) = read_welcome(&mut ws);
-        assert!(first.full);
-        let mut updates = vec![first];
-        // Updates read and not yet acknowledged: one at most under a budget below an
-        // update's size, if the server holds the rest (after the delay, a short read takes
-        // whatever the server sent meanwhile).
-        let mut most_unacknowledged = 0;
-        let mut unacknowledged: Vec<Update> = Vec::new();
-        loop {
-            let timeout = if unacknowledged.is_empty() { 120_000 } else { 100 };
-            ws.get_ref().set_read_timeout(Some(Duration::from_millis(timeout))).unwrap();
-            match ws.read() {
-                Ok(Message::Binary(b)) if b[0] == 3 => {
-                    unacknowledged.push(decode_update(&b).expect("a well-formed update"));
-                    most_unacknowledged = most_unacknowledged.max(unacknowledged.len());
-                    if unacknowledged.len() == 1 {
-                        std::thread::sleep(ack_delay);
+    // A client reads until the server lets it go (everything queued is delivered first).
+    let client = |ack_delay: Duration| {
+        let addr = addr.clone();
+        std::thread::spawn(move || {
+            let stream = TcpStream::connect(&addr).unwrap();
+            stream.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+            let (mut ws, _) = tungstenite::client(format!("ws://{addr}/socket"), stream).unwrap();
+            let (scene, first) = read_welcome(&mut ws);
+            assert!(first.full);
+            let mut updates = vec![first];
+            // Updates read and not yet acknowledged: one at most under a budget below an
+            // update's size, if the server holds the rest (after the delay, a short read takes
+            // whatever the server sent meanwhile).
+            let mut most_unacknowledged = 0;
+            let mut unacknowledged: Vec<Update> = Vec::new();
+            loop {
+                let timeout = if unacknowledged.is_empty() { 120_000 } else { 100 };
+                ws.get_ref().set_read_timeout(Some(Duration::from_millis(timeout))).unwrap();
+                match ws.read() {
+                    Ok(Message::Binary(b)) if b[0] == 3 => {
+                        unacknowledged.push(decode_update(&b).expect("a well-formed update"));
+                        most_unacknowledged = most_unacknowledged.max(unacknowledged.len());
+                        if unacknowledged.len() == 1 {
+                            std::thread::sleep(ack_delay);
+                        }
                     }
-                }
-                Ok(_) => {}
-                Err(tungstenite::Error::Io(e))
-                    if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) =>
-                {
-                    for u in unacknowledged.drain(..) {
-                        let _ = ws.send(Message::binary(encode_ack(u.seq, AckStage::Uploaded, 0.0)));
-                        updates.push(u);
+                    Ok(_) => {}
+                    Err(tungstenite::Error::Io(e))
+                        if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) =>
+                    {
+                        for u in unacknowledged.drain(..) {
+                            let _ = ws.send(Message::binary(encode_ack(u.seq, AckStage::Uploaded, 0.0)));
+                            updates.push(u);
+                        }
                     }
+                    Err(_) => break,
                 }
-                Err(_) => break,
             }
-        }
-        updates.append(&mut unacknowledged);
-        (scene, updates, most_unacknowledged)
-    });
+            updates.append(&mut unacknowledged);
+            (scene, updates, most_unacknowledged)
+        })
+    };
+    let clients: Vec<_> = ack_delays.iter().map(|&d| (d, client(d))).collect();
     let mut paused_at: Option<Instant> = None;
     let mut last_shown: Option<Arc<ShownLightmap>> = None;
     let stats = server
         .run(&runtime, |s| {
-            if s.updates >= 8 && paused_at.is_none() {
+            if s.updates >= 8 * clients.len() as u64 && paused_at.is_none() {
                 runtime.set_paused(true);
                 paused_at = Some(Instant::now());
             }
@@ -484,13 +499,27 @@ fn replay_updates(ack_delay: Duration, in_flight_bytes: usize) -> livebake::serv
             false
         })
         .unwrap();
-    let (scene, updates, most_unacknowledged) = client.join().unwrap();
-    // Every update is at least its header: a budget below it lets one out at a time.
-    if in_flight_bytes < UPDATE_HEADER {
-        assert!(most_unacknowledged <= 1, "{most_unacknowledged} updates out at once");
-    }
     let shown = last_shown.unwrap();
     runtime.shutdown().unwrap();
+    let mut counts = Vec::new();
+    for (ack_delay, client) in clients {
+        let (scene, updates, most_unacknowledged) = client.join().unwrap();
+        // Every update is at least its header: a budget below it lets one out at a time.
+        if in_flight_bytes < UPDATE_HEADER {
+            assert!(most_unacknowledged <= 1, "{most_unacknowledged} updates out at once");
+        }
+        check_replay(&scene, &updates, ack_delay, &shown);
+        counts.push(updates.len() - 1);
+    }
+    assert_eq!(counts.iter().sum::<usize>() as u64, stats.updates, "every update sent reached its client");
+    assert!(stats.update_bytes > stats.update_page_bytes);
+    (stats, counts)
+}
+
+/// Replays a client's `updates` (the first the whole map) on a mirror and checks it against
+/// `shown`, page for page and cell LOD for cell LOD; a prompt client's (`ack_delay` zero)
+/// updates are single publishes, never as large as the whole map.
+fn check_replay(scene: &Value, updates: &[Update], ack_delay: Duration, shown: &ShownLightmap) {
     assert_eq!(scene["type"], "scene");
     assert_eq!(scene["lods"], 3);
     // The mirror: page key → texels.
@@ -528,7 +557,6 @@ fn replay_updates(ack_delay: Duration, in_flight_bytes: usize) -> livebake::serv
             cells[c.layer as usize][c.cell as usize] = c.lod;
         }
     }
-    assert_eq!(updates.len() as u64, stats.updates + 1, "every update broadcast reached the client");
     let mut live = 0;
     for layer in Layer::ALL {
         for (k, level) in shown.layer(layer).levels.iter().enumerate() {
@@ -545,8 +573,6 @@ fn replay_updates(ack_delay: Duration, in_flight_bytes: usize) -> livebake::serv
         assert_eq!(&cells[layer as usize][..], &shown.layer(layer).cell_lod[..]);
     }
     assert_eq!(live, mirror.len(), "pages the runtime freed are gone from the mirror too");
-    assert!(stats.update_bytes > stats.update_page_bytes);
-    stats
 }
 
 /// A page opened over plain http from a LAN address (not localhost) is not cross-origin
