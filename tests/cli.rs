@@ -97,6 +97,38 @@ fn bake_writes_exr_png_and_report() {
     }
 }
 
+/// A model that carries no light (no punctual light, no emitter: as most exports for a
+/// walkthrough) is lit by a white sky of 1 W/(sr·m²) when the command line gives none, with
+/// a warning that says so; `--sky 0,0,0` keeps it black, with a warning that it will be.
+#[test]
+fn a_scene_without_light_is_lit_by_a_white_sky_and_says_so() {
+    let tmp = tempfile::tempdir().unwrap();
+    let room = asset("living_room/living_room.glb").display().to_string();
+    let bake = |dir: &str, extra: &[&str]| {
+        let out = tmp.path().join(dir);
+        let mut args = vec!["bake", &room, "--texel-size", "0.1", "--samples", "16"];
+        let out_arg = out.display().to_string();
+        args.extend(["--out", &out_arg]);
+        args.extend(extra);
+        let run = support::livebake(tmp.path(), &args);
+        let stderr = text(&run.stderr);
+        assert!(run.status.success(), "{stderr}");
+        (read_json(&out.join("report.json")), read_exr(&out.join("lightmap_lod0.exr")), stderr)
+    };
+    let (report, exr, stderr) = bake("sky", &[]);
+    assert!(stderr.contains("no light of its own") && stderr.contains("white sky"), "{stderr}");
+    assert_eq!(report["scene"]["sky"], json!([1.0, 1.0, 1.0]));
+    // A surface open to the whole sky sees radiance 1 on every line: its estimate is π·Σa/Σa,
+    // exactly π whatever the directions (the grass around the house). Nothing can get more:
+    // a surface of albedo below 1 under it sends back less than the sky.
+    let most = exr.pixels().flat_map(|p| p.0).fold(0.0f32, f32::max);
+    assert!((most - std::f32::consts::PI).abs() < 1e-4 * std::f32::consts::PI, "brightest texel {most}, not π");
+    let (report, exr, stderr) = bake("black", &["--sky", "0,0,0"]);
+    assert!(stderr.contains("every light map will be black"), "{stderr}");
+    assert_eq!(report["scene"]["sky"], json!([0.0, 0.0, 0.0]));
+    assert!(exr.pixels().all(|p| p.0 == [0.0; 3]));
+}
+
 #[test]
 fn bake_with_two_lods_writes_both_levels() {
     let tmp = tempfile::tempdir().unwrap();

@@ -51,9 +51,11 @@ pub struct SceneOptions {
     /// reference backend.
     #[arg(long, value_name = "N")]
     pub samples: Option<u32>,
-    /// Uniform sky radiance W/(sr·m²) seen by rays leaving the scene.
-    #[arg(long, value_name = "R,G,B", default_value = "0,0,0", value_parser = parse_rgb, allow_hyphen_values = true)]
-    pub sky: Rgb,
+    /// Uniform sky radiance W/(sr·m²) seen by rays leaving the scene (default: none; but a
+    /// scene with no light of its own, given no --sky, --sun, --environment or --sky-model,
+    /// gets a white sky of 1 W/(sr·m²), and a warning).
+    #[arg(long, value_name = "R,G,B", value_parser = parse_rgb, allow_hyphen_values = true)]
+    pub sky: Option<Rgb>,
     #[command(flatten)]
     pub outdoors: OutdoorOptions,
     /// Estimator that computes irradiance.
@@ -296,7 +298,7 @@ impl Default for SceneOptions {
             texel_budget: None,
             lods: None,
             samples: None,
-            sky: Rgb::ZERO,
+            sky: None,
             outdoors: OutdoorOptions::default(),
             backend: Backend::Cpu,
             seed: 0,

@@ -56,6 +56,14 @@ impl Scene {
     pub fn has_sky(&self) -> bool {
         self.sky.max_element() > 0.0 || self.environment.as_ref().is_some_and(|e| e.brightest() > 0.0)
     }
+
+    /// Whether anything lights the scene: a punctual light (the file's or the sun), a mesh
+    /// whose material emits, or a sky. Without any, every light map is black.
+    pub fn has_light(&self) -> bool {
+        self.lights.iter().any(|l| l.intensity.max_element() > 0.0)
+            || self.meshes.iter().any(|m| self.material_of(m).emission.max_element() > 0.0)
+            || self.has_sky()
+    }
 }
 
 /// Where the sun is.
@@ -219,6 +227,56 @@ mod tests {
         scene.set_surroundings(&Surroundings::default()).expect("nothing");
         assert_eq!(scene.lights.len(), 1);
         assert!(!scene.has_sky());
+    }
+
+    /// A scene is lit by a punctual light, an emitting material a mesh uses, or a sky; by
+    /// nothing else (an unused emitting material, a light of zero intensity, a black sky).
+    #[test]
+    fn a_scene_has_light_from_a_lamp_an_emitter_or_the_sky() {
+        let dark = |extra: &dyn Fn(&mut SceneBuilder)| {
+            let mut b = SceneBuilder::new();
+            let m = b.material(crate::scene::Material::default());
+            b.floor("floor", glam::Vec3::ZERO, 1.0, m);
+            extra(&mut b);
+            b.build()
+        };
+        let glowing = crate::scene::Material { emission: Rgb::new(0.0, 0.0, 2.0), ..Default::default() };
+        assert!(!dark(&|_| {}).has_light());
+        assert!(
+            !dark(&|b| {
+                let _unused = b.material(glowing.clone());
+            })
+            .has_light(),
+            "an emitter no mesh uses"
+        );
+        assert!(
+            !dark(&|b| {
+                b.point_light(glam::Vec3::Y, Rgb::ZERO);
+            })
+            .has_light(),
+            "a black lamp"
+        );
+        assert!(
+            dark(&|b| {
+                b.point_light(glam::Vec3::Y, Rgb::ONE);
+            })
+            .has_light()
+        );
+        assert!(
+            dark(&|b| {
+                let e = b.material(glowing.clone());
+                b.floor("panel", glam::Vec3::Y, 0.5, e);
+            })
+            .has_light()
+        );
+        let mut sky = dark(&|_| {});
+        sky.set_surroundings(&Surroundings { sky: Rgb::ZERO, ..Default::default() }).expect("black");
+        assert!(!sky.has_light());
+        sky.set_surroundings(&Surroundings { sky: Rgb::splat(0.1), ..Default::default() }).expect("fits");
+        assert!(sky.has_light());
+        let sun = SunPosition { elevation: 30.0, azimuth: 0.0 }.light("sun", Rgb::splat(3.0));
+        sky.set_surroundings(&Surroundings { sun: Some(sun), ..Default::default() }).expect("fits");
+        assert!(sky.has_light() && !sky.has_sky());
     }
 
     #[test]
