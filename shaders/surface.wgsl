@@ -1,13 +1,17 @@
-// The viewer's surface pass: albedo × E/π + emission per fragment, depth-tested.
+// The viewer's surface pass: albedo × E/π + emission per fragment, depth-tested; `MASK`
+// materials' cut-out fragments (alpha below the cutoff) discarded (`fs_cut_out`).
 
 #include "common.inc.wgsl"
 #include "lightmap.inc.wgsl"
 
 struct MaterialUniforms {
-    // Linear base-colour factor (rgb; a unused: light transport is opaque).
+    // Linear base-colour factor (rgb; a: alpha, multiplied by the texture's).
     base_color: vec4<f32>,
-    // Emitted radiance W/(sr·m²) (rgb).
-    emission: vec4<f32>,
+    // Emitted radiance W/(sr·m²).
+    emission: vec3<f32>,
+    // `MASK`'s cutoff: a fragment whose alpha is below it is cut out (`Material::alpha`,
+    // `AlphaMode::Mask`; 0 for the other modes, drawn with `fs_main`).
+    alpha_cutoff: f32,
 }
 
 @group(0) @binding(0) var<uniform> frame: FrameUniforms;
@@ -54,9 +58,24 @@ fn lod_colour(k: u32) -> vec3<f32> {
 
 @fragment
 fn fs_main(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    return shade(in, front);
+}
+
+// `MASK` materials, in a pipeline of their own: a discard anywhere in a pipeline's shader
+// costs every fragment its early depth test.
+@fragment
+fn fs_cut_out(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    let alpha = material.base_color.a * textureSample(base_color_texture, material_sampler, in.uv0).a;
+    if alpha < material.alpha_cutoff {
+        discard;
+    }
+    return shade(in, front);
+}
+
+fn shade(in: VertexOutput, front: bool) -> vec4<f32> {
     let base = material.base_color.rgb * textureSample(base_color_texture, material_sampler, in.uv0).rgb;
     let albedo = clamp(base, vec3<f32>(0.0), vec3<f32>(1.0));
-    let emission = material.emission.rgb * textureSample(emissive_texture, material_sampler, in.uv0).rgb;
+    let emission = material.emission * textureSample(emissive_texture, material_sampler, in.uv0).rgb;
     let uv = select(in.lightmap_back, in.lightmap_front, front);
     var irradiance = vec3<f32>(0.0);
     if uv.x >= 0.0 {

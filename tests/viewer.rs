@@ -138,6 +138,66 @@ fn offscreen_cornell_room_shows_its_coloured_walls() {
     assert!(l.iter().sum::<f64>() > 2.0 * u.iter().sum::<f64>(), "lit {l:?} vs unlit {u:?}");
 }
 
+/// A `MASK` surface is cut out where its alpha (factor × texture) is below the cutoff: a
+/// screen whose texture's alpha is 0 on its left half and 1 on its right, in front of a
+/// glowing wall, shows the wall on the left and hides it on the right (the screen itself is
+/// black: no light map is shown). The same screen `OPAQUE` hides the wall on both halves.
+#[test]
+fn cut_out_fragments_are_discarded_and_show_what_is_behind() {
+    use livebake::atlas::{Atlas, AtlasConfig};
+    use livebake::scene::builder::diffuse;
+    use livebake::scene::{AlphaMode, Rgb, SceneBuilder, SceneGeometry, Texture, TextureRef, WrapMode};
+    let render = |alpha_mode: AlphaMode| {
+        let mut b = SceneBuilder::new();
+        let glow = b.material(diffuse(Rgb::splat(0.5), Rgb::splat(5.0), false));
+        let screen = b.material(livebake::scene::Material { alpha_mode, ..diffuse(Rgb::ONE, Rgb::ZERO, true) });
+        let wall = [
+            Vec3::new(-3.0, -3.0, -1.0),
+            Vec3::new(3.0, -3.0, -1.0),
+            Vec3::new(3.0, 3.0, -1.0),
+            Vec3::new(-3.0, 3.0, -1.0),
+        ];
+        b.quad("wall", wall, glow);
+        let quad = [
+            Vec3::new(-1.0, -1.0, 0.0),
+            Vec3::new(1.0, -1.0, 0.0),
+            Vec3::new(1.0, 1.0, 0.0),
+            Vec3::new(-1.0, 1.0, 0.0),
+        ];
+        b.quad("screen", quad, screen);
+        let mut scene = b.build();
+        // u runs left to right over the screen: texel 0 (alpha 0) left, texel 1 (alpha 1) right.
+        scene.meshes[1].uv0 =
+            Some(vec![Vec2::new(0.0, 1.0), Vec2::new(1.0, 1.0), Vec2::new(1.0, 0.0), Vec2::new(0.0, 0.0)]);
+        scene.textures.push(Texture {
+            name: "half".into(),
+            width: 2,
+            height: 1,
+            rgba8: vec![[255, 255, 255, 0], [255, 255, 255, 255]].into(),
+            srgb: true,
+            wrap_s: WrapMode::ClampToEdge,
+            wrap_t: WrapMode::ClampToEdge,
+        });
+        scene.materials[screen as usize].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
+        let geom = SceneGeometry::new(&scene);
+        let atlas =
+            Atlas::build(&scene, &geom, &AtlasConfig { texel_size: Some(0.1), ..AtlasConfig::default() }).unwrap();
+        let state = SceneState { generation: 0, scene: Arc::new(scene), atlas: Arc::new(atlas) };
+        let mut renderer = Renderer::new(GpuContext::headless().unwrap(), &state).unwrap();
+        let camera = Camera::look_at(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 50f32.to_radians(), 6.0);
+        renderer.render_offscreen(&camera, 160, 120, &DrawSettings::default()).unwrap()
+    };
+    // At 2 m with a 50° field, 160 × 120: the screen's x = ∓0.6 falls on columns ~41 and ~119.
+    let brightness = |img: &image::RgbaImage, x0: u32| mean_rgb(img, x0, x0 + 20).iter().sum::<f64>() / 3.0;
+    let masked = render(AlphaMode::Mask { cutoff: 0.5 });
+    let (left, right) = (brightness(&masked, 31), brightness(&masked, 109));
+    assert!(left > 0.5, "the wall behind the cut-out half is not seen: {left}");
+    assert!(right < 0.05, "the kept half lets the wall through: {right}");
+    let opaque = render(AlphaMode::Opaque);
+    let (left, right) = (brightness(&opaque, 31), brightness(&opaque, 109));
+    assert!(left < 0.05 && right < 0.05, "an opaque screen lets the wall through: {left}, {right}");
+}
+
 fn livebake() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_livebake"))
 }

@@ -86,7 +86,9 @@ pub struct LightmapParams {
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct MaterialUniforms {
     pub base_color: [f32; 4],
-    pub emission: [f32; 4],
+    pub emission: [f32; 3],
+    /// `MASK`'s cutoff: a cut-out fragment's alpha is below it (0 for other modes).
+    pub alpha_cutoff: f32,
 }
 
 /// `ProbePoint` (irradiance_probe.wgsl).
@@ -354,7 +356,7 @@ mod tests {
             "FrameUniforms",
             [view_proj, eye, exposure, view_mode, encode_srgb, _pad0, _pad1]
         );
-        assert_layout!("surface.wgsl", MaterialUniforms, "MaterialUniforms", [base_color, emission]);
+        assert_layout!("surface.wgsl", MaterialUniforms, "MaterialUniforms", [base_color, emission, alpha_cutoff]);
         assert_layout!("surface.wgsl", LodLevel, "LodLevel", [pages_x, pages_y, table_offset, _pad]);
         assert_layout!(
             "surface.wgsl",

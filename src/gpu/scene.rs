@@ -60,6 +60,8 @@ pub struct Batch {
     pub bind_group: wgpu::BindGroup,
     pub vertices: std::ops::Range<u32>,
     pub double_sided: bool,
+    /// A `MASK` material: drawn with the pipeline that cuts its fragments out.
+    pub cut_out: bool,
 }
 
 pub struct SceneGpu {
@@ -111,8 +113,11 @@ impl SceneGpu {
                 continue;
             }
             let m = &scene.materials[mi];
-            let uniforms =
-                MaterialUniforms { base_color: m.base_color.to_array(), emission: m.emission.extend(0.0).to_array() };
+            let uniforms = MaterialUniforms {
+                base_color: m.base_color.to_array(),
+                emission: m.emission.to_array(),
+                alpha_cutoff: m.alpha_mode.cutoff().unwrap_or(0.0),
+            };
             let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(&m.name),
                 contents: bytemuck::bytes_of(&uniforms),
@@ -153,7 +158,12 @@ impl SceneGpu {
             });
             let start = vertices.len() as u32;
             vertices.extend(corners);
-            batches.push(Batch { bind_group, vertices: start..vertices.len() as u32, double_sided: m.double_sided });
+            batches.push(Batch {
+                bind_group,
+                vertices: start..vertices.len() as u32,
+                double_sided: m.double_sided,
+                cut_out: m.alpha_mode.cutoff().is_some(),
+            });
         }
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("scene corners"),

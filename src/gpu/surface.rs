@@ -17,8 +17,8 @@ pub struct EyeView {
 }
 
 pub struct SurfacePass {
-    culled: wgpu::RenderPipeline,
-    double_sided: wgpu::RenderPipeline,
+    /// Per `[cut out][double-sided]`: `fs_main` or `fs_cut_out`, back faces culled or not.
+    pipelines: [[wgpu::RenderPipeline; 2]; 2],
     /// One uniform buffer and bind group per eye (at most two).
     eyes: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
     pub color_format: wgpu::TextureFormat,
@@ -51,7 +51,7 @@ impl SurfacePass {
             immediate_size: 0,
         });
         let module = shader::module(device, "surface.wgsl")?;
-        let pipeline = |cull_mode| {
+        let pipeline = |entry_point: &str, cull_mode| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("surface"),
                 layout: Some(&layout),
@@ -77,7 +77,7 @@ impl SurfacePass {
                 multisample: Default::default(),
                 fragment: Some(wgpu::FragmentState {
                     module: &module,
-                    entry_point: Some("fs_main"),
+                    entry_point: Some(entry_point),
                     compilation_options: Default::default(),
                     targets: &[Some(wgpu::ColorTargetState {
                         format: color_format,
@@ -105,7 +105,9 @@ impl SurfacePass {
                 (buffer, group)
             })
             .collect();
-        Ok(SurfacePass { culled: pipeline(Some(wgpu::Face::Back)), double_sided: pipeline(None), eyes, color_format })
+        let pipelines =
+            ["fs_main", "fs_cut_out"].map(|entry| [pipeline(entry, Some(wgpu::Face::Back)), pipeline(entry, None)]);
+        Ok(SurfacePass { pipelines, eyes, color_format })
     }
 
     /// Clears `color` and `depth` and draws `scene` once per eye (one or two).
@@ -150,7 +152,7 @@ impl SurfacePass {
             pass.set_viewport(x, y, w, h, 0.0, 1.0);
             pass.set_bind_group(0, group, &[]);
             for batch in &scene.batches {
-                pass.set_pipeline(if batch.double_sided { &self.double_sided } else { &self.culled });
+                pass.set_pipeline(&self.pipelines[batch.cut_out as usize][batch.double_sided as usize]);
                 pass.set_bind_group(2, &batch.bind_group, &[]);
                 pass.draw(batch.vertices.clone(), 0..1);
             }

@@ -84,6 +84,16 @@ pub enum AlphaMode {
     Blend,
 }
 
+impl AlphaMode {
+    /// `Mask`'s cutoff: where alpha is below it the surface is cut out.
+    pub fn cutoff(self) -> Option<f32> {
+        match self {
+            AlphaMode::Mask { cutoff } => Some(cutoff),
+            _ => None,
+        }
+    }
+}
+
 /// A Lambertian material as light transport sees a glTF metallic-roughness material.
 #[derive(Clone, Debug)]
 pub struct Material {
