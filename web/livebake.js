@@ -69,10 +69,10 @@ function compile(gl, type, source) {
   return s;
 }
 
-function program(gl, layers) {
+function program(gl, layers, cutOut) {
   const p = gl.createProgram();
   gl.attachShader(p, compile(gl, gl.VERTEX_SHADER, VERTEX_SHADER));
-  gl.attachShader(p, compile(gl, gl.FRAGMENT_SHADER, fragmentShader(layers)));
+  gl.attachShader(p, compile(gl, gl.FRAGMENT_SHADER, fragmentShader(layers, cutOut)));
   gl.linkProgram(p);
   if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(p));
   const u = {};
@@ -293,8 +293,9 @@ function makeTexture(gl, width, height, pixels, srgb, wrap) {
 export function start(canvas, ui = {}) {
   const gl = canvas.getContext("webgl2", { antialias: false, xrCompatible: true, preserveDrawingBuffer: true });
   if (!gl) throw new Error("WebGL 2 is not available");
-  // Index 0 samples the bundle layer alone, 1 both layers (fragmentShader).
-  const shaders = [program(gl, 1), program(gl, 2)];
+  // [layers][cut out]: index 0 samples the bundle layer alone, 1 both layers; each for opaque
+  // materials and for MASK ones (fragmentShader).
+  const shaders = [1, 2].map((layers) => [false, true].map((cutOut) => program(gl, layers, cutOut)));
   const white = makeTexture(gl, 1, 1, new Uint8Array([255, 255, 255, 255]), false);
   const params = new URLSearchParams(location.search);
   const state = {
@@ -509,7 +510,7 @@ export function start(canvas, ui = {}) {
   }
 
   function uploadUniforms() {
-    for (const shader of shaders) uploadUniformsOf(shader);
+    for (const shader of shaders.flat()) uploadUniformsOf(shader);
   }
   function uploadUniformsOf(shader) {
     const s = state.scene, lm = state.lightmap, u = shader.u;
@@ -543,24 +544,30 @@ export function start(canvas, ui = {}) {
     gl.enable(gl.DEPTH_TEST);
     gl.depthFunc(gl.LESS);
     gl.frontFace(gl.CCW);
-    const shader = shaders[lm.layerPages[1] > 0 ? 1 : 0], u = shader.u;
-    gl.useProgram(shader.program);
-    gl.uniformMatrix4fv(u.viewProj, false, viewProj);
     gl.activeTexture(gl.TEXTURE0); gl.bindTexture(gl.TEXTURE_2D, lm.pool);
     gl.activeTexture(gl.TEXTURE1); gl.bindTexture(gl.TEXTURE_2D, lm.table.tex);
     gl.activeTexture(gl.TEXTURE2); gl.bindTexture(gl.TEXTURE_2D, lm.cells.tex);
     gl.bindVertexArray(state.vao);
-    for (const b of s.batches) {
-      const m = s.materials[b.material];
-      gl.uniform4fv(u.baseColor, m.base_color);
-      gl.uniform3fv(u.emission, m.emission);
-      gl.activeTexture(gl.TEXTURE3);
-      gl.bindTexture(gl.TEXTURE_2D, (m.base_color_texture != null && state.textures[m.base_color_texture]) || white);
-      gl.activeTexture(gl.TEXTURE4);
-      gl.bindTexture(gl.TEXTURE_2D, (m.emissive_texture != null && state.textures[m.emissive_texture]) || white);
-      if (b.double_sided) gl.disable(gl.CULL_FACE);
-      else { gl.enable(gl.CULL_FACE); gl.cullFace(gl.BACK); }
-      gl.drawArrays(gl.TRIANGLES, b.first, b.count);
+    // Opaque materials, then MASK ones with the program that cuts them out.
+    for (const cutOut of [false, true]) {
+      const batches = s.batches.filter((b) => (s.materials[b.material].alpha_cutoff != null) === cutOut);
+      if (!batches.length) continue;
+      const shader = shaders[lm.layerPages[1] > 0 ? 1 : 0][cutOut ? 1 : 0], u = shader.u;
+      gl.useProgram(shader.program);
+      gl.uniformMatrix4fv(u.viewProj, false, viewProj);
+      for (const b of batches) {
+        const m = s.materials[b.material];
+        gl.uniform4fv(u.baseColor, m.base_color);
+        gl.uniform3fv(u.emission, m.emission);
+        if (cutOut) gl.uniform1f(u.alphaCutoff, m.alpha_cutoff);
+        gl.activeTexture(gl.TEXTURE3);
+        gl.bindTexture(gl.TEXTURE_2D, (m.base_color_texture != null && state.textures[m.base_color_texture]) || white);
+        gl.activeTexture(gl.TEXTURE4);
+        gl.bindTexture(gl.TEXTURE_2D, (m.emissive_texture != null && state.textures[m.emissive_texture]) || white);
+        if (b.double_sided) gl.disable(gl.CULL_FACE);
+        else { gl.enable(gl.CULL_FACE); gl.cullFace(gl.BACK); }
+        gl.drawArrays(gl.TRIANGLES, b.first, b.count);
+      }
     }
     gl.bindVertexArray(null);
   }

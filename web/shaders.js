@@ -29,8 +29,11 @@ void main() {
 // while the punctual layer holds no page (a scene without punctual lights), which reads zero
 // there. A branch on a uniform would not do: under software GL (SwiftShader) the empty layer
 // still cost about a third of the frame behind one, and as much behind a loop.
-export const fragmentShader = (layers) => `#version 300 es
+// With `cutOut`, a MASK material's program: fragments whose alpha is below `alphaCutoff` are
+// discarded (a program of its own: a discard costs every fragment its early depth test).
+export const fragmentShader = (layers, cutOut = false) => `#version 300 es
 ${layers > 1 ? "#define PUNCTUAL_LAYER" : ""}
+${cutOut ? "#define CUT_OUT" : ""}
 precision highp float;
 precision highp int;
 precision highp usampler2D;
@@ -56,6 +59,7 @@ uniform uint cellCount;
 uniform uvec4 levels[16]; // pages_x, pages_y, table offset (layer * MAX_LODS + lod)
 uniform vec4 baseColor;
 uniform vec3 emission;
+uniform float alphaCutoff;
 uniform float exposure;
 in vec3 world;
 in vec2 vUv0;
@@ -157,6 +161,9 @@ vec3 srgb_encode(vec3 c) {
 }
 
 void main() {
+#ifdef CUT_OUT
+  if (baseColor.a * texture(baseColorTexture, vUv0).a < alphaCutoff) discard;
+#endif
   vec3 base = baseColor.rgb * texture(baseColorTexture, vUv0).rgb;
   vec3 albedo = clamp(base, vec3(0.0), vec3(1.0));
   vec3 emitted = emission * texture(emissiveTexture, vUv0).rgb;

@@ -96,6 +96,8 @@ pub struct MaterialMessage {
     pub emission: [f32; 3],
     pub base_color_texture: Option<usize>,
     pub emissive_texture: Option<usize>,
+    /// `MASK`'s cutoff (alpha below it is cut out); `None` for the other modes.
+    pub alpha_cutoff: Option<f32>,
 }
 
 /// One material's triangles: `count` vertices from `first`.

@@ -101,6 +101,7 @@ pub fn scene_messages(
             emission: m.emission.to_array(),
             base_color_texture: m.base_color_texture.map(|r| r.texture).filter(|&t| t < scene.textures.len()),
             emissive_texture: m.emissive_texture.map(|r| r.texture).filter(|&t| t < scene.textures.len()),
+            alpha_cutoff: m.alpha_mode.cutoff(),
         })
         .collect();
     let mut textures = Vec::new();
