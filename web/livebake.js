@@ -324,6 +324,9 @@ export function start(canvas, ui = {}) {
     if (state.lightmap) state.lightmap.dispose();
     for (const t of state.textures) if (t) gl.deleteTexture(t);
     state.scene = scene;
+    // The batches each program draws: opaque materials', then MASK ones' (drawScene).
+    state.drawLists = [false, true].map((cutOut) =>
+      scene.batches.filter((b) => (scene.materials[b.material].alpha_cutoff != null) === cutOut));
     state.textures = new Array(scene.textures.length).fill(null);
     state.lightmap = new LightMap(gl, scene);
     state.generation = scene.generation;
@@ -550,7 +553,7 @@ export function start(canvas, ui = {}) {
     gl.bindVertexArray(state.vao);
     // Opaque materials, then MASK ones with the program that cuts them out.
     for (const cutOut of [false, true]) {
-      const batches = s.batches.filter((b) => (s.materials[b.material].alpha_cutoff != null) === cutOut);
+      const batches = state.drawLists[cutOut ? 1 : 0];
       if (!batches.length) continue;
       const shader = shaders[lm.layerPages[1] > 0 ? 1 : 0][cutOut ? 1 : 0], u = shader.u;
       gl.useProgram(shader.program);
