@@ -15,15 +15,20 @@ struct FrameUniforms {
     // Multiplies radiance before the tone curve.
     exposure: f32,
     view_mode: u32,
-    // 1 when the target is not an sRGB format and the shader must encode.
-    encode_srgb: u32,
     _pad0: u32,
     _pad1: u32,
+    _pad2: u32,
 }
 
 // The same curve as the light-map previews (src/output.rs): 1 − exp(−L), then sRGB.
 fn tone_map(radiance: vec3<f32>, exposure: f32) -> vec3<f32> {
     return vec3<f32>(1.0) - exp(-max(radiance * exposure, vec3<f32>(0.0)));
+}
+
+// The exposed radiance `tone_map` turns into `colour` (each channel below 1; kept a step
+// short of 1, where the curve has no inverse).
+fn untone_map(colour: vec3<f32>) -> vec3<f32> {
+    return -log(vec3<f32>(1.0) - min(colour, vec3<f32>(0.9999)));
 }
 
 fn srgb_encode(c: vec3<f32>) -> vec3<f32> {

@@ -1,5 +1,9 @@
-// The viewer's surface pass: albedo × E/π + emission per fragment, depth-tested; `MASK`
-// materials' cut-out fragments (alpha below the cutoff) discarded (`fs_cut_out`).
+// The viewer's surface pass: each fragment's radiance (albedo × E/π + emission, or a debug
+// view) × exposure into a linear HDR target, depth-tested; `tone_map.wgsl` then draws that
+// onto the screen. Linear because see-through sheets (`BLEND`, transmission) are composited:
+// a sheet shows its own light plus what lies behind it through its `pass` (the bake's
+// `Sheet` model), a sum the tone curve would not keep. `MASK` materials' cut-out fragments
+// (alpha below the cutoff) are discarded (`fs_cut_out`).
 
 #include "common.inc.wgsl"
 #include "lightmap.inc.wgsl"
@@ -10,16 +14,22 @@ struct MaterialUniforms {
     // Emitted radiance W/(sr·m²).
     emission: vec3<f32>,
     // `MASK`'s cutoff: a fragment whose alpha is below it is cut out (`Material::alpha`,
-    // `AlphaMode::Mask`; 0 for the other modes, drawn with `fs_main`).
+    // `AlphaMode::Mask`; 0 for the other modes).
     alpha_cutoff: f32,
+    // 1 for `BLEND` (alpha is the fraction of light the surface meets, `Material::coverage`).
+    blend: u32,
+    // `KHR_materials_transmission` factor, multiplied by the texture's red channel.
+    transmission: f32,
+    _pad0: u32,
+    _pad1: u32,
 }
-
 @group(0) @binding(0) var<uniform> frame: FrameUniforms;
 
 @group(2) @binding(0) var<uniform> material: MaterialUniforms;
 @group(2) @binding(1) var base_color_texture: texture_2d<f32>;
 @group(2) @binding(2) var emissive_texture: texture_2d<f32>;
 @group(2) @binding(3) var material_sampler: sampler;
+@group(2) @binding(4) var transmission_texture: texture_2d<f32>;
 
 struct VertexInput {
     @location(0) position: vec3<f32>,
@@ -58,30 +68,72 @@ fn lod_colour(k: u32) -> vec3<f32> {
 
 @fragment
 fn fs_main(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    return shade(in, front);
+    return opaque(in, front);
 }
 
 // `MASK` materials, in a pipeline of their own: a discard anywhere in a pipeline's shader
 // costs every fragment its early depth test.
 @fragment
 fn fs_cut_out(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    let alpha = material.base_color.a * textureSample(base_color_texture, material_sampler, in.uv0).a;
-    if alpha < material.alpha_cutoff {
+    if alpha(in) < material.alpha_cutoff {
         discard;
     }
-    return shade(in, front);
+    return opaque(in, front);
 }
 
-fn shade(in: VertexOutput, front: bool) -> vec4<f32> {
+fn opaque(in: VertexOutput, front: bool) -> vec4<f32> {
+    return vec4<f32>(shown(in, front, albedo(in)) * frame.exposure, 1.0);
+}
+
+// A see-through sheet is drawn twice, after everything opaque and with no depth writes:
+// `fs_sheet_filter` multiplies what lies behind by the light the sheet lets through
+// (blend: dst × src), then `fs_sheet_light` adds the sheet's own (blend: dst + src).
+@fragment
+fn fs_sheet_filter(in: VertexOutput) -> @location(0) vec4<f32> {
+    return vec4<f32>(sheet(in).passes, 1.0);
+}
+
+@fragment
+fn fs_sheet_light(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
+    return vec4<f32>(shown(in, front, sheet(in).reflect) * frame.exposure, 1.0);
+}
+
+fn albedo(in: VertexOutput) -> vec3<f32> {
     let base = material.base_color.rgb * textureSample(base_color_texture, material_sampler, in.uv0).rgb;
-    let albedo = clamp(base, vec3<f32>(0.0), vec3<f32>(1.0));
+    return clamp(base, vec3<f32>(0.0), vec3<f32>(1.0));
+}
+
+fn alpha(in: VertexOutput) -> f32 {
+    return material.base_color.a * textureSample(base_color_texture, material_sampler, in.uv0).a;
+}
+
+// What a thin sheet does with light meeting it (`Material::sheet`, whose `pass` is `passes`
+// here: `pass` is a WGSL keyword): with coverage c, transmission t and albedo a,
+// `pass = (1 − c) + c·t·a`, `reflect = c·(1 − t)·a`.
+struct Sheet {
+    passes: vec3<f32>,
+    reflect: vec3<f32>,
+}
+
+fn sheet(in: VertexOutput) -> Sheet {
+    let a = albedo(in);
+    let alpha = alpha(in);
+    // `BLEND`: alpha; `MASK`: whole where alpha reaches the cutoff; `OPAQUE` (cutoff 0): whole.
+    let c = select(select(0.0, 1.0, alpha >= material.alpha_cutoff), clamp(alpha, 0.0, 1.0), material.blend == 1u);
+    let t = clamp(material.transmission * textureSample(transmission_texture, material_sampler, in.uv0).r, 0.0, 1.0);
+    return Sheet(vec3<f32>(1.0 - c) + a * (c * t), a * (c * (1.0 - t)));
+}
+
+// The radiance a fragment shows in the frame's view mode (before exposure): `reflectance` × E/π
+// + emission when lit.
+fn shown(in: VertexOutput, front: bool, reflectance: vec3<f32>) -> vec3<f32> {
     let emission = material.emission * textureSample(emissive_texture, material_sampler, in.uv0).rgb;
     let uv = select(in.lightmap_back, in.lightmap_front, front);
     var irradiance = vec3<f32>(0.0);
     if uv.x >= 0.0 {
         irradiance = shown_irradiance(in.world, uv);
     }
-    var radiance = albedo * irradiance / PI + emission;
+    var radiance = reflectance * irradiance / PI + emission;
     let k = lm_shown_lod(in.world);
     switch frame.view_mode {
         case VIEW_CELL_GRID: {
@@ -104,15 +156,14 @@ fn shade(in: VertexOutput, front: bool) -> vec4<f32> {
             let odd = ((t.x + t.y) & 1) == 1;
             radiance = radiance * select(1.0, 0.35, odd) + select(vec3<f32>(0.0), vec3<f32>(0.02), odd);
         }
+        case VIEW_CELL_LOD: {
+            // The LOD's colour, shaded by the lit picture's brightness on screen: a displayed
+            // colour, given as the radiance the tone curve turns into it.
+            let lit = tone_map(radiance, frame.exposure);
+            let colour = lod_colour(k) * (0.3 + 0.7 * dot(lit, vec3<f32>(0.2126, 0.7152, 0.0722)));
+            radiance = untone_map(colour) / frame.exposure;
+        }
         default: {}
     }
-    var colour = tone_map(radiance, frame.exposure);
-    if frame.view_mode == VIEW_CELL_LOD {
-        // The LOD's colour, shaded by the lit picture's brightness.
-        colour = lod_colour(k) * (0.3 + 0.7 * dot(colour, vec3<f32>(0.2126, 0.7152, 0.0722)));
-    }
-    if frame.encode_srgb == 1u {
-        colour = srgb_encode(colour);
-    }
-    return vec4<f32>(colour, 1.0);
+    return radiance;
 }

@@ -198,6 +198,74 @@ fn cut_out_fragments_are_discarded_and_show_what_is_behind() {
     assert!(left < 0.05 && right < 0.05, "an opaque screen lets the wall through: {left}, {right}");
 }
 
+/// See-through sheets show what lies behind them through their `pass` and add their own
+/// light (`Material::sheet`), composited in linear radiance before the tone curve. In front
+/// of a wall glowing with radiance 5 (no light map is shown, so a sheet's own light is its
+/// emission alone), the centre pixel must show the tone-mapped radiance the sheet model gives:
+/// - green glass (transmission 1, albedo (0.2, 1, 0.2)): 5·(0.2, 1, 0.2);
+/// - a `BLEND` sheet of alpha 0.5: 5·0.5;
+/// - two `BLEND` sheets of alpha 0.5, the far one also emitting 1, listed near one first:
+///   (5·0.5 + 1)·0.5 = 1.75 (drawn in the wrong order it would be 5·0.25 + 1 = 2.25);
+/// - an opaque screen: 0.
+///
+/// Tolerance: 1.5 of 255 levels: the 8-bit target's rounding (half a level) plus the
+/// half-float radiance target's (2⁻¹¹ relative, under a tenth of a level here); the
+/// materials are flat factors, so no texture filtering enters.
+#[test]
+fn see_through_sheets_show_what_is_behind_them_through_their_pass() {
+    use livebake::atlas::{Atlas, AtlasConfig};
+    use livebake::scene::builder::diffuse;
+    use livebake::scene::{AlphaMode, Material, Rgb, SceneBuilder, SceneGeometry};
+    let half = |emission: f32| Material {
+        alpha_mode: AlphaMode::Blend,
+        base_color: glam::Vec4::new(1.0, 1.0, 1.0, 0.5),
+        ..diffuse(Rgb::ONE, Rgb::splat(emission), true)
+    };
+    let glass = Material { transmission: 1.0, ..diffuse(Rgb::new(0.2, 1.0, 0.2), Rgb::ZERO, true) };
+    let square = |z: f32, r: f32| [Vec3::new(-r, -r, z), Vec3::new(r, -r, z), Vec3::new(r, r, z), Vec3::new(-r, r, z)];
+    // The centre pixel's colour with `sheets` (material, depth) in front of the wall.
+    let centre = |sheets: Vec<(Material, f32)>| {
+        let mut b = SceneBuilder::new();
+        let glow = b.material(diffuse(Rgb::splat(0.5), Rgb::splat(5.0), false));
+        b.quad("wall", square(-1.0, 3.0), glow);
+        for (i, (m, z)) in sheets.into_iter().enumerate() {
+            let id = b.material(m);
+            b.quad(&format!("sheet {i}"), square(z, 1.0), id);
+        }
+        let scene = b.build();
+        let geom = SceneGeometry::new(&scene);
+        let atlas =
+            Atlas::build(&scene, &geom, &AtlasConfig { texel_size: Some(0.1), ..AtlasConfig::default() }).unwrap();
+        let state = SceneState { generation: 0, scene: Arc::new(scene), atlas: Arc::new(atlas) };
+        let mut renderer = Renderer::new(GpuContext::headless().unwrap(), &state).unwrap();
+        let camera = Camera::look_at(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 50f32.to_radians(), 6.0);
+        let img = renderer.render_offscreen(&camera, 160, 120, &DrawSettings::default()).unwrap();
+        img.get_pixel(80, 60).0
+    };
+    // The tone curve (1 − e^(−L) at exposure 1) and sRGB encoding, in 255 levels.
+    let shown = |radiance: [f32; 3]| {
+        radiance.map(|l| {
+            let c = 1.0 - (-l).exp();
+            let e = if c <= 0.003_130_8 { 12.92 * c } else { 1.055 * c.powf(1.0 / 2.4) - 0.055 };
+            e * 255.0
+        })
+    };
+    let check = |what: &str, got: [u8; 4], radiance: [f32; 3]| {
+        let want = shown(radiance);
+        for c in 0..3 {
+            assert!(
+                (got[c] as f32 - want[c]).abs() <= 1.5,
+                "{what}: pixel {got:?}, expected {want:?} (radiance {radiance:?})"
+            );
+        }
+    };
+    check("nothing in front", centre(vec![]), [5.0; 3]);
+    check("green glass", centre(vec![(glass, 0.0)]), [1.0, 5.0, 1.0]);
+    check("a half-covering sheet", centre(vec![(half(0.0), 0.0)]), [2.5; 3]);
+    check("two sheets, the far one glowing", centre(vec![(half(0.0), 0.5), (half(1.0), 0.0)]), [1.75; 3]);
+    check("an opaque screen", centre(vec![(diffuse(Rgb::ONE, Rgb::ZERO, true), 0.0)]), [0.0; 3]);
+}
+
 fn livebake() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_livebake"))
 }

@@ -47,9 +47,9 @@ pub struct FrameUniforms {
     pub eye: [f32; 3],
     pub exposure: f32,
     pub view_mode: u32,
-    pub encode_srgb: u32,
     pub _pad0: u32,
     pub _pad1: u32,
+    pub _pad2: u32,
 }
 
 /// `LodLevel` (lightmap.inc.wgsl).
@@ -89,6 +89,12 @@ pub struct MaterialUniforms {
     pub emission: [f32; 3],
     /// `MASK`'s cutoff: a cut-out fragment's alpha is below it (0 for other modes).
     pub alpha_cutoff: f32,
+    /// 1 for `BLEND`: alpha is the surface's coverage.
+    pub blend: u32,
+    /// `KHR_materials_transmission` factor.
+    pub transmission: f32,
+    pub _pad0: u32,
+    pub _pad1: u32,
 }
 
 /// `ProbePoint` (irradiance_probe.wgsl).
@@ -354,9 +360,14 @@ mod tests {
             "surface.wgsl",
             FrameUniforms,
             "FrameUniforms",
-            [view_proj, eye, exposure, view_mode, encode_srgb, _pad0, _pad1]
+            [view_proj, eye, exposure, view_mode, _pad0, _pad1, _pad2]
         );
-        assert_layout!("surface.wgsl", MaterialUniforms, "MaterialUniforms", [base_color, emission, alpha_cutoff]);
+        assert_layout!(
+            "surface.wgsl",
+            MaterialUniforms,
+            "MaterialUniforms",
+            [base_color, emission, alpha_cutoff, blend, transmission, _pad0, _pad1]
+        );
         assert_layout!("surface.wgsl", LodLevel, "LodLevel", [pages_x, pages_y, table_offset, _pad]);
         assert_layout!(
             "surface.wgsl",

@@ -37,6 +37,7 @@ pub mod shader;
 pub mod surface;
 pub mod surface_radiance;
 pub mod target;
+pub mod tone_map;
 
 pub use bundle_backend::{GpuBundleBackend, GpuProvider};
 pub use device::{GpuContext, GpuError};

@@ -7,13 +7,13 @@
 //! back is the inside of closed geometry and has no texels); double-sided ones are not.
 //! Material textures get mip maps (the display minifies them; the bake samples level 0).
 
-use glam::{Vec2, Vec4};
+use glam::{Vec2, Vec3, Vec4};
 use wgpu::util::DeviceExt;
 
 use super::device::GpuContext;
 use super::layout::{MaterialUniforms, SurfaceVertex};
 use crate::atlas::{Atlas, NO_FACE};
-use crate::scene::{Scene, SceneGeometry, Texture, WrapMode};
+use crate::scene::{AlphaMode, Scene, SceneGeometry, Texture, WrapMode};
 
 /// Light-map UV of a side without a face: the shader shows no irradiance there.
 const NO_UV: [f32; 2] = [-1.0, -1.0];
@@ -51,6 +51,7 @@ pub fn material_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayou
                 ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
                 count: None,
             },
+            texture(4),
         ],
     })
 }
@@ -62,6 +63,13 @@ pub struct Batch {
     pub double_sided: bool,
     /// A `MASK` material: drawn with the pipeline that cuts its fragments out.
     pub cut_out: bool,
+    /// A see-through material (`BLEND` or transmission, [`Material::is_see_through`]):
+    /// composited over what lies behind it, after the rest.
+    ///
+    /// [`Material::is_see_through`]: crate::scene::Material::is_see_through
+    pub sheet: bool,
+    /// The centre of its corners' bounding box: sheets are drawn farthest first.
+    pub centre: Vec3,
 }
 
 pub struct SceneGpu {
@@ -117,6 +125,10 @@ impl SceneGpu {
                 base_color: m.base_color.to_array(),
                 emission: m.emission.to_array(),
                 alpha_cutoff: m.alpha_mode.cutoff().unwrap_or(0.0),
+                blend: (m.alpha_mode == AlphaMode::Blend) as u32,
+                transmission: m.transmission,
+                _pad0: 0,
+                _pad1: 0,
             };
             let buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(&m.name),
@@ -154,7 +166,15 @@ impl SceneGpu {
                         resource: wgpu::BindingResource::TextureView(view_of(&m.emissive_texture)),
                     },
                     wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::Sampler(&sampler) },
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: wgpu::BindingResource::TextureView(view_of(&m.transmission_texture)),
+                    },
                 ],
+            });
+            let (lo, hi) = corners.iter().fold((Vec3::MAX, Vec3::MIN), |(lo, hi), c| {
+                let p = Vec3::from_array(c.position);
+                (lo.min(p), hi.max(p))
             });
             let start = vertices.len() as u32;
             vertices.extend(corners);
@@ -163,6 +183,8 @@ impl SceneGpu {
                 vertices: start..vertices.len() as u32,
                 double_sided: m.double_sided,
                 cut_out: m.alpha_mode.cutoff().is_some(),
+                sheet: m.is_see_through(),
+                centre: (lo + hi) * 0.5,
             });
         }
         let vertex_buffer = device.create_buffer_init(&wgpu::util::BufferInitDescriptor {

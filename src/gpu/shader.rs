@@ -12,6 +12,7 @@ pub const SOURCES: &[(&str, &str)] = &[
     ("surface_radiance.inc.wgsl", include_str!("../../shaders/surface_radiance.inc.wgsl")),
     ("bundle_through.inc.wgsl", include_str!("../../shaders/bundle_through.inc.wgsl")),
     ("surface.wgsl", include_str!("../../shaders/surface.wgsl")),
+    ("tone_map.wgsl", include_str!("../../shaders/tone_map.wgsl")),
     ("irradiance_probe.wgsl", include_str!("../../shaders/irradiance_probe.wgsl")),
     ("bundle_analysis.wgsl", include_str!("../../shaders/bundle_analysis.wgsl")),
     ("bundle_mips.wgsl", include_str!("../../shaders/bundle_mips.wgsl")),

@@ -1,13 +1,18 @@
 //! The surface pass: every scene triangle, depth-tested, shaded as albedo × E/π + emission
-//! (or a debug view), into one or two viewports (stereo).
+//! (or a debug view), into one or two viewports (stereo) of a linear HDR target
+//! ([`RADIANCE_FORMAT`]; [`super::tone_map`] puts it on screen). See-through sheets are drawn
+//! last, farthest first, each composited over what lies behind it.
 
 use super::device::GpuContext;
 use super::layout::{FrameUniforms, SurfaceVertex};
 use super::lightmap::LightmapGpu;
-use super::scene::SceneGpu;
+use super::scene::{Batch, SceneGpu};
 use super::shader::{self, ShaderError};
+use glam::Vec3;
 
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// The surface pass's target: exposed linear radiance, composited before the tone curve.
+pub const RADIANCE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
 
 /// One view drawn in a frame: its uniforms and its viewport (x, y, width, height in pixels).
 #[derive(Clone, Copy, Debug)]
@@ -19,15 +24,16 @@ pub struct EyeView {
 pub struct SurfacePass {
     /// Per `[cut out][double-sided]`: `fs_main` or `fs_cut_out`, back faces culled or not.
     pipelines: [[wgpu::RenderPipeline; 2]; 2],
+    /// Per `[double-sided]`: a sheet's two draws, `fs_sheet_filter` (what lies behind × the
+    /// light it lets through) then `fs_sheet_light` (plus its own).
+    sheet_pipelines: [[wgpu::RenderPipeline; 2]; 2],
     /// One uniform buffer and bind group per eye (at most two).
     eyes: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
-    pub color_format: wgpu::TextureFormat,
 }
 
 impl SurfacePass {
     pub fn new(
         gpu: &GpuContext,
-        color_format: wgpu::TextureFormat,
         lightmap_layout: &wgpu::BindGroupLayout,
         material_layout: &wgpu::BindGroupLayout,
     ) -> Result<SurfacePass, ShaderError> {
@@ -51,7 +57,8 @@ impl SurfacePass {
             immediate_size: 0,
         });
         let module = shader::module(device, "surface.wgsl")?;
-        let pipeline = |entry_point: &str, cull_mode| {
+        // Sheets test depth but do not write it: what lies behind another sheet stays drawable.
+        let pipeline = |entry_point: &str, cull_mode, blend: Option<wgpu::BlendState>| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("surface"),
                 layout: Some(&layout),
@@ -69,7 +76,7 @@ impl SurfacePass {
                 },
                 depth_stencil: Some(wgpu::DepthStencilState {
                     format: DEPTH_FORMAT,
-                    depth_write_enabled: Some(true),
+                    depth_write_enabled: Some(blend.is_none()),
                     depth_compare: Some(wgpu::CompareFunction::Less),
                     stencil: Default::default(),
                     bias: Default::default(),
@@ -80,8 +87,8 @@ impl SurfacePass {
                     entry_point: Some(entry_point),
                     compilation_options: Default::default(),
                     targets: &[Some(wgpu::ColorTargetState {
-                        format: color_format,
-                        blend: None,
+                        format: RADIANCE_FORMAT,
+                        blend,
                         write_mask: wgpu::ColorWrites::ALL,
                     })],
                 }),
@@ -105,12 +112,21 @@ impl SurfacePass {
                 (buffer, group)
             })
             .collect();
-        let pipelines =
-            ["fs_main", "fs_cut_out"].map(|entry| [pipeline(entry, Some(wgpu::Face::Back)), pipeline(entry, None)]);
-        Ok(SurfacePass { pipelines, eyes, color_format })
+        let sides = |entry: &str, blend| [pipeline(entry, Some(wgpu::Face::Back), blend), pipeline(entry, None, blend)];
+        let pipelines = ["fs_main", "fs_cut_out"].map(|entry| sides(entry, None));
+        let blend = |src_factor, dst_factor| {
+            let component = wgpu::BlendComponent { src_factor, dst_factor, operation: wgpu::BlendOperation::Add };
+            Some(wgpu::BlendState { color: component, alpha: component })
+        };
+        let sheet_pipelines = [
+            sides("fs_sheet_filter", blend(wgpu::BlendFactor::Zero, wgpu::BlendFactor::Src)),
+            sides("fs_sheet_light", blend(wgpu::BlendFactor::One, wgpu::BlendFactor::One)),
+        ];
+        Ok(SurfacePass { pipelines, sheet_pipelines, eyes })
     }
 
-    /// Clears `color` and `depth` and draws `scene` once per eye (one or two).
+    /// Clears `color` (a [`RADIANCE_FORMAT`] target) and `depth` and draws `scene` once per
+    /// eye (one or two).
     #[allow(clippy::too_many_arguments)]
     pub fn draw(
         &self,
@@ -132,7 +148,9 @@ impl SurfacePass {
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color { r: 0.02, g: 0.02, b: 0.025, a: 1.0 }),
+                    // The backdrop, as exposed radiance: the tone curve makes it the dark grey
+                    // (0.02, 0.02, 0.025) it was when the surface pass drew on screen.
+                    load: wgpu::LoadOp::Clear(BACKDROP),
                     store: wgpu::StoreOp::Store,
                 },
             })],
@@ -151,11 +169,32 @@ impl SurfacePass {
             let [x, y, w, h] = view.viewport;
             pass.set_viewport(x, y, w, h, 0.0, 1.0);
             pass.set_bind_group(0, group, &[]);
-            for batch in &scene.batches {
+            for batch in scene.batches.iter().filter(|b| !b.sheet) {
                 pass.set_pipeline(&self.pipelines[batch.cut_out as usize][batch.double_sided as usize]);
                 pass.set_bind_group(2, &batch.bind_group, &[]);
                 pass.draw(batch.vertices.clone(), 0..1);
             }
+            for batch in sheets_farthest_first(&scene.batches, Vec3::from_array(view.frame.eye)) {
+                pass.set_bind_group(2, &batch.bind_group, &[]);
+                for pipelines in &self.sheet_pipelines {
+                    pass.set_pipeline(&pipelines[batch.double_sided as usize]);
+                    pass.draw(batch.vertices.clone(), 0..1);
+                }
+            }
         }
     }
+}
+
+/// The clear colour (exposed radiance) whose tone-mapped value is (0.02, 0.02, 0.025).
+const BACKDROP: wgpu::Color = wgpu::Color { r: 0.020_203, g: 0.020_203, b: 0.025_318, a: 1.0 };
+
+/// The see-through batches in drawing order: the farthest from `eye` (by the centre of its
+/// box) first. Each sheet's draw scales what is behind it, so the nearer must come later.
+/// Sheets of one material are one batch, drawn in one go: where two of them overlap on
+/// screen the far one's own light is not dimmed by the near one's filter, an error of the
+/// far sheet's reflected light times the near one's opacity (nothing for clear glass).
+pub fn sheets_farthest_first(batches: &[Batch], eye: Vec3) -> Vec<&Batch> {
+    let mut sheets: Vec<&Batch> = batches.iter().filter(|b| b.sheet).collect();
+    sheets.sort_by(|a, b| eye.distance_squared(b.centre).total_cmp(&eye.distance_squared(a.centre)));
+    sheets
 }

@@ -414,10 +414,10 @@ impl App<'_, '_> {
             other => return Err(GpuError::Validation(format!("cannot acquire a frame: {other:?}")).into()),
         };
         let view = frame.texture.create_view(&wgpu::TextureViewDescriptor::default());
-        let eyes = eye_views(&self.camera, w, h, &self.options.settings, !s.config.format.is_srgb());
+        let eyes = eye_views(&self.camera, w, h, &self.options.settings);
         let gpu = s.renderer.gpu.clone();
         let mut encoder = gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
-        s.renderer.draw(&mut encoder, s.config.format, &view, &s.depth, &eyes)?;
+        s.renderer.draw(&mut encoder, s.config.format, &view, &s.depth, (w, h), &eyes);
         gpu.queue.submit([encoder.finish()]);
         let lit = s.renderer.shown.is_some();
         let last = lit && self.options.frames.is_some_and(|n| self.report.lit_frames + 1 >= n);

@@ -12,6 +12,7 @@ use crate::gpu::lightmap::{self, LightmapGpu, SyncReport};
 use crate::gpu::scene::{SceneGpu, material_bind_group_layout};
 use crate::gpu::surface::{EyeView, SurfacePass};
 use crate::gpu::target::{OFFSCREEN_FORMAT, OffscreenTarget};
+use crate::gpu::tone_map::{RadianceTarget, ToneMapPass};
 use crate::gpu::{GpuContext, GpuError};
 use crate::grid::Grid;
 use crate::runtime::shown::ShownLightmap;
@@ -54,16 +55,16 @@ pub fn auto_exposure(shown: &ShownLightmap) -> f32 {
 }
 
 /// The eyes of one frame of `width × height` pixels: one, or two side by side.
-pub fn eye_views(camera: &Camera, width: u32, height: u32, settings: &DrawSettings, encode_srgb: bool) -> Vec<EyeView> {
+pub fn eye_views(camera: &Camera, width: u32, height: u32, settings: &DrawSettings) -> Vec<EyeView> {
     let (w, h) = (width as f32, height as f32);
     let frame = |offset: f32, aspect: f32| FrameUniforms {
         view_proj: camera.view_proj(aspect, offset).to_cols_array_2d(),
         eye: camera.eye.to_array(),
         exposure: settings.exposure,
         view_mode: settings.view_mode as u32,
-        encode_srgb: encode_srgb as u32,
         _pad0: 0,
         _pad1: 0,
+        _pad2: 0,
     };
     match settings.stereo_ipd {
         None => vec![EyeView { frame: frame(0.0, w / h), viewport: [0.0, 0.0, w, h] }],
@@ -87,8 +88,10 @@ pub struct Renderer {
     pub gpu: GpuContext,
     pub lightmap_layout: wgpu::BindGroupLayout,
     material_layout: wgpu::BindGroupLayout,
-    /// One surface pass per colour format drawn to (the window's and the offscreen one).
-    passes: Vec<SurfacePass>,
+    surface: SurfacePass,
+    tone_map: ToneMapPass,
+    /// The surface pass's target, of the last frame's size.
+    radiance: Option<RadianceTarget>,
     scene_generation: u64,
     pub scene: SceneGpu,
     pub lightmap: LightmapGpu,
@@ -104,11 +107,15 @@ impl Renderer {
         let material_layout = material_bind_group_layout(&gpu.device);
         let scene = SceneGpu::new(&gpu, &material_layout, &state.scene, &state.atlas);
         let lightmap = LightmapGpu::new(&gpu, &lightmap_layout, &unlit_map(state.atlas.width, state.atlas.height))?;
+        let surface = SurfacePass::new(&gpu, &lightmap_layout, &material_layout)?;
+        let tone_map = ToneMapPass::new(&gpu)?;
         Ok(Renderer {
             gpu,
             lightmap_layout,
             material_layout,
-            passes: Vec::new(),
+            surface,
+            tone_map,
+            radiance: None,
             scene_generation: state.generation,
             scene,
             lightmap,
@@ -141,27 +148,24 @@ impl Renderer {
         Ok(())
     }
 
-    /// The surface pass for `format` (pipelines are made once per format).
-    fn pass_index(&mut self, format: wgpu::TextureFormat) -> Result<usize, GpuError> {
-        if let Some(i) = self.passes.iter().position(|p| p.color_format == format) {
-            return Ok(i);
-        }
-        self.passes.push(SurfacePass::new(&self.gpu, format, &self.lightmap_layout, &self.material_layout)?);
-        Ok(self.passes.len() - 1)
-    }
-
-    /// Records the frame's draw into `encoder`.
+    /// Records the frame's draw into `encoder`: the surface pass into the radiance target, then
+    /// the tone-map pass onto `color` (`format`, `width × height`, as `depth` is).
+    #[allow(clippy::too_many_arguments)]
     pub fn draw(
         &mut self,
         encoder: &mut wgpu::CommandEncoder,
         format: wgpu::TextureFormat,
         color: &wgpu::TextureView,
         depth: &wgpu::TextureView,
+        (width, height): (u32, u32),
         eyes: &[EyeView],
-    ) -> Result<(), GpuError> {
-        let i = self.pass_index(format)?;
-        self.passes[i].draw(&self.gpu, encoder, color, depth, &self.scene, &self.lightmap, eyes);
-        Ok(())
+    ) {
+        if self.radiance.as_ref().is_none_or(|r| (r.width, r.height) != (width, height)) {
+            self.radiance = Some(self.tone_map.target(&self.gpu, width, height));
+        }
+        let Some(radiance) = &self.radiance else { return };
+        self.surface.draw(&self.gpu, encoder, &radiance.view, depth, &self.scene, &self.lightmap, eyes);
+        self.tone_map.draw(&self.gpu, encoder, radiance, format, color);
     }
 
     /// Renders one frame offscreen and reads it back.
@@ -173,10 +177,10 @@ impl Renderer {
         settings: &DrawSettings,
     ) -> Result<RgbaImage, GpuError> {
         let target = OffscreenTarget::new(&self.gpu, width, height);
-        let eyes = eye_views(camera, width, height, settings, false);
+        let eyes = eye_views(camera, width, height, settings);
         let mut encoder =
             self.gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("offscreen") });
-        self.draw(&mut encoder, OFFSCREEN_FORMAT, &target.color_view, &target.depth_view, &eyes)?;
+        self.draw(&mut encoder, OFFSCREEN_FORMAT, &target.color_view, &target.depth_view, (width, height), &eyes);
         self.gpu.queue.submit([encoder.finish()]);
         let image = target.read(&self.gpu)?;
         self.gpu.take_error()?;
