@@ -12,7 +12,9 @@
 // and snap turn (thumbstick left/right) on the controllers. On a desktop: the fly camera of
 // `view` (drag to look, WASD/QE to move, wheel for speed).
 
-import { fragmentShader, POOL_COLUMNS, TABLE_W, VERTEX_SHADER } from "./shaders.js";
+import {
+  fragmentShader, POOL_COLUMNS, SHEET_KINDS, TABLE_W, TONE_MAP_SHADER, TONE_MAP_VERTEX_SHADER, VERTEX_SHADER,
+} from "./shaders.js";
 
 const PAGE_SIDE = 16;
 const PAGE_FLOATS = PAGE_SIDE * PAGE_SIDE * 4;
@@ -25,6 +27,9 @@ const SNAP_TURN = Math.PI / 6;
 // the page's framebuffer wants.
 const srgb = (c) => (c <= 0.0031308 ? c * 12.92 : 1.055 * Math.pow(c, 1 / 2.4) - 0.055);
 const CLEAR = [srgb(0.02), srgb(0.02), srgb(0.025)];
+// The same background as exposed radiance in the float target (what the tone curve turns
+// into 0.02, 0.02, 0.025).
+const CLEAR_RADIANCE = [-Math.log(1 - 0.02), -Math.log(1 - 0.02), -Math.log(1 - 0.025)];
 
 // ---------------------------------------------------------------- matrices (column-major)
 
@@ -69,10 +74,10 @@ function compile(gl, type, source) {
   return s;
 }
 
-function program(gl, layers, cutOut) {
+function program(gl, vertex, fragment) {
   const p = gl.createProgram();
-  gl.attachShader(p, compile(gl, gl.VERTEX_SHADER, VERTEX_SHADER));
-  gl.attachShader(p, compile(gl, gl.FRAGMENT_SHADER, fragmentShader(layers, cutOut)));
+  gl.attachShader(p, compile(gl, gl.VERTEX_SHADER, vertex));
+  gl.attachShader(p, compile(gl, gl.FRAGMENT_SHADER, fragment));
   gl.linkProgram(p);
   if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(p));
   const u = {};
@@ -293,9 +298,24 @@ function makeTexture(gl, width, height, pixels, srgb, wrap) {
 export function start(canvas, ui = {}) {
   const gl = canvas.getContext("webgl2", { antialias: false, xrCompatible: true, preserveDrawingBuffer: true });
   if (!gl) throw new Error("WebGL 2 is not available");
-  // [layers][cut out]: index 0 samples the bundle layer alone, 1 both layers; each for opaque
-  // materials and for MASK ones (fragmentShader).
-  const shaders = [1, 2].map((layers) => [false, true].map((cutOut) => program(gl, layers, cutOut)));
+  // Surface programs by layers (1: the bundle layer alone, 2: both), kind and hdr
+  // (fragmentShader), made when first drawn with: a scene without sheets never needs the
+  // float-target ones.
+  const shaders = new Map();
+  function shader(layers, kind, hdr) {
+    const key = `${layers} ${kind} ${hdr}`;
+    let p = shaders.get(key);
+    if (!p) {
+      p = program(gl, VERTEX_SHADER, fragmentShader(layers, kind, hdr));
+      shaders.set(key, p);
+      if (state.scene) uploadUniformsOf(p);
+    }
+    return p;
+  }
+  const toneMap = program(gl, TONE_MAP_VERTEX_SHADER, TONE_MAP_SHADER);
+  // Rendering into RGBA16F needs this (core WebGL 2 only samples it). Without it a scene's
+  // sheets are drawn as opaque surfaces (state.errors says so).
+  const floatTargets = gl.getExtension("EXT_color_buffer_float");
   const white = makeTexture(gl, 1, 1, new Uint8Array([255, 255, 255, 255]), false);
   const params = new URLSearchParams(location.search);
   const state = {
@@ -324,9 +344,21 @@ export function start(canvas, ui = {}) {
     if (state.lightmap) state.lightmap.dispose();
     for (const t of state.textures) if (t) gl.deleteTexture(t);
     state.scene = scene;
-    // The batches each program draws: opaque materials', then MASK ones' (drawScene).
-    state.drawLists = [false, true].map((cutOut) =>
-      scene.batches.filter((b) => (scene.materials[b.material].alpha_cutoff != null) === cutOut));
+    // The batches each program draws (drawScene): opaque materials', MASK ones', then the
+    // see-through sheets' (BLEND or transmission; Material::is_see_through).
+    const sheet = (b) => scene.materials[b.material].blend || scene.materials[b.material].transmission > 0;
+    const cutOut = (b) => scene.materials[b.material].alpha_cutoff != null;
+    state.drawLists = {
+      opaque: scene.batches.filter((b) => !sheet(b) && !cutOut(b)),
+      cutOut: scene.batches.filter((b) => !sheet(b) && cutOut(b)),
+      // Each with the centre of its corners' box (onGeometry): sheets are drawn farthest first.
+      sheets: scene.batches.filter(sheet).map((b) => ({ ...b, centre: [0, 0, 0] })),
+    };
+    if (state.drawLists.sheets.length && !floatTargets) {
+      state.errors.push("EXT_color_buffer_float is missing: see-through surfaces are drawn opaque");
+      state.drawLists.opaque.push(...state.drawLists.sheets);
+      state.drawLists.sheets = [];
+    }
     state.textures = new Array(scene.textures.length).fill(null);
     state.lightmap = new LightMap(gl, scene);
     state.generation = scene.generation;
@@ -349,6 +381,16 @@ export function start(canvas, ui = {}) {
       gl.vertexAttribPointer(loc, n, gl.FLOAT, false, stride, off * 4);
     });
     gl.bindVertexArray(null);
+    for (const b of state.drawLists?.sheets ?? []) {
+      const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
+      for (let v = b.first; v < b.first + b.count && (v + 1) * VERTEX_FLOATS <= floats.length; v++) {
+        for (let k = 0; k < 3; k++) {
+          lo[k] = Math.min(lo[k], floats[v * VERTEX_FLOATS + k]);
+          hi[k] = Math.max(hi[k], floats[v * VERTEX_FLOATS + k]);
+        }
+      }
+      b.centre = [0, 1, 2].map((k) => (lo[k] <= hi[k] ? 0.5 * (lo[k] + hi[k]) : 0));
+    }
   }
 
   function onTexture(buf) {
@@ -513,7 +555,7 @@ export function start(canvas, ui = {}) {
   }
 
   function uploadUniforms() {
-    for (const shader of shaders.flat()) uploadUniformsOf(shader);
+    for (const p of shaders.values()) uploadUniformsOf(p);
   }
   function uploadUniformsOf(shader) {
     const s = state.scene, lm = state.lightmap, u = shader.u;
@@ -531,16 +573,45 @@ export function start(canvas, ui = {}) {
     gl.uniform1i(u.cellLod, 2);
     gl.uniform1i(u.baseColorTexture, 3);
     gl.uniform1i(u.emissiveTexture, 4);
+    gl.uniform1i(u.transmissionTexture, 5);
   }
   let exposureOverride = params.has("exposure") ? Number(params.get("exposure")) : null;
 
-  // Draws the scene with `viewProj` into the bound framebuffer's `viewport`.
-  function drawScene(viewProj, viewport) {
+  // The float target the surface programs write to when the scene has sheets (its depth
+  // buffer beside it), of the drawn framebuffer's size.
+  let radiance = null;
+  function radianceTarget(width, height) {
+    if (radiance && radiance.width === width && radiance.height === height) return radiance;
+    if (radiance) { gl.deleteFramebuffer(radiance.fbo); gl.deleteTexture(radiance.tex); gl.deleteRenderbuffer(radiance.depth); }
+    const tex = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, tex);
+    gl.texStorage2D(gl.TEXTURE_2D, 1, gl.RGBA16F, width, height);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    const depth = gl.createRenderbuffer();
+    gl.bindRenderbuffer(gl.RENDERBUFFER, depth);
+    gl.renderbufferStorage(gl.RENDERBUFFER, gl.DEPTH_COMPONENT32F, width, height);
+    const fbo = gl.createFramebuffer();
+    gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
+    gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, tex, 0);
+    gl.framebufferRenderbuffer(gl.FRAMEBUFFER, gl.DEPTH_ATTACHMENT, gl.RENDERBUFFER, depth);
+    radiance = { fbo, tex, depth, width, height };
+    return radiance;
+  }
+
+  // Draws the scene with `viewProj`, seen from `eye`, into `viewport` of `target` (a
+  // framebuffer of `size` pixels; null: the canvas). A scene with see-through sheets is drawn
+  // into the float target first (opaque surfaces, then the sheets farthest first, each scaling
+  // what lies behind it and adding its own light), then tone-mapped into the viewport, as
+  // `livebake view` does (src/gpu/surface.rs, tone_map.rs); any other scene straight in.
+  function drawScene(viewProj, viewport, eye, target, size) {
     const s = state.scene, lm = state.lightmap;
+    const hdr = Boolean(s && state.vao && state.drawLists.sheets.length);
+    gl.bindFramebuffer(gl.FRAMEBUFFER, hdr ? radianceTarget(...size).fbo : target);
     gl.viewport(...viewport);
     gl.enable(gl.SCISSOR_TEST);
     gl.scissor(...viewport);
-    gl.clearColor(...CLEAR, 1);
+    gl.clearColor(...(hdr ? CLEAR_RADIANCE : CLEAR), 1);
     gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
     gl.disable(gl.SCISSOR_TEST);
     if (!s || !state.vao) return;
@@ -551,26 +622,57 @@ export function start(canvas, ui = {}) {
     gl.activeTexture(gl.TEXTURE1); gl.bindTexture(gl.TEXTURE_2D, lm.table.tex);
     gl.activeTexture(gl.TEXTURE2); gl.bindTexture(gl.TEXTURE_2D, lm.cells.tex);
     gl.bindVertexArray(state.vao);
-    // Opaque materials, then MASK ones with the program that cuts them out.
-    for (const cutOut of [false, true]) {
-      const batches = state.drawLists[cutOut ? 1 : 0];
-      if (!batches.length) continue;
-      const shader = shaders[lm.layerPages[1] > 0 ? 1 : 0][cutOut ? 1 : 0], u = shader.u;
-      gl.useProgram(shader.program);
+    const layers = lm.layerPages[1] > 0 ? 2 : 1;
+    const texture = (i) => (i != null && state.textures[i]) || white;
+    const draw = (kind, batches) => {
+      if (!batches.length) return;
+      const p = shader(layers, kind, hdr), u = p.u;
+      gl.useProgram(p.program);
       gl.uniformMatrix4fv(u.viewProj, false, viewProj);
       for (const b of batches) {
         const m = s.materials[b.material];
         gl.uniform4fv(u.baseColor, m.base_color);
         gl.uniform3fv(u.emission, m.emission);
-        if (cutOut) gl.uniform1f(u.alphaCutoff, m.alpha_cutoff);
+        if (u.alphaCutoff) gl.uniform1f(u.alphaCutoff, m.alpha_cutoff ?? 0);
+        if (u.blendMode) gl.uniform1i(u.blendMode, m.blend ? 1 : 0);
+        if (u.transmission) gl.uniform1f(u.transmission, m.transmission);
         gl.activeTexture(gl.TEXTURE3);
-        gl.bindTexture(gl.TEXTURE_2D, (m.base_color_texture != null && state.textures[m.base_color_texture]) || white);
+        gl.bindTexture(gl.TEXTURE_2D, texture(m.base_color_texture));
         gl.activeTexture(gl.TEXTURE4);
-        gl.bindTexture(gl.TEXTURE_2D, (m.emissive_texture != null && state.textures[m.emissive_texture]) || white);
+        gl.bindTexture(gl.TEXTURE_2D, texture(m.emissive_texture));
+        gl.activeTexture(gl.TEXTURE5);
+        gl.bindTexture(gl.TEXTURE_2D, texture(m.transmission_texture));
         if (b.double_sided) gl.disable(gl.CULL_FACE);
         else { gl.enable(gl.CULL_FACE); gl.cullFace(gl.BACK); }
         gl.drawArrays(gl.TRIANGLES, b.first, b.count);
       }
+    };
+    // Opaque materials, then MASK ones with the program that cuts them out.
+    draw("opaque", state.drawLists.opaque);
+    draw("cutOut", state.drawLists.cutOut);
+    if (hdr) {
+      const far = (b) => { const d = sub(b.centre, eye); return dot(d, d); };
+      const sheets = state.drawLists.sheets.slice().sort((a, b) => far(b) - far(a));
+      // Sheets test depth but do not write it: what lies behind another sheet stays drawable.
+      gl.depthMask(false);
+      gl.enable(gl.BLEND);
+      for (const b of sheets) {
+        gl.blendFunc(gl.ZERO, gl.SRC_COLOR);
+        draw(SHEET_KINDS[0], [b]);
+        gl.blendFunc(gl.ONE, gl.ONE);
+        draw(SHEET_KINDS[1], [b]);
+      }
+      gl.disable(gl.BLEND);
+      gl.depthMask(true);
+      gl.bindVertexArray(null);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, target);
+      gl.disable(gl.DEPTH_TEST);
+      gl.useProgram(toneMap.program);
+      gl.activeTexture(gl.TEXTURE0);
+      gl.bindTexture(gl.TEXTURE_2D, radiance.tex);
+      gl.uniform1i(toneMap.u.radiance, 0);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+      return;
     }
     gl.bindVertexArray(null);
   }
@@ -620,8 +722,7 @@ export function start(canvas, ui = {}) {
         const s = state.scene.start;
         const t0 = performance.now();
         const vp = mul(perspective(s.yfov, w / h, s.znear, s.zfar), lookAt(state.eye, add(state.eye, f), [0, 1, 0]));
-        gl.bindFramebuffer(gl.FRAMEBUFFER, null);
-        drawScene(vp, [0, 0, w, h]);
+        drawScene(vp, [0, 0, w, h], state.eye, null, [w, h]);
         countFrame(performance.now() - t0);
         state.frameFence = gl.fenceSync(gl.SYNC_GPU_COMMANDS_COMPLETE, 0);
         sendPose(state.eye, f, s.yfov, w / h, h);
@@ -752,18 +853,19 @@ export function start(canvas, ui = {}) {
       placeAtStart([hp.x, hp.y, hp.z]);
     }
     snapTurn(frame, pose);
-    gl.bindFramebuffer(gl.FRAMEBUFFER, layer.framebuffer);
     const t0 = performance.now();
     const views = [];
     const inv = originInverse();
     for (const view of pose.views) {
       const vp = layer.getViewport(view);
       const viewport = [vp.x, vp.y, vp.width, vp.height];
-      drawScene(mul(view.projectionMatrix, mul(view.transform.inverse.matrix, inv)), viewport);
       const m = view.transform.matrix;
+      const position = toWorld([m[12], m[13], m[14]]);
+      const size = [layer.framebufferWidth, layer.framebufferHeight];
+      drawScene(mul(view.projectionMatrix, mul(view.transform.inverse.matrix, inv)), viewport, position, layer.framebuffer, size);
       views.push({
         eye: view.eye, viewport,
-        position: toWorld([m[12], m[13], m[14]]), forward: dirToWorld([-m[8], -m[9], -m[10]]), up: dirToWorld([m[4], m[5], m[6]]),
+        position, forward: dirToWorld([-m[8], -m[9], -m[10]]), up: dirToWorld([m[4], m[5], m[6]]),
         projection: Array.from(view.projectionMatrix),
       });
     }

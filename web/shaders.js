@@ -6,6 +6,16 @@ export const TABLE_W = 4096;
 // Pages a row of the pool texture holds.
 export const POOL_COLUMNS = 64;
 
+// The tone curve and sRGB encoding (common.inc.wgsl's), shared by both programs below.
+const TONE_CURVE = `
+vec3 toneMap(vec3 exposed) { return vec3(1.0) - exp(-max(exposed, vec3(0.0))); }
+
+vec3 srgb_encode(vec3 c) {
+  vec3 lo = c * 12.92;
+  vec3 hi = 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055;
+  return mix(hi, lo, vec3(lessThanEqual(c, vec3(0.0031308))));
+}`;
+
 export const VERTEX_SHADER = `#version 300 es
 layout(location = 0) in vec3 position;
 layout(location = 1) in vec2 uv0;
@@ -29,11 +39,22 @@ void main() {
 // while the punctual layer holds no page (a scene without punctual lights), which reads zero
 // there. A branch on a uniform would not do: under software GL (SwiftShader) the empty layer
 // still cost about a third of the frame behind one, and as much behind a loop.
-// With `cutOut`, a MASK material's program: fragments whose alpha is below `alphaCutoff` are
-// discarded (a program of its own: a discard costs every fragment its early depth test).
-export const fragmentShader = (layers, cutOut = false) => `#version 300 es
+// `kind`, as surface.wgsl's entry points:
+// - "opaque";
+// - "cutOut", a MASK material's program: fragments whose alpha is below `alphaCutoff` are
+//   discarded (a program of its own: a discard costs every fragment its early depth test);
+// - "sheetFilter" and "sheetLight", a see-through sheet's two draws (BLEND or transmission):
+//   what lies behind × the light the sheet lets through, then plus its own.
+// With `hdr`, the program writes exposed linear radiance into a float target that
+// TONE_MAP_SHADER then puts on screen (a scene with sheets: their sums must be taken before
+// the tone curve); without, it tone-maps and encodes itself (every other scene: one pass).
+export const SHEET_KINDS = ["sheetFilter", "sheetLight"];
+export const fragmentShader = (layers, kind = "opaque", hdr = false) => `#version 300 es
 ${layers > 1 ? "#define PUNCTUAL_LAYER" : ""}
-${cutOut ? "#define CUT_OUT" : ""}
+${kind === "cutOut" ? "#define CUT_OUT" : ""}
+${SHEET_KINDS.includes(kind) ? "#define SHEET" : ""}
+${kind === "sheetFilter" ? "#define SHEET_FILTER" : ""}
+${hdr ? "#define HDR_OUT" : ""}
 precision highp float;
 precision highp int;
 precision highp usampler2D;
@@ -50,6 +71,7 @@ uniform usampler2D pageTable;
 uniform usampler2D cellLod;
 uniform sampler2D baseColorTexture;
 uniform sampler2D emissiveTexture;
+uniform sampler2D transmissionTexture;
 uniform vec3 gridOrigin;
 uniform float cellSize;
 uniform uvec3 gridDims;
@@ -60,6 +82,8 @@ uniform uvec4 levels[16]; // pages_x, pages_y, table offset (layer * MAX_LODS + 
 uniform vec4 baseColor;
 uniform vec3 emission;
 uniform float alphaCutoff;
+uniform bool blendMode;
+uniform float transmission;
 uniform float exposure;
 in vec3 world;
 in vec2 vUv0;
@@ -154,18 +178,28 @@ vec3 lm_layer_irradiance(uint layer, uvec3 c, vec3 p, vec2 uv) {
   return base;
 }
 
-vec3 srgb_encode(vec3 c) {
-  vec3 lo = c * 12.92;
-  vec3 hi = 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055;
-  return mix(hi, lo, vec3(lessThanEqual(c, vec3(0.0031308))));
-}
+${TONE_CURVE}
 
 void main() {
+  float alpha = baseColor.a * texture(baseColorTexture, vUv0).a;
 #ifdef CUT_OUT
-  if (baseColor.a * texture(baseColorTexture, vUv0).a < alphaCutoff) discard;
+  if (alpha < alphaCutoff) discard;
 #endif
   vec3 base = baseColor.rgb * texture(baseColorTexture, vUv0).rgb;
   vec3 albedo = clamp(base, vec3(0.0), vec3(1.0));
+#ifdef SHEET
+  // Material::sheet: coverage (BLEND: alpha; MASK: whole where alpha reaches the cutoff;
+  // OPAQUE, cutoff 0: whole) and transmission t.
+  float coverage = blendMode ? clamp(alpha, 0.0, 1.0) : (alpha >= alphaCutoff ? 1.0 : 0.0);
+  float t = clamp(transmission * texture(transmissionTexture, vUv0).r, 0.0, 1.0);
+  vec3 passes = vec3(1.0 - coverage) + albedo * (coverage * t);
+  vec3 reflectance = albedo * (coverage * (1.0 - t));
+#else
+  vec3 reflectance = albedo;
+#endif
+#ifdef SHEET_FILTER
+  colour = vec4(passes, 1.0);
+#else
   vec3 emitted = emission * texture(emissiveTexture, vUv0).rgb;
   vec2 uv = gl_FrontFacing ? vFront : vBack;
   vec3 irradiance = vec3(0.0);
@@ -176,7 +210,28 @@ void main() {
     irradiance += lm_layer_irradiance(1u, c, world, uv);
 #endif
   }
-  vec3 radiance = albedo * irradiance / PI + emitted;
-  vec3 toned = vec3(1.0) - exp(-max(radiance * exposure, vec3(0.0)));
-  colour = vec4(srgb_encode(toned), 1.0);
+  vec3 radiance = reflectance * irradiance / PI + emitted;
+#ifdef HDR_OUT
+  colour = vec4(radiance * exposure, 1.0);
+#else
+  colour = vec4(srgb_encode(toneMap(radiance * exposure)), 1.0);
+#endif
+#endif
+}`;
+
+// The twin of shaders/tone_map.wgsl: the float target's exposed radiance through the tone
+// curve, encoded, pixel for pixel (drawn as one triangle over the viewport).
+export const TONE_MAP_VERTEX_SHADER = `#version 300 es
+void main() {
+  vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
+  gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);
+}`;
+
+export const TONE_MAP_SHADER = `#version 300 es
+precision highp float;
+uniform sampler2D radiance;
+out vec4 colour;
+${TONE_CURVE}
+void main() {
+  colour = vec4(srgb_encode(toneMap(texelFetch(radiance, ivec2(gl_FragCoord.xy), 0).rgb)), 1.0);
 }`;

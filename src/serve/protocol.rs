@@ -98,6 +98,11 @@ pub struct MaterialMessage {
     pub emissive_texture: Option<usize>,
     /// `MASK`'s cutoff (alpha below it is cut out); `None` for the other modes.
     pub alpha_cutoff: Option<f32>,
+    /// `BLEND`: alpha is the fraction of the light the surface meets.
+    pub blend: bool,
+    /// `KHR_materials_transmission` factor, multiplied by `transmission_texture`'s red channel.
+    pub transmission: f32,
+    pub transmission_texture: Option<usize>,
 }
 
 /// One material's triangles: `count` vertices from `first`.

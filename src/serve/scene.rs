@@ -11,7 +11,7 @@ use super::protocol::{
 };
 use crate::atlas::{Atlas, NO_FACE};
 use crate::runtime::shown::{PAGE_SIDE, ShownLightmap};
-use crate::scene::{Scene, SceneGeometry, WrapMode};
+use crate::scene::{AlphaMode, Scene, SceneGeometry, WrapMode};
 use crate::viewer::camera::Camera;
 
 /// A light-map UV meaning "no face on this side" (as the viewer's).
@@ -102,6 +102,9 @@ pub fn scene_messages(
             base_color_texture: m.base_color_texture.map(|r| r.texture).filter(|&t| t < scene.textures.len()),
             emissive_texture: m.emissive_texture.map(|r| r.texture).filter(|&t| t < scene.textures.len()),
             alpha_cutoff: m.alpha_mode.cutoff(),
+            blend: m.alpha_mode == AlphaMode::Blend,
+            transmission: m.transmission,
+            transmission_texture: m.transmission_texture.map(|r| r.texture).filter(|&t| t < scene.textures.len()),
         })
         .collect();
     let mut textures = Vec::new();
