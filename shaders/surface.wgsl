@@ -1,9 +1,10 @@
 // The viewer's surface pass: each fragment's radiance (albedo × E/π + emission, or a debug
-// view) × exposure into a linear HDR target, depth-tested; `tone_map.wgsl` then draws that
-// onto the screen. Linear because see-through sheets (`BLEND`, transmission) are composited:
-// a sheet shows its own light plus what lies behind it through its `pass` (the bake's
-// `Sheet` model), a sum the tone curve would not keep. `MASK` materials' cut-out fragments
-// (alpha below the cutoff) are discarded (`fs_cut_out`).
+// view), depth-tested, written as `OUTPUT` says. A scene with see-through sheets (`BLEND`,
+// transmission) is drawn as exposed linear radiance into an HDR target that `tone_map.wgsl`
+// then puts on screen: a sheet shows its own light plus what lies behind it through its
+// `pass` (the bake's `Sheet` model), a sum the tone curve would not keep. Any other scene is
+// drawn straight on screen, tone-mapped here. `MASK` materials' cut-out fragments (alpha below
+// the cutoff) are discarded (`fs_cut_out`).
 
 #include "common.inc.wgsl"
 #include "lightmap.inc.wgsl"
@@ -23,6 +24,11 @@ struct MaterialUniforms {
     _pad0: u32,
     _pad1: u32,
 }
+// What a fragment writes, per pipeline (`gpu::surface::SurfacePass`): 0, exposed linear
+// radiance (the HDR target); 1, the tone-mapped colour (an sRGB target, which encodes it);
+// 2, that colour sRGB-encoded (any other target).
+override OUTPUT: u32 = 0u;
+
 @group(0) @binding(0) var<uniform> frame: FrameUniforms;
 
 @group(2) @binding(0) var<uniform> material: MaterialUniforms;
@@ -82,7 +88,7 @@ fn fs_cut_out(in: VertexOutput, @builtin(front_facing) front: bool) -> @location
 }
 
 fn opaque(in: VertexOutput, front: bool) -> vec4<f32> {
-    return vec4<f32>(shown(in, front, albedo(in)) * frame.exposure, 1.0);
+    return output(shown(in, front, albedo(in)));
 }
 
 // A see-through sheet is drawn twice, after everything opaque and with no depth writes:
@@ -95,7 +101,18 @@ fn fs_sheet_filter(in: VertexOutput) -> @location(0) vec4<f32> {
 
 @fragment
 fn fs_sheet_light(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    return vec4<f32>(shown(in, front, sheet(in).reflect) * frame.exposure, 1.0);
+    return output(shown(in, front, sheet(in).reflect));
+}
+
+fn output(radiance: vec3<f32>) -> vec4<f32> {
+    if OUTPUT == 0u {
+        return vec4<f32>(radiance * frame.exposure, 1.0);
+    }
+    var colour = tone_map(radiance, frame.exposure);
+    if OUTPUT == 2u {
+        colour = srgb_encode(colour);
+    }
+    return vec4<f32>(colour, 1.0);
 }
 
 fn albedo(in: VertexOutput) -> vec3<f32> {

@@ -75,6 +75,8 @@ pub struct Batch {
 pub struct SceneGpu {
     pub vertex_buffer: wgpu::Buffer,
     pub batches: Vec<Batch>,
+    /// Some batch is a see-through sheet: the scene is drawn through the HDR target.
+    pub has_sheets: bool,
     pub vertex_count: u32,
 }
 
@@ -192,7 +194,8 @@ impl SceneGpu {
             contents: if vertices.is_empty() { &[0u8; 4] } else { bytemuck::cast_slice(&vertices) },
             usage: wgpu::BufferUsages::VERTEX,
         });
-        SceneGpu { vertex_buffer, batches, vertex_count: vertices.len() as u32 }
+        let has_sheets = batches.iter().any(|b| b.sheet);
+        SceneGpu { vertex_buffer, batches, has_sheets, vertex_count: vertices.len() as u32 }
     }
 }
 

@@ -1,7 +1,9 @@
 //! The surface pass: every scene triangle, depth-tested, shaded as albedo × E/π + emission
-//! (or a debug view), into one or two viewports (stereo) of a linear HDR target
-//! ([`RADIANCE_FORMAT`]; [`super::tone_map`] puts it on screen). See-through sheets are drawn
-//! last, farthest first, each composited over what lies behind it.
+//! (or a debug view), into one or two viewports (stereo). A scene with see-through sheets is
+//! drawn into a linear HDR target ([`RADIANCE_FORMAT`]; [`super::tone_map`] puts it on screen),
+//! the sheets last, farthest first, each composited over what lies behind it; any other
+//! scene straight onto the screen's format, tone-mapped in the shader (one pass, no HDR
+//! target to write and read: ~20 ms of a 60–90 ms frame on lavapipe).
 
 use super::device::GpuContext;
 use super::layout::{FrameUniforms, SurfaceVertex};
@@ -24,16 +26,22 @@ pub struct EyeView {
 pub struct SurfacePass {
     /// Per `[cut out][double-sided]`: `fs_main` or `fs_cut_out`, back faces culled or not.
     pipelines: [[wgpu::RenderPipeline; 2]; 2],
-    /// Per `[double-sided]`: a sheet's two draws, `fs_sheet_filter` (what lies behind × the
-    /// light it lets through) then `fs_sheet_light` (plus its own).
-    sheet_pipelines: [[wgpu::RenderPipeline; 2]; 2],
+    /// Into the HDR target only: per `[double-sided]`, a sheet's two draws,
+    /// `fs_sheet_filter` (what lies behind × the light it lets through) then `fs_sheet_light`
+    /// (plus its own). Without them (a pass drawing on screen) sheets are drawn opaque, which
+    /// [`Renderer`](crate::viewer::Renderer) never asks for.
+    sheet_pipelines: Option<[[wgpu::RenderPipeline; 2]; 2]>,
     /// One uniform buffer and bind group per eye (at most two).
     eyes: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
+    pub color_format: wgpu::TextureFormat,
 }
 
 impl SurfacePass {
+    /// A pass drawing to `color_format`: [`RADIANCE_FORMAT`] (exposed radiance, sheets
+    /// composited) or a screen's format (tone-mapped; encoded in the shader unless sRGB).
     pub fn new(
         gpu: &GpuContext,
+        color_format: wgpu::TextureFormat,
         lightmap_layout: &wgpu::BindGroupLayout,
         material_layout: &wgpu::BindGroupLayout,
     ) -> Result<SurfacePass, ShaderError> {
@@ -57,6 +65,16 @@ impl SurfacePass {
             immediate_size: 0,
         });
         let module = shader::module(device, "surface.wgsl")?;
+        let hdr = color_format == RADIANCE_FORMAT;
+        // surface.wgsl's `OUTPUT`.
+        let output = if hdr {
+            0.0
+        } else if color_format.is_srgb() {
+            1.0
+        } else {
+            2.0
+        };
+        let constants = [("OUTPUT", output)];
         // Sheets test depth but do not write it: what lies behind another sheet stays drawable.
         let pipeline = |entry_point: &str, cull_mode, blend: Option<wgpu::BlendState>| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
@@ -85,9 +103,12 @@ impl SurfacePass {
                 fragment: Some(wgpu::FragmentState {
                     module: &module,
                     entry_point: Some(entry_point),
-                    compilation_options: Default::default(),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &constants,
+                        ..Default::default()
+                    },
                     targets: &[Some(wgpu::ColorTargetState {
-                        format: RADIANCE_FORMAT,
+                        format: color_format,
                         blend,
                         write_mask: wgpu::ColorWrites::ALL,
                     })],
@@ -118,15 +139,16 @@ impl SurfacePass {
             let component = wgpu::BlendComponent { src_factor, dst_factor, operation: wgpu::BlendOperation::Add };
             Some(wgpu::BlendState { color: component, alpha: component })
         };
-        let sheet_pipelines = [
-            sides("fs_sheet_filter", blend(wgpu::BlendFactor::Zero, wgpu::BlendFactor::Src)),
-            sides("fs_sheet_light", blend(wgpu::BlendFactor::One, wgpu::BlendFactor::One)),
-        ];
-        Ok(SurfacePass { pipelines, sheet_pipelines, eyes })
+        let sheet_pipelines = hdr.then(|| {
+            [
+                sides("fs_sheet_filter", blend(wgpu::BlendFactor::Zero, wgpu::BlendFactor::Src)),
+                sides("fs_sheet_light", blend(wgpu::BlendFactor::One, wgpu::BlendFactor::One)),
+            ]
+        });
+        Ok(SurfacePass { pipelines, sheet_pipelines, eyes, color_format })
     }
 
-    /// Clears `color` (a [`RADIANCE_FORMAT`] target) and `depth` and draws `scene` once per
-    /// eye (one or two).
+    /// Clears `color` and `depth` and draws `scene` once per eye (one or two).
     #[allow(clippy::too_many_arguments)]
     pub fn draw(
         &self,
@@ -148,9 +170,11 @@ impl SurfacePass {
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
-                    // The backdrop, as exposed radiance: the tone curve makes it the dark grey
-                    // (0.02, 0.02, 0.025) it was when the surface pass drew on screen.
-                    load: wgpu::LoadOp::Clear(BACKDROP),
+                    load: wgpu::LoadOp::Clear(if self.sheet_pipelines.is_some() {
+                        BACKDROP_RADIANCE
+                    } else {
+                        BACKDROP
+                    }),
                     store: wgpu::StoreOp::Store,
                 },
             })],
@@ -169,14 +193,15 @@ impl SurfacePass {
             let [x, y, w, h] = view.viewport;
             pass.set_viewport(x, y, w, h, 0.0, 1.0);
             pass.set_bind_group(0, group, &[]);
-            for batch in scene.batches.iter().filter(|b| !b.sheet) {
+            for batch in scene.batches.iter().filter(|b| !b.sheet || self.sheet_pipelines.is_none()) {
                 pass.set_pipeline(&self.pipelines[batch.cut_out as usize][batch.double_sided as usize]);
                 pass.set_bind_group(2, &batch.bind_group, &[]);
                 pass.draw(batch.vertices.clone(), 0..1);
             }
+            let Some(sheet_pipelines) = &self.sheet_pipelines else { continue };
             for batch in sheets_farthest_first(&scene.batches, Vec3::from_array(view.frame.eye)) {
                 pass.set_bind_group(2, &batch.bind_group, &[]);
-                for pipelines in &self.sheet_pipelines {
+                for pipelines in sheet_pipelines {
                     pass.set_pipeline(&pipelines[batch.double_sided as usize]);
                     pass.draw(batch.vertices.clone(), 0..1);
                 }
@@ -185,8 +210,10 @@ impl SurfacePass {
     }
 }
 
-/// The clear colour (exposed radiance) whose tone-mapped value is (0.02, 0.02, 0.025).
-const BACKDROP: wgpu::Color = wgpu::Color { r: 0.020_203, g: 0.020_203, b: 0.025_318, a: 1.0 };
+/// The backdrop where no surface is: a dark grey, written as is by a pass drawing on screen.
+const BACKDROP: wgpu::Color = wgpu::Color { r: 0.02, g: 0.02, b: 0.025, a: 1.0 };
+/// The same in the HDR target: the exposed radiance the tone curve turns into it.
+const BACKDROP_RADIANCE: wgpu::Color = wgpu::Color { r: 0.020_203, g: 0.020_203, b: 0.025_318, a: 1.0 };
 
 /// The see-through batches in drawing order: the farthest from `eye` (by the centre of its
 /// box) first. Each sheet's draw scales what is behind it, so the nearer must come later.

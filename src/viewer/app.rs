@@ -417,7 +417,7 @@ impl App<'_, '_> {
         let eyes = eye_views(&self.camera, w, h, &self.options.settings);
         let gpu = s.renderer.gpu.clone();
         let mut encoder = gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
-        s.renderer.draw(&mut encoder, s.config.format, &view, &s.depth, (w, h), &eyes);
+        s.renderer.draw(&mut encoder, s.config.format, &view, &s.depth, (w, h), &eyes)?;
         gpu.queue.submit([encoder.finish()]);
         let lit = s.renderer.shown.is_some();
         let last = lit && self.options.frames.is_some_and(|n| self.report.lit_frames + 1 >= n);

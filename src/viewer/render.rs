@@ -10,7 +10,7 @@ use super::source::{LightSource, SceneState};
 use crate::gpu::layout::{FrameUniforms, ViewMode};
 use crate::gpu::lightmap::{self, LightmapGpu, SyncReport};
 use crate::gpu::scene::{SceneGpu, material_bind_group_layout};
-use crate::gpu::surface::{EyeView, SurfacePass};
+use crate::gpu::surface::{EyeView, RADIANCE_FORMAT, SurfacePass};
 use crate::gpu::target::{OFFSCREEN_FORMAT, OffscreenTarget};
 use crate::gpu::tone_map::{RadianceTarget, ToneMapPass};
 use crate::gpu::{GpuContext, GpuError};
@@ -88,7 +88,9 @@ pub struct Renderer {
     pub gpu: GpuContext,
     pub lightmap_layout: wgpu::BindGroupLayout,
     material_layout: wgpu::BindGroupLayout,
-    surface: SurfacePass,
+    /// One surface pass per colour format drawn to: the HDR target's, the window's and the
+    /// offscreen one.
+    passes: Vec<SurfacePass>,
     tone_map: ToneMapPass,
     /// The surface pass's target, of the last frame's size.
     radiance: Option<RadianceTarget>,
@@ -107,13 +109,12 @@ impl Renderer {
         let material_layout = material_bind_group_layout(&gpu.device);
         let scene = SceneGpu::new(&gpu, &material_layout, &state.scene, &state.atlas);
         let lightmap = LightmapGpu::new(&gpu, &lightmap_layout, &unlit_map(state.atlas.width, state.atlas.height))?;
-        let surface = SurfacePass::new(&gpu, &lightmap_layout, &material_layout)?;
         let tone_map = ToneMapPass::new(&gpu)?;
         Ok(Renderer {
             gpu,
             lightmap_layout,
             material_layout,
-            surface,
+            passes: Vec::new(),
             tone_map,
             radiance: None,
             scene_generation: state.generation,
@@ -148,8 +149,18 @@ impl Renderer {
         Ok(())
     }
 
-    /// Records the frame's draw into `encoder`: the surface pass into the radiance target, then
-    /// the tone-map pass onto `color` (`format`, `width × height`, as `depth` is).
+    /// The surface pass for `format` (pipelines are made once per format).
+    fn pass_index(&mut self, format: wgpu::TextureFormat) -> Result<usize, GpuError> {
+        if let Some(i) = self.passes.iter().position(|p| p.color_format == format) {
+            return Ok(i);
+        }
+        self.passes.push(SurfacePass::new(&self.gpu, format, &self.lightmap_layout, &self.material_layout)?);
+        Ok(self.passes.len() - 1)
+    }
+
+    /// Records the frame's draw into `encoder`, onto `color` (`format`, `width × height`, as
+    /// `depth` is): straight, or for a scene with sheets into the radiance target and then
+    /// through the tone-map pass.
     #[allow(clippy::too_many_arguments)]
     pub fn draw(
         &mut self,
@@ -159,13 +170,20 @@ impl Renderer {
         depth: &wgpu::TextureView,
         (width, height): (u32, u32),
         eyes: &[EyeView],
-    ) {
+    ) -> Result<(), GpuError> {
+        if !self.scene.has_sheets {
+            let i = self.pass_index(format)?;
+            self.passes[i].draw(&self.gpu, encoder, color, depth, &self.scene, &self.lightmap, eyes);
+            return Ok(());
+        }
+        let i = self.pass_index(RADIANCE_FORMAT)?;
         if self.radiance.as_ref().is_none_or(|r| (r.width, r.height) != (width, height)) {
             self.radiance = Some(self.tone_map.target(&self.gpu, width, height));
         }
-        let Some(radiance) = &self.radiance else { return };
-        self.surface.draw(&self.gpu, encoder, &radiance.view, depth, &self.scene, &self.lightmap, eyes);
+        let Some(radiance) = &self.radiance else { return Ok(()) };
+        self.passes[i].draw(&self.gpu, encoder, &radiance.view, depth, &self.scene, &self.lightmap, eyes);
         self.tone_map.draw(&self.gpu, encoder, radiance, format, color);
+        Ok(())
     }
 
     /// Renders one frame offscreen and reads it back.
@@ -180,7 +198,7 @@ impl Renderer {
         let eyes = eye_views(camera, width, height, settings);
         let mut encoder =
             self.gpu.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("offscreen") });
-        self.draw(&mut encoder, OFFSCREEN_FORMAT, &target.color_view, &target.depth_view, (width, height), &eyes);
+        self.draw(&mut encoder, OFFSCREEN_FORMAT, &target.color_view, &target.depth_view, (width, height), &eyes)?;
         self.gpu.queue.submit([encoder.finish()]);
         let image = target.read(&self.gpu)?;
         self.gpu.take_error()?;
