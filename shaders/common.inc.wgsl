@@ -1,6 +1,7 @@
 // Shared by every viewer pass: the per-frame uniforms and the display transform.
 
 const PI: f32 = 3.14159265358979;
+const TAU: f32 = 6.28318530717959;
 
 // View modes (FrameUniforms.view_mode); the Rust side names them in gpu::layout::ViewMode.
 const VIEW_LIT: u32 = 0u;
@@ -11,6 +12,8 @@ const VIEW_TEXEL_CHECKER: u32 = 4u;
 
 struct FrameUniforms {
     view_proj: mat4x4<f32>,
+    // Its inverse: clip space back to the world (the sky's directions).
+    inv_view_proj: mat4x4<f32>,
     eye: vec3<f32>,
     // Multiplies radiance before the tone curve.
     exposure: f32,

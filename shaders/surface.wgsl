@@ -37,6 +37,9 @@ override OUTPUT: u32 = 0u;
 @group(2) @binding(3) var material_sampler: sampler;
 @group(2) @binding(4) var transmission_texture: texture_2d<f32>;
 
+// The sky where no surface is (`scene::SkyPicture`: radiance, equirectangular, row 0 up).
+@group(3) @binding(0) var sky_picture: texture_2d<f32>;
+
 struct VertexInput {
     @location(0) position: vec3<f32>,
     @location(1) uv0: vec2<f32>,
@@ -113,6 +116,44 @@ fn output(radiance: vec3<f32>) -> vec4<f32> {
         colour = srgb_encode(colour);
     }
     return vec4<f32>(colour, 1.0);
+}
+
+// The sky: one triangle over the viewport at the far plane, drawn after the opaque surfaces
+// with depth tested (≤) and not written, so it shows only where none is.
+struct SkyVertex {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) ndc: vec2<f32>,
+}
+
+@vertex
+fn vs_sky(@builtin(vertex_index) i: u32) -> SkyVertex {
+    let p = vec2<f32>(f32((i << 1u) & 2u), f32(i & 2u)) * 2.0 - 1.0;
+    return SkyVertex(vec4<f32>(p, 1.0, 1.0), p);
+}
+
+@fragment
+fn fs_sky(in: SkyVertex) -> @location(0) vec4<f32> {
+    // Two points on the pixel's line of sight (clip depths 0.25 and 0.75): its direction.
+    let near = frame.inv_view_proj * vec4<f32>(in.ndc, 0.25, 1.0);
+    let far = frame.inv_view_proj * vec4<f32>(in.ndc, 0.75, 1.0);
+    return output(sky_radiance(normalize(far.xyz / far.w - near.xyz / near.w)));
+}
+
+// The sky picture toward `d`: bilinear between pixel centres, periodic in u, clamped in v.
+fn sky_radiance(d: vec3<f32>) -> vec3<f32> {
+    let size = vec2<i32>(textureDimensions(sky_picture));
+    let uv = vec2<f32>(0.5 + atan2(d.x, -d.z) / TAU, acos(clamp(d.y, -1.0, 1.0)) / PI);
+    let p = uv * vec2<f32>(size) - 0.5;
+    let p0 = floor(p);
+    let f = p - p0;
+    let i0 = vec2<i32>(p0);
+    let x0 = ((i0.x % size.x) + size.x) % size.x;
+    let x1 = (x0 + 1) % size.x;
+    let y0 = clamp(i0.y, 0, size.y - 1);
+    let y1 = clamp(i0.y + 1, 0, size.y - 1);
+    let top = mix(textureLoad(sky_picture, vec2<i32>(x0, y0), 0).rgb, textureLoad(sky_picture, vec2<i32>(x1, y0), 0).rgb, f.x);
+    let bottom = mix(textureLoad(sky_picture, vec2<i32>(x0, y1), 0).rgb, textureLoad(sky_picture, vec2<i32>(x1, y1), 0).rgb, f.x);
+    return mix(top, bottom, f.y);
 }
 
 fn albedo(in: VertexOutput) -> vec3<f32> {

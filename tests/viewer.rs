@@ -266,6 +266,47 @@ fn see_through_sheets_show_what_is_behind_them_through_their_pass() {
     check("an opaque screen", centre(vec![(diffuse(Rgb::ONE, Rgb::ZERO, true), 0.0)]), [0.0; 3]);
 }
 
+/// Where no surface is, the viewer shows the sky the scene's rays see, the right way round:
+/// under an environment bright (radiance 4) only above the horizon toward +X, the centre
+/// pixel looking up toward +X shows 4 tone-mapped (exposure 1: 1 − e⁻⁴, sRGB 253 of 255),
+/// looking up toward −X or down toward +X shows black. Tolerance: the centre pixel's ray is
+/// at least 20° from the bright quarter's edges, where the picture's bilinear blend is
+/// exact; 1.5 levels cover 8-bit rounding.
+#[test]
+fn the_sky_shows_where_no_surface_is_the_right_way_round() {
+    use livebake::atlas::{Atlas, AtlasConfig};
+    use livebake::scene::builder::diffuse;
+    use livebake::scene::environment::Environment;
+    use livebake::scene::{Rgb, SceneBuilder, SceneGeometry, Surroundings};
+    let mut b = SceneBuilder::new();
+    let m = b.material(diffuse(Rgb::splat(0.5), Rgb::ZERO, false));
+    // A tile far below, out of every view: the atlas wants a surface.
+    b.floor("tile", Vec3::new(0.0, -50.0, 0.0), 1.0, m);
+    let mut scene = b.build();
+    // 64 × 32 pixels: rows 0–15 above the horizon, columns 32–63 toward +X (u ≥ ½).
+    let texels =
+        (0..32).flat_map(|y| (0..64).map(move |x| Rgb::splat(if y < 16 && x >= 32 { 4.0 } else { 0.0 }))).collect();
+    let map = Environment::new("upper east", 64, 32, texels, 0.0).unwrap();
+    scene.set_surroundings(&Surroundings { environment: Some(Arc::new(map)), ..Surroundings::default() }).unwrap();
+    let geom = SceneGeometry::new(&scene);
+    let atlas = Atlas::build(&scene, &geom, &AtlasConfig { texel_size: Some(0.1), ..AtlasConfig::default() }).unwrap();
+    let state = SceneState { generation: 0, scene: Arc::new(scene), atlas: Arc::new(atlas) };
+    let mut renderer = Renderer::new(GpuContext::headless().unwrap(), &state).unwrap();
+    let mut centre = |toward: Vec3| {
+        let camera = Camera::look_at(Vec3::ZERO, toward, 30f32.to_radians(), 6.0);
+        renderer.render_offscreen(&camera, 64, 48, &DrawSettings::default()).unwrap().get_pixel(32, 24).0
+    };
+    let bright = 255.0 * (1.055 * (1.0 - (-4.0f32).exp()).powf(1.0 / 2.4) - 0.055);
+    for (toward, want) in
+        [(Vec3::new(1.0, 0.6, 0.0), bright), (Vec3::new(-1.0, 0.6, 0.0), 0.0), (Vec3::new(1.0, -0.6, 0.0), 0.0)]
+    {
+        let got = centre(toward);
+        for c in 0..3 {
+            assert!((got[c] as f32 - want).abs() <= 1.5, "looking toward {toward}: pixel {got:?}, expected {want}");
+        }
+    }
+}
+
 fn livebake() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_livebake"))
 }

@@ -13,7 +13,8 @@
 // `view` (drag to look, WASD/QE to move, wheel for speed).
 
 import {
-  fragmentShader, POOL_COLUMNS, SHEET_KINDS, TABLE_W, TONE_MAP_SHADER, TONE_MAP_VERTEX_SHADER, VERTEX_SHADER,
+  fragmentShader, POOL_COLUMNS, SHEET_KINDS, SKY_VERTEX_SHADER, skyShader, TABLE_W, TONE_MAP_SHADER,
+  TONE_MAP_VERTEX_SHADER, VERTEX_SHADER,
 } from "./shaders.js";
 
 const PAGE_SIDE = 16;
@@ -56,6 +57,28 @@ function mul(a, b) {
       for (let k = 0; k < 4; k++) v += a[k * 4 + r] * b[c * 4 + k];
       o[c * 4 + r] = v;
     }
+  return o;
+}
+
+// The inverse of a column-major 4×4 matrix (Gauss–Jordan with partial pivoting, in doubles);
+// the identity for a singular one.
+function invert(m) {
+  const a = Array.from({ length: 4 }, (_, r) => [0, 1, 2, 3].map((c) => m[c * 4 + r]).concat([0, 1, 2, 3].map((c) => (c === r ? 1 : 0))));
+  for (let c = 0; c < 4; c++) {
+    let p = c;
+    for (let r = c + 1; r < 4; r++) if (Math.abs(a[r][c]) > Math.abs(a[p][c])) p = r;
+    if (Math.abs(a[p][c]) < 1e-30) return new Float32Array([1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]);
+    [a[c], a[p]] = [a[p], a[c]];
+    const d = a[c][c];
+    for (let k = 0; k < 8; k++) a[c][k] /= d;
+    for (let r = 0; r < 4; r++) {
+      if (r === c) continue;
+      const f = a[r][c];
+      for (let k = 0; k < 8; k++) a[r][k] -= f * a[c][k];
+    }
+  }
+  const o = new Float32Array(16);
+  for (let r = 0; r < 4; r++) for (let c = 0; c < 4; c++) o[c * 4 + r] = a[r][4 + c];
   return o;
 }
 
@@ -313,6 +336,8 @@ export function start(canvas, ui = {}) {
     return p;
   }
   const toneMap = program(gl, TONE_MAP_VERTEX_SHADER, TONE_MAP_SHADER);
+  // The sky programs: [straight on screen, into the float target].
+  const skyPrograms = [false, true].map((hdr) => program(gl, SKY_VERTEX_SHADER, skyShader(hdr)));
   // Rendering into RGBA16F needs this (core WebGL 2 only samples it). Without it a scene's
   // sheets are drawn as opaque surfaces (state.errors says so).
   const floatTargets = gl.getExtension("EXT_color_buffer_float");
@@ -342,6 +367,7 @@ export function start(canvas, ui = {}) {
 
   function onScene(scene) {
     if (state.lightmap) state.lightmap.dispose();
+    if (state.sky) { gl.deleteTexture(state.sky); state.sky = null; }
     for (const t of state.textures) if (t) gl.deleteTexture(t);
     state.scene = scene;
     // The batches each program draws (drawScene): opaque materials', MASK ones', then the
@@ -391,6 +417,20 @@ export function start(canvas, ui = {}) {
       }
       b.centre = [0, 1, 2].map((k) => (lo[k] <= hi[k] ? 0.5 * (lo[k] + hi[k]) : 0));
     }
+  }
+
+  // The sky picture (SKY message): RGBA f32 after a 12-byte header, for a scene whose sky is
+  // not black (scene.sky gives its size).
+  function onSky(buf) {
+    const dv = new DataView(buf);
+    const w = dv.getUint32(4, true), h = dv.getUint32(8, true);
+    if (!state.scene?.sky || w !== state.scene.sky[0] || h !== state.scene.sky[1]) return;
+    if (state.sky) gl.deleteTexture(state.sky);
+    state.sky = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, state.sky);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, w, h, 0, gl.RGBA, gl.FLOAT, new Float32Array(buf, 12, w * h * 4));
   }
 
   function onTexture(buf) {
@@ -537,6 +577,7 @@ export function start(canvas, ui = {}) {
         if (kind === 1) onGeometry(m.binary);
         else if (kind === 2) onTexture(m.binary);
         else if (kind === 3) onUpdate(m.binary);
+        else if (kind === 4) onSky(m.binary);
         setStatus(`${state.updates} updates, ${state.pagesWritten} pages`);
       } catch (e) {
         state.errors.push(String(e));
@@ -550,6 +591,7 @@ export function start(canvas, ui = {}) {
     onScene(await (await get("scene.json")).json());
     onGeometry(await (await get("geometry.bin")).arrayBuffer());
     for (let i = 0; i < state.scene.textures.length; i++) onTexture(await (await get(`texture-${i}.bin`)).arrayBuffer());
+    if (state.scene.sky) onSky(await (await get("sky.bin")).arrayBuffer());
     onUpdate(await (await get("lightmap.bin")).arrayBuffer());
     setStatus("static export");
   }
@@ -650,6 +692,27 @@ export function start(canvas, ui = {}) {
     // Opaque materials, then MASK ones with the program that cuts them out.
     draw("opaque", state.drawLists.opaque);
     draw("cutOut", state.drawLists.cutOut);
+    if (state.sky) {
+      // At the far plane, where the depth buffer was cleared: LEQUAL passes only where no
+      // surface was drawn.
+      const p = skyPrograms[hdr ? 1 : 0];
+      gl.useProgram(p.program);
+      gl.uniformMatrix4fv(p.u.invViewProj, false, invert(viewProj));
+      gl.uniform1f(p.u.exposure, exposureOverride ?? s.exposure);
+      gl.activeTexture(gl.TEXTURE0);
+      gl.bindTexture(gl.TEXTURE_2D, state.sky);
+      gl.uniform1i(p.u.skyPicture, 0);
+      gl.disable(gl.CULL_FACE);
+      gl.depthFunc(gl.LEQUAL);
+      gl.depthMask(false);
+      gl.bindVertexArray(null);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+      gl.bindVertexArray(state.vao);
+      gl.depthMask(true);
+      gl.depthFunc(gl.LESS);
+      gl.activeTexture(gl.TEXTURE0);
+      gl.bindTexture(gl.TEXTURE_2D, lm.pool);
+    }
     if (hdr) {
       const far = (b) => { const d = sub(b.centre, eye); return dot(d, d); };
       const sheets = state.drawLists.sheets.slice().sort((a, b) => far(b) - far(a));

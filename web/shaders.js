@@ -235,3 +235,51 @@ ${TONE_CURVE}
 void main() {
   colour = vec4(srgb_encode(toneMap(texelFetch(radiance, ivec2(gl_FragCoord.xy), 0).rgb)), 1.0);
 }`;
+
+// The twin of surface.wgsl's vs_sky/fs_sky: the sky picture (scene::SkyPicture, RGBA32F, row
+// 0 up) where no surface is, one triangle at the far plane drawn after the opaque surfaces.
+// With `hdr` it writes exposed radiance into the float target, else tone-mapped and encoded.
+export const SKY_VERTEX_SHADER = `#version 300 es
+out vec2 ndc;
+void main() {
+  ndc = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
+  gl_Position = vec4(ndc, 1.0, 1.0);
+}`;
+
+export const skyShader = (hdr) => `#version 300 es
+${hdr ? "#define HDR_OUT" : ""}
+precision highp float;
+precision highp int;
+const float PI = 3.14159265358979;
+const float TAU = 6.28318530717959;
+uniform sampler2D skyPicture;
+uniform mat4 invViewProj;
+uniform float exposure;
+in vec2 ndc;
+out vec4 colour;
+${TONE_CURVE}
+
+vec3 skyTap(ivec2 size, int x, int y) {
+  return texelFetch(skyPicture, ivec2(((x % size.x) + size.x) % size.x, clamp(y, 0, size.y - 1)), 0).rgb;
+}
+
+void main() {
+  // Two points on the pixel's line of sight (WebGL clip depths -0.5 and 0.5): its direction.
+  vec4 near = invViewProj * vec4(ndc, -0.5, 1.0);
+  vec4 far = invViewProj * vec4(ndc, 0.5, 1.0);
+  vec3 d = normalize(far.xyz / far.w - near.xyz / near.w);
+  ivec2 size = textureSize(skyPicture, 0);
+  vec2 uv = vec2(0.5 + atan(d.x, -d.z) / TAU, acos(clamp(d.y, -1.0, 1.0)) / PI);
+  vec2 p = uv * vec2(size) - 0.5;
+  vec2 p0 = floor(p);
+  vec2 f = p - p0;
+  ivec2 i0 = ivec2(p0);
+  vec3 top = mix(skyTap(size, i0.x, i0.y), skyTap(size, i0.x + 1, i0.y), f.x);
+  vec3 bottom = mix(skyTap(size, i0.x, i0.y + 1), skyTap(size, i0.x + 1, i0.y + 1), f.x);
+  vec3 radiance = mix(top, bottom, f.y);
+#ifdef HDR_OUT
+  colour = vec4(radiance * exposure, 1.0);
+#else
+  colour = vec4(srgb_encode(toneMap(radiance * exposure)), 1.0);
+#endif
+}`;

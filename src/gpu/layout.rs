@@ -44,6 +44,7 @@ impl ViewMode {
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct FrameUniforms {
     pub view_proj: [[f32; 4]; 4],
+    pub inv_view_proj: [[f32; 4]; 4],
     pub eye: [f32; 3],
     pub exposure: f32,
     pub view_mode: u32,
@@ -360,7 +361,7 @@ mod tests {
             "surface.wgsl",
             FrameUniforms,
             "FrameUniforms",
-            [view_proj, eye, exposure, view_mode, _pad0, _pad1, _pad2]
+            [view_proj, inv_view_proj, eye, exposure, view_mode, _pad0, _pad1, _pad2]
         );
         assert_layout!(
             "surface.wgsl",

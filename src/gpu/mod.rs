@@ -34,6 +34,7 @@ pub mod pass;
 pub mod probe;
 pub mod scene;
 pub mod shader;
+pub mod sky;
 pub mod surface;
 pub mod surface_radiance;
 pub mod target;

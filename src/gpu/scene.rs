@@ -12,6 +12,7 @@ use wgpu::util::DeviceExt;
 
 use super::device::GpuContext;
 use super::layout::{MaterialUniforms, SurfaceVertex};
+use super::sky::sky_bind_group;
 use crate::atlas::{Atlas, NO_FACE};
 use crate::scene::{AlphaMode, Scene, SceneGeometry, Texture, WrapMode};
 
@@ -77,11 +78,21 @@ pub struct SceneGpu {
     pub batches: Vec<Batch>,
     /// Some batch is a see-through sheet: the scene is drawn through the HDR target.
     pub has_sheets: bool,
+    /// The sky shown where no surface is (`None`: the scene's sky is black; the backdrop
+    /// shows).
+    pub sky: Option<wgpu::BindGroup>,
     pub vertex_count: u32,
 }
 
 impl SceneGpu {
-    pub fn new(gpu: &GpuContext, layout: &wgpu::BindGroupLayout, scene: &Scene, atlas: &Atlas) -> SceneGpu {
+    /// `layout` and `sky_layout`: groups 2 and 3 of surface.wgsl.
+    pub fn new(
+        gpu: &GpuContext,
+        layout: &wgpu::BindGroupLayout,
+        sky_layout: &wgpu::BindGroupLayout,
+        scene: &Scene,
+        atlas: &Atlas,
+    ) -> SceneGpu {
         let device = &gpu.device;
         let geom = SceneGeometry::new(scene);
         let mut per_material: Vec<Vec<SurfaceVertex>> = vec![Vec::new(); scene.materials.len()];
@@ -195,7 +206,8 @@ impl SceneGpu {
             usage: wgpu::BufferUsages::VERTEX,
         });
         let has_sheets = batches.iter().any(|b| b.sheet);
-        SceneGpu { vertex_buffer, batches, has_sheets, vertex_count: vertices.len() as u32 }
+        let sky = scene.sky_picture().map(|picture| sky_bind_group(gpu, sky_layout, &picture));
+        SceneGpu { vertex_buffer, batches, has_sheets, sky, vertex_count: vertices.len() as u32 }
     }
 }
 

@@ -31,6 +31,8 @@ pub struct SurfacePass {
     /// (plus its own). Without them (a pass drawing on screen) sheets are drawn opaque, which
     /// [`Renderer`](crate::viewer::Renderer) never asks for.
     sheet_pipelines: Option<[[wgpu::RenderPipeline; 2]; 2]>,
+    /// `vs_sky`/`fs_sky`: the sky where no surface is, after the opaque surfaces.
+    sky_pipeline: wgpu::RenderPipeline,
     /// One uniform buffer and bind group per eye (at most two).
     eyes: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
     pub color_format: wgpu::TextureFormat,
@@ -39,11 +41,11 @@ pub struct SurfacePass {
 impl SurfacePass {
     /// A pass drawing to `color_format`: [`RADIANCE_FORMAT`] (exposed radiance, sheets
     /// composited) or a screen's format (tone-mapped; encoded in the shader unless sRGB).
+    /// `layouts`: groups 1–3 of surface.wgsl (light map, material, sky).
     pub fn new(
         gpu: &GpuContext,
         color_format: wgpu::TextureFormat,
-        lightmap_layout: &wgpu::BindGroupLayout,
-        material_layout: &wgpu::BindGroupLayout,
+        [lightmap_layout, material_layout, sky_layout]: [&wgpu::BindGroupLayout; 3],
     ) -> Result<SurfacePass, ShaderError> {
         let device = &gpu.device;
         let frame_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -62,6 +64,11 @@ impl SurfacePass {
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("surface"),
             bind_group_layouts: &[Some(&frame_layout), Some(lightmap_layout), Some(material_layout)],
+            immediate_size: 0,
+        });
+        let sky_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("sky"),
+            bind_group_layouts: &[Some(&frame_layout), None, None, Some(sky_layout)],
             immediate_size: 0,
         });
         let module = shader::module(device, "surface.wgsl")?;
@@ -117,6 +124,39 @@ impl SurfacePass {
                 cache: None,
             })
         };
+        let sky_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("sky"),
+            layout: Some(&sky_layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: Some("vs_sky"),
+                compilation_options: Default::default(),
+                buffers: &[],
+            },
+            primitive: Default::default(),
+            // At the far plane, where the depth buffer was cleared: ≤ passes only where no
+            // surface was drawn.
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: DEPTH_FORMAT,
+                depth_write_enabled: Some(false),
+                depth_compare: Some(wgpu::CompareFunction::LessEqual),
+                stencil: Default::default(),
+                bias: Default::default(),
+            }),
+            multisample: Default::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: Some("fs_sky"),
+                compilation_options: wgpu::PipelineCompilationOptions { constants: &constants, ..Default::default() },
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: color_format,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
         let eyes = (0..2)
             .map(|_| {
                 let buffer = device.create_buffer(&wgpu::BufferDescriptor {
@@ -145,7 +185,7 @@ impl SurfacePass {
                 sides("fs_sheet_light", blend(wgpu::BlendFactor::One, wgpu::BlendFactor::One)),
             ]
         });
-        Ok(SurfacePass { pipelines, sheet_pipelines, eyes, color_format })
+        Ok(SurfacePass { pipelines, sheet_pipelines, sky_pipeline, eyes, color_format })
     }
 
     /// Clears `color` and `depth` and draws `scene` once per eye (one or two).
@@ -197,6 +237,12 @@ impl SurfacePass {
                 pass.set_pipeline(&self.pipelines[batch.cut_out as usize][batch.double_sided as usize]);
                 pass.set_bind_group(2, &batch.bind_group, &[]);
                 pass.draw(batch.vertices.clone(), 0..1);
+            }
+            if let Some(sky) = &scene.sky {
+                pass.set_pipeline(&self.sky_pipeline);
+                pass.set_bind_group(3, sky, &[]);
+                pass.draw(0..3, 0..1);
+                pass.set_bind_group(1, lightmap.bind_group(), &[]);
             }
             let Some(sheet_pipelines) = &self.sheet_pipelines else { continue };
             for batch in sheets_farthest_first(&scene.batches, Vec3::from_array(view.frame.eye)) {

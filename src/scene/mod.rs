@@ -27,7 +27,7 @@ pub use gltf::{
     DEFAULT_MAX_TEXTURE_PIXELS, ExternalFile, ExternalKind, LoadError, LoadOptions, SourceDocument, SourceImage,
     external_files, load_gltf, load_gltf_bytes, read_scene_file, read_source,
 };
-pub use surroundings::{SunPlacement, Surroundings, SurroundingsSpec};
+pub use surroundings::{SkyPicture, SunPlacement, Surroundings, SurroundingsSpec};
 pub use texture::{Texture, TextureRef, WrapMode};
 
 /// Linear RGB triple (radiance, irradiance, albedo...). Units are given where it is used.

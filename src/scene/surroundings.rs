@@ -66,6 +66,43 @@ impl Scene {
     }
 }
 
+/// The sky as a picture: radiance (W/(sr·m²)) toward every direction, `sky +
+/// environment(d)`, over an equirectangular grid of `width × height` pixels (row 0 up, +Y;
+/// u = ½ + atan2(x, −z)/2π, v = acos(y)/π, as an unrotated [`Environment`]), sampled at pixel
+/// centres. What a viewer shows where no surface is.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SkyPicture {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major, `width × height`.
+    pub radiance: Vec<Rgb>,
+}
+
+/// The widest sky picture: 1024 × 512 pixels (8 MB as RGBA f32), a third of a degree each.
+const SKY_PICTURE_WIDTH: u32 = 1024;
+
+impl Scene {
+    /// The sky this scene's rays see on leaving it ([`SkyPicture`]), at the environment map's
+    /// resolution up to 1024 × 512 (a uniform sky: 4 × 2); `None` when it is black.
+    pub fn sky_picture(&self) -> Option<SkyPicture> {
+        if !self.has_sky() {
+            return None;
+        }
+        let width = self.environment.as_ref().map_or(4, |e| e.width().clamp(4, SKY_PICTURE_WIDTH));
+        let height = width / 2;
+        let mut radiance = Vec::with_capacity((width * height) as usize);
+        for y in 0..height {
+            let theta = std::f32::consts::PI * (y as f32 + 0.5) / height as f32;
+            for x in 0..width {
+                let phi = std::f32::consts::TAU * ((x as f32 + 0.5) / width as f32 - 0.5);
+                let d = glam::Vec3::new(theta.sin() * phi.sin(), theta.cos(), -theta.sin() * phi.cos());
+                radiance.push(self.sky + self.environment.as_ref().map_or(Rgb::ZERO, |e| e.radiance(d)));
+            }
+        }
+        Some(SkyPicture { width, height, radiance })
+    }
+}
+
 /// Where the sun is.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum SunPlacement {
@@ -227,6 +264,45 @@ mod tests {
         scene.set_surroundings(&Surroundings::default()).expect("nothing");
         assert_eq!(scene.lights.len(), 1);
         assert!(!scene.has_sky());
+    }
+
+    /// The sky picture is the sky and environment seen toward each pixel's direction: a
+    /// black sky has none; a uniform sky is that radiance everywhere; a map bright only above
+    /// the horizon and toward +X (u ≥ ½: sin φ > 0) adds its radiance to the picture's upper
+    /// rows' right half and nothing elsewhere.
+    #[test]
+    fn the_sky_picture_is_the_sky_seen_in_each_direction() {
+        let mut b = SceneBuilder::new();
+        let m = b.material(crate::scene::Material::default());
+        b.floor("floor", glam::Vec3::ZERO, 1.0, m);
+        let scene = b.build();
+        assert_eq!(scene.sky_picture(), None);
+        let sky = |s: &Surroundings| {
+            let mut scene = scene.clone();
+            scene.set_surroundings(s).expect("fits");
+            scene.sky_picture().expect("a sky")
+        };
+        let uniform = sky(&Surroundings { sky: Rgb::splat(0.5), ..Surroundings::default() });
+        assert!(uniform.radiance.iter().all(|&l| l == Rgb::splat(0.5)));
+        // 64 × 32 pixels: rows 0–15 above the horizon, columns 32–63 toward +X.
+        let bright = |x: u32, y: u32| y < 16 && x >= 32;
+        let texels =
+            (0..32).flat_map(|y| (0..64).map(move |x| Rgb::splat(if bright(x, y) { 4.0 } else { 0.0 }))).collect();
+        let map = Environment::new("upper east", 64, 32, texels, 0.0).expect("a map");
+        let picture = sky(&Surroundings { sky: Rgb::splat(0.5), environment: Some(Arc::new(map)), sun: None });
+        assert_eq!((picture.width, picture.height), (64, 32));
+        for y in 0..32 {
+            for x in 0..64 {
+                // Pixels next to an edge of the bright quarter blend across it (bilinear lookup).
+                let near_edge = (15..=16).contains(&y) || [0, 31, 32, 63].contains(&x);
+                if near_edge {
+                    continue;
+                }
+                let want = if bright(x, y) { 4.5 } else { 0.5 };
+                let l = picture.radiance[(y * 64 + x) as usize];
+                assert!((l - Rgb::splat(want)).abs().max_element() < 1e-5, "pixel ({x}, {y}): {l}");
+            }
+        }
     }
 
     /// A scene is lit by a punctual light, an emitting material a mesh uses, or a sky; by

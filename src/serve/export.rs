@@ -1,7 +1,7 @@
 //! `--export-web DIR` (`bake`, `run`): the page and the socket's messages as files, so that
 //! a static file server (or a headset's browser on one) shows the light map as it was:
-//! `DIR/index.html?static` reads `scene.json`, `geometry.bin`, `texture-N.bin` and
-//! `lightmap.bin` (one full update) instead of a socket.
+//! `DIR/index.html?static` reads `scene.json`, `geometry.bin`, `texture-N.bin`, `sky.bin`
+//! (unless the sky is black) and `lightmap.bin` (one full update) instead of a socket.
 
 use std::path::{Path, PathBuf};
 
@@ -48,6 +48,9 @@ pub fn export_web(
     files.push(write("geometry.bin", &msgs.geometry)?);
     for (i, t) in msgs.textures.iter().enumerate() {
         files.push(write(&format!("texture-{i}.bin"), t)?);
+    }
+    if let Some(sky) = &msgs.sky {
+        files.push(write("sky.bin", sky)?);
     }
     let update = encode_update(0, 1, 0.0, true, &changed_cells(shown, None), &shown.changed_pages(None));
     files.push(write("lightmap.bin", &update)?);

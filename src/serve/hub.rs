@@ -214,7 +214,7 @@ impl Hub<'_> {
         let msgs = scene_messages(&world.scene, &world.atlas, &shown, self.stats.generation, exposure, start);
         let text = serde_json::to_string(&msgs.description).unwrap_or_default();
         let mut scene = vec![Message::text(text), Message::Binary(Bytes::from(msgs.geometry))];
-        scene.extend(msgs.textures.into_iter().map(|t| Message::Binary(Bytes::from(t))));
+        scene.extend(msgs.textures.into_iter().chain(msgs.sky).map(|t| Message::Binary(Bytes::from(t))));
         self.scene = scene;
         self.scene_of = Some(world.scene.clone());
         // The new scene's map is sent whole.

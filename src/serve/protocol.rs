@@ -3,7 +3,8 @@
 //! that the page reads them through typed arrays without copying.
 //!
 //! Server to page: the scene description (JSON text, [`SceneMessage`]), the geometry
-//! ([`GEOMETRY`]), one message per material texture ([`TEXTURE`]), then light-map
+//! ([`GEOMETRY`]), one message per material texture ([`TEXTURE`]), the sky ([`SKY`], when
+//! it is not black), then light-map
 //! updates ([`UPDATE`]): the first is the whole shown map (flag [`FULL`]), every later one
 //! the pages one publish wrote and the cells whose shown LOD changed.
 //!
@@ -24,6 +25,9 @@ pub const GEOMETRY: u8 = 1;
 pub const TEXTURE: u8 = 2;
 /// Server → page, binary: light-map pages and cell LODs.
 pub const UPDATE: u8 = 3;
+/// Server → page, binary: the sky picture (`scene::SkyPicture`), `u8 4, 3 × pad, u32 width,
+/// u32 height`, then per pixel, row by row, RGBA f32 (A = 1).
+pub const SKY: u8 = 4;
 /// [`UPDATE`] flag: the page drops what it holds first (a whole map follows).
 pub const FULL: u8 = 1;
 
@@ -66,6 +70,9 @@ pub struct SceneMessage {
     pub materials: Vec<MaterialMessage>,
     pub batches: Vec<BatchMessage>,
     pub textures: Vec<TextureMessage>,
+    /// The sky picture's width and height, sent in a [`SKY`] message; `None`: a black sky
+    /// (the page shows its backdrop).
+    pub sky: Option<[u32; 2]>,
     pub vertex_count: u32,
 }
 

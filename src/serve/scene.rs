@@ -6,7 +6,7 @@
 use glam::Vec2;
 
 use super::protocol::{
-    BatchMessage, GEOMETRY, GridMessage, MaterialMessage, SceneMessage, StartPose, TEXTURE, TextureMessage,
+    BatchMessage, GEOMETRY, GridMessage, MaterialMessage, SKY, SceneMessage, StartPose, TEXTURE, TextureMessage,
     VERTEX_FLOATS,
 };
 use crate::atlas::{Atlas, NO_FACE};
@@ -24,6 +24,8 @@ pub struct SceneMessages {
     pub geometry: Vec<u8>,
     /// [`TEXTURE`] messages, one a scene texture.
     pub textures: Vec<Vec<u8>>,
+    /// The [`SKY`] message, unless the sky is black.
+    pub sky: Option<Vec<u8>>,
 }
 
 fn wrap_name(w: WrapMode) -> &'static str {
@@ -132,6 +134,7 @@ pub fn scene_messages(
         texture_messages.push(b);
     }
     let grid = shown.grid;
+    let sky = scene.sky_picture();
     let description = SceneMessage {
         kind: "scene",
         generation,
@@ -146,7 +149,20 @@ pub fn scene_messages(
         materials,
         batches,
         textures,
+        sky: sky.as_ref().map(|p| [p.width, p.height]),
         vertex_count: first,
     };
-    SceneMessages { description, geometry, textures: texture_messages }
+    let sky = sky.map(|p| {
+        let mut b = Vec::with_capacity(12 + p.radiance.len() * 16);
+        b.extend_from_slice(&[SKY, 0, 0, 0]);
+        b.extend_from_slice(&p.width.to_le_bytes());
+        b.extend_from_slice(&p.height.to_le_bytes());
+        for l in &p.radiance {
+            for v in l.extend(1.0).to_array() {
+                b.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        b
+    });
+    SceneMessages { description, geometry, textures: texture_messages, sky }
 }

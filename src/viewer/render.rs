@@ -10,6 +10,7 @@ use super::source::{LightSource, SceneState};
 use crate::gpu::layout::{FrameUniforms, ViewMode};
 use crate::gpu::lightmap::{self, LightmapGpu, SyncReport};
 use crate::gpu::scene::{SceneGpu, material_bind_group_layout};
+use crate::gpu::sky::sky_bind_group_layout;
 use crate::gpu::surface::{EyeView, RADIANCE_FORMAT, SurfacePass};
 use crate::gpu::target::{OFFSCREEN_FORMAT, OffscreenTarget};
 use crate::gpu::tone_map::{RadianceTarget, ToneMapPass};
@@ -59,6 +60,7 @@ pub fn eye_views(camera: &Camera, width: u32, height: u32, settings: &DrawSettin
     let (w, h) = (width as f32, height as f32);
     let frame = |offset: f32, aspect: f32| FrameUniforms {
         view_proj: camera.view_proj(aspect, offset).to_cols_array_2d(),
+        inv_view_proj: camera.view_proj(aspect, offset).inverse().to_cols_array_2d(),
         eye: camera.eye.to_array(),
         exposure: settings.exposure,
         view_mode: settings.view_mode as u32,
@@ -88,6 +90,7 @@ pub struct Renderer {
     pub gpu: GpuContext,
     pub lightmap_layout: wgpu::BindGroupLayout,
     material_layout: wgpu::BindGroupLayout,
+    sky_layout: wgpu::BindGroupLayout,
     /// One surface pass per colour format drawn to: the HDR target's, the window's and the
     /// offscreen one.
     passes: Vec<SurfacePass>,
@@ -107,13 +110,15 @@ impl Renderer {
     pub fn new(gpu: GpuContext, state: &SceneState) -> Result<Renderer, GpuError> {
         let lightmap_layout = lightmap::bind_group_layout(&gpu.device);
         let material_layout = material_bind_group_layout(&gpu.device);
-        let scene = SceneGpu::new(&gpu, &material_layout, &state.scene, &state.atlas);
+        let sky_layout = sky_bind_group_layout(&gpu.device);
+        let scene = SceneGpu::new(&gpu, &material_layout, &sky_layout, &state.scene, &state.atlas);
         let lightmap = LightmapGpu::new(&gpu, &lightmap_layout, &unlit_map(state.atlas.width, state.atlas.height))?;
         let tone_map = ToneMapPass::new(&gpu)?;
         Ok(Renderer {
             gpu,
             lightmap_layout,
             material_layout,
+            sky_layout,
             passes: Vec::new(),
             tone_map,
             radiance: None,
@@ -129,7 +134,7 @@ impl Renderer {
     pub fn update(&mut self, source: &dyn LightSource) -> Result<(), GpuError> {
         let state = source.scene();
         if state.generation != self.scene_generation {
-            self.scene = SceneGpu::new(&self.gpu, &self.material_layout, &state.scene, &state.atlas);
+            self.scene = SceneGpu::new(&self.gpu, &self.material_layout, &self.sky_layout, &state.scene, &state.atlas);
             self.scene_generation = state.generation;
         }
         self.last_sync = SyncReport::default();
@@ -154,7 +159,8 @@ impl Renderer {
         if let Some(i) = self.passes.iter().position(|p| p.color_format == format) {
             return Ok(i);
         }
-        self.passes.push(SurfacePass::new(&self.gpu, format, &self.lightmap_layout, &self.material_layout)?);
+        let layouts = [&self.lightmap_layout, &self.material_layout, &self.sky_layout];
+        self.passes.push(SurfacePass::new(&self.gpu, format, layouts)?);
         Ok(self.passes.len() - 1)
     }
 
