@@ -808,6 +808,7 @@ fn the_web_export_is_a_static_self_contained_page() {
         "index.html",
         "livebake.js",
         "shaders.js",
+        "lightmap.js",
         "scene.json",
         "geometry.bin",
         "lightmap.bin",

@@ -66,7 +66,7 @@ impl SurfacePass {
             bind_group_layouts: &[Some(&frame_layout), Some(lightmap_layout), Some(material_layout)],
             immediate_size: 0,
         });
-        let sky_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        let sky_pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("sky"),
             bind_group_layouts: &[Some(&frame_layout), None, None, Some(sky_layout)],
             immediate_size: 0,
@@ -126,7 +126,7 @@ impl SurfacePass {
         };
         let sky_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("sky"),
-            layout: Some(&sky_layout),
+            layout: Some(&sky_pipeline_layout),
             vertex: wgpu::VertexState {
                 module: &module,
                 entry_point: Some("vs_sky"),

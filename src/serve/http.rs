@@ -18,6 +18,7 @@ pub const PAGE_FILES: &[(&str, &str, &[u8])] = &[
     ("/index.html", "text/html; charset=utf-8", include_bytes!("../../web/index.html")),
     ("/livebake.js", "text/javascript; charset=utf-8", include_bytes!("../../web/livebake.js")),
     ("/shaders.js", "text/javascript; charset=utf-8", include_bytes!("../../web/shaders.js")),
+    ("/lightmap.js", "text/javascript; charset=utf-8", include_bytes!("../../web/lightmap.js")),
     ("/socket.js", "text/javascript; charset=utf-8", include_bytes!("../../web/socket.js")),
 ];
 
