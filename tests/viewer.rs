@@ -144,9 +144,8 @@ fn offscreen_cornell_room_shows_its_coloured_walls() {
 /// black: no light map is shown). The same screen `OPAQUE` hides the wall on both halves.
 #[test]
 fn cut_out_fragments_are_discarded_and_show_what_is_behind() {
-    use livebake::atlas::{Atlas, AtlasConfig};
     use livebake::scene::builder::diffuse;
-    use livebake::scene::{AlphaMode, Rgb, SceneBuilder, SceneGeometry, Texture, TextureRef, WrapMode};
+    use livebake::scene::{AlphaMode, Rgb, SceneBuilder, Texture, TextureRef, WrapMode};
     let render = |alpha_mode: AlphaMode| {
         let mut b = SceneBuilder::new();
         let glow = b.material(diffuse(Rgb::splat(0.5), Rgb::splat(5.0), false));
@@ -179,11 +178,7 @@ fn cut_out_fragments_are_discarded_and_show_what_is_behind() {
             wrap_t: WrapMode::ClampToEdge,
         });
         scene.materials[screen as usize].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
-        let geom = SceneGeometry::new(&scene);
-        let atlas =
-            Atlas::build(&scene, &geom, &AtlasConfig { texel_size: Some(0.1), ..AtlasConfig::default() }).unwrap();
-        let state = SceneState { generation: 0, scene: Arc::new(scene), atlas: Arc::new(atlas) };
-        let mut renderer = Renderer::new(GpuContext::headless().unwrap(), &state).unwrap();
+        let mut renderer = unlit_renderer(scene);
         let camera = Camera::look_at(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 50f32.to_radians(), 6.0);
         renderer.render_offscreen(&camera, 160, 120, &DrawSettings::default()).unwrap()
     };
@@ -213,9 +208,8 @@ fn cut_out_fragments_are_discarded_and_show_what_is_behind() {
 /// materials are flat factors, so no texture filtering enters.
 #[test]
 fn see_through_sheets_show_what_is_behind_them_through_their_pass() {
-    use livebake::atlas::{Atlas, AtlasConfig};
     use livebake::scene::builder::diffuse;
-    use livebake::scene::{AlphaMode, Material, Rgb, SceneBuilder, SceneGeometry};
+    use livebake::scene::{AlphaMode, Material, Rgb, SceneBuilder};
     let half = |emission: f32| Material {
         alpha_mode: AlphaMode::Blend,
         base_color: glam::Vec4::new(1.0, 1.0, 1.0, 0.5),
@@ -232,12 +226,7 @@ fn see_through_sheets_show_what_is_behind_them_through_their_pass() {
             let id = b.material(m);
             b.quad(&format!("sheet {i}"), square(z, 1.0), id);
         }
-        let scene = b.build();
-        let geom = SceneGeometry::new(&scene);
-        let atlas =
-            Atlas::build(&scene, &geom, &AtlasConfig { texel_size: Some(0.1), ..AtlasConfig::default() }).unwrap();
-        let state = SceneState { generation: 0, scene: Arc::new(scene), atlas: Arc::new(atlas) };
-        let mut renderer = Renderer::new(GpuContext::headless().unwrap(), &state).unwrap();
+        let mut renderer = unlit_renderer(b.build());
         let camera = Camera::look_at(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 50f32.to_radians(), 6.0);
         let img = renderer.render_offscreen(&camera, 160, 120, &DrawSettings::default()).unwrap();
         img.get_pixel(80, 60).0
@@ -274,10 +263,9 @@ fn see_through_sheets_show_what_is_behind_them_through_their_pass() {
 /// exact; 1.5 levels cover 8-bit rounding.
 #[test]
 fn the_sky_shows_where_no_surface_is_the_right_way_round() {
-    use livebake::atlas::{Atlas, AtlasConfig};
     use livebake::scene::builder::diffuse;
     use livebake::scene::environment::Environment;
-    use livebake::scene::{Rgb, SceneBuilder, SceneGeometry, Surroundings};
+    use livebake::scene::{Rgb, SceneBuilder, Surroundings};
     let mut b = SceneBuilder::new();
     let m = b.material(diffuse(Rgb::splat(0.5), Rgb::ZERO, false));
     // A tile far below, out of every view: the atlas wants a surface.
@@ -288,10 +276,7 @@ fn the_sky_shows_where_no_surface_is_the_right_way_round() {
         (0..32).flat_map(|y| (0..64).map(move |x| Rgb::splat(if y < 16 && x >= 32 { 4.0 } else { 0.0 }))).collect();
     let map = Environment::new("upper east", 64, 32, texels, 0.0).unwrap();
     scene.set_surroundings(&Surroundings { environment: Some(Arc::new(map)), ..Surroundings::default() }).unwrap();
-    let geom = SceneGeometry::new(&scene);
-    let atlas = Atlas::build(&scene, &geom, &AtlasConfig { texel_size: Some(0.1), ..AtlasConfig::default() }).unwrap();
-    let state = SceneState { generation: 0, scene: Arc::new(scene), atlas: Arc::new(atlas) };
-    let mut renderer = Renderer::new(GpuContext::headless().unwrap(), &state).unwrap();
+    let mut renderer = unlit_renderer(scene);
     let mut centre = |toward: Vec3| {
         let camera = Camera::look_at(Vec3::ZERO, toward, 30f32.to_radians(), 6.0);
         renderer.render_offscreen(&camera, 64, 48, &DrawSettings::default()).unwrap().get_pixel(32, 24).0
@@ -305,6 +290,16 @@ fn the_sky_shows_where_no_surface_is_the_right_way_round() {
             assert!((got[c] as f32 - want).abs() <= 1.5, "looking toward {toward}: pixel {got:?}, expected {want}");
         }
     }
+}
+
+/// A renderer of `scene` (10 cm texels) showing no light map yet: E = 0 everywhere, so what
+/// a test sees is emission, sky and compositing alone.
+fn unlit_renderer(scene: livebake::scene::Scene) -> Renderer {
+    use livebake::atlas::{Atlas, AtlasConfig};
+    let geom = livebake::scene::SceneGeometry::new(&scene);
+    let atlas = Atlas::build(&scene, &geom, &AtlasConfig { texel_size: Some(0.1), ..AtlasConfig::default() }).unwrap();
+    let state = SceneState { generation: 0, scene: Arc::new(scene), atlas: Arc::new(atlas) };
+    Renderer::new(GpuContext::headless().unwrap(), &state).unwrap()
 }
 
 fn livebake() -> std::process::Command {

@@ -8,8 +8,14 @@ use crate::scene::SkyPicture;
 
 /// Bind group layout of group 3 (the sky picture, surface.wgsl).
 pub fn sky_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
+    loaded_texture_layout(device, "sky")
+}
+
+/// A bind group layout of one float texture at binding 0 that the fragment stage reads with
+/// `textureLoad` (the sky picture, the tone-map pass's radiance).
+pub fn loaded_texture_layout(device: &wgpu::Device, label: &str) -> wgpu::BindGroupLayout {
     device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-        label: Some("sky"),
+        label: Some(label),
         entries: &[wgpu::BindGroupLayoutEntry {
             binding: 0,
             visibility: wgpu::ShaderStages::FRAGMENT,

@@ -3,7 +3,9 @@
 //! pixel. Reads the radiance target; writes the colour target.
 
 use super::device::GpuContext;
+use super::pass::single_group;
 use super::shader::{self, ShaderError};
+use super::sky::loaded_texture_layout;
 use super::surface::RADIANCE_FORMAT;
 
 /// The surface pass's target and what the tone-map pass reads it through, for one frame size.
@@ -25,24 +27,8 @@ pub struct ToneMapPass {
 impl ToneMapPass {
     pub fn new(gpu: &GpuContext) -> Result<ToneMapPass, ShaderError> {
         let device = &gpu.device;
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("tone map"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::FRAGMENT,
-                ty: wgpu::BindingType::Texture {
-                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                    view_dimension: wgpu::TextureViewDimension::D2,
-                    multisampled: false,
-                },
-                count: None,
-            }],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("tone map"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
+        let layout = loaded_texture_layout(device, "tone map");
+        let pipeline_layout = single_group(device, "tone map", &layout);
         let module = shader::module(device, "tone_map.wgsl")?;
         Ok(ToneMapPass { layout, pipeline_layout, module, pipelines: Vec::new() })
     }
