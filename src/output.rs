@@ -101,11 +101,18 @@ pub fn radiance_preview(lod: &BakedLod) -> RgbImage {
 }
 
 fn tone_map(c: Rgb) -> [u8; 3] {
-    c.to_array().map(|v| {
-        let v = 1.0 - (-v.max(0.0)).exp();
-        let s = if v <= 0.0031308 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
-        (s.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
-    })
+    c.to_array().map(|v| (srgb_encode(tone_curve(v)).clamp(0.0, 1.0) * 255.0 + 0.5) as u8)
+}
+
+/// The display's tone curve, 1 − e^(−v) of exposed radiance v (the viewer's `tone_map`,
+/// shaders/common.inc.wgsl).
+pub fn tone_curve(v: f32) -> f32 {
+    1.0 - (-v.max(0.0)).exp()
+}
+
+/// sRGB encoding of a linear value in [0, 1].
+pub fn srgb_encode(v: f32) -> f32 {
+    if v <= 0.0031308 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 }
 }
 
 fn encode(

@@ -262,6 +262,13 @@ fn under_an_outdoor_sky_each_eye_matches_the_viewers_stereo_render() {
     eyes_match_the_viewer(&cornell_path(), true, &["--environment", sky]);
 }
 
+/// The same under a uniform sky, which the viewer and the page draw by clearing the frame to
+/// it: the room stands against it all around. Tolerance as above.
+#[test]
+fn under_a_uniform_sky_each_eye_matches_the_viewers_stereo_render() {
+    eyes_match_the_viewer(&cornell_path(), false, &["--sky", "0.3,0.5,0.8"]);
+}
+
 /// `punctual`: whether the page shows punctual pages; `lights`: options giving both the
 /// server and `view` the same surroundings.
 fn eyes_match_the_viewer(scene: &Path, punctual: bool, lights: &[&str]) {

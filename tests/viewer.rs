@@ -258,9 +258,10 @@ fn see_through_sheets_show_what_is_behind_them_through_their_pass() {
 /// Where no surface is, the viewer shows the sky the scene's rays see, the right way round:
 /// under an environment bright (radiance 4) only above the horizon toward +X, the centre
 /// pixel looking up toward +X shows 4 tone-mapped (exposure 1: 1 − e⁻⁴, sRGB 253 of 255),
-/// looking up toward −X or down toward +X shows black. Tolerance: the centre pixel's ray is
-/// at least 20° from the bright quarter's edges, where the picture's bilinear blend is
-/// exact; 1.5 levels cover 8-bit rounding.
+/// looking up toward −X or down toward +X shows black. Under a uniform sky of radiance
+/// (0.5, 1, 2) (drawn by clearing to it) every direction shows that. Tolerance: the centre
+/// pixel's ray is at least 20° from the bright quarter's edges, where the picture's bilinear
+/// blend is exact; 1.5 levels cover 8-bit rounding.
 #[test]
 fn the_sky_shows_where_no_surface_is_the_right_way_round() {
     use livebake::scene::builder::diffuse;
@@ -275,19 +276,27 @@ fn the_sky_shows_where_no_surface_is_the_right_way_round() {
     let texels =
         (0..32).flat_map(|y| (0..64).map(move |x| Rgb::splat(if y < 16 && x >= 32 { 4.0 } else { 0.0 }))).collect();
     let map = Environment::new("upper east", 64, 32, texels, 0.0).unwrap();
+    let mut uniform = scene.clone();
     scene.set_surroundings(&Surroundings { environment: Some(Arc::new(map)), ..Surroundings::default() }).unwrap();
-    let mut renderer = unlit_renderer(scene);
-    let mut centre = |toward: Vec3| {
-        let camera = Camera::look_at(Vec3::ZERO, toward, 30f32.to_radians(), 6.0);
-        renderer.render_offscreen(&camera, 64, 48, &DrawSettings::default()).unwrap().get_pixel(32, 24).0
-    };
-    let bright = 255.0 * (1.055 * (1.0 - (-4.0f32).exp()).powf(1.0 / 2.4) - 0.055);
-    for (toward, want) in
-        [(Vec3::new(1.0, 0.6, 0.0), bright), (Vec3::new(-1.0, 0.6, 0.0), 0.0), (Vec3::new(1.0, -0.6, 0.0), 0.0)]
-    {
-        let got = centre(toward);
-        for c in 0..3 {
-            assert!((got[c] as f32 - want).abs() <= 1.5, "looking toward {toward}: pixel {got:?}, expected {want}");
+    uniform.set_surroundings(&Surroundings { sky: Rgb::new(0.5, 1.0, 2.0), ..Surroundings::default() }).unwrap();
+    let shown = |l: f32| 255.0 * (1.055 * (1.0 - (-l).exp()).powf(1.0 / 2.4) - 0.055);
+    let (up_east, up_west, down_east) =
+        (Vec3::new(1.0, 0.6, 0.0), Vec3::new(-1.0, 0.6, 0.0), Vec3::new(1.0, -0.6, 0.0));
+    let sky = [0.5, 1.0, 2.0].map(shown);
+    for (scene, views) in [
+        (scene, [(up_east, [shown(4.0); 3]), (up_west, [0.0; 3]), (down_east, [0.0; 3])]),
+        (uniform, [(up_east, sky), (up_west, sky), (down_east, sky)]),
+    ] {
+        let mut renderer = unlit_renderer(scene);
+        for (toward, want) in views {
+            let camera = Camera::look_at(Vec3::ZERO, toward, 30f32.to_radians(), 6.0);
+            let got = renderer.render_offscreen(&camera, 64, 48, &DrawSettings::default()).unwrap().get_pixel(32, 24).0;
+            for c in 0..3 {
+                assert!(
+                    (got[c] as f32 - want[c]).abs() <= 1.5,
+                    "looking toward {toward}: pixel {got:?}, expected {want:?}"
+                );
+            }
         }
     }
 }

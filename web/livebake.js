@@ -176,6 +176,7 @@ export function start(canvas, ui = {}) {
   function onScene(scene) {
     if (state.lightmap) state.lightmap.dispose();
     if (state.sky) { gl.deleteTexture(state.sky); state.sky = null; }
+    state.skyUniform = null;
     for (const t of state.textures) if (t) gl.deleteTexture(t);
     state.scene = scene;
     // The batches each program draws (drawScene): opaque materials', MASK ones', then the
@@ -234,11 +235,17 @@ export function start(canvas, ui = {}) {
     const w = dv.getUint32(4, true), h = dv.getUint32(8, true);
     if (!state.scene?.sky || w !== state.scene.sky[0] || h !== state.scene.sky[1]) return;
     if (state.sky) gl.deleteTexture(state.sky);
+    state.sky = null;
+    const texels = new Float32Array(buf, 12, w * h * 4);
+    // A uniform sky (every pixel the same): the frame is cleared to it, no sky is drawn (as
+    // the viewer's SkyGpu::Uniform).
+    state.skyUniform = texels.every((v, i) => v === texels[i & 3]) ? Array.from(texels.subarray(0, 3)) : null;
+    if (state.skyUniform) return;
     state.sky = gl.createTexture();
     gl.bindTexture(gl.TEXTURE_2D, state.sky);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
-    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, w, h, 0, gl.RGBA, gl.FLOAT, new Float32Array(buf, 12, w * h * 4));
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, w, h, 0, gl.RGBA, gl.FLOAT, texels);
   }
 
   function onTexture(buf) {
@@ -461,7 +468,9 @@ export function start(canvas, ui = {}) {
     gl.viewport(...viewport);
     gl.enable(gl.SCISSOR_TEST);
     gl.scissor(...viewport);
-    gl.clearColor(...(hdr ? CLEAR_RADIANCE : CLEAR), 1);
+    const exposure = exposureOverride ?? s?.exposure ?? 1;
+    const skyColour = (v) => (hdr ? v * exposure : srgb(1 - Math.exp(-v * exposure)));
+    gl.clearColor(...(state.skyUniform ? state.skyUniform.map(skyColour) : hdr ? CLEAR_RADIANCE : CLEAR), 1);
     gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
     gl.disable(gl.SCISSOR_TEST);
     if (!s || !state.vao) return;
@@ -506,7 +515,7 @@ export function start(canvas, ui = {}) {
       const p = skyPrograms[hdr ? 1 : 0];
       gl.useProgram(p.program);
       gl.uniformMatrix4fv(p.u.invViewProj, false, invert(viewProj));
-      gl.uniform1f(p.u.exposure, exposureOverride ?? s.exposure);
+      gl.uniform1f(p.u.exposure, exposure);
       gl.activeTexture(gl.TEXTURE0);
       gl.bindTexture(gl.TEXTURE_2D, state.sky);
       gl.uniform1i(p.u.skyPicture, 0);

@@ -12,7 +12,7 @@ use wgpu::util::DeviceExt;
 
 use super::device::GpuContext;
 use super::layout::{MaterialUniforms, SurfaceVertex};
-use super::sky::sky_bind_group;
+use super::sky::SkyGpu;
 use crate::atlas::{Atlas, NO_FACE};
 use crate::scene::{AlphaMode, Scene, SceneGeometry, Texture, WrapMode};
 
@@ -80,7 +80,7 @@ pub struct SceneGpu {
     pub has_sheets: bool,
     /// The sky shown where no surface is (`None`: the scene's sky is black; the backdrop
     /// shows).
-    pub sky: Option<wgpu::BindGroup>,
+    pub sky: Option<SkyGpu>,
     pub vertex_count: u32,
 }
 
@@ -206,7 +206,7 @@ impl SceneGpu {
             usage: wgpu::BufferUsages::VERTEX,
         });
         let has_sheets = batches.iter().any(|b| b.sheet);
-        let sky = scene.sky_picture().map(|picture| sky_bind_group(gpu, sky_layout, &picture));
+        let sky = scene.sky_picture().map(|picture| SkyGpu::new(gpu, sky_layout, &picture));
         SceneGpu { vertex_buffer, batches, has_sheets, sky, vertex_count: vertices.len() as u32 }
     }
 }

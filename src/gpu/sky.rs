@@ -4,7 +4,7 @@
 use wgpu::util::DeviceExt;
 
 use super::device::GpuContext;
-use crate::scene::SkyPicture;
+use crate::scene::{Rgb, SkyPicture};
 
 /// Bind group layout of group 3 (the sky picture, surface.wgsl).
 pub fn sky_bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
@@ -31,8 +31,25 @@ pub fn loaded_texture_layout(device: &wgpu::Device, label: &str) -> wgpu::BindGr
     })
 }
 
+/// The sky as the surface pass shows it.
+pub enum SkyGpu {
+    /// The same radiance every way: the pass clears to it and draws no sky.
+    Uniform(Rgb),
+    /// The picture, drawn by `fs_sky` where no surface is.
+    Picture(wgpu::BindGroup),
+}
+
+impl SkyGpu {
+    pub fn new(gpu: &GpuContext, layout: &wgpu::BindGroupLayout, picture: &SkyPicture) -> SkyGpu {
+        match picture.uniform() {
+            Some(l) => SkyGpu::Uniform(l),
+            None => SkyGpu::Picture(sky_bind_group(gpu, layout, picture)),
+        }
+    }
+}
+
 /// `picture` uploaded, bound for the surface pass.
-pub fn sky_bind_group(gpu: &GpuContext, layout: &wgpu::BindGroupLayout, picture: &SkyPicture) -> wgpu::BindGroup {
+fn sky_bind_group(gpu: &GpuContext, layout: &wgpu::BindGroupLayout, picture: &SkyPicture) -> wgpu::BindGroup {
     let texels: Vec<[f32; 4]> = picture.radiance.iter().map(|l| l.extend(1.0).to_array()).collect();
     let texture = gpu.device.create_texture_with_data(
         &gpu.queue,

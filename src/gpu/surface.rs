@@ -10,6 +10,8 @@ use super::layout::{FrameUniforms, SurfaceVertex};
 use super::lightmap::LightmapGpu;
 use super::scene::{Batch, SceneGpu};
 use super::shader::{self, ShaderError};
+use super::sky::SkyGpu;
+use crate::output::{srgb_encode, tone_curve};
 use glam::Vec3;
 
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -36,6 +38,19 @@ pub struct SurfacePass {
     /// One uniform buffer and bind group per eye (at most two).
     eyes: Vec<(wgpu::Buffer, wgpu::BindGroup)>,
     pub color_format: wgpu::TextureFormat,
+    /// surface.wgsl's `OUTPUT` for this format.
+    output: Output,
+}
+
+/// What the pass writes (surface.wgsl's `OUTPUT`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Output {
+    /// Exposed linear radiance (the HDR target).
+    Radiance = 0,
+    /// The tone-mapped colour, which an sRGB target encodes.
+    Toned = 1,
+    /// The tone-mapped colour sRGB-encoded (any other target).
+    Encoded = 2,
 }
 
 impl SurfacePass {
@@ -73,15 +88,14 @@ impl SurfacePass {
         });
         let module = shader::module(device, "surface.wgsl")?;
         let hdr = color_format == RADIANCE_FORMAT;
-        // surface.wgsl's `OUTPUT`.
         let output = if hdr {
-            0.0
+            Output::Radiance
         } else if color_format.is_srgb() {
-            1.0
+            Output::Toned
         } else {
-            2.0
+            Output::Encoded
         };
-        let constants = [("OUTPUT", output)];
+        let constants = [("OUTPUT", output as u32 as f64)];
         // Sheets test depth but do not write it: what lies behind another sheet stays drawable.
         let pipeline = |entry_point: &str, cull_mode, blend: Option<wgpu::BlendState>| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
@@ -185,7 +199,23 @@ impl SurfacePass {
                 sides("fs_sheet_light", blend(wgpu::BlendFactor::One, wgpu::BlendFactor::One)),
             ]
         });
-        Ok(SurfacePass { pipelines, sheet_pipelines, sky_pipeline, eyes, color_format })
+        Ok(SurfacePass { pipelines, sheet_pipelines, sky_pipeline, eyes, color_format, output })
+    }
+
+    /// What the colour target is cleared to: a uniform sky as `fs_sky` would draw it, else
+    /// the backdrop (a picture sky is then drawn over it).
+    fn clear_colour(&self, scene: &SceneGpu, eyes: &[EyeView]) -> wgpu::Color {
+        let exposure = eyes.first().map_or(1.0, |e| e.frame.exposure);
+        let colour = |c: [f32; 3]| wgpu::Color { r: c[0] as f64, g: c[1] as f64, b: c[2] as f64, a: 1.0 };
+        match (&scene.sky, self.output) {
+            (Some(SkyGpu::Uniform(l)), output) => colour((*l * exposure).to_array().map(|v| match output {
+                Output::Radiance => v,
+                Output::Toned => tone_curve(v),
+                Output::Encoded => srgb_encode(tone_curve(v)),
+            })),
+            (_, Output::Radiance) => BACKDROP_RADIANCE,
+            _ => BACKDROP,
+        }
     }
 
     /// Clears `color` and `depth` and draws `scene` once per eye (one or two).
@@ -210,11 +240,7 @@ impl SurfacePass {
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(if self.sheet_pipelines.is_some() {
-                        BACKDROP_RADIANCE
-                    } else {
-                        BACKDROP
-                    }),
+                    load: wgpu::LoadOp::Clear(self.clear_colour(scene, eyes)),
                     store: wgpu::StoreOp::Store,
                 },
             })],
@@ -238,7 +264,7 @@ impl SurfacePass {
                 pass.set_bind_group(2, &batch.bind_group, &[]);
                 pass.draw(batch.vertices.clone(), 0..1);
             }
-            if let Some(sky) = &scene.sky {
+            if let Some(SkyGpu::Picture(sky)) = &scene.sky {
                 pass.set_pipeline(&self.sky_pipeline);
                 pass.set_bind_group(3, sky, &[]);
                 pass.draw(0..3, 0..1);

@@ -78,6 +78,15 @@ pub struct SkyPicture {
     pub radiance: Vec<Rgb>,
 }
 
+impl SkyPicture {
+    /// The radiance when every pixel has the same (a uniform sky, no map): a viewer clears to
+    /// it rather than drawing the picture.
+    pub fn uniform(&self) -> Option<Rgb> {
+        let first = *self.radiance.first()?;
+        self.radiance.iter().all(|&l| l == first).then_some(first)
+    }
+}
+
 /// The widest sky picture: 1024 × 512 pixels (8 MB as RGBA f32), a third of a degree each.
 const SKY_PICTURE_WIDTH: u32 = 1024;
 
