@@ -77,21 +77,22 @@ fn lod_colour(k: u32) -> vec3<f32> {
 
 @fragment
 fn fs_main(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    return opaque(in, front);
+    return opaque(in, front, base_colour(in));
 }
 
 // `MASK` materials, in a pipeline of their own: a discard anywhere in a pipeline's shader
 // costs every fragment its early depth test.
 @fragment
 fn fs_cut_out(in: VertexOutput, @builtin(front_facing) front: bool) -> @location(0) vec4<f32> {
-    if alpha(in) < material.alpha_cutoff {
+    let base = base_colour(in);
+    if base.a < material.alpha_cutoff {
         discard;
     }
-    return opaque(in, front);
+    return opaque(in, front, base);
 }
 
-fn opaque(in: VertexOutput, front: bool) -> vec4<f32> {
-    return output(shown(in, front, albedo(in)));
+fn opaque(in: VertexOutput, front: bool, base: vec4<f32>) -> vec4<f32> {
+    return output(shown(in, front, albedo(base)));
 }
 
 // A see-through sheet is drawn twice, after everything opaque and with no depth writes:
@@ -156,13 +157,13 @@ fn sky_radiance(d: vec3<f32>) -> vec3<f32> {
     return mix(top, bottom, f.y);
 }
 
-fn albedo(in: VertexOutput) -> vec3<f32> {
-    let base = material.base_color.rgb * textureSample(base_color_texture, material_sampler, in.uv0).rgb;
-    return clamp(base, vec3<f32>(0.0), vec3<f32>(1.0));
+// The base colour (rgb) and alpha: factor × texture, sampled once per fragment.
+fn base_colour(in: VertexOutput) -> vec4<f32> {
+    return material.base_color * textureSample(base_color_texture, material_sampler, in.uv0);
 }
 
-fn alpha(in: VertexOutput) -> f32 {
-    return material.base_color.a * textureSample(base_color_texture, material_sampler, in.uv0).a;
+fn albedo(base: vec4<f32>) -> vec3<f32> {
+    return clamp(base.rgb, vec3<f32>(0.0), vec3<f32>(1.0));
 }
 
 // What a thin sheet does with light meeting it (`Material::sheet`, whose `pass` is `passes`
@@ -174,8 +175,9 @@ struct Sheet {
 }
 
 fn sheet(in: VertexOutput) -> Sheet {
-    let a = albedo(in);
-    let alpha = alpha(in);
+    let base = base_colour(in);
+    let a = albedo(base);
+    let alpha = base.a;
     // `BLEND`: alpha; `MASK`: whole where alpha reaches the cutoff; `OPAQUE` (cutoff 0): whole.
     let c = select(select(0.0, 1.0, alpha >= material.alpha_cutoff), clamp(alpha, 0.0, 1.0), material.blend == 1u);
     let t = clamp(material.transmission * textureSample(transmission_texture, material_sampler, in.uv0).r, 0.0, 1.0);

@@ -181,12 +181,12 @@ vec3 lm_layer_irradiance(uint layer, uvec3 c, vec3 p, vec2 uv) {
 ${TONE_CURVE}
 
 void main() {
-  float alpha = baseColor.a * texture(baseColorTexture, vUv0).a;
+  vec4 baseSample = baseColor * texture(baseColorTexture, vUv0);
+  float alpha = baseSample.a;
 #ifdef CUT_OUT
   if (alpha < alphaCutoff) discard;
 #endif
-  vec3 base = baseColor.rgb * texture(baseColorTexture, vUv0).rgb;
-  vec3 albedo = clamp(base, vec3(0.0), vec3(1.0));
+  vec3 albedo = clamp(baseSample.rgb, vec3(0.0), vec3(1.0));
 #ifdef SHEET
   // Material::sheet: coverage (BLEND: alpha; MASK: whole where alpha reaches the cutoff;
   // OPAQUE, cutoff 0: whole) and transmission t.
