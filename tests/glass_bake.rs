@@ -13,7 +13,7 @@ use livebake::bake::{BackendKind, BakeConfig, BakeOutput};
 use livebake::glam::{Vec2, Vec3};
 use livebake::reference::{ReferenceTracer, RelativeRmsError};
 use livebake::scene::builder::diffuse;
-use livebake::scene::{AlphaMode, Material, Rgb, Scene, SceneBuilder, Texture, TextureRef, WrapMode};
+use livebake::scene::{AlphaMode, Material, Rgb, Scene, SceneBuilder, Texture, TextureRef, UvTransform, WrapMode};
 
 const TEXEL: f32 = 0.05;
 const SUN: f32 = 2.0;
@@ -177,7 +177,7 @@ fn a_mask_checkerboard_cuts_out_holes_for_the_sun_and_the_bundles() {
         let mut scene = pane_scene(
             Material {
                 base_color: Rgb::splat(0.8).extend(1.0),
-                base_color_texture: Some(TextureRef { texture: 0, tex_coord: 0 }),
+                base_color_texture: Some(TextureRef::new(0)),
                 alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
                 double_sided: false,
                 ..Material::default()
@@ -247,6 +247,86 @@ fn a_mask_checkerboard_cuts_out_holes_for_the_sun_and_the_bundles() {
     }
     assert_backends_agree("MASK checkerboard, sun", &sunlit[0], &sunlit[1], &config(BackendKind::Gpu, 16));
     assert_backends_agree("MASK checkerboard, sun and sky", &outs[0], &outs[1], &sky_config(BackendKind::Gpu));
+}
+
+/// A cut-out pane read through `KHR_texture_transform` (or from TEXCOORD_1) casts the shadow of
+/// the same pane whose TEXCOORD_0 holds the transformed coordinates, written here by hand
+/// from the extension's rule uv' = T·R·S·uv at the pane's corners (0, 0), (1, 0), (1, 1),
+/// (0, 1). The texture is 4 × 4 with its top-left 2 × 2 texels solid (no symmetry: a
+/// rotation the wrong way round, or any transform dropped, casts another shadow).
+#[test]
+fn a_texture_transform_moves_a_cut_out_where_the_extension_puts_it() {
+    let pane = |texture: TextureRef, uv0: [[f32; 2]; 4], uv1: Option<[[f32; 2]; 4]>, sun: bool, sky: bool| {
+        let material = Material {
+            base_color_texture: Some(texture),
+            alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
+            ..Material::default()
+        };
+        let mut scene = pane_scene(material, sun, sky);
+        scene.meshes[1].uv0 = Some(uv0.map(Vec2::from).to_vec());
+        scene.meshes[1].uv1 = uv1.map(|uv| uv.map(Vec2::from).to_vec());
+        let solid = |i: usize| (i % 4 < 2 && i / 4 < 2) as u8 * 255;
+        scene.textures.push(Texture {
+            name: "quadrant".into(),
+            width: 4,
+            height: 4,
+            rgba8: (0..16).map(|i| [255, 255, 255, solid(i)]).collect::<Vec<_>>().into(),
+            srgb: true,
+            wrap_s: WrapMode::Repeat,
+            wrap_t: WrapMode::Repeat,
+        });
+        scene
+    };
+    let square_uv = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]];
+    let read = |tex_coord, transform| TextureRef { texture: 0, tex_coord, transform };
+    let plain = read(0, UvTransform::IDENTITY);
+    // The light map must not come from TEXCOORD_1 here (it is the light-map UV candidate).
+    let cfg = |backend, directions| {
+        let mut c = config(backend, directions);
+        c.atlas.use_uv1 = false;
+        c
+    };
+    // Offset (0.25, 0.5), scale (0.5, 2): uv' = (0.5u + 0.25, 2v + 0.5), exact in f32, so the
+    // bakes must be the same bits, sun and sky, on both backends; and so must a texture read
+    // from TEXCOORD_1 through it.
+    let shifted = read(0, UvTransform::new(Vec2::new(0.25, 0.5), 0.0, Vec2::new(0.5, 2.0)));
+    let by_hand = [[0.25, 0.5], [0.75, 0.5], [0.75, 2.5], [0.25, 2.5]];
+    let from_uv1 = read(1, UvTransform::new(Vec2::new(0.25, 0.5), 0.0, Vec2::new(0.5, 2.0)));
+    for backend in BACKENDS {
+        let c = cfg(backend, 64);
+        let want = run(&pane(plain, by_hand, None, true, true), &c);
+        for (what, scene) in [
+            ("offset and scale", pane(shifted, square_uv, None, true, true)),
+            ("offset and scale on TEXCOORD_1", pane(from_uv1, [[0.0, 0.0]; 4], Some(square_uv), true, true)),
+        ] {
+            let got = run(&scene, &c);
+            assert_eq!(got.lods[0].texels.position, want.lods[0].texels.position, "{what}: one atlas");
+            assert!(got.lods[0].irradiance == want.lods[0].irradiance, "{backend:?}: {what}: not the same light map");
+        }
+    }
+    // Rotation π/2 and offset (0, 1): uv' = (v, 1 − u). cos(π/2) rounds to −4.4·10⁻⁸ in f32,
+    // so the coordinates differ from the hand-written ones by that much, far below a
+    // texture texel (0.25): the sun's points (the punctual pass, four a texel) land on the
+    // same side of the cut-out's edge, and each texel's sun is the same to rounding.
+    let turned = read(0, UvTransform::new(Vec2::new(0.0, 1.0), std::f32::consts::FRAC_PI_2, Vec2::ONE));
+    let by_hand = [[0.0, 1.0], [0.0, 0.0], [1.0, 0.0], [1.0, 1.0]];
+    let c = cfg(BackendKind::Cpu, 16);
+    let want = run(&pane(plain, by_hand, None, true, false), &c);
+    let got = run(&pane(turned, square_uv, None, true, false), &c);
+    let untransformed = run(&pane(plain, square_uv, None, true, false), &c);
+    let (mut moved, mut checked) = (0, 0);
+    for (i, _) in floor_texels(&want) {
+        let (w, g) = (want.lods[0].irradiance[i], got.lods[0].irradiance[i]);
+        assert!((w - g).abs().max_element() <= 1e-5 * SUN, "rotation: floor texel {i}: {g} vs {w}");
+        moved += ((untransformed.lods[0].irradiance[i] - w).abs().max_element() > 0.5 * SUN) as u32;
+        checked += 1;
+    }
+    // The solid quadrant's shadow moves by a quarter turn: a quarter of the pane's
+    // ~580 floor texels at this texel size gain the sun and another quarter lose it.
+    assert!(
+        moved > 100,
+        "the rotated pane's shadow is where the untransformed one's is ({moved} of {checked} texels moved)"
+    );
 }
 
 /// Khronos GlassBrokenWindow (transmission glass, a MASK for the broken part) under a

@@ -485,7 +485,7 @@ fn unsupported_required_extension_is_named() {
         !msg.contains("lists KHR_draco_mesh_compression, KHR_lights_punctual"),
         "supported ones are not listed: {msg}"
     );
-    for ext in ["KHR_texture_basisu", "EXT_meshopt_compression", "KHR_texture_transform"] {
+    for ext in ["KHR_texture_basisu", "EXT_meshopt_compression", "EXT_mesh_gpu_instancing"] {
         j["extensionsRequired"] = json!([ext]);
         let e = load_err(&write_json(d.path(), "x.gltf", &j));
         assert!(matches!(e, LoadError::Unsupported { .. }) && e.to_string().contains(ext), "{e}");
@@ -991,8 +991,70 @@ fn textures_from_data_uri_and_buffer_view_with_samplers() {
         // Emission = factor × sRGB-decoded texture (188 → ~0.503).
         let e = m.emission_at(&s.textures, Vec2::splat(0.5));
         assert!(e.x == 0.0 && (e.z - 0.5029).abs() < 1e-3, "{e}");
-        assert!(s.stats.warnings.iter().any(|w| w.contains("texCoord other than 0")), "{:?}", s.stats.warnings);
+        // The emissive texture reads TEXCOORD_1, the base colour TEXCOORD_0: both are read at
+        // the base colour's, and the load says so.
+        assert!(s.stats.warnings.iter().any(|w| w.contains("at other coordinates")), "{:?}", s.stats.warnings);
     }
+}
+
+/// Where a material's textures are read: `KHR_texture_transform` (required here, so a reader
+/// without it must refuse the file) of the set the texture names, uv' = T·R·S·uv, at the
+/// triangle's corners (values worked by hand from the extension's matrices). A transform
+/// outside f32 is a clear error; a set livebake does not read is a warning.
+#[test]
+fn texture_transforms_and_sets_say_where_textures_are_read() {
+    let d = tmp();
+    let file = |name: &str, info: Value| {
+        let mut doc = Doc::new();
+        let mut p = doc.prim(&TRI, Some(&UP_Z), None);
+        p["attributes"]["TEXCOORD_0"] = json!(doc.vec2(&[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]));
+        p["attributes"]["TEXCOORD_1"] = json!(doc.vec2(&[[0.5, 0.5], [1.0, 0.5], [0.5, 1.0]]));
+        p["material"] = json!(0);
+        doc.mesh_node(vec![p], json!({}));
+        let white = png(1, 1, |_, _| [255; 4]);
+        doc.push("images", json!({ "uri": format!("data:image/png;base64,{}", base64(&white)) }));
+        doc.push("textures", json!({ "source": 0 }));
+        doc.push("materials", json!({ "pbrMetallicRoughness": { "baseColorTexture": info } }));
+        doc.json["extensionsUsed"] = json!(["KHR_texture_transform"]);
+        doc.json["extensionsRequired"] = json!(["KHR_texture_transform"]);
+        doc.write_gltf(d.path(), name)
+    };
+    let corners = |s: &Scene| SceneGeometry::new(s).texture_uv_corners(s, 0);
+    let transform = |t: Value| json!({ "index": 0, "extensions": { "KHR_texture_transform": t } });
+    // Offset (0.5, −1), scale (2, 4) on TEXCOORD_1 (the extension's texCoord overrides the
+    // textureInfo's 0): (2u + 0.5, 4v − 1).
+    let s =
+        load(&file("scaled", transform(json!({ "offset": [0.5, -1.0], "scale": [2.0, 4.0], "texCoord": 1 })))).unwrap();
+    assert_eq!(corners(&s), [Vec2::new(1.5, 1.0), Vec2::new(2.5, 1.0), Vec2::new(1.5, 3.0)]);
+    assert!(!s.stats.warnings.iter().any(|w| w.contains("KHR_texture_transform")), "{:?}", s.stats.warnings);
+    // A quarter turn on TEXCOORD_0: R·uv = (v, −u).
+    let s = load(&file("turned", transform(json!({ "rotation": std::f64::consts::FRAC_PI_2 })))).unwrap();
+    let want = [Vec2::new(0.0, 0.0), Vec2::new(0.0, -1.0), Vec2::new(1.0, 0.0)];
+    for (got, want) in corners(&s).iter().zip(want) {
+        assert!((*got - want).abs().max_element() < 1e-6, "{got} vs {want}");
+    }
+    // The textureInfo's own texCoord: TEXCOORD_1 untransformed.
+    let s = load(&file("second_set", json!({ "index": 0, "texCoord": 1 }))).unwrap();
+    assert_eq!(corners(&s), [Vec2::new(0.5, 0.5), Vec2::new(1.0, 0.5), Vec2::new(0.5, 1.0)]);
+    // TEXCOORD_2 is not read: TEXCOORD_0, said.
+    let s = load(&file("third_set", json!({ "index": 0, "texCoord": 2 }))).unwrap();
+    assert_eq!(corners(&s), [Vec2::new(0.0, 0.0), Vec2::new(1.0, 0.0), Vec2::new(0.0, 1.0)]);
+    assert!(s.stats.warnings.iter().any(|w| w.contains("texCoord above 1")), "{:?}", s.stats.warnings);
+    // 10³⁹ is past f32: an error naming the transform, not coordinates at infinity.
+    let e = load_err(&file("huge", transform(json!({ "scale": [1e39, 1.0] })))).to_string();
+    assert!(e.contains("KHR_texture_transform") && e.contains("not finite"), "{e}");
+}
+
+/// COLOR_0 is not read: the load says so rather than dropping the vertex colours silently.
+#[test]
+fn vertex_colours_are_named_as_not_read() {
+    let d = tmp();
+    let mut doc = Doc::new();
+    let mut p = doc.prim(&TRI, Some(&UP_Z), None);
+    p["attributes"]["COLOR_0"] = json!(doc.vec3(&[[1.0, 0.0, 0.0]; 3]));
+    doc.mesh_node(vec![p], json!({}));
+    let s = load(&doc.write_gltf(d.path(), "coloured")).unwrap();
+    assert!(s.stats.warnings.iter().any(|w| w.contains("COLOR_0")), "{:?}", s.stats.warnings);
 }
 
 /// Glass and cut-outs as architectural exports write them: a BLEND pane, a transmission
@@ -1164,7 +1226,7 @@ fn quantized_attributes_with_khr_mesh_quantization() {
         vec![json!({ "attributes": { "POSITION": p, "NORMAL": n } })],
         json!({ "scale": [0.01, 0.01, 0.01] }),
     );
-    doc.json["extensionsUsed"] = json!(["KHR_mesh_quantization", "KHR_texture_transform"]);
+    doc.json["extensionsUsed"] = json!(["KHR_mesh_quantization", "KHR_materials_volume"]);
     doc.json["extensionsRequired"] = json!(["KHR_mesh_quantization"]);
     let s = load(&doc.write_gltf(d.path(), "scene")).unwrap();
     let m = &s.meshes[0];
@@ -1173,7 +1235,7 @@ fn quantized_attributes_with_khr_mesh_quantization() {
     assert_eq!(m.normals, vec![Vec3::Z, Vec3::NEG_X, Vec3::Y]);
     let w = &s.stats.warnings;
     assert!(
-        w.iter().any(|w| w.contains("not supported and were ignored") && w.contains("KHR_texture_transform")),
+        w.iter().any(|w| w.contains("not supported and were ignored") && w.contains("KHR_materials_volume")),
         "{w:?}"
     );
     assert!(!w.iter().any(|w| w.contains("KHR_mesh_quantization")), "{w:?}");

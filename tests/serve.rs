@@ -207,18 +207,30 @@ fn with_a_punctual_light_each_eye_matches_the_viewers_stereo_render() {
     eyes_match_the_viewer(&scene, true, &[]);
 }
 
-/// The same with the room's block made a `MASK` surface whose alpha (0.2) is below its
-/// cutoff (0.5): the viewer cuts it out (tests/viewer.rs holds that), so the page matches it
-/// only if it cuts it out too. The block is in view: `view --stereo` of the room with the
-/// block whole and cut out differ by more than 4 levels in 3 435 of an eye's 19 200 pixels
-/// (18 %; the block, its shadow and its bounce), against the 1 % allowed. Tolerance as above.
+/// The same with the room's block made a `MASK` surface whose alpha is below its cutoff
+/// (0.5): the viewer cuts it out (tests/viewer.rs holds that), so the page matches it only if
+/// it cuts it out too. The alpha is its texture's (2 × 1: opaque, then clear; clamped), read
+/// where `KHR_texture_transform` puts it: offset (0.75, 0.5), the clear texel (the block has
+/// no TEXCOORD_0, so untransformed it would read (0, 0), the opaque one), so the page matches
+/// only if it reads textures through the transform too. The block is in view: `view --stereo`
+/// of the room with the block whole and cut out differ by more than 4 levels in 3 435 of an
+/// eye's 19 200 pixels (18 %; the block, its shadow and its bounce), against the 1 % allowed.
+/// Tolerance as above.
 #[test]
 fn with_a_cut_out_block_each_eye_matches_the_viewers_stereo_render() {
     let dir = tempfile::tempdir().unwrap();
     let mut gltf: Value = serde_json::from_slice(&std::fs::read(cornell_path()).unwrap()).unwrap();
+    let half = image::RgbaImage::from_fn(2, 1, |x, _| image::Rgba([255, 255, 255, if x == 0 { 255 } else { 0 }]));
+    half.save(dir.path().join("half.png")).unwrap();
+    gltf["images"] = json!([{"uri": "half.png"}]);
+    gltf["samplers"] = json!([{"wrapS": 33071, "wrapT": 33071}]);
+    gltf["textures"] = json!([{"source": 0, "sampler": 0}]);
+    gltf["extensionsUsed"].as_array_mut().unwrap().push(json!("KHR_texture_transform"));
     let cut = gltf["materials"].as_array().unwrap().len();
     gltf["materials"].as_array_mut().unwrap().push(json!({"name": "cut out",
-        "pbrMetallicRoughness": {"baseColorFactor": [0.7, 0.7, 0.7, 0.2]}, "alphaMode": "MASK", "alphaCutoff": 0.5}));
+        "pbrMetallicRoughness": {"baseColorFactor": [0.7, 0.7, 0.7, 1.0], "baseColorTexture": {"index": 0,
+            "extensions": {"KHR_texture_transform": {"offset": [0.75, 0.5]}}}},
+        "alphaMode": "MASK", "alphaCutoff": 0.5}));
     let block = gltf["meshes"].as_array().unwrap().iter().position(|m| m["name"] == "block").unwrap();
     gltf["meshes"][block]["primitives"][0]["material"] = json!(cut);
     let scene = dir.path().join("cornell_cut_out.gltf");

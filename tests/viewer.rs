@@ -145,8 +145,8 @@ fn offscreen_cornell_room_shows_its_coloured_walls() {
 #[test]
 fn cut_out_fragments_are_discarded_and_show_what_is_behind() {
     use livebake::scene::builder::diffuse;
-    use livebake::scene::{AlphaMode, Rgb, SceneBuilder, Texture, TextureRef, WrapMode};
-    let render = |alpha_mode: AlphaMode| {
+    use livebake::scene::{AlphaMode, Rgb, SceneBuilder, Texture, TextureRef, UvTransform, WrapMode};
+    let render = |alpha_mode: AlphaMode, transform: UvTransform| {
         let mut b = SceneBuilder::new();
         let glow = b.material(diffuse(Rgb::splat(0.5), Rgb::splat(5.0), false));
         let screen = b.material(livebake::scene::Material { alpha_mode, ..diffuse(Rgb::ONE, Rgb::ZERO, true) });
@@ -177,18 +177,24 @@ fn cut_out_fragments_are_discarded_and_show_what_is_behind() {
             wrap_s: WrapMode::ClampToEdge,
             wrap_t: WrapMode::ClampToEdge,
         });
-        scene.materials[screen as usize].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
+        scene.materials[screen as usize].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0, transform });
         let mut renderer = unlit_renderer(scene);
         let camera = Camera::look_at(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 50f32.to_radians(), 6.0);
         renderer.render_offscreen(&camera, 160, 120, &DrawSettings::default()).unwrap()
     };
     // At 2 m with a 50° field, 160 × 120: the screen's x = ∓0.6 falls on columns ~41 and ~119.
     let brightness = |img: &image::RgbaImage, x0: u32| mean_rgb(img, x0, x0 + 20).iter().sum::<f64>() / 3.0;
-    let masked = render(AlphaMode::Mask { cutoff: 0.5 });
+    let mask = AlphaMode::Mask { cutoff: 0.5 };
+    let masked = render(mask, UvTransform::IDENTITY);
     let (left, right) = (brightness(&masked, 31), brightness(&masked, 109));
     assert!(left > 0.5, "the wall behind the cut-out half is not seen: {left}");
     assert!(right < 0.05, "the kept half lets the wall through: {right}");
-    let opaque = render(AlphaMode::Opaque);
+    // KHR_texture_transform mirroring u (scale (−1, 1), offset (1, 0): u' = 1 − u) swaps
+    // the halves.
+    let mirrored = render(mask, UvTransform::new(Vec2::new(1.0, 0.0), 0.0, Vec2::new(-1.0, 1.0)));
+    let (left, right) = (brightness(&mirrored, 31), brightness(&mirrored, 109));
+    assert!(left < 0.05 && right > 0.5, "the mirrored texture is not read mirrored: {left}, {right}");
+    let opaque = render(AlphaMode::Opaque, UvTransform::IDENTITY);
     let (left, right) = (brightness(&opaque, 31), brightness(&opaque, 109));
     assert!(left < 0.05 && right < 0.05, "an opaque screen lets the wall through: {left}, {right}");
 }

@@ -520,7 +520,7 @@ mod tests {
         };
         let masked = Material {
             alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
-            base_color_texture: Some(TextureRef { texture: 0, tex_coord: 0 }),
+            base_color_texture: Some(TextureRef::new(0)),
             ..Material::default()
         };
         let opaque = Material { alpha_mode: AlphaMode::Opaque, ..masked.clone() };

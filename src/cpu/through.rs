@@ -107,7 +107,7 @@ impl Passing {
             return t;
         }
         let (u, v) = bary.unwrap_or_else(|| projected_barycentrics(line, tri));
-        let uv = line.geom.uv0(line.scene, tri, u, v);
+        let uv = line.geom.texture_uv(line.scene, tri, u, v);
         transmittance(&line.scene.materials[m as usize], &line.scene.textures, uv)
     }
 

@@ -7,7 +7,7 @@
 //! back is the inside of closed geometry and has no texels); double-sided ones are not.
 //! Material textures get mip maps (the display minifies them; the bake samples level 0).
 
-use glam::{Vec2, Vec3, Vec4};
+use glam::{Vec3, Vec4};
 use wgpu::util::DeviceExt;
 
 use super::device::GpuContext;
@@ -99,7 +99,7 @@ impl SceneGpu {
         for t in 0..geom.len() {
             let material = geom.material[t] as usize;
             let Some(out) = per_material.get_mut(material) else { continue };
-            let uv0 = geom_uv0(scene, &geom, t);
+            let uv0 = geom.texture_uv_corners(scene, t);
             let faces = atlas.face_of.get(t).copied().unwrap_or([NO_FACE; 2]);
             let face_uv = |f: u32, i: usize| {
                 if f == NO_FACE { NO_UV } else { atlas.faces[f as usize].uv[i].to_array() }
@@ -209,11 +209,6 @@ impl SceneGpu {
         let sky = scene.sky_picture().map(|picture| SkyGpu::new(gpu, sky_layout, &picture));
         SceneGpu { vertex_buffer, batches, has_sheets, sky, vertex_count: vertices.len() as u32 }
     }
-}
-
-fn geom_uv0(scene: &Scene, geom: &SceneGeometry, t: usize) -> [Vec2; 3] {
-    let mesh = &scene.meshes[geom.mesh[t] as usize];
-    mesh.uv0_corners(geom.local[t] as usize)
 }
 
 fn address_mode(w: WrapMode) -> wgpu::AddressMode {

@@ -109,13 +109,10 @@ impl SurfaceRecords {
             }
         }
         let triangles = (0..geom.len())
-            .map(|t| {
-                let mesh = &s.meshes[geom.mesh[t] as usize];
-                SurfaceTriangle {
-                    uv0: mesh.uv0_corners(geom.local[t] as usize).map(|p| p.to_array()),
-                    material: geom.material[t],
-                    carried: scene.emitters.carried_by_bundles[t] as u32,
-                }
+            .map(|t| SurfaceTriangle {
+                uv0: geom.texture_uv_corners(s, t).map(|p| p.to_array()),
+                material: geom.material[t],
+                carried: scene.emitters.carried_by_bundles[t] as u32,
             })
             .collect();
         let texture = |r: &Option<crate::scene::TextureRef>| r.as_ref().map_or(NO_TEXTURE, |r| r.texture as u32);

@@ -100,8 +100,7 @@ impl AlphaMasks {
             if lm == NONE {
                 continue;
             }
-            let mesh = &scene.meshes[geom.mesh[t] as usize];
-            let uv0 = mesh.uv0_corners(geom.local[t] as usize);
+            let uv0 = geom.texture_uv_corners(scene, t);
             out.slot[t] = out.triangles.len() as u32;
             out.triangles.push(MaskedTriangle { uv0, material: lm });
         }

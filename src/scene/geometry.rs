@@ -74,11 +74,19 @@ impl SceneGeometry {
         a + (b - a) * u + (c - a) * v
     }
 
-    /// TEXCOORD_0 of triangle `t` at barycentrics (u, v); zero when the mesh has none.
+    /// Where triangle `t`'s material reads its textures at its corners
+    /// ([`Mesh::texture_uv_corners`](crate::scene::Mesh::texture_uv_corners)).
     #[inline]
-    pub fn uv0(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Vec2 {
-        let mesh = &scene.meshes[self.mesh[t as usize] as usize];
-        let [a, b, c] = mesh.uv0_corners(self.local[t as usize] as usize);
+    pub fn texture_uv_corners(&self, scene: &Scene, t: usize) -> [Vec2; 3] {
+        let mesh = &scene.meshes[self.mesh[t] as usize];
+        let uv = scene.materials.get(mesh.material as usize).map_or_else(Default::default, |m| m.texture_uv());
+        mesh.texture_uv_corners(self.local[t] as usize, uv)
+    }
+
+    /// Where triangle `t`'s material reads its textures at barycentrics (u, v).
+    #[inline]
+    pub fn texture_uv(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Vec2 {
+        let [a, b, c] = self.texture_uv_corners(scene, t as usize);
         a + (b - a) * u + (c - a) * v
     }
 
@@ -86,7 +94,8 @@ impl SceneGeometry {
     /// ([`Material::reflectance`](crate::scene::Material::reflectance)).
     pub fn albedo(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Rgb {
         let m = &scene.materials[self.material[t as usize] as usize];
-        m.uniform_albedo(&scene.textures).unwrap_or_else(|| m.reflectance(&scene.textures, self.uv0(scene, t, u, v)))
+        m.uniform_albedo(&scene.textures)
+            .unwrap_or_else(|| m.reflectance(&scene.textures, self.texture_uv(scene, t, u, v)))
     }
 
     /// Emitted radiance of triangle `t` at barycentrics (u, v), from its emitting side(s).
@@ -95,6 +104,6 @@ impl SceneGeometry {
         if m.emissive_texture.is_none() {
             return m.emission;
         }
-        m.emission_at(&scene.textures, self.uv0(scene, t, u, v))
+        m.emission_at(&scene.textures, self.texture_uv(scene, t, u, v))
     }
 }

@@ -28,7 +28,7 @@ pub use gltf::{
     external_files, load_gltf, load_gltf_bytes, read_scene_file, read_source,
 };
 pub use surroundings::{SkyPicture, SunPlacement, Surroundings, SurroundingsSpec};
-pub use texture::{Texture, TextureRef, WrapMode};
+pub use texture::{Texture, TextureRef, TextureUv, UvTransform, WrapMode};
 
 /// Linear RGB triple (radiance, irradiance, albedo...). Units are given where it is used.
 pub type Rgb = Vec3;
@@ -144,6 +144,18 @@ impl Default for Material {
 impl Material {
     pub fn is_emissive(&self) -> bool {
         self.emission.max_element() > 0.0
+    }
+
+    /// Where this material's textures are read on a mesh: its base colour texture's set and
+    /// transform, else its transmission or emissive texture's. The loader warns where the
+    /// others differ; every texture of the material is read there (the `uv` the methods
+    /// below take: [`SceneGeometry::texture_uv`]).
+    pub fn texture_uv(&self) -> TextureUv {
+        [self.base_color_texture, self.transmission_texture, self.emissive_texture]
+            .into_iter()
+            .flatten()
+            .next()
+            .map_or_else(TextureUv::default, |t| t.uv())
     }
 
     /// Diffuse albedo at texture coordinate `uv0` (linear RGB, clamped to [0, 1]).
@@ -276,14 +288,15 @@ impl Mesh {
         [self.positions[a as usize], self.positions[b as usize], self.positions[c as usize]]
     }
 
+    /// The texture coordinates of triangle `t`'s corners where a material reads its textures
+    /// at `uv` ([`Material::texture_uv`]): TEXCOORD_0 or TEXCOORD_1, transformed; zero where
+    /// the mesh lacks that set.
     #[inline]
-    pub fn uv0_corners(&self, t: usize) -> [Vec2; 3] {
-        match &self.uv0 {
-            Some(uv) => {
-                let [a, b, c] = self.triangles[t];
-                [uv[a as usize], uv[b as usize], uv[c as usize]]
-            }
-            None => [Vec2::ZERO; 3],
+    pub fn texture_uv_corners(&self, t: usize, uv: TextureUv) -> [Vec2; 3] {
+        let set = if uv.set == 1 { &self.uv1 } else { &self.uv0 };
+        match set {
+            Some(coords) => self.triangles[t].map(|i| uv.transform.apply(coords[i as usize])),
+            None => [uv.transform.apply(Vec2::ZERO); 3],
         }
     }
 }

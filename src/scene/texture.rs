@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use glam::{Vec2, Vec4};
+use glam::{Vec2, Vec3, Vec4};
 
 /// How texture coordinates outside [0, 1] are folded back (glTF sampler wrap modes).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -13,13 +13,77 @@ pub enum WrapMode {
     ClampToEdge,
 }
 
-/// A material's reference to a texture: which one and which TEXCOORD set it reads.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// A material's reference to a texture: which one, and where on a mesh it is read.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TextureRef {
     pub texture: usize,
-    /// glTF `texCoord`; livebake samples material textures with TEXCOORD_0 only and warns
-    /// at load time about other sets.
+    /// glTF `texCoord` (or `KHR_texture_transform`'s, which overrides it): 0 reads TEXCOORD_0,
+    /// 1 TEXCOORD_1; livebake reads no higher set (TEXCOORD_0 instead, warned at load time).
     pub tex_coord: u32,
+    /// `KHR_texture_transform`; identity without it.
+    pub transform: UvTransform,
+}
+
+impl TextureRef {
+    /// Texture `texture` read at TEXCOORD_0, untransformed.
+    pub fn new(texture: usize) -> TextureRef {
+        TextureRef { texture, tex_coord: 0, transform: UvTransform::IDENTITY }
+    }
+
+    /// Where the texture is read ([`TextureUv`]).
+    pub fn uv(&self) -> TextureUv {
+        TextureUv { set: self.tex_coord, transform: self.transform }
+    }
+}
+
+/// `KHR_texture_transform`: the texture coordinates scaled, rotated and offset, in that
+/// order — `uv' = T·R·S·uv` with R = [cos r, sin r; −sin r, cos r] — kept as the two rows of
+/// that affine map.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UvTransform {
+    u: Vec3,
+    v: Vec3,
+}
+
+impl Default for UvTransform {
+    fn default() -> Self {
+        UvTransform::IDENTITY
+    }
+}
+
+impl UvTransform {
+    pub const IDENTITY: UvTransform = UvTransform { u: Vec3::X, v: Vec3::Y };
+
+    /// The extension's `offset`, `rotation` (radians) and `scale`.
+    pub fn new(offset: Vec2, rotation: f32, scale: Vec2) -> UvTransform {
+        let (sin, cos) = rotation.sin_cos();
+        UvTransform {
+            u: Vec3::new(cos * scale.x, sin * scale.y, offset.x),
+            v: Vec3::new(-sin * scale.x, cos * scale.y, offset.y),
+        }
+    }
+
+    pub fn is_finite(&self) -> bool {
+        self.u.is_finite() && self.v.is_finite()
+    }
+
+    /// `uv` transformed; an identity transform returns it as it is (the same bits).
+    #[inline]
+    pub fn apply(&self, uv: Vec2) -> Vec2 {
+        if *self == UvTransform::IDENTITY {
+            return uv;
+        }
+        Vec2::new(self.u.dot(uv.extend(1.0)), self.v.dot(uv.extend(1.0)))
+    }
+}
+
+/// Where a material's textures are read on a mesh: a TEXCOORD set, transformed
+/// ([`Material::texture_uv`](super::Material::texture_uv)).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct TextureUv {
+    /// 1: TEXCOORD_1; any other value: TEXCOORD_0.
+    pub set: u32,
+    pub transform: UvTransform,
 }
 
 /// An 8-bit RGBA image. Colour textures in glTF (base colour, emissive) are sRGB-encoded;

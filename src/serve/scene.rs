@@ -70,8 +70,7 @@ pub fn scene_messages(
     let mut per_material: Vec<Vec<f32>> = vec![Vec::new(); scene.materials.len()];
     for t in 0..geom.len() {
         let Some(out) = per_material.get_mut(geom.material[t] as usize) else { continue };
-        let mesh = &scene.meshes[geom.mesh[t] as usize];
-        let uv0: [Vec2; 3] = mesh.uv0_corners(geom.local[t] as usize);
+        let uv0: [Vec2; 3] = geom.texture_uv_corners(scene, t);
         let faces = atlas.face_of.get(t).copied().unwrap_or([NO_FACE; 2]);
         let face_uv = |f: u32, i: usize| if f == NO_FACE { NO_UV } else { atlas.faces[f as usize].uv[i].to_array() };
         for (i, corner) in geom.corners[t].iter().enumerate() {

@@ -329,7 +329,7 @@ fn material_eq(old: &Scene, a: u32, new: &Scene, b: u32) -> bool {
     let texture_eq = |x: Option<TextureRef>, y: Option<TextureRef>| match (x, y) {
         (None, None) => true,
         (Some(x), Some(y)) => {
-            x.tex_coord == y.tex_coord
+            x.uv() == y.uv()
                 && match (old.textures.get(x.texture), new.textures.get(y.texture)) {
                     (Some(tx), Some(ty)) => texture_content_eq(tx, ty),
                     (None, None) => true,
@@ -538,7 +538,7 @@ mod tests {
         };
         let mut old = boxes(&[], [0.5; 3]);
         old.textures.push(texture);
-        old.materials[1].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
+        old.materials[1].base_color_texture = Some(TextureRef::new(0));
         let mut new = old.clone();
         assert!(SceneDiff::between(&old, &new).is_empty());
         new.textures[0].rgba8 = vec![[255, 0, 0, 255], [0, 254, 0, 255]].into();

@@ -249,12 +249,12 @@ fn glass_and_cut_outs() -> crate::scene::Scene {
     let tinted = b.material(Material {
         base_color: Rgb::new(1.0, 0.6, 0.3).extend(1.0),
         transmission: 0.9,
-        transmission_texture: Some(TextureRef { texture: 0, tex_coord: 0 }),
+        transmission_texture: Some(TextureRef::new(0)),
         ..Material::default()
     });
     let mask = b.material(Material {
         base_color: Rgb::splat(0.9).extend(1.0),
-        base_color_texture: Some(TextureRef { texture: 1, tex_coord: 0 }),
+        base_color_texture: Some(TextureRef::new(1)),
         alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
         ..Material::default()
     });

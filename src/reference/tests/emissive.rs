@@ -109,7 +109,7 @@ fn textured_emission_is_sampled_by_its_mean_and_integrated_exactly() {
         wrap_s: WrapMode::ClampToEdge,
         wrap_t: WrapMode::ClampToEdge,
     });
-    s.materials[0].emissive_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
+    s.materials[0].emissive_texture = Some(TextureRef::new(0));
     // Corners in order: (−h,−h), (h,−h), (h,h), (−h,h) in (x, z): u = x + ½.
     s.meshes[0].uv0 = Some(vec![
         glam::Vec2::new(0.0, 0.5),
@@ -158,7 +158,7 @@ fn alpha_masked_emitters_emit_only_where_opaque() {
         wrap_s: WrapMode::ClampToEdge,
         wrap_t: WrapMode::ClampToEdge,
     });
-    s.materials[0].base_color_texture = Some(TextureRef { texture: 0, tex_coord: 0 });
+    s.materials[0].base_color_texture = Some(TextureRef::new(0));
     s.materials[0].alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
     s.meshes[0].uv0 = Some(vec![
         glam::Vec2::new(0.0, 0.5),

@@ -69,7 +69,7 @@ fn sunlight_through_sheets_is_the_product_of_their_transmittance() {
 fn transmission_textures_are_read_linearly_from_red() {
     // A 1 × 1 texture R = 128 (linear: t = 128/255 = 0.50196) times factor 1.
     let mut s = sheets_over_a_black_floor(&[Material {
-        transmission_texture: Some(TextureRef { texture: 0, tex_coord: 0 }),
+        transmission_texture: Some(TextureRef::new(0)),
         ..sheet(1.0, AlphaMode::Opaque, TINT, 1.0, false)
     }]);
     s.textures.push(Texture {

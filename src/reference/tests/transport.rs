@@ -191,7 +191,7 @@ fn masked_occluder(material: Material, texture: Option<Texture>) -> Scene {
 fn occluder_material(alpha: f32, mode: AlphaMode, textured: bool) -> Material {
     Material {
         base_color: Vec4::new(0.0, 0.0, 0.0, alpha),
-        base_color_texture: textured.then_some(TextureRef { texture: 0, tex_coord: 0 }),
+        base_color_texture: textured.then_some(TextureRef::new(0)),
         alpha_mode: mode,
         ..Material::default()
     }

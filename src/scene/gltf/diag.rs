@@ -14,9 +14,11 @@ pub(super) enum Kind {
     BadTexcoord1,
     TrailingIndices,
     TexCoordSet,
+    TextureUvDiffers,
     UnnormalizedRotation,
     IgnoredSkin,
     IgnoredMorphTargets,
+    IgnoredVertexColors,
     EmptyMesh,
     LightSkipped,
     LightParameter,
@@ -46,7 +48,10 @@ impl Kind {
                 format!("{count} trailing index/vertex value(s) that do not make a whole triangle were ignored")
             }
             Kind::TexCoordSet => format!(
-                "{count} material texture(s) use a texCoord other than 0; livebake samples material textures with TEXCOORD_0"
+                "{count} material texture(s) use a texCoord above 1; livebake reads those textures at TEXCOORD_0"
+            ),
+            Kind::TextureUvDiffers => format!(
+                "{count} material texture(s) are read at other coordinates (texCoord or KHR_texture_transform) than their material's base colour texture; livebake reads them at the base colour's"
             ),
             Kind::UnnormalizedRotation => {
                 format!("{count} node rotation(s) were not unit quaternions and were normalised")
@@ -57,6 +62,9 @@ impl Kind {
             Kind::IgnoredMorphTargets => {
                 format!("{count} primitive(s) have morph targets, which are ignored (base shape used)")
             }
+            Kind::IgnoredVertexColors => format!(
+                "{count} primitive(s) have COLOR_0, which livebake does not read: their albedo is baseColorFactor × texture, without the vertex colours"
+            ),
             Kind::EmptyMesh => format!("{count} primitive instance(s) had no triangles left and were left out"),
             Kind::LightSkipped => format!("{count} light(s) skipped"),
             Kind::LightParameter => format!("{count} light parameter(s) out of range were corrected"),

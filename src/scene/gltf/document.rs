@@ -15,8 +15,13 @@ const GLB_HEADER: usize = 12;
 const CHUNK_HEADER: usize = 8;
 
 /// Extensions livebake can honour when a file requires them.
-pub(super) const SUPPORTED_REQUIRED: &[&str] =
-    &["KHR_lights_punctual", "KHR_materials_emissive_strength", "KHR_materials_transmission", "KHR_mesh_quantization"];
+pub(super) const SUPPORTED_REQUIRED: &[&str] = &[
+    "KHR_lights_punctual",
+    "KHR_materials_emissive_strength",
+    "KHR_materials_transmission",
+    "KHR_mesh_quantization",
+    "KHR_texture_transform",
+];
 
 /// Extensions that do not change what a Lambertian light-map baker sees, or that are read.
 const HARMLESS_USED: &[&str] = &[
@@ -24,6 +29,7 @@ const HARMLESS_USED: &[&str] = &[
     "KHR_materials_emissive_strength",
     "KHR_materials_transmission",
     "KHR_mesh_quantization",
+    "KHR_texture_transform",
     "KHR_materials_specular",
     "KHR_materials_ior",
     "KHR_materials_clearcoat",

@@ -1,7 +1,7 @@
 //! glTF metallic-roughness materials seen as Lambertian [`Material`]s.
 
 use ::gltf::json;
-use glam::{Vec3, Vec4};
+use glam::{Vec2, Vec3, Vec4};
 use json::material::AlphaMode as JsonAlphaMode;
 use json::validation::Checked;
 
@@ -9,7 +9,7 @@ use super::diag::{Diagnostics, Kind};
 use super::images::TextureCache;
 use super::{Ctx, LoadError};
 use crate::scene::radiometry::LightCeiling;
-use crate::scene::{AlphaMode, Material, TextureRef};
+use crate::scene::{AlphaMode, Material, TextureRef, UvTransform};
 
 /// Every material of the file, in file order (so glTF material i is scene material i).
 /// `ceiling`: the brightest emission the scene's sums can hold.
@@ -72,11 +72,20 @@ fn convert(
     let mut texture =
         |info: &Option<json::texture::Info>, slot: &str, srgb: bool| -> Result<Option<TextureRef>, LoadError> {
             let Some(info) = info else { return Ok(None) };
-            if info.tex_coord != 0 {
-                diag.note(Kind::TexCoordSet, 1, || format!("{name} {slot} (texCoord {})", info.tex_coord));
+            let khr = info.extensions.as_ref().and_then(|e| e.texture_transform.as_ref());
+            let transform = khr.map_or(UvTransform::IDENTITY, |t| {
+                UvTransform::new(Vec2::from(t.offset.0), t.rotation.0, Vec2::from(t.scale.0))
+            });
+            if !transform.is_finite() {
+                return Err(bad(&format!("{slot}'s KHR_texture_transform is not finite")));
+            }
+            let mut tex_coord = khr.and_then(|t| t.tex_coord).unwrap_or(info.tex_coord);
+            if tex_coord > 1 {
+                diag.note(Kind::TexCoordSet, 1, || format!("{name} {slot} (texCoord {tex_coord})"));
+                tex_coord = 0;
             }
             let texture = textures.get(ctx, info.index.value(), srgb)?;
-            Ok(Some(TextureRef { texture, tex_coord: info.tex_coord }))
+            Ok(Some(TextureRef { texture, tex_coord, transform }))
         };
     let base_color_texture = texture(&m.pbr_metallic_roughness.base_color_texture, "baseColorTexture", true)?;
     let emissive_texture = texture(&m.emissive_texture, "emissiveTexture", true)?;
@@ -93,7 +102,7 @@ fn convert(
             (factor.clamp(0.0, 1.0), texture(&t.transmission_texture, "transmissionTexture", false)?)
         }
     };
-    Ok(Material {
+    let material = Material {
         name,
         base_color,
         base_color_texture,
@@ -103,5 +112,14 @@ fn convert(
         alpha_mode,
         transmission,
         transmission_texture,
-    })
+    };
+    // Every texture of a material is read where its first one is (`Material::texture_uv`).
+    let uv = material.texture_uv();
+    let differ = [material.base_color_texture, material.transmission_texture, material.emissive_texture]
+        .into_iter()
+        .flatten()
+        .filter(|t| t.uv() != uv)
+        .count();
+    diag.note(Kind::TextureUvDiffers, differ, || material.name.clone());
+    Ok(material)
 }

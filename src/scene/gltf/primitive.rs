@@ -55,6 +55,9 @@ pub(super) fn build(ctx: &Ctx, diag: &mut Diagnostics, inst: &Instance) -> Resul
     if inst.prim.targets.as_ref().is_some_and(|t| !t.is_empty()) {
         diag.note(Kind::IgnoredMorphTargets, 1, || inst.name.clone());
     }
+    if attribute(inst.prim, Semantic::Colors(0)).is_some() {
+        diag.note(Kind::IgnoredVertexColors, 1, || inst.name.clone());
+    }
 
     let local = read_positions(ctx, inst)?;
     let vertex_count = local.len();
