@@ -485,7 +485,7 @@ fn unsupported_required_extension_is_named() {
         !msg.contains("lists KHR_draco_mesh_compression, KHR_lights_punctual"),
         "supported ones are not listed: {msg}"
     );
-    for ext in ["KHR_texture_basisu", "EXT_meshopt_compression", "EXT_mesh_gpu_instancing"] {
+    for ext in ["KHR_texture_basisu", "EXT_meshopt_compression", "KHR_materials_volume"] {
         j["extensionsRequired"] = json!([ext]);
         let e = load_err(&write_json(d.path(), "x.gltf", &j));
         assert!(matches!(e, LoadError::Unsupported { .. }) && e.to_string().contains(ext), "{e}");
@@ -1043,6 +1043,65 @@ fn texture_transforms_and_sets_say_where_textures_are_read() {
     // 10³⁹ is past f32: an error naming the transform, not coordinates at infinity.
     let e = load_err(&file("huge", transform(json!({ "scale": [1e39, 1.0] })))).to_string();
     assert!(e.contains("KHR_texture_transform") && e.contains("not finite"), "{e}");
+}
+
+/// `EXT_mesh_gpu_instancing` (required here): the node's mesh once per instance, at the
+/// node's transform times the instance's T·R·S (positions worked by hand); accessors of
+/// unequal counts are a clear error, and so is a small file whose instances would make more
+/// triangles than livebake loads, before any is made.
+#[test]
+fn gpu_instancing_places_one_mesh_per_instance() {
+    let d = tmp();
+    let h = std::f32::consts::FRAC_1_SQRT_2;
+    let file = |name: &str, translations: &[[f32; 3]]| {
+        let mut doc = Doc::new();
+        let p = doc.prim(&TRI, Some(&UP_Z), None);
+        let t = doc.vec3(translations);
+        let r = doc.accessor(None, FLOAT, "VEC4", 2, json!({}));
+        let rotations: Vec<u8> = [0.0f32, 0.0, h, h, 0.0, 0.0, 0.0, 1.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        doc.json["accessors"][r]["bufferView"] = json!(doc.view(&rotations, None));
+        let s = doc.vec3(&[[1.0, 1.0, 1.0], [2.0, 2.0, 2.0]]);
+        let instancing = json!({ "attributes": { "TRANSLATION": t, "ROTATION": r, "SCALE": s } });
+        doc.mesh_node(
+            vec![p],
+            json!({ "name": "row", "translation": [10.0, 0.0, 0.0], "extensions": { "EXT_mesh_gpu_instancing": instancing } }),
+        );
+        doc.json["extensionsUsed"] = json!(["EXT_mesh_gpu_instancing"]);
+        doc.json["extensionsRequired"] = json!(["EXT_mesh_gpu_instancing"]);
+        doc.write_gltf(d.path(), name)
+    };
+    let s = load(&file("two", &[[0.0, 0.0, 0.0], [0.0, 2.0, 0.0]])).unwrap();
+    assert_eq!(s.meshes.len(), 2);
+    // Instance 0: a quarter turn about +Z, then the node's (10, 0, 0). Instance 1: scaled 2,
+    // raised 2, then the node's move.
+    let want = [
+        [Vec3::new(10.0, 0.0, 0.0), Vec3::new(10.0, 1.0, 0.0), Vec3::new(9.0, 0.0, 0.0)],
+        [Vec3::new(10.0, 2.0, 0.0), Vec3::new(12.0, 2.0, 0.0), Vec3::new(10.0, 4.0, 0.0)],
+    ];
+    for (m, want) in s.meshes.iter().zip(want) {
+        for (got, want) in m.positions.iter().zip(want) {
+            assert_close(*got, want, 1e-6);
+        }
+        assert!(m.normals.iter().all(|n| (*n - Vec3::Z).length() < 1e-6), "{:?}", m.normals);
+    }
+    assert_eq!((s.meshes[0].name.as_str(), s.meshes[1].name.as_str()), ("row#0/mesh0/0", "row#1/mesh0/0"));
+    let e = load_err(&file("uneven", &[[0.0; 3]; 3])).to_string();
+    assert!(e.contains("EXT_mesh_gpu_instancing") && e.contains("different counts"), "{e}");
+
+    // 32 instances of 2²² triangles (an index accessor of zeros: no bytes behind it).
+    let mut doc = Doc::new();
+    let mut p = doc.prim(&TRI, Some(&UP_Z), None);
+    p["indices"] = json!(doc.accessor(None, 5125, "SCALAR", 3 << 22, json!({})));
+    let t = doc.accessor(None, FLOAT, "VEC3", 32, json!({ "min": [0.0, 0.0, 0.0], "max": [0.0, 0.0, 0.0] }));
+    doc.mesh_node(
+        vec![p],
+        json!({ "extensions": { "EXT_mesh_gpu_instancing": { "attributes": { "TRANSLATION": t } } } }),
+    );
+    doc.json["extensionsUsed"] = json!(["EXT_mesh_gpu_instancing"]);
+    let start = std::time::Instant::now();
+    let e = load_err(&doc.write_gltf(d.path(), "bomb")).to_string();
+    assert!(e.contains("triangles") && e.contains(&livebake::scene::MAX_SCENE_TRIANGLES.to_string()), "{e}");
+    eprintln!("refused in {:.3} s: {e}", start.elapsed().as_secs_f64());
 }
 
 /// COLOR_0 is not read: the load says so rather than dropping the vertex colours silently.

@@ -24,8 +24,8 @@ pub use builder::SceneBuilder;
 pub use environment::Environment;
 pub use geometry::{SceneGeometry, TriangleId};
 pub use gltf::{
-    DEFAULT_MAX_TEXTURE_PIXELS, ExternalFile, ExternalKind, LoadError, LoadOptions, SourceDocument, SourceImage,
-    external_files, load_gltf, load_gltf_bytes, read_scene_file, read_source,
+    DEFAULT_MAX_TEXTURE_PIXELS, ExternalFile, ExternalKind, LoadError, LoadOptions, MAX_SCENE_TRIANGLES,
+    SourceDocument, SourceImage, external_files, load_gltf, load_gltf_bytes, read_scene_file, read_source,
 };
 pub use surroundings::{SkyPicture, SunPlacement, Surroundings, SurroundingsSpec};
 pub use texture::{Texture, TextureRef, TextureUv, UvTransform, WrapMode};

@@ -3,7 +3,7 @@
 //! Every size from the file goes through checked arithmetic before it is used.
 
 use ::gltf::json;
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 use json::accessor::{ComponentType, Type};
 use json::validation::Checked;
 
@@ -41,6 +41,20 @@ pub(super) fn read_vec2(ctx: &Ctx, index: usize, what: &str) -> Result<Vec<Vec2>
     let format = float_format(ctx, index, Type::Vec2, what)?;
     read_elements(ctx, index, format, Vec2::ZERO, |b| {
         Some(Vec2::new(component(b, 0, format)?, component(b, 1, format)?))
+    })
+}
+
+/// Four floats per element (EXT_mesh_gpu_instancing's ROTATION: float, or normalised
+/// integers).
+pub(super) fn read_vec4(ctx: &Ctx, index: usize, what: &str) -> Result<Vec<Vec4>, LoadError> {
+    let format = float_format(ctx, index, Type::Vec4, what)?;
+    read_elements(ctx, index, format, Vec4::ZERO, |b| {
+        Some(Vec4::new(
+            component(b, 0, format)?,
+            component(b, 1, format)?,
+            component(b, 2, format)?,
+            component(b, 3, format)?,
+        ))
     })
 }
 
@@ -164,19 +178,20 @@ fn read_elements<T: Copy>(
     decode: impl Fn(&[u8]) -> Option<T>,
 ) -> Result<Vec<T>, LoadError> {
     let acc = get(ctx, index)?;
-    let oob = |detail: String| LoadError::AccessorOutOfBounds { file: ctx.file.into(), accessor: index, detail };
-    let count = to_usize(acc.count.0).ok_or_else(|| oob(format!("count {} is too large", acc.count.0)))?;
     let element = format.element_size();
-    let mut out = match acc.buffer_view {
-        Some(view) => read_dense(ctx, index, acc, view.value(), count, element, &decode)?,
-        None => {
-            if count > MAX_SYNTHETIC_ELEMENTS {
-                return Err(oob(format!(
-                    "count {count} without a bufferView exceeds livebake's limit of {MAX_SYNTHETIC_ELEMENTS} elements"
-                )));
+    let (count, dense) = extent(ctx, index, acc, element)?;
+    let mut out = match dense {
+        Some((region, stride)) => {
+            let oob =
+                |detail: String| LoadError::AccessorOutOfBounds { file: ctx.file.into(), accessor: index, detail };
+            let mut out = Vec::with_capacity(count);
+            for chunk in region.chunks(stride).take(count) {
+                let item = chunk.get(..element).and_then(&decode);
+                out.push(item.ok_or_else(|| oob("element cut short".into()))?);
             }
-            vec![zero; count]
+            out
         }
+        None => vec![zero; count],
     };
     if let Some(sparse) = &acc.sparse {
         apply_sparse(ctx, index, sparse, element, &mut out, &decode)?;
@@ -184,16 +199,41 @@ fn read_elements<T: Copy>(
     Ok(out)
 }
 
-fn read_dense<T>(
-    ctx: &Ctx,
+/// Elements in accessor `index`, checked as [`read_elements`] checks them (against the bytes
+/// of its bufferView, or the limit of elements made without one), before anything is read.
+pub(super) fn count(ctx: &Ctx, index: usize) -> Result<usize, LoadError> {
+    let acc = get(ctx, index)?;
+    let component = component_type(ctx, index, acc, "an accessor")?;
+    let Checked::Valid(ty) = acc.type_ else {
+        return Err(ctx.invalid(format!("accessor {index} has an invalid type")));
+    };
+    Ok(extent(ctx, index, acc, component.size() * ty.multiplicity())?.0)
+}
+
+/// The bytes of an accessor's elements in its bufferView, from its first element to the end
+/// of its last, and the stride between elements.
+type Dense<'a> = (&'a [u8], usize);
+
+/// The element count of accessor `index` (elements of `element` bytes) and, when a
+/// bufferView backs it, the bytes from its first element to the end of its last and the
+/// stride: errors where the count overflows, the bytes are not there, or a count without a
+/// bufferView exceeds [`MAX_SYNTHETIC_ELEMENTS`].
+fn extent<'c>(
+    ctx: &'c Ctx,
     index: usize,
     acc: &json::Accessor,
-    view: usize,
-    count: usize,
     element: usize,
-    decode: &impl Fn(&[u8]) -> Option<T>,
-) -> Result<Vec<T>, LoadError> {
+) -> Result<(usize, Option<Dense<'c>>), LoadError> {
     let oob = |detail: String| LoadError::AccessorOutOfBounds { file: ctx.file.into(), accessor: index, detail };
+    let count = to_usize(acc.count.0).ok_or_else(|| oob(format!("count {} is too large", acc.count.0)))?;
+    let Some(view) = acc.buffer_view.map(|v| v.value()) else {
+        if count > MAX_SYNTHETIC_ELEMENTS {
+            return Err(oob(format!(
+                "count {count} without a bufferView exceeds livebake's limit of {MAX_SYNTHETIC_ELEMENTS} elements"
+            )));
+        }
+        return Ok((count, None));
+    };
     let bytes = ctx.buffers.view(ctx.file, ctx.root, view)?;
     let stride = super::buffers::Buffers::stride(ctx.root, view).unwrap_or(element);
     if stride < element {
@@ -203,7 +243,7 @@ fn read_dense<T>(
     }
     let offset = acc.byte_offset.map_or(0, |o| o.0);
     if count == 0 {
-        return Ok(Vec::new());
+        return Ok((0, Some((&[], stride))));
     }
     // Last byte read: offset + (count − 1)·stride + element.
     let needed = to_usize(offset)
@@ -220,12 +260,7 @@ fn read_dense<T>(
     }
     let start = to_usize(offset).unwrap_or(0);
     let region = bytes.get(start..needed).ok_or_else(|| oob("read outside its bufferView".into()))?;
-    let mut out = Vec::with_capacity(count);
-    for chunk in region.chunks(stride).take(count) {
-        let item = chunk.get(..element).and_then(decode);
-        out.push(item.ok_or_else(|| oob("element cut short".into()))?);
-    }
-    Ok(out)
+    Ok((count, Some((region, stride))))
 }
 
 fn apply_sparse<T>(

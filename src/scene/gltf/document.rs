@@ -21,6 +21,7 @@ pub(super) const SUPPORTED_REQUIRED: &[&str] = &[
     "KHR_materials_transmission",
     "KHR_mesh_quantization",
     "KHR_texture_transform",
+    "EXT_mesh_gpu_instancing",
 ];
 
 /// Extensions that do not change what a Lambertian light-map baker sees, or that are read.
@@ -30,6 +31,7 @@ const HARMLESS_USED: &[&str] = &[
     "KHR_materials_transmission",
     "KHR_mesh_quantization",
     "KHR_texture_transform",
+    "EXT_mesh_gpu_instancing",
     "KHR_materials_specular",
     "KHR_materials_ior",
     "KHR_materials_clearcoat",

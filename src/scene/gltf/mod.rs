@@ -59,6 +59,7 @@ mod uri;
 use std::path::{Path, PathBuf};
 
 use ::gltf::json;
+use glam::Mat4;
 
 pub use error::LoadError;
 pub use references::{ExternalFile, ExternalKind, external_files};
@@ -161,8 +162,9 @@ pub fn load_gltf_bytes(path: &Path, bytes: &[u8], options: &LoadOptions) -> Resu
     // Geometry first (cheap, and what most errors are about); images are decoded only for a
     // scene that has something to light.
     let mut uses_default_material = false;
+    let mut triangles = 0u64;
     for inst in &instances {
-        load_node_meshes(&ctx, &mut diag, &mut scene, &mut uses_default_material, inst)?;
+        load_node_meshes(&ctx, &mut diag, &mut scene, &mut uses_default_material, &mut triangles, inst)?;
         if let Some(light) = lights::light_of(&ctx, &mut diag, inst)? {
             scene.lights.push(light);
         }
@@ -200,12 +202,21 @@ pub fn load_gltf_bytes(path: &Path, bytes: &[u8], options: &LoadOptions) -> Resu
     Ok(scene)
 }
 
-/// Every primitive of the mesh on node `inst` (if any) becomes a world-space mesh.
+/// Most triangles a scene may hold once every mesh instance is made (nodes sharing a mesh,
+/// `EXT_mesh_gpu_instancing`): a few hundred bytes each through loading, atlas and bake, so
+/// far past what one machine bakes; a small file cannot ask for more.
+pub const MAX_SCENE_TRIANGLES: u64 = 1 << 26;
+
+/// Every primitive of the mesh on node `inst` (if any) becomes a world-space mesh, once per
+/// instance of the node (`EXT_mesh_gpu_instancing`: the node's transform times the
+/// instance's). `triangles` counts the scene's triangles so far, against
+/// [`MAX_SCENE_TRIANGLES`], before any is made.
 fn load_node_meshes(
     ctx: &Ctx,
     diag: &mut Diagnostics,
     scene: &mut Scene,
     uses_default_material: &mut bool,
+    triangles: &mut u64,
     inst: &nodes::NodeInstance,
 ) -> Result<(), LoadError> {
     let Some(node) = ctx.root.nodes.get(inst.node) else { return Ok(()) };
@@ -220,31 +231,54 @@ fn load_node_meshes(
         diag.note(Kind::IgnoredSkin, 1, || node_name.clone());
     }
     let mesh_name = mesh.name.clone().unwrap_or_else(|| format!("mesh{mesh_index}"));
-    for (p, prim) in mesh.primitives.iter().enumerate() {
-        let material = match prim.material.map(|m| m.value()) {
-            Some(m) if m < ctx.root.materials.len() => m as MaterialId,
-            Some(m) => return Err(ctx.invalid(format!("mesh {mesh_index} primitive {p}: material {m} does not exist"))),
-            // glTF's default material goes right after the file's materials.
-            None => {
-                *uses_default_material = true;
-                ctx.root.materials.len() as MaterialId
+    let places: Vec<(Mat4, String)> = match nodes::instance_transforms(ctx, inst.node)? {
+        None => vec![(inst.world, node_name.clone())],
+        Some(transforms) => {
+            transforms.iter().enumerate().map(|(i, t)| (inst.world * *t, format!("{node_name}#{i}"))).collect()
+        }
+    };
+    let mut per_place = 0u64;
+    for prim in &mesh.primitives {
+        per_place = per_place.saturating_add(primitive::triangle_bound(ctx, prim)?);
+    }
+    *triangles = triangles.saturating_add(per_place.saturating_mul(places.len() as u64));
+    if *triangles > MAX_SCENE_TRIANGLES {
+        return Err(LoadError::Unsupported {
+            file: ctx.file.into(),
+            what: format!(
+                "node {} takes the scene past {MAX_SCENE_TRIANGLES} triangles once its mesh instances are made ({} of its mesh at up to {per_place} triangles each); livebake loads at most that many",
+                node_name,
+                places.len()
+            ),
+        });
+    }
+    for (world, place_name) in &places {
+        if !world.is_finite() {
+            return Err(ctx.invalid(format!("{place_name}: its world transform overflows to non-finite values")));
+        }
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let material = match prim.material.map(|m| m.value()) {
+                Some(m) if m < ctx.root.materials.len() => m as MaterialId,
+                Some(m) => {
+                    return Err(ctx.invalid(format!("mesh {mesh_index} primitive {p}: material {m} does not exist")));
+                }
+                // glTF's default material goes right after the file's materials.
+                None => {
+                    *uses_default_material = true;
+                    ctx.root.materials.len() as MaterialId
+                }
+            };
+            let name = format!("{place_name}/{mesh_name}/{p}");
+            let instance = primitive::Instance { prim, node: inst.node, world: *world, name, material };
+            match primitive::build(ctx, diag, &instance)? {
+                Built::Mesh(m) => scene.meshes.push(m),
+                Built::GeneratedNormals(m) => {
+                    scene.stats.normals_generated += 1;
+                    scene.meshes.push(m);
+                }
+                Built::NotTriangles => scene.stats.non_triangle_primitives_skipped += 1,
+                Built::Empty => {}
             }
-        };
-        let instance = primitive::Instance {
-            prim,
-            node: inst.node,
-            world: inst.world,
-            name: format!("{node_name}/{mesh_name}/{p}"),
-            material,
-        };
-        match primitive::build(ctx, diag, &instance)? {
-            Built::Mesh(m) => scene.meshes.push(m),
-            Built::GeneratedNormals(m) => {
-                scene.stats.normals_generated += 1;
-                scene.meshes.push(m);
-            }
-            Built::NotTriangles => scene.stats.non_triangle_primitives_skipped += 1,
-            Built::Empty => {}
         }
     }
     Ok(())

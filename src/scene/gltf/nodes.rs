@@ -3,6 +3,7 @@
 use ::gltf::json;
 use glam::{Mat3, Mat4, Quat, Vec3};
 
+use super::accessor;
 use super::diag::{Diagnostics, Kind};
 use super::{Ctx, LoadError, LoadOptions};
 
@@ -114,6 +115,56 @@ fn local_transform(ctx: &Ctx, index: usize, node: &json::Node, diag: &mut Diagno
     }
     Ok(Mat4::from_scale_rotation_translation(s, q / len, t))
 }
+
+/// `EXT_mesh_gpu_instancing`: the transforms, relative to node `index`, at which its mesh is
+/// drawn, one per instance: T·R·S from the TRANSLATION, ROTATION and SCALE accessors (each
+/// optional, identity when absent; all of one count). `None` when the node does not use it.
+pub(super) fn instance_transforms(ctx: &Ctx, index: usize) -> Result<Option<Vec<Mat4>>, LoadError> {
+    let Some(node) = ctx.root.nodes.get(index) else { return Ok(None) };
+    let Some(ext) = node.extensions.as_ref().and_then(|e| e.others.get(INSTANCING)) else { return Ok(None) };
+    let bad = |what: String| ctx.invalid(format!("node {index}{}: {INSTANCING}: {what}", name_suffix(&node.name)));
+    let attributes = ext.get("attributes").and_then(|a| a.as_object()).ok_or_else(|| bad("no attributes".into()))?;
+    let accessor = |name: &str| -> Result<Option<usize>, LoadError> {
+        match attributes.get(name) {
+            None => Ok(None),
+            Some(v) => v
+                .as_u64()
+                .and_then(|i| usize::try_from(i).ok())
+                .map(Some)
+                .ok_or_else(|| bad(format!("{name} is not an accessor index"))),
+        }
+    };
+    let (t, r, s) = (accessor("TRANSLATION")?, accessor("ROTATION")?, accessor("SCALE")?);
+    let mut counts = Vec::new();
+    for i in [t, r, s].into_iter().flatten() {
+        counts.push(accessor::count(ctx, i)?);
+    }
+    let Some(&count) = counts.first() else { return Err(bad("none of TRANSLATION, ROTATION, SCALE".into())) };
+    if counts.iter().any(|&c| c != count) {
+        return Err(bad(format!("its accessors hold different counts of instances ({counts:?})")));
+    }
+    let what = |name: &str| format!("{INSTANCING} {name} of node {index}");
+    let t = t.map(|i| accessor::read_vec3(ctx, i, &what("TRANSLATION"))).transpose()?;
+    let r = r.map(|i| accessor::read_vec4(ctx, i, &what("ROTATION"))).transpose()?;
+    let s = s.map(|i| accessor::read_vec3(ctx, i, &what("SCALE"))).transpose()?;
+    let n = t.as_ref().map(Vec::len).or(r.as_ref().map(Vec::len)).or(s.as_ref().map(Vec::len)).unwrap_or(0);
+    (0..n)
+        .map(|k| {
+            let t = t.as_ref().map_or(Vec3::ZERO, |t| t[k]);
+            let s = s.as_ref().map_or(Vec3::ONE, |s| s[k]);
+            let q = r.as_ref().map_or(Quat::IDENTITY, |r| Quat::from_vec4(r[k]));
+            let len = q.length();
+            if !(t.is_finite() && s.is_finite() && q.is_finite()) || len == 0.0 {
+                return Err(bad(format!("instance {k} has a non-finite value or a zero rotation")));
+            }
+            Ok(Mat4::from_scale_rotation_translation(s, q / len, t))
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(Some)
+}
+
+/// The instancing extension's name.
+pub(super) const INSTANCING: &str = "EXT_mesh_gpu_instancing";
 
 /// How normals transform: the inverse transpose of the linear part, computed as the cofactor
 /// matrix (`det · M⁻ᵀ`) times the sign of `det`, so it stays defined (and right up to length)

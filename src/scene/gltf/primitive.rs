@@ -116,6 +116,20 @@ pub(super) fn build(ctx: &Ctx, diag: &mut Diagnostics, inst: &Instance) -> Resul
     }
 }
 
+/// At most how many triangles `prim` makes, from its accessors' counts (nothing is read).
+pub(super) fn triangle_bound(ctx: &Ctx, prim: &json::mesh::Primitive) -> Result<u64, LoadError> {
+    let count = match (prim.indices, attribute(prim, Semantic::Positions)) {
+        (Some(i), _) => accessor::count(ctx, i.value())? as u64,
+        (None, Some(p)) => accessor::count(ctx, p)? as u64,
+        (None, None) => 0,
+    };
+    Ok(match prim.mode {
+        Checked::Valid(Mode::Triangles) => count / 3,
+        Checked::Valid(Mode::TriangleStrip | Mode::TriangleFan) => count.saturating_sub(2),
+        _ => 0,
+    })
+}
+
 fn attribute(prim: &json::mesh::Primitive, semantic: Semantic) -> Option<usize> {
     prim.attributes.get(&Checked::Valid(semantic)).map(|i| i.value())
 }
