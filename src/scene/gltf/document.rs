@@ -14,7 +14,7 @@ const CHUNK_BIN: u32 = 0x004E_4942;
 const GLB_HEADER: usize = 12;
 const CHUNK_HEADER: usize = 8;
 
-/// Extensions livebake can honour when a file requires them.
+/// Extensions livebake reads and honours, so a file may require them.
 pub(super) const SUPPORTED_REQUIRED: &[&str] = &[
     "KHR_lights_punctual",
     "KHR_materials_emissive_strength",
@@ -24,14 +24,9 @@ pub(super) const SUPPORTED_REQUIRED: &[&str] = &[
     "EXT_mesh_gpu_instancing",
 ];
 
-/// Extensions that do not change what a Lambertian light-map baker sees, or that are read.
-const HARMLESS_USED: &[&str] = &[
-    "KHR_lights_punctual",
-    "KHR_materials_emissive_strength",
-    "KHR_materials_transmission",
-    "KHR_mesh_quantization",
-    "KHR_texture_transform",
-    "EXT_mesh_gpu_instancing",
+/// Extensions livebake does not read that do not change what a Lambertian light-map baker
+/// sees: a file using them (besides those it reads) is not warned about.
+const HARMLESS_UNREAD: &[&str] = &[
     "KHR_materials_specular",
     "KHR_materials_ior",
     "KHR_materials_clearcoat",
@@ -41,6 +36,10 @@ const HARMLESS_USED: &[&str] = &[
     "EXT_texture_webp",
     "MSFT_texture_dds",
 ];
+
+fn is_read_or_harmless(extension: &str) -> bool {
+    SUPPORTED_REQUIRED.contains(&extension) || HARMLESS_UNREAD.contains(&extension)
+}
 
 /// The parsed document and, for a GLB, its BIN chunk.
 pub(super) struct Parsed<'a> {
@@ -59,8 +58,7 @@ pub(super) fn parse<'a>(file: &Path, bytes: &'a [u8]) -> Result<Parsed<'a>, Load
     check_version(file, &root)?;
     check_required_extensions(file, &root)?;
     validate(file, &root)?;
-    let ignored_extensions =
-        root.extensions_used.iter().filter(|e| !HARMLESS_USED.contains(&e.as_str())).cloned().collect();
+    let ignored_extensions = root.extensions_used.iter().filter(|e| !is_read_or_harmless(e)).cloned().collect();
     Ok(Parsed { root, json_text: json_bytes, bin, is_glb, ignored_extensions })
 }
 

@@ -147,8 +147,7 @@ pub(super) fn instance_transforms(ctx: &Ctx, index: usize) -> Result<Option<Vec<
     let t = t.map(|i| accessor::read_vec3(ctx, i, &what("TRANSLATION"))).transpose()?;
     let r = r.map(|i| accessor::read_vec4(ctx, i, &what("ROTATION"))).transpose()?;
     let s = s.map(|i| accessor::read_vec3(ctx, i, &what("SCALE"))).transpose()?;
-    let n = t.as_ref().map(Vec::len).or(r.as_ref().map(Vec::len)).or(s.as_ref().map(Vec::len)).unwrap_or(0);
-    (0..n)
+    (0..count)
         .map(|k| {
             let t = t.as_ref().map_or(Vec3::ZERO, |t| t[k]);
             let s = s.as_ref().map_or(Vec3::ONE, |s| s[k]);
@@ -164,7 +163,7 @@ pub(super) fn instance_transforms(ctx: &Ctx, index: usize) -> Result<Option<Vec<
 }
 
 /// The instancing extension's name.
-pub(super) const INSTANCING: &str = "EXT_mesh_gpu_instancing";
+const INSTANCING: &str = "EXT_mesh_gpu_instancing";
 
 /// How normals transform: the inverse transpose of the linear part, computed as the cofactor
 /// matrix (`det · M⁻ᵀ`) times the sign of `det`, so it stays defined (and right up to length)
