@@ -146,6 +146,48 @@ fn validator_accepts_exports_of_the_bundled_scenes() {
     }
 }
 
+/// A node whose mesh is instanced (`EXT_mesh_gpu_instancing`) and which also carries a light
+/// exports its instances as world-space geometry, like every mesh, and keeps its light on a
+/// node without the extension (the extension on a node without a mesh is invalid glTF): the
+/// validator accepts the file, and loaded again it holds both instances' triangles where the
+/// source put them.
+#[test]
+fn instanced_meshes_export_as_world_space_geometry() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut d = support::Doc::new();
+    let quad = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, -1.0], [0.0, 0.0, -1.0]];
+    let p = d.prim(&quad, Some(&[[0.0, 1.0, 0.0]; 4]), Some(&[0, 1, 2, 0, 2, 3]));
+    let t = d.vec3(&[[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]]);
+    d.json["extensions"] = json!({ "KHR_lights_punctual": { "lights": [{ "type": "point", "intensity": 5.0 }] } });
+    d.mesh_node(
+        vec![p],
+        json!({ "name": "pair", "translation": [0.0, 0.0, 2.0], "extensions": {
+            "EXT_mesh_gpu_instancing": { "attributes": { "TRANSLATION": t } },
+            "KHR_lights_punctual": { "light": 0 } } }),
+    );
+    d.json["extensionsUsed"] = json!(["EXT_mesh_gpu_instancing", "KHR_lights_punctual"]);
+    let scene = load(&d.write_gltf(dir.path(), "pair"));
+    assert_eq!(scene.meshes.len(), 2);
+    let baked = quick_bake(&scene, 0.1);
+    let out = dir.path().join("export.gltf");
+    export(&scene, &baked, &out);
+    let json = read_json(&out);
+    let text = json.to_string();
+    assert!(!text.contains("EXT_mesh_gpu_instancing"), "{text}");
+    assert!(json["nodes"].as_array().unwrap().iter().any(|n| n.pointer("/extensions/KHR_lights_punctual").is_some()));
+    validate(&out);
+    let again = load(&out);
+    let corners = |s: &Scene| {
+        let geom = SceneGeometry::new(s);
+        let mut c: Vec<[u32; 3]> = geom.corners.iter().flatten().map(|p| p.to_array().map(f32::to_bits)).collect();
+        c.sort();
+        c
+    };
+    assert_eq!(corners(&again), corners(&scene));
+    let xs: Vec<f32> = scene.meshes.iter().map(|m| m.positions[0].x).collect();
+    assert_eq!(xs, [0.0, 3.0]);
+}
+
 // ---------------------------------------------------------------------------------------
 // Round trip
 

@@ -296,6 +296,13 @@ pub(super) fn build(
         for key in ["mesh", "skin", "weights"] {
             obj.remove(key);
         }
+        // Its mesh's instances are geometry above, in world space, like the mesh.
+        if let Some(Value::Object(ext)) = obj.get_mut("extensions") {
+            ext.remove("EXT_mesh_gpu_instancing");
+            if ext.is_empty() {
+                obj.remove("extensions");
+            }
+        }
         let children: Vec<usize> = array(&file_nodes[n], "children")
             .iter()
             .filter_map(Value::as_u64)
