@@ -560,3 +560,44 @@ fn moving_the_sun_relights_through_the_reload_path() {
     assert_eq!(sun(&runtime.world()), sun(&after));
     runtime.shutdown().expect("clean shutdown");
 }
+
+/// A model that brings no light, loaded with no sky asked for (as `run`, `view` and `serve`
+/// load it), is lit by the white stand-in sky. A save that lights its lamp takes the stand-in
+/// away, so the room is lit by the lamp alone and not by both; a save that puts the lamp out
+/// again brings it back.
+#[test]
+fn the_stand_in_sky_follows_saves_that_bring_and_take_away_light() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |lit: bool| {
+        let (gltf, bin) = room(&BOXES);
+        let mut j: serde_json::Value = serde_json::from_slice(&gltf).unwrap();
+        if !lit {
+            j["materials"][1]["emissiveFactor"] = json!([0.0, 0.0, 0.0]);
+        }
+        save(&dir.path().join("room.bin"), &bin, true);
+        let path = dir.path().join("room.gltf");
+        save(&path, &serde_json::to_vec(&j).unwrap(), true);
+        path
+    };
+    let path = write(false);
+    let mut scene = (*load(&path)).clone();
+    scene.sky_automatic = true;
+    assert!(scene.stand_in_sky(), "the dark room is not given the stand-in sky");
+    let mut runtime = Runtime::start(Arc::new(scene), config(), Arc::new(CpuProvider::new())).expect("start");
+    runtime.watch(&path, WatchConfig::default()).expect("watch");
+    runtime.set_camera(camera());
+    runtime.wait_first_light(PATIENCE).expect("first light");
+    let stand_in = livebake::scene::Rgb::splat(livebake::scene::STAND_IN_SKY);
+    assert_eq!(runtime.world().scene.sky, stand_in);
+    for (lit, sky) in [(true, livebake::scene::Rgb::ZERO), (false, stand_in)] {
+        write(lit);
+        wait_for(&runtime, "the save", |e| {
+            assert!(!matches!(e, RuntimeEvent::ReloadFailed { .. }), "{e:?}");
+            matches!(e, RuntimeEvent::ReloadApplied { .. })
+        });
+        let world = runtime.world();
+        assert_eq!(world.scene.sky, sky, "lamp lit: {lit}");
+        assert!(world.scene.sky_automatic);
+    }
+    runtime.shutdown().expect("clean shutdown");
+}

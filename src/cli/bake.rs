@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use livebake::bake::{BakeConfig, BakeOutput, bake};
 use livebake::export::{ExportOptions, export_gltf};
 use livebake::output::{irradiance_image, write_json, write_lightmaps};
-use livebake::scene::{Rgb, Scene, SurroundingsSpec, load_gltf};
+use livebake::scene::{Rgb, STAND_IN_SKY, Scene, SurroundingsSpec, load_gltf};
 
 use super::SceneOptions;
 use super::progress::Ui;
@@ -40,35 +40,30 @@ pub fn load_scene_with(
     let t0 = Instant::now();
     let load = options.load_options(memory_limit);
     // The options first: a bad one fails before the scene loads.
-    let mut spec = options.outdoors.spec(options.sky.unwrap_or(Rgb::ZERO), &load)?;
+    let spec = options.outdoors.spec(options.sky.unwrap_or(Rgb::ZERO), &load)?;
     let surroundings = spec.build().map_err(anyhow::Error::msg)?;
     let mut scene = load_gltf(path, &load).context("cannot load the scene")?;
     scene.set_surroundings(&surroundings).context("--sky, --environment or --sun")?;
-    if !scene.has_light() {
-        let nothing = "has no light of its own (no KHR_lights_punctual light, no emissive material)";
-        if options.sky.is_some() {
+    let nothing = "has no light of its own (no KHR_lights_punctual light, no emissive material)";
+    if options.sky.is_some() {
+        if !scene.has_light() {
             tracing::warn!("{}: the scene {nothing} and --sky is black: every light map will be black", path.display());
-        } else {
-            // Models exported for a walkthrough rarely carry their lighting (skies and suns are
-            // not exported); a black result would only puzzle. A white sky shows the model as
-            // daylight from every side would (a light map of sky exposure) until the user says
-            // how it is lit.
+        }
+    } else {
+        // A white sky shows a model that brings no lighting as daylight from every side would
+        // (a light map of sky exposure) until the user says how it is lit; a reload that
+        // brings light takes it away (`Scene::stand_in_sky`).
+        scene.sky_automatic = true;
+        if scene.stand_in_sky() {
             tracing::warn!(
                 "{}: the scene {nothing}, and no --sky, --sun, --environment or --sky-model was given: \
-                 lit by a white sky of {DEFAULT_SKY} W/(sr·m²) (give one of those to light it yourself)",
+                 lit by a white sky of {STAND_IN_SKY} W/(sr·m²) while nothing else lights it (give one of those to light it yourself)",
                 path.display()
             );
-            spec.sky = Rgb::splat(DEFAULT_SKY);
-            let surroundings = spec.build().map_err(anyhow::Error::msg)?;
-            scene.set_surroundings(&surroundings).context("the default sky")?;
         }
     }
     Ok((Arc::new(scene), t0.elapsed().as_secs_f64(), spec))
 }
-
-/// Radiance (W/(sr·m²)) of the sky a scene without light of its own is given: a surface open
-/// to the whole sky gets π W/m².
-pub const DEFAULT_SKY: f32 = 1.0;
 
 /// What `bake` exports beside its light maps.
 pub struct Exports<'a> {

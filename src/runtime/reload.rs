@@ -131,13 +131,19 @@ fn on_watch_event(shared: &Shared, event: WatchEvent, cancel: &AtomicBool) {
             shared.emit(RuntimeEvent::ReloadFailed { path: path.display().to_string(), error })
         }
         WatchEvent::Loaded { scene, seen_at, .. } => {
-            // The file's scene under the surroundings shown now (a moved sun stays moved).
-            let current = shared.lock().world.scene.surroundings();
+            // The file's scene under the surroundings shown now (a moved sun stays moved), the
+            // stand-in sky decided again (the save may have added or removed its light).
+            let (current, automatic) = {
+                let shown = &shared.lock().world.scene;
+                (shown.surroundings(), shown.sky_automatic)
+            };
             let mut scene = Arc::unwrap_or_clone(scene);
-            let result = scene
-                .set_surroundings(&current)
-                .map_err(|e| RuntimeError::BadOption(e.to_string()))
-                .and_then(|()| apply(shared, Arc::new(scene), seen_at, cancel));
+            scene.sky_automatic = automatic;
+            let result =
+                scene.set_surroundings(&current).map_err(|e| RuntimeError::BadOption(e.to_string())).and_then(|()| {
+                    stand_in_sky(&mut scene);
+                    apply(shared, Arc::new(scene), seen_at, cancel)
+                });
             if let Err(e) = result {
                 let path = shared.lock().world.scene.source.as_ref().map(|p| p.display().to_string());
                 shared.emit(RuntimeEvent::ReloadFailed { path: path.unwrap_or_default(), error: e.to_string() });
@@ -146,14 +152,23 @@ fn on_watch_event(shared: &Shared, event: WatchEvent, cancel: &AtomicBool) {
     }
 }
 
+/// [`Scene::stand_in_sky`](crate::scene::Scene::stand_in_sky) for a scene about to be shown,
+/// said when it lights the scene.
+fn stand_in_sky(scene: &mut crate::scene::Scene) {
+    if scene.stand_in_sky() {
+        tracing::info!("nothing lights the scene: a white sky of {} W/(sr·m²) stands in", crate::scene::STAND_IN_SKY);
+    }
+}
+
 /// The served scene with `surroundings` instead of its own, applied as a light change.
 fn relight_with(shared: &Shared, surroundings: &Surroundings, asked: Instant, cancel: &AtomicBool) {
     let old = shared.lock().world.scene.clone();
     let mut scene = (*old).clone();
-    let result = scene
-        .set_surroundings(surroundings)
-        .map_err(|e| RuntimeError::BadOption(e.to_string()))
-        .and_then(|()| apply(shared, Arc::new(scene), asked, cancel));
+    let result =
+        scene.set_surroundings(surroundings).map_err(|e| RuntimeError::BadOption(e.to_string())).and_then(|()| {
+            stand_in_sky(&mut scene);
+            apply(shared, Arc::new(scene), asked, cancel)
+        });
     if let Err(e) = result {
         let path = old.source.as_ref().map(|p| p.display().to_string());
         shared.emit(RuntimeEvent::ReloadFailed { path: path.unwrap_or_default(), error: e.to_string() });

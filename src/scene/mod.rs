@@ -27,7 +27,7 @@ pub use gltf::{
     DEFAULT_MAX_TEXTURE_PIXELS, ExternalFile, ExternalKind, LoadError, LoadOptions, MAX_SCENE_TRIANGLES,
     SourceDocument, SourceImage, external_files, load_gltf, load_gltf_bytes, read_scene_file, read_source,
 };
-pub use surroundings::{SkyPicture, SunPlacement, Surroundings, SurroundingsSpec};
+pub use surroundings::{STAND_IN_SKY, SkyPicture, SunPlacement, Surroundings, SurroundingsSpec};
 pub use texture::{Texture, TextureRef, TextureUv, UvTransform, WrapMode};
 
 /// Linear RGB triple (radiance, irradiance, albedo...). Units are given where it is used.
@@ -427,6 +427,10 @@ pub struct Scene {
     /// Uniform sky radiance, W/(sr·m²), seen by rays that leave the scene (added to the
     /// environment's). Comes from configuration, not the file; black by default.
     pub sky: Rgb,
+    /// No sky was asked for: the white stand-in sky lights the scene whenever nothing else
+    /// does, decided again on every reload and change of surroundings
+    /// ([`Scene::stand_in_sky`]).
+    pub sky_automatic: bool,
     /// Radiance by direction seen by rays that leave the scene (see [`environment`]); from
     /// configuration, not the file.
     pub environment: Option<Arc<Environment>>,

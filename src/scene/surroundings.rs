@@ -57,6 +57,25 @@ impl Scene {
         self.sky.max_element() > 0.0 || self.environment.as_ref().is_some_and(|e| e.brightest() > 0.0)
     }
 
+    /// With an automatic sky ([`sky_automatic`](Scene::sky_automatic)), the white stand-in sky
+    /// ([`STAND_IN_SKY`]) where nothing else lights the scene, and none where something does
+    /// (a lamp added by a save): models exported for a walkthrough rarely carry
+    /// their lighting, and a black result would only puzzle, but the stand-in must not add to
+    /// light the scene has. Returns whether the stand-in is on. Without an automatic sky,
+    /// nothing changes.
+    pub fn stand_in_sky(&mut self) -> bool {
+        if !self.sky_automatic {
+            return false;
+        }
+        // An automatic sky is black but for the stand-in: judge the scene without it.
+        self.sky = Rgb::ZERO;
+        let unlit = !self.has_light();
+        if unlit {
+            self.sky = Rgb::splat(STAND_IN_SKY);
+        }
+        unlit
+    }
+
     /// Whether anything lights the scene: a punctual light (the file's or the sun), a mesh
     /// whose material emits, or a sky. Without any, every light map is black.
     pub fn has_light(&self) -> bool {
@@ -65,6 +84,10 @@ impl Scene {
             || self.has_sky()
     }
 }
+
+/// Radiance (W/(sr·m²)) of the white sky that stands in for a scene's missing lighting
+/// ([`Scene::stand_in_sky`]): a surface open to the whole sky gets π W/m².
+pub const STAND_IN_SKY: f32 = 1.0;
 
 /// The sky as a picture: radiance (W/(sr·m²)) toward every direction, `sky +
 /// environment(d)`, over an equirectangular grid of `width × height` pixels (row 0 up, +Y;
