@@ -81,14 +81,14 @@ fn fragment_transmittance(f: Fragment) -> vec4<f32> {
         return opaque;
     }
     var x = MaterialTexels(vec4<f32>(1.0), vec4<f32>(1.0));
-    if material_textured(m) {
+    if material_textured(m) || st.colors != NO_COLOR {
         var bary: vec2<f32>;
         if own_side {
             bary = projected_barycentrics(tri);
         } else {
             bary = located_barycentrics(tri);
         }
-        x = material_texels(m, surface_uv0(st, bary.x, bary.y));
+        x = surface_texels(st, m, bary.x, bary.y);
     }
     return material_transmittance(m, x);
 }

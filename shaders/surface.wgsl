@@ -46,6 +46,8 @@ struct VertexInput {
     // Atlas UV (LOD-0 texels) of the triangle's front and back face; negative: no face.
     @location(2) lightmap_front: vec2<f32>,
     @location(3) lightmap_back: vec2<f32>,
+    // Vertex colour (COLOR_0; white where the mesh has none): multiplies the base colour.
+    @location(4) color: vec4<f32>,
 }
 
 struct VertexOutput {
@@ -54,6 +56,7 @@ struct VertexOutput {
     @location(1) uv0: vec2<f32>,
     @location(2) lightmap_front: vec2<f32>,
     @location(3) lightmap_back: vec2<f32>,
+    @location(4) color: vec4<f32>,
 }
 
 @vertex
@@ -64,6 +67,7 @@ fn vs_main(v: VertexInput) -> VertexOutput {
     out.uv0 = v.uv0;
     out.lightmap_front = v.lightmap_front;
     out.lightmap_back = v.lightmap_back;
+    out.color = v.color;
     return out;
 }
 
@@ -157,9 +161,10 @@ fn sky_radiance(d: vec3<f32>) -> vec3<f32> {
     return mix(top, bottom, f.y);
 }
 
-// The base colour (rgb) and alpha: factor × texture, sampled once per fragment.
+// The base colour (rgb) and alpha: factor × texture × vertex colour, sampled once per
+// fragment.
 fn base_colour(in: VertexOutput) -> vec4<f32> {
-    return material.base_color * textureSample(base_color_texture, material_sampler, in.uv0);
+    return material.base_color * textureSample(base_color_texture, material_sampler, in.uv0) * in.color;
 }
 
 fn albedo(base: vec4<f32>) -> vec3<f32> {

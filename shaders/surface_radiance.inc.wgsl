@@ -6,6 +6,7 @@
 // bundle_resolve.wgsl), so texel choices and weights round as the CPU's do.
 
 const NO_TEXTURE: u32 = 0xFFFFFFFFu;
+const NO_COLOR: u32 = 0xFFFFFFFFu;
 const WRAP_REPEAT: u32 = 0u;
 const WRAP_MIRRORED_REPEAT: u32 = 1u;
 const WRAP_CLAMP_TO_EDGE: u32 = 2u;
@@ -13,12 +14,16 @@ const ALPHA_OPAQUE: u32 = 0u;
 const ALPHA_MASK: u32 = 1u;
 const ALPHA_BLEND: u32 = 2u;
 
-// Per triangle: the TEXCOORD_0 of its corners, its material, whether its emission travels
-// with the global bundles (`EmitterPlan::carried_by_bundles`).
+// Per triangle: its corners' texture coordinates (`SceneGeometry::texture_uv_corners`), its
+// material, whether its emission travels with the global bundles
+// (`EmitterPlan::carried_by_bundles`), and its corners' vertex colours
+// (`surface_colors[colors..colors + 3]`; NO_COLOR: its mesh has none).
 struct SurfaceTriangle {
     uv0: array<vec2<f32>, 3>,
     material: u32,
     carried: u32,
+    colors: u32,
+    _pad: u32,
 }
 
 struct SurfaceMaterial {
@@ -61,6 +66,8 @@ struct TextureHeader {
 @group(2) @binding(3) var<storage, read> texture_texels: array<u32>;
 // The CPU's sRGB decoding table (256 entries): the same values, not a recomputed power.
 @group(2) @binding(4) var<storage, read> srgb_to_linear: array<f32>;
+// Vertex colours (linear RGBA, COLOR_0), three a triangle that has them.
+@group(2) @binding(5) var<storage, read> surface_colors: array<vec4<f32>>;
 
 fn mul3(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(mul(a.x, b.x), mul(a.y, b.y), mul(a.z, b.z));
@@ -129,21 +136,28 @@ fn surface_uv0(tri: SurfaceTriangle, u: f32, v: f32) -> vec2<f32> {
     return a + vec2<f32>(mul(d1.x, u), mul(d1.y, u)) + vec2<f32>(mul(d2.x, v), mul(d2.y, v));
 }
 
-// `Material::albedo` from the base colour texture's value `texel` (linear, clamped to [0, 1]).
-fn material_albedo(m: SurfaceMaterial, texel: vec4<f32>) -> vec3<f32> {
-    var c = m.base_color.rgb;
-    if m.base_texture != NO_TEXTURE {
-        c = mul3(c, texel.rgb);
+// The vertex colour of triangle `tri` at barycentrics (u, v)
+// (`SceneGeometry::material_point`); white where it has none.
+fn surface_color(tri: SurfaceTriangle, u: f32, v: f32) -> vec4<f32> {
+    if tri.colors == NO_COLOR {
+        return vec4<f32>(1.0);
     }
-    return clamp(c, vec3<f32>(0.0), vec3<f32>(1.0));
+    let a = surface_colors[tri.colors];
+    let d1 = surface_colors[tri.colors + 1u] - a;
+    let d2 = surface_colors[tri.colors + 2u] - a;
+    return a + mul4s(d1, u) + mul4s(d2, v);
 }
 
-// `Material::alpha` from the base colour texture's value `base`.
+// `Material::albedo` from what multiplies the base colour factor at the point, `base`
+// (`Material::base_sample`: the texture's value times the vertex colour; 1 where there is
+// neither, and a product with 1 is exact, so no test is needed), linear, clamped to [0, 1].
+fn material_albedo(m: SurfaceMaterial, base: vec4<f32>) -> vec3<f32> {
+    return clamp(mul3(m.base_color.rgb, base.rgb), vec3<f32>(0.0), vec3<f32>(1.0));
+}
+
+// `Material::alpha` from what multiplies the base colour factor at the point, `base`.
 fn material_alpha(m: SurfaceMaterial, base: vec4<f32>) -> f32 {
-    if m.base_texture != NO_TEXTURE {
-        return mul(m.base_color.w, base.w);
-    }
-    return m.base_color.w;
+    return mul(m.base_color.w, base.w);
 }
 
 // `Material::is_see_through`: BLEND or transmissive.
@@ -179,8 +193,9 @@ fn material_textured(m: SurfaceMaterial) -> bool {
     return m.base_texture != NO_TEXTURE || (m.transmission > 0.0 && m.transmission_texture != NO_TEXTURE);
 }
 
-// Material `m`'s base colour and transmission textures' values at a point (1 where it has
-// none, or where its transmission factor is 0).
+// What multiplies material `m`'s base colour factor at a point (its texture's value times
+// the vertex colour; 1 where there is neither), and its transmission texture's value there
+// (1 where it has none, or where its transmission factor is 0).
 struct MaterialTexels {
     base: vec4<f32>,
     transmitted: vec4<f32>,
@@ -199,16 +214,27 @@ fn material_texels(m: SurfaceMaterial, uv: vec2<f32>) -> MaterialTexels {
     return x;
 }
 
+// `material_texels` of triangle `tri`'s material `m` at barycentrics (u, v), the vertex
+// colour multiplied in after the texture as `Material::base_sample` does.
+fn surface_texels(tri: SurfaceTriangle, m: SurfaceMaterial, u: f32, v: f32) -> MaterialTexels {
+    var x = MaterialTexels(vec4<f32>(1.0), vec4<f32>(1.0));
+    if material_textured(m) {
+        x = material_texels(m, surface_uv0(tri, u, v));
+    }
+    if tri.colors != NO_COLOR {
+        let c = surface_color(tri, u, v);
+        x.base = vec4<f32>(mul(x.base.x, c.x), mul(x.base.y, c.y), mul(x.base.z, c.z), mul(x.base.w, c.w));
+    }
+    return x;
+}
+
 // Diffuse reflectance (linear) of triangle `t` at barycentrics (u, v): `SceneGeometry::albedo`,
 // the albedo clamped to [0, 1] (`Material::albedo`), of a see-through surface the part it
 // reflects, α(1 − t)·a (`Material::reflectance`).
 fn surface_albedo(t: u32, u: f32, v: f32) -> vec3<f32> {
     let tri = surface_triangles[t];
     let m = surface_materials[tri.material];
-    var x = MaterialTexels(vec4<f32>(1.0), vec4<f32>(1.0));
-    if material_textured(m) {
-        x = material_texels(m, surface_uv0(tri, u, v));
-    }
+    let x = surface_texels(tri, m, u, v);
     let a = material_albedo(m, x.base);
     if !material_see_through(m) {
         return a;

@@ -188,6 +188,43 @@ fn instanced_meshes_export_as_world_space_geometry() {
     assert_eq!(xs, [0.0, 3.0]);
 }
 
+/// Vertex colours (COLOR_0) travel with the export, per vertex, so that an engine multiplies
+/// them into the base colour as livebake's bake did: the validator accepts the file and,
+/// loaded again, each triangle's corners hold the source's colours (written as float VEC4;
+/// the source's normalised bytes k/255 come back as the same f32).
+#[test]
+fn vertex_colours_travel_with_the_export() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut d = support::Doc::new();
+    let quad = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, -1.0], [0.0, 0.0, -1.0]];
+    let mut p = d.prim(&quad, Some(&[[0.0, 1.0, 0.0]; 4]), Some(&[0, 1, 2, 0, 2, 3]));
+    let bytes = [255u8, 0, 0, 255, 0, 255, 0, 128, 0, 0, 255, 255, 51, 102, 153, 0];
+    let view = d.view(&bytes, None);
+    p["attributes"]["COLOR_0"] = json!(d.accessor(Some(view), 5121, "VEC4", 4, json!({ "normalized": true })));
+    d.mesh_node(vec![p], json!({ "name": "tinted" }));
+    let scene = load(&d.write_gltf(dir.path(), "tinted"));
+    assert!(scene.meshes[0].colors.is_some());
+    let baked = quick_bake(&scene, 0.1);
+    let out = dir.path().join("export.gltf");
+    export(&scene, &baked, &out);
+    validate(&out);
+    let again = load(&out);
+    // Per triangle: its corners' positions and colours, as bits.
+    type Corners = ([[u32; 3]; 3], [[u32; 4]; 3]);
+    let by_corners = |s: &Scene| {
+        let geom = SceneGeometry::new(s);
+        let mut c: Vec<Corners> = (0..geom.len())
+            .map(|t| {
+                let colors = geom.color_corners(s, t).expect("vertex colours").map(|c| c.to_array().map(f32::to_bits));
+                (geom.corners[t].map(|p| p.to_array().map(f32::to_bits)), colors)
+            })
+            .collect();
+        c.sort();
+        c
+    };
+    assert_eq!(by_corners(&again), by_corners(&scene));
+}
+
 // ---------------------------------------------------------------------------------------
 // Round trip
 

@@ -10,7 +10,7 @@ mod support;
 
 use livebake::analytic::polygon_irradiance;
 use livebake::bake::{BackendKind, BakeConfig, BakeOutput};
-use livebake::glam::{Vec2, Vec3};
+use livebake::glam::{Vec2, Vec3, Vec4};
 use livebake::reference::{ReferenceTracer, RelativeRmsError};
 use livebake::scene::builder::diffuse;
 use livebake::scene::{AlphaMode, Material, Rgb, Scene, SceneBuilder, Texture, TextureRef, UvTransform, WrapMode};
@@ -327,6 +327,83 @@ fn a_texture_transform_moves_a_cut_out_where_the_extension_puts_it() {
         moved > 100,
         "the rotated pane's shadow is where the untransformed one's is ({moved} of {checked} texels moved)"
     );
+}
+
+/// Vertex colours (glTF COLOR_0) multiply the base colour and its alpha, wherever light
+/// meets the surface:
+/// - a see-through pane (`BLEND`, transmission 0.5) coloured (0.8, 0.4, 0.2, α 0.5) at every
+///   vertex bakes the same bits as the same pane whose material factor is that colour, on
+///   the CPU and on the GPU backend, sun and sky (the floor under it gets the tinted
+///   T = (1 − α) + α·t·a; the pane's own texels its albedo);
+/// - a `MASK` pane whose vertex alpha runs 0 → 1 across it (cutoff 0.5) is cut out on its
+///   α < 0.5 half, x < 0: under a sun alone the floor gets the whole sun there and none
+///   under the other half (the punctual pass), and both backends agree through the cut-out
+///   under a sky;
+/// - a floor coloured by a gradient holds, per texel, its factor times the colour at the
+///   texel's point (the colour is affine in x, so the point's colour is that of its x).
+#[test]
+fn vertex_colours_tint_and_cut_out_as_the_base_colour_does() {
+    let colored = |material: Material, colors: [Vec4; 4], sun: bool, sky: bool| {
+        let mut scene = pane_scene(material, sun, sky);
+        scene.meshes[1].colors = Some(colors.to_vec());
+        scene
+    };
+    let tint = Vec4::new(0.8, 0.4, 0.2, 0.5);
+    let glass =
+        |base_color| Material { base_color, alpha_mode: AlphaMode::Blend, transmission: 0.5, ..Material::default() };
+    for backend in BACKENDS {
+        let c = config(backend, 64);
+        let want = run(&pane_scene(glass(tint), true, true), &c);
+        let got = run(&colored(glass(Vec4::ONE), [tint; 4], true, true), &c);
+        assert_eq!(got.lods[0].texels.position, want.lods[0].texels.position, "one atlas");
+        assert!(got.lods[0].texels.albedo == want.lods[0].texels.albedo, "{backend:?}: the pane's albedo");
+        assert!(got.lods[0].irradiance == want.lods[0].irradiance, "{backend:?}: not the same light map");
+        // The tint reaches the floor: the sun alone gives red SUN·α·t·(a_r − a_b) = 0.3 more
+        // than blue under the pane (T's channels), and the sky through it adds to that.
+        let (i, _) = floor_texels(&got).into_iter().find(|(_, p)| p.x.abs() < 0.3 && p.z.abs() < 0.3).unwrap();
+        let e = got.lods[0].irradiance[i];
+        assert!(e.x - e.z > 0.3, "{backend:?}: the floor under the tinted pane is not tinted: {e}");
+    }
+
+    // Alpha 0 on the pane's x = −h corners (0 and 3), 1 on the x = +h ones.
+    let ramp = [Vec4::new(1.0, 1.0, 1.0, 0.0), Vec4::ONE, Vec4::ONE, Vec4::new(1.0, 1.0, 1.0, 0.0)];
+    let grille = Material { alpha_mode: AlphaMode::Mask { cutoff: 0.5 }, ..Material::default() };
+    let out = run(&colored(grille.clone(), ramp, true, false), &config(BackendKind::Cpu, 16));
+    let (mut lit, mut shaded) = (0, 0);
+    for (i, p) in floor_texels(&out) {
+        // Away from the cut-out's edge (x = 0) by a texel.
+        if p.x.abs().max(p.z.abs()) > PANE_H || p.x.abs() < TEXEL {
+            continue;
+        }
+        let e = out.lods[0].irradiance[i].x;
+        let want = if p.x < 0.0 { SUN } else { 0.0 };
+        assert!((e - want).abs() <= 1e-4 * SUN, "floor texel at {p}: {e}, want {want}");
+        (lit, shaded) = (lit + (p.x < 0.0) as u32, shaded + (p.x > 0.0) as u32);
+    }
+    assert!(lit > 50 && shaded > 50, "{lit} lit and {shaded} shaded floor texels checked");
+    let sky = |backend| config(backend, 32);
+    let cpu = run(&colored(grille.clone(), ramp, false, true), &sky(BackendKind::Cpu));
+    let gpu = run(&colored(grille, ramp, false, true), &sky(BackendKind::Gpu));
+    assert_backends_agree("vertex-alpha cut-out, sky", &cpu, &gpu, &sky(BackendKind::Gpu));
+
+    // A floor whose colour runs from (1, 0, 0) at x = −1 to (0, 1, 0) at x = 1.
+    let mut scene = pane_scene(Material::default(), true, false);
+    let floor = &mut scene.meshes[0];
+    let color_at = |x: f32| Vec4::new((1.0 - x) * 0.5, (1.0 + x) * 0.5, 0.0, 1.0);
+    floor.colors = Some(floor.positions.iter().map(|p| color_at(p.x)).collect());
+    let out = run(&scene, &config(BackendKind::Cpu, 4));
+    let t = &out.lods[0].texels;
+    let floor_ids: Vec<usize> = (0..t.len()).filter(|&i| t.position[i].y.abs() < 1e-4).collect();
+    assert!(floor_ids.len() > 1000, "{} floor texels", floor_ids.len());
+    for i in floor_ids {
+        let want = color_at(t.position[i].x).truncate() * 0.5;
+        assert!(
+            (t.albedo[i] - want).abs().max_element() < 1e-5,
+            "floor texel at {}: {} vs {want}",
+            t.position[i],
+            t.albedo[i]
+        );
+    }
 }
 
 /// Khronos GlassBrokenWindow (transmission glass, a MASK for the broken part) under a

@@ -8,8 +8,8 @@ use std::path::{Path, PathBuf};
 
 use glam::{Mat4, Quat, Vec2, Vec3, Vec4};
 use livebake::scene::{
-    AlphaMode, LightKind, LoadError, LoadOptions, Mesh, Projection, Scene, SceneGeometry, WrapMode, load_gltf,
-    load_gltf_bytes,
+    AlphaMode, LightKind, LoadError, LoadOptions, MaterialPoint, Mesh, Projection, Scene, SceneGeometry, WrapMode,
+    load_gltf, load_gltf_bytes,
 };
 use serde_json::{Value, json};
 use support::{Doc, FLOAT, U8, U16, base64, glb, png};
@@ -1104,16 +1104,87 @@ fn gpu_instancing_places_one_mesh_per_instance() {
     eprintln!("refused in {:.3} s: {e}", start.elapsed().as_secs_f64());
 }
 
-/// COLOR_0 is not read: the load says so rather than dropping the vertex colours silently.
+/// COLOR_0 in every encoding glTF allows (float VEC3 and VEC4, normalised unsigned byte and
+/// short) is read as linear RGBA per vertex, alpha 1 for VEC3; a white one is dropped (it
+/// changes nothing); the other encodings and values that are not finite are errors naming
+/// the attribute; and it multiplies the base colour and alpha where the material is read
+/// (`SceneGeometry::material_point`, `Material::albedo`, `Material::alpha`).
 #[test]
-fn vertex_colours_are_named_as_not_read() {
+fn vertex_colours_are_read_in_every_encoding() {
     let d = tmp();
-    let mut doc = Doc::new();
-    let mut p = doc.prim(&TRI, Some(&UP_Z), None);
-    p["attributes"]["COLOR_0"] = json!(doc.vec3(&[[1.0, 0.0, 0.0]; 3]));
-    doc.mesh_node(vec![p], json!({}));
-    let s = load(&doc.write_gltf(d.path(), "coloured")).unwrap();
-    assert!(s.stats.warnings.iter().any(|w| w.contains("COLOR_0")), "{:?}", s.stats.warnings);
+    let colored = |name: &str, color: &dyn Fn(&mut Doc) -> usize| {
+        let mut doc = Doc::new();
+        let mut p = doc.prim(&TRI, Some(&UP_Z), None);
+        p["attributes"]["COLOR_0"] = json!(color(&mut doc));
+        p["material"] = json!(0);
+        doc.json["materials"] = json!([{ "pbrMetallicRoughness": { "baseColorFactor": [0.5, 0.5, 0.5, 0.8] } }]);
+        doc.mesh_node(vec![p], json!({}));
+        doc.write_gltf(d.path(), name)
+    };
+    // Float VEC3: alpha 1.
+    let s = load(&colored("vec3", &|doc| doc.vec3(&[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.25]]))).unwrap();
+    let colors = s.meshes[0].colors.clone().expect("COLOR_0 read");
+    assert_eq!(
+        colors,
+        vec![Vec4::new(1.0, 0.0, 0.0, 1.0), Vec4::new(0.0, 1.0, 0.0, 1.0), Vec4::new(0.0, 0.0, 0.25, 1.0)]
+    );
+    assert!(s.stats.warnings.iter().all(|w| !w.contains("COLOR_0")), "{:?}", s.stats.warnings);
+    // At barycentrics (0.25, 0.5) the colour is 0.25·c1 + 0.5·c2 + 0.25·c0 = (0.25, 0.25, 0.125);
+    // the albedo is the factor 0.5 times it, the alpha the factor's 0.8 times 1.
+    let geom = SceneGeometry::new(&s);
+    let p = geom.material_point(&s, 0, 0.25, 0.5);
+    assert_eq!(p.color, Some(Vec4::new(0.25, 0.25, 0.125, 1.0)));
+    let m = &s.materials[0];
+    assert_eq!(m.albedo(&s.textures, p), Vec3::new(0.125, 0.125, 0.0625));
+    assert_eq!(geom.albedo(&s, 0, 0.25, 0.5), Vec3::new(0.125, 0.125, 0.0625));
+    assert_eq!(m.alpha(&s.textures, p), 0.8);
+    assert_eq!(geom.uniform_albedo(&s, 0), None, "vertex colours vary the albedo");
+
+    // Normalised unsigned byte VEC4 (k/255) and unsigned short VEC4 (k/65535).
+    let unorm = |doc: &mut Doc, component: u32, values: &[u16]| {
+        let bytes: Vec<u8> = match component {
+            5121 => values.iter().map(|&v| v as u8).collect(),
+            _ => values.iter().flat_map(|v| v.to_le_bytes()).collect(),
+        };
+        let view = doc.view(&bytes, None);
+        doc.accessor(Some(view), component, "VEC4", 3, json!({ "normalized": true }))
+    };
+    let bytes = [255, 0, 51, 255, 0, 255, 0, 128, 10, 20, 30, 0];
+    let s = load(&colored("u8", &|doc| unorm(doc, 5121, &bytes))).unwrap();
+    let expected: Vec<Vec4> =
+        bytes.chunks(4).map(|c| Vec4::new(c[0] as f32, c[1] as f32, c[2] as f32, c[3] as f32) / 255.0).collect();
+    assert_eq!(s.meshes[0].colors.as_deref(), Some(&expected[..]));
+    let shorts = [65535, 0, 13107, 65535, 0, 65535, 0, 32768, 1, 2, 3, 0];
+    let s = load(&colored("u16", &|doc| unorm(doc, 5123, &shorts))).unwrap();
+    let expected: Vec<Vec4> =
+        shorts.chunks(4).map(|c| Vec4::new(c[0] as f32, c[1] as f32, c[2] as f32, c[3] as f32) / 65535.0).collect();
+    assert_eq!(s.meshes[0].colors.as_deref(), Some(&expected[..]));
+
+    // White everywhere: changes nothing, not kept.
+    let s = load(&colored("white", &|doc| doc.vec3(&[[1.0; 3]; 3]))).unwrap();
+    assert_eq!(s.meshes[0].colors, None);
+    // Out of [0, 1]: clamped, as the spec bounds it.
+    let s = load(&colored("bright", &|doc| doc.vec3(&[[2.0, -1.0, 0.5]; 3]))).unwrap();
+    assert_eq!(s.meshes[0].colors.as_ref().map(|c| c[0]), Some(Vec4::new(1.0, 0.0, 0.5, 1.0)));
+
+    // Not finite, an unnormalised integer, a signed byte: clear errors.
+    let e = load_err(&colored("nan", &|doc| doc.vec3(&[[f32::NAN, 0.0, 0.0]; 3]))).to_string();
+    assert!(e.contains("COLOR_0"), "{e}");
+    let e = load_err(&colored("raw", &|doc| {
+        let view = doc.view(&[255u8; 12], None);
+        doc.accessor(Some(view), 5121, "VEC4", 3, json!({}))
+    }))
+    .to_string();
+    assert!(e.contains("COLOR_0") && e.contains("vertex colours must be"), "{e}");
+    let e = load_err(&colored("signed", &|doc| {
+        let view = doc.view(&[100u8; 12], None);
+        doc.accessor(Some(view), 5120, "VEC4", 3, json!({ "normalized": true }))
+    }))
+    .to_string();
+    assert!(e.contains("COLOR_0") && e.contains("vertex colours must be"), "{e}");
+    // Fewer colours than positions.
+    let e = load_err(&colored("short", &|doc| doc.vec3(&[[0.5; 3]; 2]))).to_string();
+    assert!(e.contains("COLOR_0") && e.contains("POSITION has 3"), "{e}");
 }
 
 /// Glass and cut-outs as architectural exports write them: a BLEND pane, a transmission
@@ -1154,7 +1225,7 @@ fn blend_transmission_and_mask_materials() {
     let uv = Vec2::splat(0.5);
     let blend = &s.materials[0];
     assert_eq!((blend.alpha_mode, blend.transmission), (AlphaMode::Blend, 0.0));
-    let sheet = blend.sheet(&s.textures, uv);
+    let sheet = blend.sheet(&s.textures, MaterialPoint::at_uv(uv));
     assert!((sheet.pass - Vec3::splat(0.75)).abs().max_element() < 1e-6, "{sheet:?}");
     assert!((sheet.reflect - Vec3::new(0.2, 0.225, 0.25)).abs().max_element() < 1e-6, "{sheet:?}");
     let glass = &s.materials[1];
@@ -1164,7 +1235,7 @@ fn blend_transmission_and_mask_materials() {
     assert!(s.textures[colour.texture].srgb && !s.textures[transmission.texture].srgb);
     // t = 0.5 × 188/255 (linear); a = sRGB 188 decoded (0.5029).
     let (t, a) = (0.5 * 188.0 / 255.0, 0.502_886);
-    let sheet = glass.sheet(&s.textures, uv);
+    let sheet = glass.sheet(&s.textures, MaterialPoint::at_uv(uv));
     assert!((sheet.pass.x - t * a).abs() < 1e-4 && (sheet.reflect.x - (1.0 - t) * a).abs() < 1e-4, "{sheet:?}");
     assert_eq!(s.materials[2].alpha_mode, AlphaMode::Mask { cutoff: 0.25 });
     assert!(!s.materials[2].is_see_through() && blend.is_see_through() && glass.is_see_through());

@@ -239,7 +239,8 @@ fn with_a_cut_out_block_each_eye_matches_the_viewers_stereo_render() {
 }
 
 /// The same with the room's block made a see-through sheet: `BLEND` with alpha 0.6 and
-/// `KHR_materials_transmission` 0.8, tinted green, so both of a sheet's draws matter (it lets
+/// `KHR_materials_transmission` 0.8, tinted green and by its vertex colours (COLOR_0, which
+/// the page must multiply in as the viewer does), so both of a sheet's draws matter (it lets
 /// through 0.4 + 0.48·albedo of what lies behind and reflects 0.12·albedo of its light). The
 /// viewer composites it in linear radiance before the tone curve (tests/viewer.rs holds that);
 /// the page matches it only if it does the same. `view --stereo` of the room with the block
@@ -257,6 +258,22 @@ fn with_a_see_through_block_each_eye_matches_the_viewers_stereo_render() {
     used.as_array_mut().unwrap().push(json!("KHR_materials_transmission"));
     let block = gltf["meshes"].as_array().unwrap().iter().position(|m| m["name"] == "block").unwrap();
     gltf["meshes"][block]["primitives"][0]["material"] = json!(glass);
+    // Vertex colours (COLOR_0, normalised bytes in a buffer file of their own) tint it further.
+    let position = gltf["meshes"][block]["primitives"][0]["attributes"]["POSITION"].as_u64().unwrap() as usize;
+    let count = gltf["accessors"][position]["count"].as_u64().unwrap() as usize;
+    let colors: Vec<u8> =
+        (0..count).flat_map(|k| [(40 + 97 * k % 216) as u8, 255, (40 + 151 * k % 216) as u8, 255]).collect();
+    let buffers = gltf["buffers"].as_array_mut().unwrap();
+    std::fs::write(dir.path().join("colors.bin"), &colors).unwrap();
+    buffers.push(json!({"byteLength": colors.len(), "uri": "colors.bin"}));
+    let buffer = buffers.len() - 1;
+    let views = gltf["bufferViews"].as_array_mut().unwrap();
+    views.push(json!({"buffer": buffer, "byteLength": colors.len()}));
+    let view = views.len() - 1;
+    let accessors = gltf["accessors"].as_array_mut().unwrap();
+    accessors
+        .push(json!({"bufferView": view, "componentType": 5121, "normalized": true, "type": "VEC4", "count": count}));
+    gltf["meshes"][block]["primitives"][0]["attributes"]["COLOR_0"] = json!(accessors.len() - 1);
     let scene = dir.path().join("cornell_glass.gltf");
     std::fs::write(&scene, gltf.to_string()).unwrap();
     eyes_match_the_viewer(&scene, false, &[]);

@@ -207,7 +207,9 @@ fn cut_out_fragments_are_discarded_and_show_what_is_behind() {
 /// - a `BLEND` sheet of alpha 0.5: 5·0.5;
 /// - two `BLEND` sheets of alpha 0.5, the far one also emitting 1, listed near one first:
 ///   (5·0.5 + 1)·0.5 = 1.75 (drawn in the wrong order it would be 5·0.25 + 1 = 2.25);
-/// - an opaque screen: 0.
+/// - an opaque screen: 0;
+/// - the green glass and the half-covering sheet again, their colour and alpha from their
+///   vertices (glTF COLOR_0) instead of their material factors.
 ///
 /// Tolerance: 1.5 of 255 levels: the 8-bit target's rounding (half a level) plus the
 /// half-float radiance target's (2⁻¹¹ relative, under a tenth of a level here); the
@@ -223,8 +225,9 @@ fn see_through_sheets_show_what_is_behind_them_through_their_pass() {
     };
     let glass = Material { transmission: 1.0, ..diffuse(Rgb::new(0.2, 1.0, 0.2), Rgb::ZERO, true) };
     let square = |z: f32, r: f32| [Vec3::new(-r, -r, z), Vec3::new(r, -r, z), Vec3::new(r, r, z), Vec3::new(-r, r, z)];
-    // The centre pixel's colour with `sheets` (material, depth) in front of the wall.
-    let centre = |sheets: Vec<(Material, f32)>| {
+    // The centre pixel's colour with `sheets` (material, depth) in front of the wall, each
+    // with vertex colour `color` at every corner when given.
+    let centre_colored = |sheets: Vec<(Material, f32)>, color: Option<glam::Vec4>| {
         let mut b = SceneBuilder::new();
         let glow = b.material(diffuse(Rgb::splat(0.5), Rgb::splat(5.0), false));
         b.quad("wall", square(-1.0, 3.0), glow);
@@ -232,11 +235,16 @@ fn see_through_sheets_show_what_is_behind_them_through_their_pass() {
             let id = b.material(m);
             b.quad(&format!("sheet {i}"), square(z, 1.0), id);
         }
-        let mut renderer = unlit_renderer(b.build());
+        let mut scene = b.build();
+        for mesh in &mut scene.meshes[1..] {
+            mesh.colors = color.map(|c| vec![c; mesh.positions.len()]);
+        }
+        let mut renderer = unlit_renderer(scene);
         let camera = Camera::look_at(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, 50f32.to_radians(), 6.0);
         let img = renderer.render_offscreen(&camera, 160, 120, &DrawSettings::default()).unwrap();
         img.get_pixel(80, 60).0
     };
+    let centre = |sheets: Vec<(Material, f32)>| centre_colored(sheets, None);
     // The tone curve (1 − e^(−L) at exposure 1) and sRGB encoding, in 255 levels.
     let shown = |radiance: [f32; 3]| {
         radiance.map(|l| {
@@ -259,6 +267,15 @@ fn see_through_sheets_show_what_is_behind_them_through_their_pass() {
     check("a half-covering sheet", centre(vec![(half(0.0), 0.0)]), [2.5; 3]);
     check("two sheets, the far one glowing", centre(vec![(half(0.0), 0.5), (half(1.0), 0.0)]), [1.75; 3]);
     check("an opaque screen", centre(vec![(diffuse(Rgb::ONE, Rgb::ZERO, true), 0.0)]), [0.0; 3]);
+    // Vertex colours (COLOR_0) multiply the base colour and alpha: white glass coloured green
+    // at its vertices is the green glass; a sheet of alpha 1 with vertex alpha 0.5, the
+    // half-covering one.
+    let white_glass = Material { transmission: 1.0, ..diffuse(Rgb::ONE, Rgb::ZERO, true) };
+    let green = glam::Vec4::new(0.2, 1.0, 0.2, 1.0);
+    check("glass green by its vertices", centre_colored(vec![(white_glass, 0.0)], Some(green)), [1.0, 5.0, 1.0]);
+    let whole = Material { base_color: glam::Vec4::ONE, ..half(0.0) };
+    let halved = Some(glam::Vec4::new(1.0, 1.0, 1.0, 0.5));
+    check("a sheet half-covering by its vertices", centre_colored(vec![(whole, 0.0)], halved), [2.5; 3]);
 }
 
 /// Where no surface is, the viewer shows the sky the scene's rays see, the right way round:

@@ -18,7 +18,9 @@ import {
 } from "./shaders.js";
 import { LightMap } from "./lightmap.js";
 
-const VERTEX_FLOATS = 9;
+// 4-byte words a vertex has in GEOMETRY (protocol.rs VERTEX_WORDS): 9 floats, then the
+// vertex colour as 4 unorm16.
+const VERTEX_WORDS = 11;
 const SNAP_TURN = Math.PI / 6;
 // The viewer's background (src/gpu/surface.rs: linear 0.02, 0.02, 0.025), sRGB-encoded as
 // the page's framebuffer wants.
@@ -210,18 +212,20 @@ export function start(canvas, ui = {}) {
     state.buffer = gl.createBuffer();
     gl.bindBuffer(gl.ARRAY_BUFFER, state.buffer);
     gl.bufferData(gl.ARRAY_BUFFER, floats, gl.STATIC_DRAW);
-    const stride = VERTEX_FLOATS * 4;
+    const stride = VERTEX_WORDS * 4;
     [[0, 3, 0], [1, 2, 3], [2, 2, 5], [3, 2, 7]].forEach(([loc, n, off]) => {
       gl.enableVertexAttribArray(loc);
       gl.vertexAttribPointer(loc, n, gl.FLOAT, false, stride, off * 4);
     });
+    gl.enableVertexAttribArray(4);
+    gl.vertexAttribPointer(4, 4, gl.UNSIGNED_SHORT, true, stride, 9 * 4);
     gl.bindVertexArray(null);
     for (const b of state.drawLists?.sheets ?? []) {
       const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
-      for (let v = b.first; v < b.first + b.count && (v + 1) * VERTEX_FLOATS <= floats.length; v++) {
+      for (let v = b.first; v < b.first + b.count && (v + 1) * VERTEX_WORDS <= floats.length; v++) {
         for (let k = 0; k < 3; k++) {
-          lo[k] = Math.min(lo[k], floats[v * VERTEX_FLOATS + k]);
-          hi[k] = Math.max(hi[k], floats[v * VERTEX_FLOATS + k]);
+          lo[k] = Math.min(lo[k], floats[v * VERTEX_WORDS + k]);
+          hi[k] = Math.max(hi[k], floats[v * VERTEX_WORDS + k]);
         }
       }
       b.centre = [0, 1, 2].map((k) => (lo[k] <= hi[k] ? 0.5 * (lo[k] + hi[k]) : 0));

@@ -21,17 +21,20 @@ layout(location = 0) in vec3 position;
 layout(location = 1) in vec2 uv0;
 layout(location = 2) in vec2 lightmapFront;
 layout(location = 3) in vec2 lightmapBack;
+layout(location = 4) in vec4 color;
 uniform mat4 viewProj;
 out vec3 world;
 out vec2 vUv0;
 out vec2 vFront;
 out vec2 vBack;
+out vec4 vColor;
 void main() {
   gl_Position = viewProj * vec4(position, 1.0);
   world = position;
   vUv0 = uv0;
   vFront = lightmapFront;
   vBack = lightmapBack;
+  vColor = color;
 }`;
 
 // The twin of shaders/lightmap.inc.wgsl and surface.wgsl's lit view.
@@ -89,6 +92,7 @@ in vec3 world;
 in vec2 vUv0;
 in vec2 vFront;
 in vec2 vBack;
+in vec4 vColor;
 out vec4 colour;
 
 // TABLE_W, POOL_COLUMNS and PAGE_SIDE are powers of two: shifts and masks, not integer
@@ -181,7 +185,7 @@ vec3 lm_layer_irradiance(uint layer, uvec3 c, vec3 p, vec2 uv) {
 ${TONE_CURVE}
 
 void main() {
-  vec4 baseSample = baseColor * texture(baseColorTexture, vUv0);
+  vec4 baseSample = baseColor * texture(baseColorTexture, vUv0) * vColor;
   float alpha = baseSample.a;
 #ifdef CUT_OUT
   if (alpha < alphaCutoff) discard;

@@ -124,8 +124,7 @@ impl AtlasFace {
     /// [`SceneGeometry::point`]).
     #[inline]
     pub fn uv_at(&self, u: f32, v: f32) -> Vec2 {
-        let [a, b, c] = self.uv;
-        a + (b - a) * u + (c - a) * v
+        crate::scene::geometry::at_barycentrics(self.uv, u, v)
     }
 
     /// Corner UVs in LOD-`lod` pixels, f64.

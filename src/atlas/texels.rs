@@ -592,20 +592,25 @@ impl TexelSubset {
     }
 }
 
-/// Each material's albedo where no texture varies it (the same at every point: what
-/// [`TexelMap::build`] gives each of its texels; [`crate::scene::Material::uniform_albedo`]),
-/// worked out once: a lean bake asks it of a texel's face for every texel of every batch.
+/// Each mesh's albedo where neither a texture nor vertex colours vary it (the same at every
+/// point: what [`TexelMap::build`] gives each of its texels;
+/// [`SceneGeometry::uniform_albedo`]), worked out once: a lean bake asks it of a texel's face
+/// for every texel of every batch.
 pub struct UniformAlbedos(Vec<Option<Rgb>>);
 
 impl UniformAlbedos {
     pub fn new(scene: &Scene) -> Self {
-        UniformAlbedos(scene.materials.iter().map(|m| m.uniform_albedo(&scene.textures)).collect())
+        let of_mesh = |m: &crate::scene::Mesh| {
+            let material = scene.materials.get(m.material as usize)?;
+            m.colors.is_none().then(|| material.uniform_albedo(&scene.textures))?
+        };
+        UniformAlbedos(scene.meshes.iter().map(of_mesh).collect())
     }
 
-    /// The albedo of face `face`'s material, `None` where a texture varies it.
+    /// The albedo of face `face`, `None` where a texture or vertex colours vary it.
     #[inline]
     pub fn of_face(&self, geom: &SceneGeometry, atlas: &Atlas, face: FaceId) -> Option<Rgb> {
-        self.0[geom.material[atlas.faces[face as usize].tri as usize] as usize]
+        self.0[geom.mesh[atlas.faces[face as usize].tri as usize] as usize]
     }
 }
 

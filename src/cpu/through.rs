@@ -19,13 +19,17 @@ use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::sky::SkySeen;
 use crate::bundle::target::BakeTarget;
 use crate::bundle::through::{Layer, emit_through, exchange_through};
-use crate::scene::{AlphaMode, Rgb, Scene, SceneGeometry};
+use crate::scene::{AlphaMode, MaterialPoint, Rgb, Scene, SceneGeometry};
 
 const OPAQUE: u32 = u32::MAX;
+/// Set on [`Passing::material`] where the triangle's mesh has vertex colours: its alpha and
+/// tint vary over it whatever its material's textures.
+const COLORED: u32 = 1 << 31;
 
 /// Per scene: which triangles may let light through, and how.
 pub struct Passing {
-    /// Per triangle: its material when that material may let light through, else [`OPAQUE`].
+    /// Per triangle: its material when that material may let light through (with
+    /// [`COLORED`]), else [`OPAQUE`].
     material: Vec<u32>,
     /// Per material: its transmittance where no texture varies it (`None` inside: cut out).
     uniform: Vec<Option<Option<Rgb>>>,
@@ -38,14 +42,22 @@ impl Passing {
         if !scene.materials.iter().any(passes) {
             return None;
         }
-        let material =
-            geom.material.iter().map(|&m| if passes(&scene.materials[m as usize]) { m } else { OPAQUE }).collect();
+        let material = (0..geom.len())
+            .map(|t| {
+                let m = geom.material[t];
+                match passes(&scene.materials[m as usize]) {
+                    true if geom.has_colors(scene, t) => m | COLORED,
+                    true => m,
+                    false => OPAQUE,
+                }
+            })
+            .collect();
         let uniform = scene
             .materials
             .iter()
             .map(|m| {
                 (m.base_color_texture.is_none() && m.transmission_texture.is_none())
-                    .then(|| transmittance(m, &scene.textures, Vec2::ZERO))
+                    .then(|| transmittance(m, &scene.textures, MaterialPoint::default()))
             })
             .collect();
         Some(Passing { material, uniform })
@@ -71,16 +83,16 @@ pub struct Line<'a> {
     pub cy: f32,
 }
 
-/// The transmittance of material `m` at `uv0`; `None` where it is cut out (`MASK` below its
+/// The transmittance of material `m` at `p`; `None` where it is cut out (`MASK` below its
 /// cutoff: no surface, no texel lit). A `BLEND` surface with α = 0 passes everything too but
 /// is kept: its texels still measure the light there (and reflect none of it).
-fn transmittance(m: &crate::scene::Material, textures: &[crate::scene::Texture], uv0: Vec2) -> Option<Rgb> {
+fn transmittance(m: &crate::scene::Material, textures: &[crate::scene::Texture], p: MaterialPoint) -> Option<Rgb> {
     if let AlphaMode::Mask { cutoff } = m.alpha_mode
-        && m.alpha(textures, uv0) < cutoff
+        && m.alpha(textures, p) < cutoff
     {
         return None;
     }
-    Some(m.sheet(textures, uv0).pass)
+    Some(m.sheet(textures, p).pass)
 }
 
 impl Passing {
@@ -103,12 +115,14 @@ impl Passing {
         if m == OPAQUE {
             return Some(Rgb::ZERO);
         }
-        if let Some(t) = self.uniform[m as usize] {
+        if m & COLORED == 0
+            && let Some(t) = self.uniform[m as usize]
+        {
             return t;
         }
         let (u, v) = bary.unwrap_or_else(|| projected_barycentrics(line, tri));
-        let uv = line.geom.texture_uv(line.scene, tri, u, v);
-        transmittance(&line.scene.materials[m as usize], &line.scene.textures, uv)
+        let p = line.geom.material_point(line.scene, tri, u, v);
+        transmittance(&line.scene.materials[(m & !COLORED) as usize], &line.scene.textures, p)
     }
 
     /// Each fragment's transmittance into `scratch`, cut-outs left out.

@@ -4,7 +4,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 use serde_json::{Map, Value, json};
 
 use super::geometry::{SidePrimitive, build_side};
@@ -86,6 +86,11 @@ impl Bin {
     fn vec2(&mut self, data: &[Vec2]) -> usize {
         let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_array()).flat_map(f32::to_le_bytes).collect();
         self.accessor(&bytes, ARRAY_BUFFER, json!({ "componentType": FLOAT, "type": "VEC2", "count": data.len() }))
+    }
+
+    fn vec4(&mut self, data: &[Vec4]) -> usize {
+        let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_array()).flat_map(f32::to_le_bytes).collect();
+        self.accessor(&bytes, ARRAY_BUFFER, json!({ "componentType": FLOAT, "type": "VEC4", "count": data.len() }))
     }
 
     fn indices(&mut self, triangles: &[[u32; 3]]) -> usize {
@@ -412,6 +417,9 @@ fn write_primitive(bin: &mut Bin, prim: &SidePrimitive, material: u32) -> Value 
     if let Some(uv1) = &prim.original_uv1 {
         attributes.insert("TEXCOORD_2".into(), json!(bin.vec2(uv1)));
     }
+    if let Some(colors) = &prim.colors {
+        attributes.insert("COLOR_0".into(), json!(bin.vec4(colors)));
+    }
     json!({ "attributes": attributes, "indices": bin.indices(&prim.triangles), "material": material })
 }
 
@@ -427,7 +435,8 @@ fn dropped_content(src: &Value, source: &SourceDocument) -> Vec<String> {
         for prim in meshes.get(mesh as usize).map_or(&[][..], |m| array(m, "primitives")) {
             if let Some(attrs) = prim.get("attributes").and_then(Value::as_object) {
                 for name in attrs.keys() {
-                    if !matches!(name.as_str(), "POSITION" | "NORMAL" | "TEXCOORD_0" | "TEXCOORD_1") {
+                    // COLOR_0 is carried (or, white everywhere, left out as changing nothing).
+                    if !matches!(name.as_str(), "POSITION" | "NORMAL" | "TEXCOORD_0" | "TEXCOORD_1" | "COLOR_0") {
                         tally(&mut attributes, name.clone());
                     }
                 }

@@ -1,11 +1,11 @@
 //! New vertex data for one side of one mesh instance: world-space positions and normals, the
-//! original TEXCOORD_0 (and TEXCOORD_1 when a material texture reads it), and the light-map
-//! layout as TEXCOORD_1. A vertex is split wherever the faces around it sit in different
+//! original TEXCOORD_0 (and TEXCOORD_1 when a material texture reads it), vertex colours,
+//! and the light-map layout as TEXCOORD_1. A vertex is split wherever the faces around it sit in different
 //! places of the atlas (chart seams, and always between the front and the back).
 
 use std::collections::HashMap;
 
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 
 use crate::atlas::Atlas;
 use crate::scene::{Mesh, Side, TriangleId};
@@ -21,6 +21,8 @@ pub(super) struct SidePrimitive {
     pub uv0: Vec<Vec2>,
     /// The file's own TEXCOORD_1, written as TEXCOORD_2 when a material texture reads it.
     pub original_uv1: Option<Vec<Vec2>>,
+    /// COLOR_0 (linear RGBA), when the mesh has vertex colours.
+    pub colors: Option<Vec<Vec4>>,
     /// Light-map UV in [0, 1] over the whole atlas (any LOD).
     pub lightmap_uv: Vec<Vec2>,
     /// Counter-clockwise triangles, as seen from the side's normal.
@@ -44,8 +46,11 @@ pub(super) fn build_side(
         Side::Back => [0, 2, 1],
     };
     let size = Vec2::new(atlas.width as f32, atlas.height as f32);
-    let mut out =
-        SidePrimitive { original_uv1: if keep_uv1 { Some(Vec::new()) } else { None }, ..SidePrimitive::default() };
+    let mut out = SidePrimitive {
+        original_uv1: if keep_uv1 { Some(Vec::new()) } else { None },
+        colors: mesh.colors.as_ref().map(|_| Vec::new()),
+        ..SidePrimitive::default()
+    };
     // (source vertex, light-map UV bits) → new vertex: a vertex is shared only by faces that
     // put it at the same place of the atlas.
     let mut index: HashMap<(u32, [u32; 2]), u32> = HashMap::new();
@@ -66,6 +71,9 @@ pub(super) fn build_side(
                     // A material reads TEXCOORD_1 but the file had none (or an unusable one):
                     // the file was already broken there; zeros keep the output valid.
                     dst.push(mesh.uv1.as_ref().map_or(Vec2::ZERO, |src| src[vi]));
+                }
+                if let (Some(dst), Some(src)) = (&mut out.colors, &mesh.colors) {
+                    dst.push(src[vi]);
                 }
                 out.lightmap_uv.push(uv);
                 (out.positions.len() - 1) as u32
@@ -92,6 +100,7 @@ mod tests {
             normals: vec![Vec3::Z; 4],
             uv0: Some(vec![Vec2::ZERO, Vec2::X, Vec2::ONE, Vec2::Y]),
             uv1: None,
+            colors: None,
             triangles: vec![[0, 1, 2], [0, 2, 3]],
         };
         Scene {

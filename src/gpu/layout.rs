@@ -238,6 +238,9 @@ pub struct SurfaceTriangle {
     pub material: u32,
     /// 1 when the triangle's emission travels with the global bundles.
     pub carried: u32,
+    /// Its corners' vertex colours: `surface_colors[colors..colors + 3]`, or `NO_COLOR`.
+    pub colors: u32,
+    pub _pad: u32,
 }
 
 /// `SurfaceMaterial` (surface_radiance.inc.wgsl).
@@ -286,11 +289,15 @@ pub struct SurfaceVertex {
     pub lightmap_front: [f32; 2],
     /// Atlas UV of the back face; negative when the triangle has none.
     pub lightmap_back: [f32; 2],
+    /// Vertex colour (COLOR_0 as [`crate::scene::color_unorm16`] holds it); white where the
+    /// mesh has none.
+    pub color: [u16; 4],
 }
 
 impl SurfaceVertex {
-    pub const ATTRIBUTES: [wgpu::VertexAttribute; 4] =
-        wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x2, 2 => Float32x2, 3 => Float32x2];
+    pub const ATTRIBUTES: [wgpu::VertexAttribute; 5] = wgpu::vertex_attr_array![
+        0 => Float32x3, 1 => Float32x2, 2 => Float32x2, 3 => Float32x2, 4 => Unorm16x4
+    ];
 
     pub fn buffer_layout() -> wgpu::VertexBufferLayout<'static> {
         wgpu::VertexBufferLayout {
@@ -436,7 +443,12 @@ mod tests {
                 opaque_zero
             ]
         );
-        assert_layout!("bundle_resolve.wgsl", SurfaceTriangle, "SurfaceTriangle", [uv0, material, carried]);
+        assert_layout!(
+            "bundle_resolve.wgsl",
+            SurfaceTriangle,
+            "SurfaceTriangle",
+            [uv0, material, carried, colors, _pad]
+        );
         assert_layout!(
             "bundle_resolve.wgsl",
             SurfaceMaterial,
@@ -484,6 +496,7 @@ mod tests {
             offset_of!(SurfaceVertex, uv0),
             offset_of!(SurfaceVertex, lightmap_front),
             offset_of!(SurfaceVertex, lightmap_back),
+            offset_of!(SurfaceVertex, color),
         ];
         assert_eq!(offsets, fields.map(|f| f as u64));
     }

@@ -100,6 +100,7 @@ impl SceneGpu {
             let material = geom.material[t] as usize;
             let Some(out) = per_material.get_mut(material) else { continue };
             let uv0 = geom.texture_uv_corners(scene, t);
+            let colors = geom.color_corners(scene, t).unwrap_or([Vec4::ONE; 3]);
             let faces = atlas.face_of.get(t).copied().unwrap_or([NO_FACE; 2]);
             let face_uv = |f: u32, i: usize| {
                 if f == NO_FACE { NO_UV } else { atlas.faces[f as usize].uv[i].to_array() }
@@ -110,6 +111,7 @@ impl SceneGpu {
                     uv0: uv0.to_array(),
                     lightmap_front: face_uv(faces[0], i),
                     lightmap_back: face_uv(faces[1], i),
+                    color: crate::scene::color_unorm16(colors[i]),
                 });
             }
         }

@@ -7,9 +7,10 @@
 //! - group 1: the shown light map's mirror ([`super::lightmap`], lightmap.inc.wgsl), kept in
 //!   step with each batch's snapshot by partial page uploads;
 //! - group 2: the scene's materials ([`SceneSurfaces`], surface_radiance.inc.wgsl): per
-//!   triangle its TEXCOORD_0 corners, material and whether the bundles carry its emission;
-//!   per material its factors, alpha mode, transmission and textures; the textures as RGBA8
-//!   words; the CPU's sRGB table. The GPU mirror of `Scene::materials` and `textures`,
+//!   triangle its texture coordinates at its corners, material, whether the bundles carry
+//!   its emission and where its corners' vertex colours are; per material its factors, alpha
+//!   mode, transmission and textures; the textures as RGBA8 words; the CPU's sRGB table; the
+//!   vertex colours. The GPU mirror of `Scene::materials` and `textures`,
 //!   uploaded once per backend (at its start when the scene lets light through surfaces,
 //!   else at the first bake with a foreign source).
 //!
@@ -31,8 +32,10 @@ use crate::scene::{AlphaMode, Material};
 
 /// `NO_TEXTURE` in the shader.
 const NO_TEXTURE: u32 = u32::MAX;
+/// `NO_COLOR` in the shader.
+const NO_COLOR: u32 = u32::MAX;
 /// Storage buffers of group 2.
-const SURFACE_BINDINGS: u32 = 5;
+const SURFACE_BINDINGS: u32 = 6;
 
 /// Bind group layout of group 2 (surface_radiance.inc.wgsl).
 pub fn bind_group_layout(device: &wgpu::Device) -> wgpu::BindGroupLayout {
@@ -54,6 +57,8 @@ pub struct SceneSurfaces {
 /// The records of group 2 for `scene`.
 struct SurfaceRecords {
     triangles: Vec<SurfaceTriangle>,
+    /// The corners' vertex colours of the triangles whose meshes have them, three each.
+    colors: Vec<[f32; 4]>,
     materials: Vec<SurfaceMaterial>,
     headers: Vec<TextureHeader>,
     texels: Vec<u32>,
@@ -101,18 +106,29 @@ impl SurfaceRecords {
         let (s, geom) = (&scene.scene, &scene.geom);
         let words: u64 = s.textures.iter().map(|t| t.rgba8.len() as u64).sum();
         let triangle_bytes = size_of::<SurfaceTriangle>() as u64 * geom.len() as u64;
-        for (what, bytes) in [("textures", 4 * words), ("triangle materials", triangle_bytes)] {
+        let colored = (0..geom.len()).filter(|&t| geom.has_colors(s, t)).count() as u64;
+        let color_bytes = 3 * 16 * colored;
+        for (what, bytes) in
+            [("textures", 4 * words), ("triangle materials", triangle_bytes), ("vertex colours", color_bytes)]
+        {
             if bytes > limit {
                 return Err(GpuError::Validation(format!(
                     "the scene's {what} need {bytes} bytes, over the device's storage binding limit of {limit}"
                 )));
             }
         }
+        let mut colors = Vec::with_capacity(3 * colored as usize);
         let triangles = (0..geom.len())
             .map(|t| SurfaceTriangle {
                 uv0: geom.texture_uv_corners(s, t).map(|p| p.to_array()),
                 material: geom.material[t],
                 carried: scene.emitters.carried_by_bundles[t] as u32,
+                colors: geom.color_corners(s, t).map_or(NO_COLOR, |corners| {
+                    let first = colors.len() as u32;
+                    colors.extend(corners.map(|c| c.to_array()));
+                    first
+                }),
+                _pad: 0,
             })
             .collect();
         let texture = |r: &Option<crate::scene::TextureRef>| r.as_ref().map_or(NO_TEXTURE, |r| r.texture as u32);
@@ -134,7 +150,7 @@ impl SurfaceRecords {
             });
             texels.extend(t.rgba8.iter().map(|&p| u32::from_le_bytes(p)));
         }
-        Ok(SurfaceRecords { triangles, materials, headers, texels })
+        Ok(SurfaceRecords { triangles, colors, materials, headers, texels })
     }
 }
 
@@ -165,6 +181,7 @@ impl SceneSurfaces {
             storage(&gpu.device, "texture headers", bytemuck::cast_slice(&records.headers)),
             storage(&gpu.device, "texture texels", bytemuck::cast_slice(&records.texels)),
             storage(&gpu.device, "sRGB table", bytemuck::cast_slice(&lut[..])),
+            storage(&gpu.device, "vertex colours", bytemuck::cast_slice(&records.colors)),
         ];
         let bytes = buffers.iter().map(|b| b.size()).sum();
         let bind_group = bind_buffers(&gpu.device, layout, &buffers);

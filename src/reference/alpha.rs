@@ -5,21 +5,34 @@
 //!
 //! The BVH owns this (no borrow of the [`Scene`]). Masked materials that are not see-through
 //! are cloned with their base-colour texture replaced by an alpha-only copy, so the cut-out
-//! test is exactly [`Material::alpha`] at the hit's TEXCOORD_0; see-through materials keep
-//! their textures (shared pixels, no copy), since their sheet needs the albedo too. Opaque
-//! triangles have no entry and never reach this code (the BVH flags leaves that contain
-//! entries).
+//! test is exactly [`Material::alpha`] at the hit's texture coordinate and vertex colour;
+//! see-through materials keep their textures (shared pixels, no copy), since their sheet
+//! needs the albedo too. Opaque triangles have no entry and never reach this code (the BVH
+//! flags leaves that contain entries).
 
-use glam::Vec2;
+use glam::{Vec2, Vec4};
 
-use crate::scene::{AlphaMode, Material, Scene, SceneGeometry, Sheet, Texture, TriangleId};
+use crate::scene::geometry::at_barycentrics;
+use crate::scene::{AlphaMode, Material, MaterialPoint, Scene, SceneGeometry, Sheet, Texture, TriangleId};
 
 const NONE: u32 = u32::MAX;
 
 #[derive(Clone, Debug)]
 struct MaskedTriangle {
     uv0: [Vec2; 3],
+    /// Its corners' vertex colours (COLOR_0 scales alpha and tint), when its mesh has them.
+    colors: Option<[Vec4; 3]>,
     material: u32,
+}
+
+impl MaskedTriangle {
+    /// Where its material is read at barycentrics (u, v), interpolated as
+    /// [`SceneGeometry::material_point`] does.
+    #[inline]
+    fn point(&self, u: f32, v: f32) -> MaterialPoint {
+        let color = self.colors.map(|c| at_barycentrics(c, u, v));
+        MaterialPoint { uv: at_barycentrics(self.uv0, u, v), color }
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -102,7 +115,7 @@ impl AlphaMasks {
             }
             let uv0 = geom.texture_uv_corners(scene, t);
             out.slot[t] = out.triangles.len() as u32;
-            out.triangles.push(MaskedTriangle { uv0, material: lm });
+            out.triangles.push(MaskedTriangle { uv0, colors: geom.color_corners(scene, t), material: lm });
         }
         out
     }
@@ -137,8 +150,7 @@ impl AlphaMasks {
         if !mm.see_through {
             return None;
         }
-        let [a, b, c] = mt.uv0;
-        Some(mm.material.sheet(&self.textures, a + (b - a) * u + (c - a) * v))
+        Some(mm.material.sheet(&self.textures, mt.point(u, v)))
     }
 
     /// Whether the surface exists at barycentrics (u, v) of `tri`: true for unmasked
@@ -152,8 +164,6 @@ impl AlphaMasks {
         let mt = &self.triangles[s as usize];
         let mm = &self.materials[mt.material as usize];
         let Some(cutoff) = mm.cutoff else { return true };
-        let [a, b, c] = mt.uv0;
-        let uv = a + (b - a) * u + (c - a) * v;
-        mm.material.alpha(&self.textures, uv) >= cutoff
+        mm.material.alpha(&self.textures, mt.point(u, v)) >= cutoff
     }
 }

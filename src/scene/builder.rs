@@ -69,6 +69,7 @@ impl SceneBuilder {
             normals,
             uv0,
             uv1: None,
+            colors: None,
             triangles,
         });
         self

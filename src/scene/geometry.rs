@@ -1,11 +1,22 @@
 //! Flat per-triangle view of a [`Scene`]: what ray tracers, rasterisers and the atlas iterate.
 
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 
-use super::{MaterialId, Rgb, Scene};
+use super::{MaterialId, MaterialPoint, Rgb, Scene};
 
 /// Index of a triangle over all meshes of a scene, in mesh order.
 pub type TriangleId = u32;
+
+/// The value at barycentrics (u, v) (weights of corners 1 and 2) of one given at a
+/// triangle's corners, as `a + (b − a)·u + (c − a)·v`: the order of operations every
+/// interpolation of corner values follows, the GPU's twins included.
+#[inline]
+pub fn at_barycentrics<T>([a, b, c]: [T; 3], u: f32, v: f32) -> T
+where
+    T: Copy + std::ops::Add<Output = T> + std::ops::Sub<Output = T> + std::ops::Mul<f32, Output = T>,
+{
+    a + (b - a) * u + (c - a) * v
+}
 
 /// World-space triangles of a scene laid out flat, indexed by [`TriangleId`].
 #[derive(Clone, Debug, Default)]
@@ -70,8 +81,7 @@ impl SceneGeometry {
     /// Point on triangle `t` at barycentrics (u, v) (weights of corners 1 and 2).
     #[inline]
     pub fn point(&self, t: TriangleId, u: f32, v: f32) -> Vec3 {
-        let [a, b, c] = self.corners[t as usize];
-        a + (b - a) * u + (c - a) * v
+        at_barycentrics(self.corners[t as usize], u, v)
     }
 
     /// Where triangle `t`'s material reads its textures at its corners
@@ -86,16 +96,46 @@ impl SceneGeometry {
     /// Where triangle `t`'s material reads its textures at barycentrics (u, v).
     #[inline]
     pub fn texture_uv(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Vec2 {
-        let [a, b, c] = self.texture_uv_corners(scene, t as usize);
-        a + (b - a) * u + (c - a) * v
+        at_barycentrics(self.texture_uv_corners(scene, t as usize), u, v)
+    }
+
+    /// Triangle `t`'s corners' vertex colours (`None`: its mesh has none).
+    #[inline]
+    pub fn color_corners(&self, scene: &Scene, t: usize) -> Option<[Vec4; 3]> {
+        scene.meshes[self.mesh[t] as usize].color_corners(self.local[t] as usize)
+    }
+
+    /// Whether triangle `t`'s mesh has vertex colours.
+    #[inline]
+    pub fn has_colors(&self, scene: &Scene, t: usize) -> bool {
+        scene.meshes[self.mesh[t] as usize].colors.is_some()
+    }
+
+    /// Where triangle `t`'s material is read at barycentrics (u, v): texture coordinate and
+    /// vertex colour, each interpolated as the GPU's `surface_radiance.inc.wgsl` does.
+    #[inline]
+    pub fn material_point(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> MaterialPoint {
+        let color = self.color_corners(scene, t as usize).map(|c| at_barycentrics(c, u, v));
+        MaterialPoint { uv: self.texture_uv(scene, t, u, v), color }
+    }
+
+    /// Triangle `t`'s reflectance where it is the same at every point (its material's
+    /// [`Material::uniform_albedo`](crate::scene::Material::uniform_albedo), on a mesh without
+    /// vertex colours), `None` where a texture or vertex colours vary it.
+    #[inline]
+    pub fn uniform_albedo(&self, scene: &Scene, t: usize) -> Option<Rgb> {
+        if self.has_colors(scene, t) {
+            return None;
+        }
+        scene.materials[self.material[t] as usize].uniform_albedo(&scene.textures)
     }
 
     /// Diffuse reflectance of triangle `t` at barycentrics (u, v)
     /// ([`Material::reflectance`](crate::scene::Material::reflectance)).
     pub fn albedo(&self, scene: &Scene, t: TriangleId, u: f32, v: f32) -> Rgb {
         let m = &scene.materials[self.material[t as usize] as usize];
-        m.uniform_albedo(&scene.textures)
-            .unwrap_or_else(|| m.reflectance(&scene.textures, self.texture_uv(scene, t, u, v)))
+        self.uniform_albedo(scene, t as usize)
+            .unwrap_or_else(|| m.reflectance(&scene.textures, self.material_point(scene, t, u, v)))
     }
 
     /// Emitted radiance of triangle `t` at barycentrics (u, v), from its emitting side(s).

@@ -158,38 +158,51 @@ impl Material {
             .map_or_else(TextureUv::default, |t| t.uv())
     }
 
-    /// Diffuse albedo at texture coordinate `uv0` (linear RGB, clamped to [0, 1]).
-    pub fn albedo(&self, textures: &[Texture], uv0: Vec2) -> Rgb {
+    /// What multiplies the base-colour factor at `p`: the base colour texture's value times
+    /// the vertex colour, either alone, or `None` (the factor alone). The GPU's twin
+    /// (`surface_radiance.inc.wgsl`) multiplies in the same order.
+    #[inline]
+    fn base_sample(&self, textures: &[Texture], p: MaterialPoint) -> Option<Vec4> {
+        let texel = self.base_color_texture.as_ref().map(|t| textures[t.texture].sample(p.uv));
+        match (texel, p.color) {
+            (Some(t), Some(c)) => Some(t * c),
+            (t, c) => t.or(c),
+        }
+    }
+
+    /// Diffuse albedo at `p` (linear RGB, clamped to [0, 1]).
+    pub fn albedo(&self, textures: &[Texture], p: MaterialPoint) -> Rgb {
         let mut c = self.base_color.truncate();
-        if let Some(t) = &self.base_color_texture {
-            c *= textures[t.texture].sample(uv0).truncate();
+        if let Some(s) = self.base_sample(textures, p) {
+            c *= s.truncate();
         }
         c.clamp(Vec3::ZERO, Vec3::ONE)
     }
 
-    /// The albedo light maps reflect with at `uv0`: [`Sheet::reflect`] where the surface
+    /// The albedo light maps reflect with at `p`: [`Sheet::reflect`] where the surface
     /// exists. A cut-out (`Mask`) is whole where it exists and absent elsewhere (nothing is
     /// lit there), so its reflectance is the albedo; a `Blend` surface reflects the covered
     /// fraction α, a transmissive one the fraction 1 − t of that.
-    pub fn reflectance(&self, textures: &[Texture], uv0: Vec2) -> Rgb {
+    pub fn reflectance(&self, textures: &[Texture], p: MaterialPoint) -> Rgb {
         if !self.is_see_through() {
-            return self.albedo(textures, uv0);
+            return self.albedo(textures, p);
         }
-        self.sheet(textures, uv0).reflect
+        self.sheet(textures, p).reflect
     }
 
     /// The reflectance ([`reflectance`](Self::reflectance)) where it is the same at every
-    /// point (no texture varies it), `None` where a texture does.
+    /// point of a mesh without vertex colours (no texture varies it), `None` where a texture
+    /// does.
     pub fn uniform_albedo(&self, textures: &[Texture]) -> Option<Rgb> {
         (self.base_color_texture.is_none() && self.transmission_texture.is_none())
-            .then(|| self.reflectance(textures, Vec2::ZERO))
+            .then(|| self.reflectance(textures, MaterialPoint::default()))
     }
 
-    /// Alpha at `uv0` (factor × texture alpha).
-    pub fn alpha(&self, textures: &[Texture], uv0: Vec2) -> f32 {
+    /// Alpha at `p` (factor × texture alpha × vertex alpha).
+    pub fn alpha(&self, textures: &[Texture], p: MaterialPoint) -> f32 {
         let mut a = self.base_color.w;
-        if let Some(t) = &self.base_color_texture {
-            a *= textures[t.texture].sample(uv0).w;
+        if let Some(s) = self.base_sample(textures, p) {
+            a *= s.w;
         }
         a
     }
@@ -206,30 +219,31 @@ impl Material {
         self.alpha_mode == AlphaMode::Blend || self.transmission > 0.0
     }
 
-    /// The fraction of the light meeting the surface at `uv0` that interacts with it
+    /// The fraction of the light meeting the surface at `p` that interacts with it
     /// ([`AlphaMode`]), in [0, 1].
-    pub fn coverage(&self, textures: &[Texture], uv0: Vec2) -> f32 {
+    pub fn coverage(&self, textures: &[Texture], p: MaterialPoint) -> f32 {
         match self.alpha_mode {
             AlphaMode::Opaque => 1.0,
-            AlphaMode::Mask { cutoff } => (self.alpha(textures, uv0) >= cutoff) as u32 as f32,
-            AlphaMode::Blend => self.alpha(textures, uv0).clamp(0.0, 1.0),
+            AlphaMode::Mask { cutoff } => (self.alpha(textures, p) >= cutoff) as u32 as f32,
+            AlphaMode::Blend => self.alpha(textures, p).clamp(0.0, 1.0),
         }
     }
 
-    /// Transmission at `uv0`: factor × the texture's red channel, in [0, 1].
-    pub fn transmission_at(&self, textures: &[Texture], uv0: Vec2) -> f32 {
+    /// Transmission at texture coordinate `uv`: factor × the texture's red channel, in
+    /// [0, 1] (vertex colours do not scale it).
+    pub fn transmission_at(&self, textures: &[Texture], uv: Vec2) -> f32 {
         let mut t = self.transmission;
         if let Some(tex) = &self.transmission_texture {
-            t *= textures[tex.texture].sample(uv0).x;
+            t *= textures[tex.texture].sample(uv).x;
         }
         t.clamp(0.0, 1.0)
     }
 
-    /// What the surface does with light meeting it at `uv0` ([`Sheet`]).
-    pub fn sheet(&self, textures: &[Texture], uv0: Vec2) -> Sheet {
-        let a = self.albedo(textures, uv0);
-        let c = self.coverage(textures, uv0);
-        let t = if self.transmission > 0.0 { self.transmission_at(textures, uv0) } else { 0.0 };
+    /// What the surface does with light meeting it at `p` ([`Sheet`]).
+    pub fn sheet(&self, textures: &[Texture], p: MaterialPoint) -> Sheet {
+        let a = self.albedo(textures, p);
+        let c = self.coverage(textures, p);
+        let t = if self.transmission > 0.0 { self.transmission_at(textures, p.uv) } else { 0.0 };
         Sheet { pass: Rgb::splat(1.0 - c) + a * (c * t), reflect: a * (c * (1.0 - t)) }
     }
 
@@ -260,6 +274,29 @@ impl Material {
 /// Index into [`Scene::materials`].
 pub type MaterialId = u32;
 
+/// Where a material is read at a surface point: its texture coordinate
+/// ([`SceneGeometry::texture_uv`]) and the mesh's vertex colour there (glTF `COLOR_0`, which
+/// multiplies the base colour and its alpha; `None` where the mesh has none, which is
+/// white).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MaterialPoint {
+    pub uv: Vec2,
+    pub color: Option<Vec4>,
+}
+
+impl MaterialPoint {
+    /// Texture coordinate `uv` on a mesh without vertex colours.
+    pub fn at_uv(uv: Vec2) -> MaterialPoint {
+        MaterialPoint { uv, color: None }
+    }
+}
+
+/// A vertex colour as the viewer and the web page draw it: linear RGBA in 16-bit unorm,
+/// which holds every 8- and 16-bit file colour exactly (65535 = 255 · 257).
+pub fn color_unorm16(c: Vec4) -> [u16; 4] {
+    c.to_array().map(|x| (x.clamp(0.0, 1.0) * 65535.0).round() as u16)
+}
+
 /// One triangle primitive instance, already transformed to world space.
 #[derive(Clone, Debug)]
 pub struct Mesh {
@@ -276,6 +313,9 @@ pub struct Mesh {
     pub uv0: Option<Vec<Vec2>>,
     /// TEXCOORD_1 (candidate light-map UVs), when present.
     pub uv1: Option<Vec<Vec2>>,
+    /// COLOR_0 (linear RGBA), when present and not white everywhere: it multiplies the
+    /// material's base colour and alpha ([`MaterialPoint::color`]).
+    pub colors: Option<Vec<Vec4>>,
     /// Counter-clockwise triangles (front face), indices into the vertex arrays.
     /// Degenerate triangles were dropped at load time.
     pub triangles: Vec<[u32; 3]>,
@@ -298,6 +338,13 @@ impl Mesh {
             Some(coords) => self.triangles[t].map(|i| uv.transform.apply(coords[i as usize])),
             None => [uv.transform.apply(Vec2::ZERO); 3],
         }
+    }
+
+    /// Triangle `t`'s corners' vertex colours (`None`: the mesh has none).
+    #[inline]
+    pub fn color_corners(&self, t: usize) -> Option<[Vec4; 3]> {
+        let colors = self.colors.as_ref()?;
+        Some(self.triangles[t].map(|i| colors[i as usize]))
     }
 }
 

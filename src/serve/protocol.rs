@@ -45,9 +45,10 @@ pub const UPDATE_HEADER: usize = 32;
 pub const CELL_ENTRY: usize = 8;
 /// Bytes before a page's texels in an [`UPDATE`] (layer, LOD, page position).
 pub const PAGE_ENTRY_HEADER: usize = 12;
-/// Floats a vertex has in [`GEOMETRY`]: position, material UV, light-map UV of the front
-/// face and of the back face (negative: no face).
-pub const VERTEX_FLOATS: usize = 9;
+/// 4-byte words a vertex has in [`GEOMETRY`]: 9 floats (position, material UV, light-map UV
+/// of the front face and of the back face, negative: no face), then the vertex colour as four
+/// unorm16 (linear RGBA, white where the mesh has none).
+pub const VERTEX_WORDS: usize = 11;
 
 /// The scene description sent first (and again after a reload), as JSON text.
 #[derive(Clone, Debug, Serialize)]

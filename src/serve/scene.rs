@@ -3,11 +3,11 @@
 //! the triangle's face), grouped by material, with the light-map UV of the front and the
 //! back face. The glTF alone cannot give the page this: the atlas is livebake's own unwrap.
 
-use glam::Vec2;
+use glam::{Vec2, Vec4};
 
 use super::protocol::{
     BatchMessage, GEOMETRY, GridMessage, MaterialMessage, SKY, SceneMessage, StartPose, TEXTURE, TextureMessage,
-    VERTEX_FLOATS,
+    VERTEX_WORDS,
 };
 use crate::atlas::{Atlas, NO_FACE};
 use crate::runtime::shown::{PAGE_SIDE, ShownLightmap};
@@ -67,32 +67,37 @@ pub fn scene_messages(
     start: StartPose,
 ) -> SceneMessages {
     let geom = SceneGeometry::new(scene);
-    let mut per_material: Vec<Vec<f32>> = vec![Vec::new(); scene.materials.len()];
+    // Per material, its vertices' bytes (VERTEX_WORDS words each).
+    let mut per_material: Vec<Vec<u8>> = vec![Vec::new(); scene.materials.len()];
     for t in 0..geom.len() {
         let Some(out) = per_material.get_mut(geom.material[t] as usize) else { continue };
         let uv0: [Vec2; 3] = geom.texture_uv_corners(scene, t);
+        let colors = geom.color_corners(scene, t).unwrap_or([Vec4::ONE; 3]);
         let faces = atlas.face_of.get(t).copied().unwrap_or([NO_FACE; 2]);
         let face_uv = |f: u32, i: usize| if f == NO_FACE { NO_UV } else { atlas.faces[f as usize].uv[i].to_array() };
         for (i, corner) in geom.corners[t].iter().enumerate() {
             let [fu, fv] = face_uv(faces[0], i);
             let [bu, bv] = face_uv(faces[1], i);
-            out.extend_from_slice(&[corner.x, corner.y, corner.z, uv0[i].x, uv0[i].y, fu, fv, bu, bv]);
+            for v in [corner.x, corner.y, corner.z, uv0[i].x, uv0[i].y, fu, fv, bu, bv] {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+            for c in crate::scene::color_unorm16(colors[i]) {
+                out.extend_from_slice(&c.to_le_bytes());
+            }
         }
     }
     let mut geometry = vec![GEOMETRY, 0, 0, 0];
     geometry.extend_from_slice(&generation.to_le_bytes());
     let mut batches = Vec::new();
     let mut first = 0u32;
-    for (material, floats) in per_material.iter().enumerate() {
-        if floats.is_empty() {
+    for (material, bytes) in per_material.iter().enumerate() {
+        if bytes.is_empty() {
             continue;
         }
-        let count = (floats.len() / VERTEX_FLOATS) as u32;
+        let count = (bytes.len() / (4 * VERTEX_WORDS)) as u32;
         batches.push(BatchMessage { material, first, count, double_sided: scene.materials[material].double_sided });
         first += count;
-        for v in floats {
-            geometry.extend_from_slice(&v.to_le_bytes());
-        }
+        geometry.extend_from_slice(bytes);
     }
     let materials = scene
         .materials

@@ -1,9 +1,9 @@
 //! [`SceneDiff`]: what changed between two loaded scenes, by content.
 //!
 //! Mesh instances are compared by their world-space geometry (positions, normals, uv0, uv1,
-//! triangles: the node transform is already in the positions) and their material's content
-//! (base colour, emission, sidedness, alpha mode and texture pixels; not the material's name
-//! or index). Floats compare by their bits, so the diff is exact: a save that writes the same
+//! vertex colours, triangles: the node transform is already in the positions) and their
+//! material's content (base colour, emission, sidedness, alpha mode and texture pixels; not
+//! the material's name or index). Floats compare by their bits, so the diff is exact: a save that writes the same
 //! numbers gives an empty diff, any other change is seen.
 //!
 //! Matching, in order:
@@ -242,6 +242,13 @@ impl MeshKeys {
             c.word((topo >> 32) as u32);
             c.vec3s(&mesh.positions);
             c.vec3s(&mesh.normals);
+            match &mesh.colors {
+                Some(colors) => {
+                    c.word(1);
+                    c.words(colors.iter().flat_map(|v| v.to_array().map(f32::to_bits)));
+                }
+                None => c.word(0),
+            }
             c.word(materials.get(mesh.material as usize).map_or(u32::MAX, |&h| h as u32));
             topology.push(topo);
             content.push(c.finish());
@@ -296,7 +303,15 @@ fn mesh_content_eq(old: &Scene, a: &Mesh, new: &Scene, b: &Mesh) -> bool {
 }
 
 fn geometry_eq(a: &Mesh, b: &Mesh) -> bool {
-    topology_eq(a, b) && vec3s_eq(&a.positions, &b.positions) && vec3s_eq(&a.normals, &b.normals)
+    let colors_eq = match (&a.colors, &b.colors) {
+        (Some(x), Some(y)) => {
+            x.len() == y.len()
+                && x.iter().zip(y).all(|(p, q)| p.to_array().map(f32::to_bits) == q.to_array().map(f32::to_bits))
+        }
+        (None, None) => true,
+        _ => false,
+    };
+    topology_eq(a, b) && vec3s_eq(&a.positions, &b.positions) && vec3s_eq(&a.normals, &b.normals) && colors_eq
 }
 
 fn topology_eq(a: &Mesh, b: &Mesh) -> bool {
@@ -591,5 +606,25 @@ mod tests {
         assert_eq!(d.removed, vec![MeshAt { index: 1, bounds: Aabb::of_points(&old.meshes[1].positions) }]);
         let [c] = d.changed.as_slice() else { panic!("{d:?}") };
         assert!(c.geometry_changed && (c.old, c.new) == (0, 0) && c.old_bounds == c.new_bounds);
+    }
+
+    /// A save that paints a mesh's vertices (COLOR_0 added, or one vertex's changed) changes
+    /// its light: the diff says so; the same colours again are no change.
+    #[test]
+    fn painted_vertices_are_a_change() {
+        let old = boxes(&[], [0.5; 3]);
+        let mut new = old.clone();
+        new.meshes[2].colors = Some(vec![glam::Vec4::ONE; new.meshes[2].positions.len()]);
+        let mut repainted = new.clone();
+        let d = SceneDiff::between(&old, &new);
+        let [c] = d.changed.as_slice() else { panic!("{d:?}") };
+        assert_eq!((c.old, c.new), (2, 2));
+        assert!(SceneDiff::between(&new, &new.clone()).is_empty());
+        if let Some(colors) = repainted.meshes[2].colors.as_mut() {
+            colors[0].x = 0.5;
+        }
+        let d = SceneDiff::between(&new, &repainted);
+        let [c] = d.changed.as_slice() else { panic!("{d:?}") };
+        assert_eq!((c.old, c.new), (2, 2));
     }
 }

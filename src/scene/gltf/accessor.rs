@@ -58,6 +58,33 @@ pub(super) fn read_vec4(ctx: &Ctx, index: usize, what: &str) -> Result<Vec<Vec4>
     })
 }
 
+/// Vertex colours (COLOR_n): VEC3 or VEC4 (alpha 1 for VEC3) of float, or of normalised
+/// unsigned byte or short, as glTF allows them.
+pub(super) fn read_color(ctx: &Ctx, index: usize, what: &str) -> Result<Vec<Vec4>, LoadError> {
+    let acc = get(ctx, index)?;
+    let rgb = matches!(acc.type_, Checked::Valid(Type::Vec3));
+    let format = float_format(ctx, index, if rgb { Type::Vec3 } else { Type::Vec4 }, what)?;
+    let allowed = match format.component {
+        ComponentType::F32 => true,
+        ComponentType::U8 | ComponentType::U16 => format.normalized,
+        _ => false,
+    };
+    if !allowed {
+        return Err(ctx.invalid(format!(
+            "accessor {index} ({what}) has componentType {}{}; vertex colours must be float or normalized \
+             unsigned byte or short",
+            format.component.as_gl_enum(),
+            if format.normalized { " (normalized)" } else { "" }
+        )));
+    }
+    // Without a bufferView the elements are zeros (alpha 1 for VEC3, which has none).
+    let zero = if rgb { Vec4::W } else { Vec4::ZERO };
+    read_elements(ctx, index, format, zero, |b| {
+        let alpha = if rgb { 1.0 } else { component(b, 3, format)? };
+        Some(Vec4::new(component(b, 0, format)?, component(b, 1, format)?, component(b, 2, format)?, alpha))
+    })
+}
+
 /// Vertex indices (SCALAR of unsigned byte, short or int).
 pub(super) fn read_indices(ctx: &Ctx, index: usize, what: &str) -> Result<Vec<u32>, LoadError> {
     let acc = get(ctx, index)?;

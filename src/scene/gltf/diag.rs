@@ -18,7 +18,6 @@ pub(super) enum Kind {
     UnnormalizedRotation,
     IgnoredSkin,
     IgnoredMorphTargets,
-    IgnoredVertexColors,
     EmptyMesh,
     LightSkipped,
     LightParameter,
@@ -62,9 +61,6 @@ impl Kind {
             Kind::IgnoredMorphTargets => {
                 format!("{count} primitive(s) have morph targets, which are ignored (base shape used)")
             }
-            Kind::IgnoredVertexColors => format!(
-                "{count} primitive(s) have COLOR_0, which livebake does not read: their albedo is baseColorFactor × texture, without the vertex colours"
-            ),
             Kind::EmptyMesh => format!("{count} primitive instance(s) had no triangles left and were left out"),
             Kind::LightSkipped => format!("{count} light(s) skipped"),
             Kind::LightParameter => format!("{count} light parameter(s) out of range were corrected"),

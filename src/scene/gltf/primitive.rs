@@ -1,9 +1,9 @@
 //! One mesh primitive instanced by one node → one world-space [`Mesh`]: topology to a triangle
 //! list, world transform (with winding flip for mirrors), degenerate-triangle removal, shading
-//! normals (transformed, repaired or generated flat), texture coordinates.
+//! normals (transformed, repaired or generated flat), texture coordinates, vertex colours.
 
 use ::gltf::json;
-use glam::{Mat4, Vec2, Vec3};
+use glam::{Mat4, Vec2, Vec3, Vec4};
 use json::mesh::{Mode, Semantic};
 use json::validation::Checked;
 
@@ -55,9 +55,6 @@ pub(super) fn build(ctx: &Ctx, diag: &mut Diagnostics, inst: &Instance) -> Resul
     if inst.prim.targets.as_ref().is_some_and(|t| !t.is_empty()) {
         diag.note(Kind::IgnoredMorphTargets, 1, || inst.name.clone());
     }
-    if attribute(inst.prim, Semantic::Colors(0)).is_some() {
-        diag.note(Kind::IgnoredVertexColors, 1, || inst.name.clone());
-    }
 
     let local = read_positions(ctx, inst)?;
     let vertex_count = local.len();
@@ -90,6 +87,7 @@ pub(super) fn build(ctx: &Ctx, diag: &mut Diagnostics, inst: &Instance) -> Resul
 
     let uv0 = read_uv0(ctx, diag, inst, vertex_count)?;
     let uv1 = read_uv1(ctx, diag, inst, vertex_count)?;
+    let colors = read_colors(ctx, inst, vertex_count)?;
     let mut mesh = Mesh {
         name: inst.name.clone(),
         node: Some(inst.node),
@@ -98,6 +96,7 @@ pub(super) fn build(ctx: &Ctx, diag: &mut Diagnostics, inst: &Instance) -> Resul
         normals: Vec::new(),
         uv0,
         uv1,
+        colors,
         triangles,
     };
     match attribute(inst.prim, Semantic::Normals) {
@@ -170,6 +169,28 @@ fn check_finite(ctx: &Ctx, inst: &Instance, attribute: &str, values: &[Vec3]) ->
             value: values.get(vertex).map(|v| format!("{v}")).unwrap_or_default(),
         }),
     }
+}
+
+/// COLOR_0 as linear RGBA (alpha 1 where the accessor is VEC3), or `None` where the
+/// primitive has none or it is white everywhere (it then changes nothing, and a mesh without
+/// it keeps the uniform-albedo paths). glTF allows float and normalised unsigned byte and
+/// short components; other encodings and values that are not finite are errors naming the
+/// mesh. Values are clamped to [0, 1], the range the glTF spec gives them.
+fn read_colors(ctx: &Ctx, inst: &Instance, vertex_count: usize) -> Result<Option<Vec<Vec4>>, LoadError> {
+    let Some(acc) = attribute(inst.prim, Semantic::Colors(0)) else { return Ok(None) };
+    let colors = accessor::read_color(ctx, acc, &format!("COLOR_0 of '{}'", inst.name))?;
+    check_count(ctx, inst, acc, "COLOR_0", colors.len(), vertex_count)?;
+    if let Some(vertex) = colors.iter().position(|c| !c.is_finite()) {
+        return Err(LoadError::NonFinite {
+            file: ctx.file.into(),
+            mesh: inst.name.clone(),
+            attribute: "COLOR_0".into(),
+            vertex,
+            value: format!("{}", colors[vertex]),
+        });
+    }
+    let colors: Vec<Vec4> = colors.into_iter().map(|c| c.clamp(Vec4::ZERO, Vec4::ONE)).collect();
+    Ok((!colors.iter().all(|&c| c == Vec4::ONE)).then_some(colors))
 }
 
 fn read_or_make_indices(ctx: &Ctx, inst: &Instance, vertex_count: usize) -> Result<Vec<u32>, LoadError> {
