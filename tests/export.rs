@@ -225,6 +225,37 @@ fn vertex_colours_travel_with_the_export() {
     assert_eq!(by_corners(&again), by_corners(&scene));
 }
 
+/// A specular-glossiness material (KHR_materials_pbrSpecularGlossiness, required by the
+/// source) is exported as metallic-roughness, its diffuse colour the base colour: the
+/// extension is gone from the file (engines such as three.js no longer read it), the
+/// validator accepts it, a warning says so, and loaded again it has the same albedo.
+#[test]
+fn specular_glossiness_materials_export_as_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut d = support::Doc::new();
+    let quad = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 0.0, -1.0], [0.0, 0.0, -1.0]];
+    let mut p = d.prim(&quad, Some(&[[0.0, 1.0, 0.0]; 4]), Some(&[0, 1, 2, 0, 2, 3]));
+    p["material"] = json!(0);
+    d.mesh_node(vec![p], json!({ "name": "plaster" }));
+    d.push(
+        "materials",
+        json!({ "extensions": { "KHR_materials_pbrSpecularGlossiness": { "diffuseFactor": [0.6, 0.5, 0.4, 1.0] } } }),
+    );
+    d.json["extensionsUsed"] = json!(["KHR_materials_pbrSpecularGlossiness"]);
+    d.json["extensionsRequired"] = json!(["KHR_materials_pbrSpecularGlossiness"]);
+    let scene = load(&d.write_gltf(dir.path(), "plaster"));
+    assert_eq!(scene.materials[0].base_color.truncate(), Vec3::new(0.6, 0.5, 0.4));
+    let baked = quick_bake(&scene, 0.1);
+    let out = dir.path().join("export.gltf");
+    let report = export(&scene, &baked, &out);
+    assert!(report.warnings.iter().any(|w| w.contains("specular-glossiness")), "{:?}", report.warnings);
+    validate(&out);
+    let json = read_json(&out);
+    assert!(!json.to_string().contains("KHR_materials_pbrSpecularGlossiness"), "{json}");
+    assert_eq!(json["materials"][0]["pbrMetallicRoughness"]["metallicFactor"], json!(0.0));
+    assert_eq!(load(&out).materials[0].base_color, scene.materials[0].base_color);
+}
+
 // ---------------------------------------------------------------------------------------
 // Round trip
 

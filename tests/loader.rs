@@ -1187,6 +1187,62 @@ fn vertex_colours_are_read_in_every_encoding() {
     assert!(e.contains("COLOR_0") && e.contains("POSITION has 3"), "{e}");
 }
 
+/// Specular-glossiness materials (KHR_materials_pbrSpecularGlossiness, which older exporters
+/// write and list as required): the diffuse factor and texture are the albedo, in place of
+/// the metallic-roughness fallback the file also carries; the file loads without a warning;
+/// a diffuse factor that is not finite is an error naming it.
+#[test]
+fn specular_glossiness_materials_take_their_diffuse_colour() {
+    let d = tmp();
+    let doc = |diffuse: Value| {
+        let mut doc = Doc::new();
+        let mut p = doc.prim(&TRI, Some(&UP_Z), None);
+        p["attributes"]["TEXCOORD_0"] = json!(doc.vec2(&[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]));
+        p["material"] = json!(0);
+        doc.mesh_node(vec![p], json!({}));
+        let red = png(1, 1, |_, _| [255, 0, 0, 255]);
+        let grey = png(1, 1, |_, _| [188, 188, 188, 128]);
+        for image in [red, grey] {
+            doc.push("images", json!({ "uri": format!("data:image/png;base64,{}", base64(&image)) }));
+        }
+        doc.push("textures", json!({ "source": 0 }));
+        doc.push("textures", json!({ "source": 1 }));
+        doc.push(
+            "materials",
+            json!({
+                "pbrMetallicRoughness": { "baseColorFactor": [0.1, 0.1, 0.1, 1.0], "baseColorTexture": { "index": 0 } },
+                "alphaMode": "BLEND",
+                "extensions": { "KHR_materials_pbrSpecularGlossiness": diffuse }
+            }),
+        );
+        doc.json["extensionsUsed"] = json!(["KHR_materials_pbrSpecularGlossiness"]);
+        doc.json["extensionsRequired"] = json!(["KHR_materials_pbrSpecularGlossiness"]);
+        doc
+    };
+    let s = load(
+        &doc(json!({ "diffuseFactor": [0.5, 0.25, 1.0, 0.5], "diffuseTexture": { "index": 1 },
+        "specularFactor": [1.0, 1.0, 1.0], "glossinessFactor": 0.9 }))
+        .write_gltf(d.path(), "spec_gloss"),
+    )
+    .unwrap();
+    assert!(s.stats.warnings.is_empty(), "{:?}", s.stats.warnings);
+    let m = &s.materials[0];
+    assert_eq!(m.base_color, Vec4::new(0.5, 0.25, 1.0, 0.5));
+    let texture = m.base_color_texture.expect("the diffuse texture");
+    assert_eq!(s.textures[texture.texture].rgba8[0], [188, 188, 188, 128]);
+    assert!(s.textures[texture.texture].srgb, "the diffuse texture is sRGB");
+    // Albedo: the factor times sRGB 188 decoded (0.502 886); alpha 0.5 × 128/255.
+    let p = MaterialPoint::at_uv(Vec2::splat(0.5));
+    assert!((m.albedo(&s.textures, p) - Vec3::new(0.5, 0.25, 1.0) * 0.502_886).abs().max_element() < 1e-5);
+    assert!((m.alpha(&s.textures, p) - 0.5 * 128.0 / 255.0).abs() < 1e-6);
+    // Without a diffuse texture the factor alone (the fallback's texture is not read).
+    let s = load(&doc(json!({ "diffuseFactor": [0.5, 0.25, 1.0, 1.0] })).write_gltf(d.path(), "factor_only")).unwrap();
+    assert_eq!((s.materials[0].base_color, s.materials[0].base_color_texture), (Vec4::new(0.5, 0.25, 1.0, 1.0), None));
+    let e =
+        load_err(&doc(json!({ "diffuseFactor": [1e39, 0.0, 0.0, 1.0] })).write_gltf(d.path(), "infinite")).to_string();
+    assert!(e.contains("diffuseFactor"), "{e}");
+}
+
 /// Glass and cut-outs as architectural exports write them: a BLEND pane, a transmission
 /// pane whose texture is shared with the base colour (read linearly for transmission, as
 /// sRGB for colour), a MASK grille; their sheets follow T = (1 − α) + α·t·a.

@@ -356,8 +356,8 @@ fn base_colours_outside_zero_one_are_clamped_with_a_warning() {
     let s = load(&d.write_gltf(dir.path(), "colours")).unwrap();
     let colours: Vec<f32> = s.materials.iter().map(|m| m.base_color.x).collect();
     assert_eq!(colours, [1.0, 0.0, 0.5]);
-    let warning = s.stats.warnings.iter().find(|w| w.contains("baseColorFactor")).expect("a warning");
-    assert!(warning.starts_with("2 baseColorFactor(s) outside [0, 1] clamped"), "{warning}");
+    let warning = s.stats.warnings.iter().find(|w| w.contains("base colour factor")).expect("a warning");
+    assert!(warning.starts_with("2 base colour factor(s) outside [0, 1] clamped"), "{warning}");
     assert!(warning.contains("'hot' [5.0") && warning.contains("'negative' [-1.0"), "{warning}");
 }
 

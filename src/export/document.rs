@@ -105,6 +105,28 @@ impl Bin {
     }
 }
 
+/// Rewrites a material that uses KHR_materials_pbrSpecularGlossiness as metallic-roughness,
+/// the model engines read today (the extension is archived, and engines such as three.js no
+/// longer read it; beside the light map's extension the validator warns about it): its
+/// diffuse factor and texture, the albedo the bake used, become the base colour; metallic 0,
+/// roughness 1 − glossiness. Returns whether it did.
+fn as_metallic_roughness(material: &mut Value) -> bool {
+    let extensions = material.get_mut("extensions").and_then(Value::as_object_mut);
+    let Some(sg) = extensions.and_then(|e| e.remove("KHR_materials_pbrSpecularGlossiness")) else {
+        return false;
+    };
+    let glossiness = sg.get("glossinessFactor").and_then(Value::as_f64).unwrap_or(1.0);
+    let mut pbr = json!({ "metallicFactor": 0.0, "roughnessFactor": (1.0 - glossiness).clamp(0.0, 1.0) });
+    if let Some(f) = sg.get("diffuseFactor") {
+        pbr["baseColorFactor"] = f.clone();
+    }
+    if let Some(t) = sg.get("diffuseTexture") {
+        pbr["baseColorTexture"] = t.clone();
+    }
+    material["pbrMetallicRoughness"] = pbr;
+    true
+}
+
 /// Texture references of a material copy, remapped to the sets the export writes:
 /// TEXCOORD_0 stays, the file's TEXCOORD_1 moves to TEXCOORD_2 (TEXCOORD_1 is the light map's
 /// now), and higher sets (which the loader does not read, so the export cannot write) are
@@ -215,12 +237,16 @@ pub(super) fn build(
     let lightmap_texture = array(src, "textures").len();
     let mut materials = Vec::with_capacity(scene.materials.len());
     let mut reads_uv1 = Vec::with_capacity(scene.materials.len());
+    let mut spec_gloss = Vec::new();
     for (m, material) in scene.materials.iter().enumerate() {
         // (The loader's glTF parser has made sure every material and node is a JSON object.)
         let mut value = match file_materials.get(m) {
             Some(v @ Value::Object(_)) => v.clone(),
             _ => json!({ "name": material.name }),
         };
+        if as_metallic_roughness(&mut value) {
+            spec_gloss.push(material.name.clone());
+        }
         let mut usage = TexCoordUse::default();
         remap_tex_coords(&mut value, &format!("materials[{m}]"), &mut usage);
         if !usage.dropped.is_empty() {
@@ -239,6 +265,13 @@ pub(super) fn build(
             ext["MOZ_lightmap"] = json!({ "index": lightmap_texture, "texCoord": 1, "intensity": info.png_intensity });
         }
         materials.push(value);
+    }
+    if !spec_gloss.is_empty() {
+        warnings.push(format!(
+            "specular-glossiness materials written as metallic-roughness (their diffuse colour, the albedo \
+             livebake baked with, as the base colour; specular colour and glossiness textures dropped): {}",
+            spec_gloss.join(", ")
+        ));
     }
 
     // Geometry: one glTF mesh per instancing node, one primitive per side of each of its

@@ -66,7 +66,7 @@ impl Kind {
             Kind::LightParameter => format!("{count} light parameter(s) out of range were corrected"),
             Kind::CameraSkipped => format!("{count} camera(s) skipped"),
             Kind::BaseColorClamped => {
-                format!("{count} baseColorFactor(s) outside [0, 1] clamped (an albedo above 1 would make light)")
+                format!("{count} base colour factor(s) outside [0, 1] clamped (an albedo above 1 would make light)")
             }
         }
     }

@@ -18,6 +18,7 @@ const CHUNK_HEADER: usize = 8;
 pub(super) const SUPPORTED_REQUIRED: &[&str] = &[
     "KHR_lights_punctual",
     "KHR_materials_emissive_strength",
+    "KHR_materials_pbrSpecularGlossiness",
     "KHR_materials_transmission",
     "KHR_mesh_quantization",
     "KHR_texture_transform",

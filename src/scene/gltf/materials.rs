@@ -1,4 +1,5 @@
-//! glTF metallic-roughness materials seen as Lambertian [`Material`]s.
+//! glTF metallic-roughness (and specular-glossiness) materials seen as Lambertian
+//! [`Material`]s.
 
 use ::gltf::json;
 use glam::{Vec2, Vec3, Vec4};
@@ -32,9 +33,18 @@ fn convert(
 ) -> Result<Material, LoadError> {
     let name = m.name.clone().unwrap_or_else(|| format!("material{index}"));
     let bad = |what: &str| ctx.invalid(format!("material {index} '{name}': {what}"));
-    let factor = Vec4::from(m.pbr_metallic_roughness.base_color_factor.0);
+    // KHR_materials_pbrSpecularGlossiness (older exporters, many downloaded models): its
+    // diffuse colour is the Lambertian albedo, and it takes the place of the
+    // metallic-roughness base colour (a file carries that only as a fallback for viewers
+    // without the extension). Specular and glossiness are ignored, as metallic and roughness
+    // are.
+    let spec_gloss = m.extensions.as_ref().and_then(|e| e.pbr_specular_glossiness.as_ref());
+    let (factor, factor_name) = match spec_gloss {
+        Some(s) => (Vec4::from(s.diffuse_factor.0), "diffuseFactor"),
+        None => (Vec4::from(m.pbr_metallic_roughness.base_color_factor.0), "baseColorFactor"),
+    };
     if !factor.is_finite() {
-        return Err(bad("baseColorFactor is not finite"));
+        return Err(bad(&format!("{factor_name} is not finite")));
     }
     // An albedo above 1 reflects more light than arrives (the bounces would grow without
     // end), below 0 is meaningless; glTF allows neither.
@@ -87,7 +97,10 @@ fn convert(
             let texture = textures.get(ctx, info.index.value(), srgb)?;
             Ok(Some(TextureRef { texture, tex_coord, transform }))
         };
-    let base_color_texture = texture(&m.pbr_metallic_roughness.base_color_texture, "baseColorTexture", true)?;
+    let base_color_texture = match spec_gloss {
+        Some(s) => texture(&s.diffuse_texture, "diffuseTexture", true)?,
+        None => texture(&m.pbr_metallic_roughness.base_color_texture, "baseColorTexture", true)?,
+    };
     let emissive_texture = texture(&m.emissive_texture, "emissiveTexture", true)?;
     // KHR_materials_transmission, thin-walled: the fraction of the light interacting with
     // the surface that passes straight through (tinted by the albedo). Its texture's red
