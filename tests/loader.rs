@@ -541,6 +541,27 @@ fn undecodable_image_is_named() {
     );
 }
 
+/// A texture whose only image is an extension's (KHR_texture_basisu's KTX2,
+/// EXT_texture_webp's WebP: glTF lets `source` be absent then) is valid glTF: the scene
+/// loads, the material shows its factor alone, and a warning names the texture and its
+/// extension. Required, KHR_texture_basisu stays refused (the file says it cannot be shown
+/// without it: `unsupported_required_extension_is_named`).
+#[test]
+fn textures_with_only_an_extension_image_load_without_them() {
+    let d = tmp();
+    for (ext, uri) in [("KHR_texture_basisu", "wood.ktx2"), ("EXT_texture_webp", "wood.webp")] {
+        let mut doc = textured_doc(json!({ "uri": uri }));
+        doc.json["textures"] = json!([{ "extensions": { ext: { "source": 0 } } }]);
+        doc.json["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"] = json!([0.5, 0.5, 0.5, 1.0]);
+        doc.json["extensionsUsed"] = json!([ext]);
+        let s = load(&doc.write_gltf(d.path(), "scene")).unwrap();
+        let m = &s.materials[0];
+        assert_eq!((m.base_color_texture, m.base_color), (None, Vec4::new(0.5, 0.5, 0.5, 1.0)), "{ext}");
+        let warned = s.stats.warnings.iter().any(|w| w.contains("texture 0") && w.contains(ext));
+        assert!(warned, "{ext}: {:?}", s.stats.warnings);
+    }
+}
+
 #[test]
 fn no_triangles_is_an_error() {
     let d = tmp();

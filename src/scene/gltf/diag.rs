@@ -14,6 +14,7 @@ pub(super) enum Kind {
     BadTexcoord1,
     TrailingIndices,
     TexCoordSet,
+    TextureWithoutSource,
     TextureUvDiffers,
     UnnormalizedRotation,
     IgnoredSkin,
@@ -61,6 +62,9 @@ impl Kind {
             Kind::IgnoredMorphTargets => {
                 format!("{count} primitive(s) have morph targets, which are ignored (base shape used)")
             }
+            Kind::TextureWithoutSource => format!(
+                "{count} texture(s) have no image livebake decodes (only an extension's: KTX2, WebP or DDS): their materials show their factors alone"
+            ),
             Kind::EmptyMesh => format!("{count} primitive instance(s) had no triangles left and were left out"),
             Kind::LightSkipped => format!("{count} light(s) skipped"),
             Kind::LightParameter => format!("{count} light parameter(s) out of range were corrected"),

@@ -18,6 +18,7 @@ use image::ImageDecoder;
 use json::texture::WrappingMode;
 use json::validation::Checked;
 
+use super::diag::{Diagnostics, Kind};
 use super::files::{FileError, read_regular};
 use super::uri::{self, UriSource};
 use super::{Ctx, LoadError};
@@ -46,14 +47,32 @@ pub(super) struct TextureCache {
 
 impl TextureCache {
     /// The scene texture for glTF texture `index`: a colour texture (`srgb`: base colour,
-    /// emission) or a linear one (transmission). Both share the image's pixels.
-    pub(super) fn get(&mut self, ctx: &Ctx, index: usize, srgb: bool) -> Result<usize, LoadError> {
+    /// emission) or a linear one (transmission). Both share the image's pixels. `None` for a
+    /// texture without a core `source` (glTF allows it: only an extension's image, KTX2,
+    /// WebP or DDS, none of which livebake decodes), noted in `diag`: its material shows its
+    /// factors alone.
+    pub(super) fn get(
+        &mut self,
+        ctx: &Ctx,
+        diag: &mut Diagnostics,
+        index: usize,
+        srgb: bool,
+    ) -> Result<Option<usize>, LoadError> {
         if let Some(&t) = self.by_texture.get(&(index, srgb)) {
-            return Ok(t);
+            return Ok(Some(t));
         }
         let tex = ctx.root.textures.get(index).ok_or_else(|| {
             ctx.invalid(format!("texture {index} does not exist ({} textures)", ctx.root.textures.len()))
         })?;
+        // gltf-json's placeholder for an absent `source` (its `allow_empty_texture`).
+        if tex.source.value() == u32::MAX as usize {
+            let extensions = tex.extensions.as_ref().map(|e| e.others.keys().cloned().collect::<Vec<_>>().join(", "));
+            diag.note(Kind::TextureWithoutSource, 1, || match extensions.filter(|e| !e.is_empty()) {
+                Some(e) => format!("texture {index} ({e})"),
+                None => format!("texture {index}"),
+            });
+            return Ok(None);
+        }
         let image = tex.source.value();
         let pixels = match self.images.get(&image) {
             Some(p) => p.clone(),
@@ -76,7 +95,7 @@ impl TextureCache {
         });
         let id = self.textures.len() - 1;
         self.by_texture.insert((index, srgb), id);
-        Ok(id)
+        Ok(Some(id))
     }
 }
 

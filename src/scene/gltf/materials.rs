@@ -94,7 +94,7 @@ fn convert(
                 diag.note(Kind::TexCoordSet, 1, || format!("{name} {slot} (texCoord {tex_coord})"));
                 tex_coord = 0;
             }
-            let texture = textures.get(ctx, info.index.value(), srgb)?;
+            let Some(texture) = textures.get(ctx, diag, info.index.value(), srgb)? else { return Ok(None) };
             Ok(Some(TextureRef { texture, tex_coord, transform }))
         };
     let base_color_texture = match spec_gloss {
