@@ -126,7 +126,8 @@ pub struct PassingBytes {
     /// none (4 B; `cpu::through::Passing`).
     pub cpu: u64,
     /// The GPU backend's mirror of the materials its resolve reads (`gpu::surface_radiance`):
-    /// 32 B a triangle, 64 B a material, 4 B a texture texel and the sRGB table (1 KiB).
+    /// 40 B a triangle and 48 B more a triangle with vertex colours, 64 B a material, 4 B a
+    /// texture texel and the sRGB table (1 KiB).
     /// Each target texel's triangle (4 B) grows with the texels:
     /// [`bake_bytes_per_texel`].
     pub gpu: u64,
@@ -138,8 +139,11 @@ impl PassingBytes {
             return PassingBytes::default();
         }
         let triangles = scene.triangle_count() as u64;
+        let colored: u64 = scene.meshes.iter().filter(|m| m.colors.is_some()).map(|m| m.triangles.len() as u64).sum();
         let texels: u64 = scene.textures.iter().map(|t| t.rgba8.len() as u64).sum();
-        let gpu = 32 * triangles + 64 * scene.materials.len() as u64 + 4 * texels + 1024;
+        // The GPU's records (`gpu::layout`): a triangle's, and its corners' colours (3 × 16 B).
+        let triangle = std::mem::size_of::<crate::gpu::layout::SurfaceTriangle>() as u64;
+        let gpu = triangle * triangles + 48 * colored + 64 * scene.materials.len() as u64 + 4 * texels + 1024;
         PassingBytes { cpu: 4 * triangles, gpu }
     }
 
@@ -548,10 +552,15 @@ mod tests {
         b.cuboid("box", glam::Vec3::ZERO, glam::Vec3::ONE, false, glass);
         let scene = b.build();
         let traits = SceneTraits::LEAST.with_masks(&scene);
-        assert_eq!(traits.passing, PassingBytes { cpu: 12 * 4, gpu: 12 * 32 + 64 + 1024 });
+        assert_eq!(traits.passing, PassingBytes { cpu: 12 * 4, gpu: 12 * 40 + 64 + 1024 });
+        // Vertex colours: 3 × 16 B more a triangle on the GPU.
+        let mut colored = scene.clone();
+        colored.meshes[0].colors = Some(vec![glam::Vec4::ONE; colored.meshes[0].positions.len()]);
+        let colored = SceneTraits::LEAST.with_masks(&colored).passing;
+        assert_eq!(colored, PassingBytes { cpu: 12 * 4, gpu: 12 * (40 + 48) + 64 + 1024 });
         for (backend, extra) in [
             (BackendKind::Cpu, 48),
-            (BackendKind::Gpu, 48 + 12 * 32 + 64 + 1024 + 1000 * 4),
+            (BackendKind::Gpu, 48 + 12 * 40 + 64 + 1024 + 1000 * 4),
             (BackendKind::Reference, 0),
         ] {
             let config = BakeConfig { backend, ..BakeConfig::default() };
