@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-use glam::{DVec2, DVec3, Vec2, Vec3};
+use glam::{DVec2, DVec3, Vec2, Vec3, Vec4};
 use livebake::atlas::Atlas;
 use livebake::bundle::BackendProvider;
 use livebake::cpu::CpuProvider;
@@ -701,7 +701,9 @@ fn the_punctual_layer_is_exact_at_the_lod_the_camera_wants() {
 /// Three scenes: the Cornell box (textured walls, its lamp carried by the global bundles),
 /// the Van Gogh room (double-sided materials, small emitters, punctual lights: the
 /// shown map has both layers) and GlassBrokenWindow under a sky of 1 (glass and a cut-out:
-/// the resolve's transmittances read the materials the foreign sides read). The map the bakes
+/// the resolve's transmittances read the materials the foreign sides read); and the Cornell
+/// box again with every mesh painted by vertex colours (COLOR_0, varying over each wall), whose
+/// albedo the GPU reads at the foreign points as the CPU does. The map the bakes
 /// see has first light at LOD 0 and two cells published at LOD 1, so foreign points also
 /// read LOD 1 and blend across LOD borders.
 ///
@@ -726,15 +728,25 @@ fn cell_bakes_on_the_gpu_backend_equal_the_cpu_backends() {
     // so foreign sides show emission too.
     // The window is small: at the default finest texel it has a single LOD, and the bakes
     // here publish LOD 1.
-    for (rel, small_emitter_fraction, sky, lods) in [
-        ("cornell_box/cornellBox-2.79-Cycles-gltf.gltf", 0.0, Rgb::ZERO, None),
-        ("van_gogh_room/van_gogh_room_lit.gltf", 0.05, Rgb::ZERO, None),
-        ("glass_broken_window/GlassBrokenWindow.gltf", 0.05, Rgb::ONE, Some(2)),
+    for (rel, small_emitter_fraction, sky, lods, painted) in [
+        ("cornell_box/cornellBox-2.79-Cycles-gltf.gltf", 0.0, Rgb::ZERO, None, false),
+        ("van_gogh_room/van_gogh_room_lit.gltf", 0.05, Rgb::ZERO, None, false),
+        ("glass_broken_window/GlassBrokenWindow.gltf", 0.05, Rgb::ONE, Some(2), false),
+        ("cornell_box/cornellBox-2.79-Cycles-gltf.gltf", 0.0, Rgb::ZERO, None, true),
     ] {
         let mut config = RuntimeConfig { lods, ..RuntimeConfig::default() };
         config.bundle.small_emitter_fraction = small_emitter_fraction;
         let mut scene = (*load(rel)).clone();
         scene.sky += sky;
+        if painted {
+            for mesh in &mut scene.meshes {
+                let paint = |p: &Vec3| {
+                    Vec4::new(0.6 + 0.4 * (3.0 * p.x).sin(), 0.6 + 0.4 * (2.0 * p.y).cos(), 0.5 + 0.1 * p.z, 1.0)
+                };
+                mesh.colors = Some(mesh.positions.iter().map(paint).collect());
+            }
+        }
+        let rel = if painted { "the painted Cornell box" } else { rel };
         let world = world(Arc::new(scene), &config);
         let carried = world.bundle.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
         eprintln!("{rel}: {carried} triangles whose emission the global bundles carry");
