@@ -136,12 +136,9 @@ fn surface_uv0(tri: SurfaceTriangle, u: f32, v: f32) -> vec2<f32> {
     return a + vec2<f32>(mul(d1.x, u), mul(d1.y, u)) + vec2<f32>(mul(d2.x, v), mul(d2.y, v));
 }
 
-// The vertex colour of triangle `tri` at barycentrics (u, v)
-// (`SceneGeometry::material_point`); white where it has none.
+// The vertex colour of triangle `tri` (which has them: `colors` is not NO_COLOR) at
+// barycentrics (u, v) (`SceneGeometry::material_point`).
 fn surface_color(tri: SurfaceTriangle, u: f32, v: f32) -> vec4<f32> {
-    if tri.colors == NO_COLOR {
-        return vec4<f32>(1.0);
-    }
     let a = surface_colors[tri.colors];
     let d1 = surface_colors[tri.colors + 1u] - a;
     let d2 = surface_colors[tri.colors + 2u] - a;
