@@ -6,6 +6,7 @@
 
 mod atlas;
 mod bake_memory;
+mod cell_bakes;
 mod convergence;
 mod gpu_backend;
 mod instanced;
@@ -90,7 +91,7 @@ impl Bench<'_> {
 type Section = fn(&Bench) -> Result<Value>;
 
 /// The benches, in the order they run.
-pub const SECTIONS: [(&str, Section); 17] = [
+pub const SECTIONS: [(&str, Section); 18] = [
     ("atlas", atlas::run),
     ("reference", reference::run),
     ("startup", startup::run),
@@ -101,6 +102,7 @@ pub const SECTIONS: [(&str, Section); 17] = [
     ("viewer", viewer::run),
     ("runtime", runtime::run),
     ("runtime_real", runtime_real::run),
+    ("cell_bakes", cell_bakes::run),
     ("runtime_large", runtime_large::run),
     ("runtime_large_overcast", runtime_large::run_overcast),
     ("instanced_1m", instanced::run),
