@@ -928,9 +928,10 @@ fn a_cell_bakes_window_holds_every_point_its_texels_are_credited_at() {
     println!("{points} points, {beyond_old_reach} beyond the cells' box grown by 1.5 texels");
 }
 
-/// Building a cell bake's fragments only inside its window's outline (the CPU backend's
-/// default) changes no texel: every line that credits a texel crosses its surface inside the
-/// window, so the lines left out credit none. Cells of two real scenes at LODs 1–3, 16
+/// Building a cell bake's fragments only inside its window's outline, and resolving only the
+/// pixels where a triangle that may show a target texel lies inside the window's box (the
+/// CPU backend's default), changes no texel: every line that credits a texel crosses its
+/// surface inside the window, so the lines left out credit none. Cells of two real scenes at LODs 1–3, 16
 /// directions, against the same bakes filling the window's whole square (as the GPU does).
 /// Bounds: the same hits arrive in the same order unless a tile overflows in one bake and not
 /// the other, which reorders a texel's sums (f32 rounding, ~1e-6 relative); a texel gets about

@@ -23,7 +23,8 @@ pub struct PassStats {
     pub tiles: u64,
     pub fragments: u64,
     /// Bundle pixels with at least one fragment: effective rays. The CPU backend counts
-    /// those it resolves, within each row's hull of the spans that can show a target texel;
+    /// those it resolves, within each row's hull of the spans that can show a target texel
+    /// (in a windowed pass, of the spans' triangles' parts inside the target's box);
     /// the GPU backend all of them: equal when every lit chart is in the target (a whole
     /// LOD).
     pub covered_pixels: u64,

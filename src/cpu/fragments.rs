@@ -24,9 +24,9 @@ use crate::bundle::estimator::{
 };
 use crate::bundle::raster::{BundleFrame, Planes, ScreenTriangle, Viewport, eval, grid_centre};
 use crate::bundle::target::{BakeTarget, NO_GROUP};
-use crate::bundle::window::WindowOutline;
+use crate::bundle::window::{Points, WindowOutline, clip_to_box, hull_rows};
 use crate::scene::Side;
-use glam::Vec2;
+use glam::{Vec2, Vec3};
 
 /// Width in pixels of the strips a tile is resolved in.
 const STRIP: u32 = 64;
@@ -56,6 +56,20 @@ struct FragmentPlanes {
     minus_flag: u32,
     /// The triangle's front normal, packed (which fragments are coplanar).
     normal: u32,
+    /// Where its fragments may show a target texel (see [`TileFragments::resolve`]).
+    reach: TargetReach,
+}
+
+/// Where a tile triangle's fragments may show a target texel.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum TargetReach {
+    /// Nowhere.
+    None,
+    /// Wherever it covers.
+    Everywhere,
+    /// Only over its part inside the target's box: per row from its first, the pixels
+    /// `clip_rows[start + row − first]`.
+    Rows { start: u32 },
 }
 
 /// How a side of a tile triangle gets its code (see [`crate::bundle::estimator`]).
@@ -80,6 +94,11 @@ impl FragmentPlanes {
     fn shows_targets(&self) -> bool {
         matches!(self.plus, SideLookup::Table { .. }) || matches!(self.minus, SideLookup::Table { .. })
     }
+}
+
+/// Whether a point lies in a box.
+fn in_box(p: Vec3, (lo, hi): (Vec3, Vec3)) -> bool {
+    p.cmpge(lo).all() && p.cmple(hi).all()
 }
 
 /// Pixels `x0..x1` of one row covered by triangle `tri` (an index into the tile's triangles).
@@ -113,6 +132,13 @@ pub struct TileFragments {
     /// Per row, the pixels inside the target's outline (a windowed pass; see
     /// [`WindowOutline`]): spans are cut to them. Empty: no cut.
     outline_rows: Vec<(u32, u32)>,
+    /// The windowed pass's outline, direction and viewport, for [`TargetReach::Rows`].
+    window: Option<(WindowOutline, BundleFrame, Viewport)>,
+    /// Rows of the triangles that reach out of the target's box (see [`TargetReach`]).
+    clip_rows: Vec<(u32, u32)>,
+    clipped: Vec<Vec3>,
+    clip_scratch: Vec<Vec3>,
+    hull: Vec<Vec2>,
     /// Row buffer: pixel p of the resolved window owns `frags[ends[p]..ends[p + 1]]`.
     ends: Vec<u32>,
     frags: Vec<Fragment>,
@@ -141,6 +167,7 @@ impl TileFragments {
             Some(o) => o.rows(viewport, &mut self.outline_rows),
             None => self.outline_rows.clear(),
         }
+        self.window = outline.map(|o| (*o, *frame, *viewport));
         self.width = viewport.width;
         self.height = viewport.height;
         self.offset = viewport.offset;
@@ -282,6 +309,7 @@ impl TileFragments {
             }
         };
         self.planes.clear();
+        self.clip_rows.clear();
         for (k, tri) in self.tris.iter().enumerate() {
             let (plus_side, minus_side) =
                 if tri.screen.front_faces_dir { (Side::Front, Side::Back) } else { (Side::Back, Side::Front) };
@@ -293,7 +321,7 @@ impl TileFragments {
                 SideLookup::Elsewhere { uv, foreign } => SideLookup::Elsewhere { uv: side_uv(&planes, uv), foreign },
                 other => other,
             };
-            self.planes.push(FragmentPlanes {
+            let mut p = FragmentPlanes {
                 depth: planes.depth_coefficients(),
                 planes,
                 plus: in_grid(lookup(k, tri.index, plus_side, false)),
@@ -301,7 +329,39 @@ impl TileFragments {
                 plus_flag: if tri.emitter { EMITTER_FLAG } else { 0 },
                 minus_flag: if tri.screen.front_faces_dir { FRONT_LOOKS_PLUS } else { 0 },
                 normal: tri.normal,
-            });
+                reach: TargetReach::None,
+            };
+            if p.shows_targets() {
+                p.reach = match &self.window {
+                    None => TargetReach::Everywhere,
+                    Some((outline, frame, viewport)) => {
+                        let corners = &scene.bundle.geom.corners[tri.index as usize];
+                        let w = outline.window();
+                        if corners.iter().all(|&c| in_box(c, w)) {
+                            TargetReach::Everywhere
+                        } else {
+                            // Every fragment showing a target texel lies in the box (see
+                            // `BakeTarget::window`): only the part inside can show one.
+                            clip_to_box(corners, w, &mut self.clipped, &mut self.clip_scratch);
+                            let on_grid = |c: &Vec3| {
+                                let f = frame.coords(*c);
+                                viewport.grid_position(Vec2::new(f.x, f.y))
+                            };
+                            self.hull.clear();
+                            self.hull.extend(self.clipped.iter().map(on_grid));
+                            if self.hull.is_empty() {
+                                TargetReach::None
+                            } else {
+                                let start = self.clip_rows.len() as u32;
+                                let (r0, r1) = tri.screen.rows();
+                                hull_rows(&self.hull, Points::Polygon, viewport, r0..r1 + 1, &mut self.clip_rows);
+                                TargetReach::Rows { start }
+                            }
+                        }
+                    }
+                };
+            }
+            self.planes.push(p);
         }
     }
 
@@ -313,16 +373,27 @@ impl TileFragments {
     /// The pixels of a bucket to resolve: those covered by a span of a triangle with a side
     /// that may show a target texel (a `Table` side: no other pixel holds a fragment that
     /// can be credited; a triangle that holds no target texel may still show one, where the
-    /// texel's square reaches over it from a neighbour in its chart), in a light pass cut to
-    /// the hull of its emitter spans (no other pixel can receive its light). `None` when
-    /// that is empty.
+    /// texel's square reaches over it from a neighbour in its chart) — in a windowed pass,
+    /// by the triangle's part inside the target's box ([`TargetReach`]: a floor crossing a
+    /// cell's box covers much of its outline along slanted directions, and those lines see
+    /// it outside the cell) — in a light pass cut to the hull of its emitter spans (no other
+    /// pixel can receive its light). `None` when that is empty.
     fn pixels_to_resolve(&self, bucket: usize) -> Option<StripPixels> {
         let spans = self.bucket_spans_of(bucket);
         let base = (bucket / self.height as usize) as u32 * STRIP;
-        let mut mask = spans
-            .iter()
-            .filter(|s| self.planes[s.tri as usize].shows_targets())
-            .fold(0u64, |m, s| m | run_bits(s.x0 - base, s.x1 - base));
+        let row = bucket as u32 % self.height;
+        let mut mask = spans.iter().fold(0u64, |m, s| {
+            let (x0, x1) = match self.planes[s.tri as usize].reach {
+                TargetReach::None => return m,
+                TargetReach::Everywhere => (s.x0, s.x1),
+                TargetReach::Rows { start } => {
+                    let first = self.tris[s.tri as usize].screen.rows().0;
+                    let (a, b) = self.clip_rows[(start + row - first) as usize];
+                    (s.x0.max(a), s.x1.min(b))
+                }
+            };
+            if x0 < x1 { m | run_bits(x0 - base, x1 - base) } else { m }
+        });
         if self.emitters_only {
             let hull = |(lo, hi): (u32, u32), s: &Span| (lo.min(s.x0), hi.max(s.x1));
             let (a, b) = spans.iter().filter(|s| self.tris[s.tri as usize].emitter).fold((u32::MAX, 0), hull);
