@@ -75,6 +75,13 @@ fn per_direction_ms(p: &PassStats) -> Value {
     })
 }
 
+/// Where a pass's resolve time goes: per pixel resolved, and how often a hit read the
+/// radiance of a surface outside the target (a cell bake's lines mostly meet other cells'
+/// surfaces, whose radiance comes from the shown map; a whole bake's from its own texels).
+fn resolve_costs(p: &PassStats, texel_samples: f64) -> (f64, f64) {
+    (1e9 * p.resolve_seconds / p.covered_pixels.max(1) as f64, p.foreign_lookups as f64 / texel_samples.max(1.0))
+}
+
 fn traced_seconds(p: &PassStats) -> f64 {
     p.analysis_seconds + p.mip_seconds + p.subdivision_seconds + p.build_seconds + p.resolve_seconds + p.light_seconds
 }
@@ -139,6 +146,8 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
     let (cell_bakes, whole_texels, whole_pass, whole_samples) = last.ok_or_else(|| anyhow!("no repeat ran"))?;
     let median = |v: &[f64]| quantile(v, 0.5).unwrap_or(f64::NAN);
     let ratio = median(&ratios);
+    let (cell_ns, cell_foreign) = resolve_costs(&cell_bakes.pass, cell_bakes.texel_samples as f64);
+    let (whole_ns, whole_foreign) = resolve_costs(&whole_pass, whole_samples);
     bench.ui.say(format!(
         "  {}: cell bakes {:.2} M texel-samples/s, whole bake {:.2} M: ratio {ratio:.3} (median of {repeats})",
         w.name,
@@ -164,6 +173,8 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
             "fragments_per_texel_sample": cell_bakes.pass.fragments as f64 / cell_bakes.texel_samples.max(1) as f64,
             "resolved_pixels_per_texel_sample":
                 cell_bakes.pass.covered_pixels as f64 / cell_bakes.texel_samples.max(1) as f64,
+            "resolve_ns_per_resolved_pixel": cell_ns,
+            "foreign_lookups_per_texel_sample": cell_foreign,
             "per_direction_ms": per_direction_ms(&cell_bakes.pass),
         },
         "whole_bake": {
@@ -173,6 +184,8 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
             "texel_samples_per_second_each": whole_rates,
             "fragments_per_texel_sample": whole_pass.fragments as f64 / whole_samples.max(1.0),
             "resolved_pixels_per_texel_sample": whole_pass.covered_pixels as f64 / whole_samples.max(1.0),
+            "resolve_ns_per_resolved_pixel": whole_ns,
+            "foreign_lookups_per_texel_sample": whole_foreign,
             "per_direction_ms": per_direction_ms(&whole_pass),
         },
         "ratio_cell_bakes_over_whole_bake": ratio,
