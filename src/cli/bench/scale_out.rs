@@ -2,10 +2,13 @@
 //! bounce rounds on a real scene, once as `livebake bake --bounce-rounds`, once as N = 4
 //! direction shards and once as N = 4 region shards (`--shard-by regions`), run one after
 //! another plus a merge per round, each a process of its own. Per process the CPU time
-//! (user + system) and peak resident memory come from `wait4`'s resource usage. The two
-//! ways alternate, and the figures are medians over the repeats: the ratio of the shards'
-//! CPU time (merges included) to the single bake's, the merges' share of the single bake's
-//! CPU time, and each shard's peak memory against the single bake's.
+//! (user + system) and peak resident memory come from `wait4`'s resource usage. The single
+//! bake runs before, between and after the two ways, and each way is measured against the
+//! mean of the two single bakes around it: this machine's speed drifts by 20–30% within
+//! minutes, and one single bake before both ways moved the ratio by ±10% between repeats.
+//! The figures are medians over the repeats: the ratio of the shards' CPU time (merges
+//! included) to the single bake's, the merges' share of the single bake's CPU time, and
+//! each shard's peak memory against the single bake's.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -76,14 +79,22 @@ struct Way {
     merges: Vec<Usage>,
 }
 
-/// One bake every way: the single bake's usage, the direction shards' and the region
-/// shards', and the region shards' merged light map's worst relative difference per texel
-/// from the single bake's.
+/// One bake every way: the single bake's usage (before, between and after the two ways),
+/// the direction shards' and the region shards', and the region shards' merged light map's
+/// worst relative difference per texel from the single bake's.
 struct Pair {
-    single: Usage,
+    singles: [Usage; 3],
     directions: Way,
     regions: Way,
     regions_worst: f64,
+}
+
+impl Pair {
+    /// The single bake's CPU time a way is measured against: the mean of the two runs
+    /// around it (way `k` of [`WAYS`] ran between single bakes `k` and `k + 1`).
+    fn single_cpu_around(&self, way: usize) -> f64 {
+        (self.singles[way].cpu_seconds + self.singles[way + 1].cpu_seconds) / 2.0
+    }
 }
 
 /// The ways of sharding measured (`--shard-by`).
@@ -98,7 +109,8 @@ fn bake_both(bench: &Bench, dir: &Path, scene_args: &[String]) -> Result<Pair> {
         a
     };
     let rounds = ROUNDS.to_string();
-    let single = measured(lb, dir, &with(&["--bounce-rounds", &rounds, "--out", "single"]))?;
+    let single = |out: &str| measured(lb, dir, &with(&["--bounce-rounds", &rounds, "--out", out]));
+    let mut singles = vec![single("single")?];
     let mut ways = Vec::new();
     for by in WAYS {
         let mut way = Way::default();
@@ -119,6 +131,7 @@ fn bake_both(bench: &Bench, dir: &Path, scene_args: &[String]) -> Result<Pair> {
             way.merges.push(measured(lb, dir, &merge)?);
         }
         ways.push(way);
+        singles.push(single(&format!("single-after-{by}"))?);
     }
     let map = |d: &str| -> Result<Vec<f32>> {
         let path = dir.join(d).join("lightmap_lod0.exr");
@@ -128,7 +141,8 @@ fn bake_both(bench: &Bench, dir: &Path, scene_args: &[String]) -> Result<Pair> {
     let regions_worst = worst_relative(&map("single")?, &map(&format!("regions-m{ROUNDS}"))?);
     let regions = ways.pop().unwrap_or_default();
     let directions = ways.pop().unwrap_or_default();
-    Ok(Pair { single, directions, regions, regions_worst })
+    let singles = singles.try_into().map_err(|_| anyhow::anyhow!("one single bake before and one after each way"))?;
+    Ok(Pair { singles, directions, regions, regions_worst })
 }
 
 /// Largest relative difference of two maps' values (both zero: none).
@@ -174,12 +188,14 @@ pub fn run(bench: &Bench) -> Result<Value> {
     }
     let _ = std::fs::remove_dir_all(&dir);
     let cpu = |u: &[Usage]| u.iter().map(|u| u.cpu_seconds).sum::<f64>();
-    let single_peak = median(pairs.iter().map(|p| p.single.peak_bytes as f64).collect());
-    let single_cpu = median(pairs.iter().map(|p| p.single.cpu_seconds).collect());
-    let summary = |way: &dyn Fn(&Pair) -> &Way| {
-        let ratio =
-            median(pairs.iter().map(|p| (cpu(&way(p).shards) + cpu(&way(p).merges)) / p.single.cpu_seconds).collect());
-        let merge_share = median(pairs.iter().map(|p| cpu(&way(p).merges) / p.single.cpu_seconds).collect());
+    let singles = || pairs.iter().flat_map(|p| &p.singles);
+    let single_peak = median(singles().map(|u| u.peak_bytes as f64).collect());
+    let single_cpu = median(singles().map(|u| u.cpu_seconds).collect());
+    let summary = |k: usize, way: &dyn Fn(&Pair) -> &Way| {
+        let ratio = median(
+            pairs.iter().map(|p| (cpu(&way(p).shards) + cpu(&way(p).merges)) / p.single_cpu_around(k)).collect(),
+        );
+        let merge_share = median(pairs.iter().map(|p| cpu(&way(p).merges) / p.single_cpu_around(k)).collect());
         let peak = |u: &[Usage]| u.iter().map(|u| u.peak_bytes).max().unwrap_or(0) as f64;
         let shard_peak = median(pairs.iter().map(|p| peak(&way(p).shards)).collect());
         let merge_peak = median(pairs.iter().map(|p| peak(&way(p).merges)).collect());
@@ -193,8 +209,8 @@ pub fn run(bench: &Bench) -> Result<Value> {
             "shard_peak_over_single": shard_peak / single_peak,
         })
     };
-    let directions = summary(&|p: &Pair| &p.directions);
-    let regions = summary(&|p: &Pair| &p.regions);
+    let directions = summary(0, &|p: &Pair| &p.directions);
+    let regions = summary(1, &|p: &Pair| &p.regions);
     let runs: Vec<Value> = pairs
         .iter()
         .map(|p| {
@@ -205,7 +221,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
                 })
             };
             json!({
-                "single": usage_json(&p.single),
+                "singles": p.singles.iter().map(usage_json).collect::<Vec<_>>(),
                 "directions": way(&p.directions),
                 "regions": way(&p.regions),
                 "regions_worst_relative_difference": p.regions_worst,
