@@ -123,6 +123,30 @@ pub fn pack_normal(n: Vec3) -> u32 {
     q(u) | q(v) << 16
 }
 
+/// |n_ω| of the unit vector `packed` encodes (`unpack_normal(packed).z.abs()`), remembered
+/// per thread for the last few normals: the coincidence tests ask it of the same few
+/// surfaces pixel after pixel (a ceiling light's quad and the ceiling over the light pass's
+/// whole footprint) and reject nearly every pair on it alone.
+#[inline]
+fn normal_cos(packed: u32) -> f32 {
+    use std::cell::Cell;
+    const SLOTS: usize = 64;
+    // Keys are the packed normal widened: u64::MAX is no normal, so an empty slot never hits.
+    thread_local! {
+        static SEEN: [Cell<(u64, f32)>; SLOTS] = const { [const { Cell::new((u64::MAX, 0.0)) }; SLOTS] };
+    }
+    let slot = (packed ^ packed >> 16) as usize % SLOTS;
+    SEEN.with(|seen| {
+        let (key, cos) = seen[slot].get();
+        if key == u64::from(packed) {
+            return cos;
+        }
+        let cos = unpack_normal(packed).z.abs();
+        seen[slot].set((u64::from(packed), cos));
+        cos
+    })
+}
+
 /// The unit vector [`pack_normal`] encoded.
 pub fn unpack_normal(packed: u32) -> Vec3 {
     let d = |q: u32| (q & 0xFFFF) as f32 / 65535.0 * 2.0 - 1.0;
@@ -170,8 +194,7 @@ impl Coincidence {
     /// rounding and snapping allow there (a depth gap Δ along ω is Δ·|n_ω| along the
     /// normal; the snapping error, slope tanθ times `snap` along ω, is `snap`·sinθ along it).
     #[inline]
-    fn normal_gap(&self, gap: f32, n: Vec3) -> (f32, f32) {
-        let cos = n.z.abs();
+    fn normal_gap(&self, gap: f32, cos: f32) -> (f32, f32) {
         let sin = (1.0 - cos * cos).max(0.0).sqrt();
         (gap * cos, self.rounding * cos + self.snap * sin)
     }
@@ -182,9 +205,8 @@ impl Coincidence {
     #[cold]
     #[inline(never)]
     fn parallel_within_slack(&self, a: &Fragment, b: &Fragment, gap: f32) -> bool {
-        let (na, nb) = (unpack_normal(a.normal), unpack_normal(b.normal));
-        let (along, slack) = self.normal_gap(gap, na);
-        along <= slack && na.dot(nb).abs() >= COPLANAR_COS
+        let (along, slack) = self.normal_gap(gap, normal_cos(a.normal));
+        along <= slack && unpack_normal(a.normal).dot(unpack_normal(b.normal)).abs() >= COPLANAR_COS
     }
 
     /// [`Layering::joins`] for a gap within reach, out of line (see
@@ -192,9 +214,8 @@ impl Coincidence {
     #[cold]
     #[inline(never)]
     fn stacked_within_slack(&self, a: &Fragment, b: &Fragment, gap: f32) -> bool {
-        let (na, nb) = (unpack_normal(a.normal), unpack_normal(b.normal));
-        let (along, slack) = self.normal_gap(gap, na);
-        along <= slack + self.stacked && na.dot(nb) >= COPLANAR_COS
+        let (along, slack) = self.normal_gap(gap, normal_cos(a.normal));
+        along <= slack + self.stacked && unpack_normal(a.normal).dot(unpack_normal(b.normal)) >= COPLANAR_COS
     }
 }
 
@@ -723,6 +744,26 @@ mod tests {
             assert_eq!(layout.address(t), Some(&sums[t as usize] as *const [f32; 4] as usize));
         }
         assert_eq!(TexelLayout::NONE.address(3), None);
+    }
+
+    /// The remembered |n_ω| is the decoded normal's, whatever was asked before: normals that
+    /// share a slot, asked in turn and again, and the largest code (the one an empty slot
+    /// must not pass for).
+    #[test]
+    fn remembered_cosines_are_the_decoded_normals() {
+        let mut rng = crate::sampling::Rng::new(17, 0);
+        // 8 normals in one slot (the slot is a function of the code's halves XORed), and
+        // random ones between them.
+        let colliding: Vec<u32> = (0..8u32).map(|k| k << 16 | k).collect();
+        let mut codes = vec![u32::MAX, 0, u32::MAX];
+        for _ in 0..2000 {
+            codes.push(colliding[(rng.next_u32() % 8) as usize]);
+            codes.push(rng.next_u32());
+        }
+        for &p in &codes {
+            assert_eq!(normal_cos(p).to_bits(), unpack_normal(p).z.abs().to_bits(), "code {p:#x}");
+        }
+        assert_eq!(normal_cos(u32::MAX), 1.0, "(1, 1) decodes to −ω");
     }
 
     #[test]
