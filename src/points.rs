@@ -47,11 +47,26 @@ pub enum PointsError {
 /// Most points a points file may hold: a dense probe grid (references have hundreds).
 pub const MAX_POINTS: usize = 1 << 20;
 
-/// A query point and the normal of the side it asks about.
+/// A query point (in the scene's frame: [`crate::scene::Scene::origin`]) and the normal of the
+/// side it asks about.
 #[derive(Clone, Copy, Debug)]
 pub struct Query {
     pub p: Vec3,
     pub n: Vec3,
+}
+
+/// A query as a file gives it: its point in the file's coordinates, kept in `f64` until the
+/// scene's origin is taken off (a point kilometres out keeps its millimetres).
+#[derive(Clone, Copy, Debug)]
+struct FileQuery {
+    p: DVec3,
+    n: Vec3,
+}
+
+impl FileQuery {
+    fn in_frame(self, origin: DVec3) -> Query {
+        Query { p: (self.p - origin).as_vec3(), n: self.n }
+    }
 }
 
 /// The fields of a point that are read; every other one is skipped while reading (and kept
@@ -87,15 +102,17 @@ trait FromPoint: Sized {
     fn from_point(raw: RawPoint, index: usize) -> Result<Self, String>;
 }
 
-impl FromPoint for Query {
+impl FromPoint for FileQuery {
     fn from_point(raw: RawPoint, index: usize) -> Result<Self, String> {
-        Ok(Query { p: vec3(raw.p.as_ref(), "p", index)?, n: vec3(raw.n.as_ref(), "n", index)? })
+        let p =
+            triple(raw.p.as_ref(), "p", index)?.ok_or_else(|| format!("point {index}: missing \"p\": [x, y, z]"))?;
+        Ok(FileQuery { p, n: vec3(raw.n.as_ref(), "n", index)? })
     }
 }
 
 /// A reference point: the query, E and its standard error.
 struct ReferencePoint {
-    query: Query,
+    query: FileQuery,
     e: DVec3,
     stderr: DVec3,
 }
@@ -107,7 +124,7 @@ impl FromPoint for ReferencePoint {
             None => format!("point {index}: missing \"E\": [r, g, b]"),
         })?;
         let stderr = triple(raw.e_stderr.as_ref(), "E_stderr", index)?.unwrap_or(DVec3::ZERO);
-        let query = Query::from_point(raw, index)?;
+        let query = FileQuery::from_point(raw, index)?;
         Ok(ReferencePoint { query, e, stderr })
     }
 }
@@ -163,14 +180,42 @@ fn read_list<T: FromPoint>(path: &Path) -> Result<Vec<T>, PointsError> {
     }
 }
 
-/// A points file: where it is (its points are written back from it) and its queries.
+/// A points file: where it is (its points are written back from it) and its points, in the
+/// file's coordinates.
 pub struct PointsFile {
     pub path: PathBuf,
-    pub queries: Vec<Query>,
+    points: Vec<FileQuery>,
+}
+
+impl PointsFile {
+    /// The queries in the frame of a scene whose origin is `origin`
+    /// ([`crate::scene::Scene::origin`]).
+    pub fn queries(&self, origin: DVec3) -> Vec<Query> {
+        self.points.iter().map(|q| q.in_frame(origin)).collect()
+    }
 }
 
 pub fn read_points(path: &Path) -> Result<PointsFile, PointsError> {
-    Ok(PointsFile { path: path.to_path_buf(), queries: read_list(path)? })
+    Ok(PointsFile { path: path.to_path_buf(), points: read_list(path)? })
+}
+
+/// A reference as read, its points in the file's coordinates: [`ReferenceFile::in_frame`]
+/// places them in a scene's.
+pub struct ReferenceFile {
+    points: Vec<ReferencePoint>,
+}
+
+impl ReferenceFile {
+    /// The reference with its points in the frame of a scene whose origin is `origin`
+    /// ([`crate::scene::Scene::origin`]).
+    pub fn in_frame(&self, origin: DVec3) -> ReferencePoints {
+        let list = &self.points;
+        ReferencePoints {
+            queries: list.iter().map(|r| r.query.in_frame(origin)).collect(),
+            e: list.iter().map(|r| r.e).collect(),
+            stderr: list.iter().map(|r| r.stderr).collect(),
+        }
+    }
 }
 
 /// A reference in probe's output format: points with `"E"` (W/m²) and optionally
@@ -181,14 +226,10 @@ pub struct ReferencePoints {
     pub stderr: Vec<DVec3>,
 }
 
-pub fn read_reference(path: &Path) -> Result<ReferencePoints, PointsError> {
-    let list: Vec<ReferencePoint> = read_list(path)
+pub fn read_reference(path: &Path) -> Result<ReferenceFile, PointsError> {
+    let points = read_list(path)
         .map_err(|source| PointsError::Reference { path: path.to_path_buf(), source: Box::new(source) })?;
-    Ok(ReferencePoints {
-        queries: list.iter().map(|r| r.query).collect(),
-        e: list.iter().map(|r| r.e).collect(),
-        stderr: list.iter().map(|r| r.stderr).collect(),
-    })
+    Ok(ReferenceFile { points })
 }
 
 impl ReferencePoints {

@@ -18,8 +18,12 @@ pub struct SceneReport {
     pub emissive_materials: usize,
     pub punctual_lights: usize,
     pub cameras: usize,
-    pub bounds_min: Option<[f32; 3]>,
-    pub bounds_max: Option<[f32; 3]>,
+    /// The geometry's box in the file's coordinates (metres).
+    pub bounds_min: Option<[f64; 3]>,
+    pub bounds_max: Option<[f64; 3]>,
+    /// Where the scene's frame has its origin, in the file's coordinates: zero unless the
+    /// scene lies far from the file's origin ([`crate::scene::Scene::origin`]).
+    pub origin: [f64; 3],
     /// Uniform sky radiance used, W/(sr·m²).
     pub sky: [f32; 3],
     pub load: LoadStats,
@@ -182,8 +186,9 @@ impl BakeReport {
                 emissive_materials: scene.materials.iter().filter(|m| m.is_emissive()).count(),
                 punctual_lights: scene.lights.len(),
                 cameras: scene.cameras.len(),
-                bounds_min: bounds.map(|b| b.0.to_array()),
-                bounds_max: bounds.map(|b| b.1.to_array()),
+                bounds_min: bounds.map(|b| scene.to_file(b.0).to_array()),
+                bounds_max: bounds.map(|b| scene.to_file(b.1).to_array()),
+                origin: scene.origin.to_array(),
                 sky: scene.sky.to_array(),
                 load: scene.stats.clone(),
             },

@@ -141,12 +141,16 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     let limits = Limits { until: converge.until, budget: converge.budget, max_directions: config.samples as u64 };
     // Files first: a bad one fails before any work.
     let file_reference = converge.reference.as_deref().map(read_reference).transpose()?;
-    let points = converge.points.as_deref().map(|p| read_points(p).map(|f| f.queries)).transpose()?;
-    if let (Some(reference), Some(points)) = (&file_reference, &points) {
-        same_points(reference, converge.reference.as_deref(), points, converge.points.as_deref())?;
+    let points_file = converge.points.as_deref().map(read_points).transpose()?;
+    if let (Some(reference), Some(points)) = (&file_reference, &points_file) {
+        // In the files' own coordinates: a scene's origin moves both alike.
+        let (reference, points) = (reference.in_frame(DVec3::ZERO), points.queries(DVec3::ZERO));
+        same_points(&reference, converge.reference.as_deref(), &points, converge.points.as_deref())?;
     }
 
     let (scene, _) = load_scene(scene_path, options, None)?;
+    let file_reference = file_reference.map(|r| r.in_frame(scene.origin));
+    let points = points_file.map(|p| p.queries(scene.origin));
     let geom = Arc::new(SceneGeometry::new(&scene));
     let atlas = Arc::new(Atlas::build(&scene, &geom, &config.atlas).map_err(BakeError::from)?);
     check_lod_sizes(&atlas, 1)?;

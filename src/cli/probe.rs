@@ -28,8 +28,8 @@ fn default_samples(backend: Backend) -> u32 {
 pub fn run(scene_path: &Path, points_path: &Path, out: Option<&Path>, options: &SceneOptions, ui: &Ui) -> Result<()> {
     let config = options.bake_config(default_samples)?;
     let points = read_points(points_path)?;
-    let queries = &points.queries;
     let (scene, _) = load_scene(scene_path, options, None)?;
+    let queries = &points.queries(scene.origin);
     let results: Vec<Result<Rgb, ProbeError>> = match options.backend {
         Backend::Cpu | Backend::Gpu | Backend::Auto => {
             let baked = bake(&scene, &config, ui).with_context(|| format!("cannot bake {}", scene_path.display()))?;

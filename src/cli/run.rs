@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use glam::{Vec2, Vec3};
+use glam::{DVec3, Vec2, Vec3};
 use serde::Deserialize;
 use serde_json::{Value, json};
 
@@ -138,13 +138,14 @@ impl Default for RunOptions {
 #[derive(Deserialize)]
 struct PathKey {
     t: f64,
-    eye: [f32; 3],
-    target: [f32; 3],
+    eye: [f64; 3],
+    target: [f64; 3],
 }
 
-/// A camera path: keys in time order, linearly interpolated, held after the last.
+/// A camera path: keys in time order, linearly interpolated, held after the last; its poses
+/// in the file's coordinates, read in a scene's frame with [`CameraPath::in_frame`].
 pub struct CameraPath {
-    keys: Vec<(f64, Vec3, Vec3)>,
+    keys: Vec<(f64, DVec3, DVec3)>,
 }
 
 impl CameraPath {
@@ -157,9 +158,9 @@ impl CameraPath {
         if keys.is_empty() {
             bail!("{}: the camera path has no keys", path.display());
         }
-        let mut out: Vec<(f64, Vec3, Vec3)> = Vec::with_capacity(keys.len());
+        let mut out: Vec<(f64, DVec3, DVec3)> = Vec::with_capacity(keys.len());
         for (i, k) in keys.iter().enumerate() {
-            let (eye, target) = (Vec3::from(k.eye), Vec3::from(k.target));
+            let (eye, target) = (DVec3::from(k.eye), DVec3::from(k.target));
             if !(k.t.is_finite() && eye.is_finite() && target.is_finite()) || eye == target {
                 bail!("{}: key {i} is not a finite pose with distinct eye and target", path.display());
             }
@@ -171,19 +172,29 @@ impl CameraPath {
         Ok(CameraPath { keys: out })
     }
 
+    /// The path with its poses in the frame of a scene whose origin is `origin`
+    /// ([`livebake::scene::Scene::origin`]).
+    pub fn in_frame(mut self, origin: DVec3) -> CameraPath {
+        for key in &mut self.keys {
+            (key.1, key.2) = (key.1 - origin, key.2 - origin);
+        }
+        self
+    }
+
     /// The pose at time `t` (seconds).
     pub fn at(&self, t: f64) -> (Vec3, Vec3) {
         let k = &self.keys;
+        let pose = |a: DVec3, b: DVec3| (a.as_vec3(), b.as_vec3());
         let Some(next) = k.iter().position(|key| key.0 > t) else {
             let last = k[k.len() - 1];
-            return (last.1, last.2);
+            return pose(last.1, last.2);
         };
         if next == 0 {
-            return (k[0].1, k[0].2);
+            return pose(k[0].1, k[0].2);
         }
         let (a, b) = (k[next - 1], k[next]);
-        let s = ((t - a.0) / (b.0 - a.0).max(1e-9)) as f32;
-        (a.1.lerp(b.1, s), a.2.lerp(b.2, s))
+        let s = (t - a.0) / (b.0 - a.0).max(1e-9);
+        pose(a.1.lerp(b.1, s), a.2.lerp(b.2, s))
     }
 }
 
@@ -338,6 +349,9 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     }
     let (scene, load_seconds, mut spec) = load_scene_with(scene_path, options, None)?;
     let mut sun_path = run.sun_path.as_deref().map(|p| SunPath::read(p, &spec)).transpose()?;
+    let path = path.map(|p| p.in_frame(scene.origin));
+    // --camera is in the file's coordinates.
+    let pose = run.camera.map(|(eye, target)| (scene.to_scene(eye), scene.to_scene(target)));
     let interrupted = Arc::new(AtomicBool::new(false));
     // Ctrl-C ends the run early; the outputs are still written.
     let _ = signal_hook::flag::register(signal_hook::consts::SIGINT, interrupted.clone());
@@ -358,7 +372,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         .with_context(|| format!("cannot create output directory {}", run.out.display()))?;
     let mut log = EventLog::open(run.events.as_deref())?;
     let base = CameraView::for_scene(&scene);
-    let camera_at = |t: f64| match (&path, run.camera) {
+    let camera_at = |t: f64| match (&path, pose) {
         (Some(p), _) => {
             let (eye, target) = p.at(t);
             CameraView { eye, target, ..base }
@@ -465,11 +479,17 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
         write_rgb_exr(&file, w as u32, h as u32, &shown.level_pixels(lod, rect))?;
         written.push((lod, rect, file));
     }
+    // Positions in the file's coordinates, as the scene's points are given.
+    let in_file = |p: [f32; 3]| scene.to_file(Vec3::from(p)).to_array();
     let cells_json = json!({
-        "grid": world.grid,
+        "grid": {
+            "origin": in_file(world.grid.origin.to_array()),
+            "cell_size": world.grid.cell_size,
+            "dims": world.grid.dims,
+        },
         "cells": cells.iter().map(|c| json!({
             "cell": c.cell,
-            "bounds": {"min": c.min, "max": c.max},
+            "bounds": {"min": in_file(c.min), "max": in_file(c.max)},
             "shown_lod": c.shown_lod,
             "punctual_lod": c.punctual_lod,
             "target_lod": c.target_lod,
@@ -487,7 +507,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     if let Some(dir) = &run.export_web {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         export_shown(&world, &shown, &dir.join("scene.gltf"), &ExportOptions { load: options.load_options(None) })?;
-        livebake::serve::export::export_web(dir, &world.scene, &world.atlas, &shown, None, run.camera)
+        livebake::serve::export::export_web(dir, &world.scene, &world.atlas, &shown, None, pose)
             .with_context(|| format!("cannot export the web page into {}", dir.display()))?;
         ui.say(format!("  web page in {} (open index.html?static from a file server)", dir.display()));
     }
@@ -526,7 +546,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     if let (Some(points), Some(out)) = (points, run.points_out.as_deref()) {
         let locator = SurfaceLocator::new(&world.geom, &world.bvh);
         let results: Vec<Result<Rgb, ProbeError>> = points
-            .queries
+            .queries(scene.origin)
             .iter()
             .map(|q| {
                 let at = locator.locate(q.p, q.n)?;
@@ -628,7 +648,7 @@ mod tests {
 
     #[test]
     fn camera_paths_interpolate_and_hold() {
-        let keys = vec![(0.0, Vec3::ZERO, Vec3::Z), (2.0, Vec3::new(2.0, 0.0, 0.0), Vec3::Z)];
+        let keys = vec![(0.0, DVec3::ZERO, DVec3::Z), (2.0, DVec3::new(2.0, 0.0, 0.0), DVec3::Z)];
         let p = CameraPath { keys };
         assert_eq!(p.at(1.0).0, Vec3::new(1.0, 0.0, 0.0));
         assert_eq!(p.at(-1.0).0, Vec3::ZERO);
@@ -636,5 +656,18 @@ mod tests {
         assert!(livebake::viewer::camera::parse_pose("0,0,0,0,0,1").is_ok());
         assert!(livebake::viewer::camera::parse_pose("0,0,0,0,0,0").is_err());
         assert!(livebake::viewer::camera::parse_pose("0,0,0").is_err());
+    }
+
+    /// A path's poses are kept in f64 and moved into a scene's frame before they become f32:
+    /// a quarter metre 4 194 304 m out survives (as f32 it is 4 194 304.0).
+    #[test]
+    fn camera_paths_are_read_in_the_scenes_frame() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("path.json");
+        std::fs::write(&file, r#"[{"t": 0, "eye": [4194304.25, 1.5, 0], "target": [4194310.75, 1.5, -1]}]"#).unwrap();
+        let origin = DVec3::new(4_194_304.0, 0.0, 0.0);
+        let (eye, target) = CameraPath::read(&file).unwrap().in_frame(origin).at(0.0);
+        assert_eq!(eye, Vec3::new(0.25, 1.5, 0.0));
+        assert_eq!(target, Vec3::new(6.75, 1.5, -1.0));
     }
 }

@@ -67,7 +67,8 @@ pub fn run(scene_path: &Path, serve: &ServeOptions, options: &SceneOptions, ui: 
             addr,
             token,
             exposure: serve.exposure,
-            pose: serve.camera,
+            // --camera is in the file's coordinates.
+            pose: serve.camera.map(|(eye, target)| (scene.to_scene(eye), scene.to_scene(target))),
             in_flight_bytes: livebake::serve::hub::IN_FLIGHT_BYTES,
         },
     )?;

@@ -142,6 +142,8 @@ pub fn run_on(
         None => ViewerLoop::open()?,
     };
     let surroundings = scene.surroundings();
+    // --camera is in the file's coordinates.
+    let pose = view.camera.map(|(eye, target)| (scene.to_scene(eye), scene.to_scene(target)));
     let mut runtime = super::run::start_runtime(scene, config, options.backend)
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
     if !view.no_watch {
@@ -150,7 +152,7 @@ pub fn run_on(
     }
     let mut source = RuntimeLight::new(runtime).with_sun(spec);
     let viewer = ViewerOptions {
-        pose: view.camera,
+        pose,
         settings: DrawSettings {
             view_mode: view.view.into(),
             exposure: view.exposure.unwrap_or(1.0),

@@ -307,6 +307,11 @@ pub(super) fn build(
         }
         meshes.push(mesh);
         let mut node = json!({ "mesh": meshes.len() - 1 });
+        // Positions are in the scene's frame: its origin puts them back where the file has
+        // them (beside the file's cameras and lights, kept below as they are).
+        if scene.origin != glam::DVec3::ZERO {
+            node["translation"] = json!(scene.origin.to_array());
+        }
         for key in ["name", "extras"] {
             if let Some(v) = node_json.and_then(|j| j.get(key)) {
                 node[key] = v.clone();

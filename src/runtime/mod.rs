@@ -504,7 +504,9 @@ impl Runtime {
     /// meshes' surroundings drop to LOD 0 and are re-baked first, the rest is refreshed at
     /// lower priority; a bad save keeps the current scene and reports
     /// [`RuntimeEvent::ReloadFailed`]. `path` is the file the scene was loaded from.
-    pub fn watch(&mut self, path: &Path, config: WatchConfig) -> Result<(), RuntimeError> {
+    pub fn watch(&mut self, path: &Path, mut config: WatchConfig) -> Result<(), RuntimeError> {
+        // A reload is made in this world's frame, wherever its geometry now lies.
+        config.load.origin = Some(self.world().scene.origin);
         let watcher = crate::watch::SceneWatcher::start(path, config)?;
         // The reload thread lives as long as the runtime.
         let _ = self.reload.send(reload::ReloadRequest::Watch(watcher));

@@ -18,7 +18,7 @@ pub mod texture;
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use glam::{Quat, Vec2, Vec3, Vec4};
+use glam::{DVec3, Quat, Vec2, Vec3, Vec4};
 
 pub use builder::SceneBuilder;
 pub use environment::Environment;
@@ -484,10 +484,25 @@ pub struct Scene {
     /// How many of the last [`lights`](Self::lights) came from the surroundings (the sun of
     /// [`Surroundings`]) rather than the file.
     pub surrounding_lights: usize,
+    /// Where the scene's frame has its origin, in the file's coordinates (metres): every
+    /// position here is relative to it. Zero unless the scene lies far from the file's
+    /// origin (`gltf::origin`); points read from the user and positions written out are
+    /// converted with [`Scene::to_scene`] and [`Scene::to_file`].
+    pub origin: DVec3,
     pub stats: LoadStats,
 }
 
 impl Scene {
+    /// A point in the file's coordinates, in the scene's frame (see [`Scene::origin`]).
+    pub fn to_scene(&self, p: Vec3) -> Vec3 {
+        if self.origin == DVec3::ZERO { p } else { (p.as_dvec3() - self.origin).as_vec3() }
+    }
+
+    /// A point of the scene's frame in the file's coordinates (see [`Scene::origin`]).
+    pub fn to_file(&self, p: Vec3) -> DVec3 {
+        p.as_dvec3() + self.origin
+    }
+
     pub fn triangle_count(&self) -> usize {
         self.meshes.iter().map(|m| m.triangles.len()).sum()
     }

@@ -204,7 +204,8 @@ pub fn run(bench: &Bench) -> Result<Value> {
     let (quick, ui) = (bench.quick, bench.ui);
     let dir = assets().join("cornell_2m");
     let (scene_path, points_path) = (dir.join("cornell_2m.gltf"), dir.join("points.json"));
-    let reference = read_reference(&dir.join("mitsuba_reference.json"))?;
+    let scene = std::sync::Arc::new(load_gltf(&scene_path, &LoadOptions::default())?);
+    let reference = read_reference(&dir.join("mitsuba_reference.json"))?.in_frame(scene.origin);
     let directions: &[u32] = if quick { &[32, 128, 512] } else { &[16, 32, 64, 128, 256, 512, 1024, 2048] };
     let spps: &[u32] = if quick { &[1, 4] } else { &[1, 2, 4, 8, 16, 32] };
 
@@ -223,7 +224,6 @@ pub fn run(bench: &Bench) -> Result<Value> {
         .collect();
 
     ui.say("  bundle and reference bakes ...");
-    let scene = std::sync::Arc::new(load_gltf(&scene_path, &LoadOptions::default())?);
     let mut base = BakeConfig::default();
     base.atlas.texel_size = Some(TEXEL);
     let mut bundle = Vec::new();

@@ -103,7 +103,7 @@ fn scene(s: &RealScene, horizon: f64, ui: &dyn Narrator) -> Result<(Value, Vec<S
     let mut loaded = load_gltf(&path, &LoadOptions::default()).with_context(|| format!("{}", path.display()))?;
     loaded.sky = s.sky;
     let scene = Arc::new(loaded);
-    let reference = read_reference(&assets().join(s.reference))?;
+    let reference = read_reference(&assets().join(s.reference))?.in_frame(scene.origin);
     let config = RuntimeConfig::default();
 
     ui.say(format!("  {}: {} triangles, turning at the eye for {horizon} s ...", s.name, scene.triangle_count()));

@@ -51,6 +51,7 @@ mod images;
 mod lights;
 mod materials;
 mod nodes;
+mod origin;
 mod primitive;
 mod references;
 mod source;
@@ -59,7 +60,7 @@ mod uri;
 use std::path::{Path, PathBuf};
 
 use ::gltf::json;
-use glam::Mat4;
+use glam::{DMat4, DVec3, Mat4};
 
 pub use error::LoadError;
 pub use references::{ExternalFile, ExternalKind, external_files};
@@ -87,6 +88,9 @@ pub struct LoadOptions {
     /// Most bytes the scene's decoded textures may hold together, the decode of the next
     /// one included (`None`: no limit besides `max_texture_pixels`).
     pub texture_memory_limit: Option<u64>,
+    /// Place the scene's frame at this origin (file coordinates) rather than choosing one
+    /// ([`Scene::origin`]): a reload keeps the frame the runtime's world was made in.
+    pub origin: Option<DVec3>,
 }
 
 /// A texture of 4096 × 4096 pixels (64 MiB decoded) is the largest a glTF asset commonly
@@ -102,6 +106,7 @@ impl Default for LoadOptions {
             allow_outside_files: false,
             max_texture_pixels: DEFAULT_MAX_TEXTURE_PIXELS,
             texture_memory_limit: None,
+            origin: None,
         }
     }
 }
@@ -156,8 +161,24 @@ pub fn load_gltf_bytes(path: &Path, bytes: &[u8], options: &LoadOptions) -> Resu
 
     let mut scene = Scene { source: Some(PathBuf::from(path)), ..Scene::default() };
     let roots = nodes::scene_roots(&ctx, options)?;
-    let instances = nodes::traverse(&ctx, &roots, &mut diag)?;
+    let mut instances = nodes::traverse(&ctx, &roots, &mut diag)?;
     scene.stats.nodes = instances.len();
+    scene.origin = match options.origin {
+        Some(o) if o.is_finite() => o,
+        _ => origin::scene_origin(&ctx, &instances)?,
+    };
+    if scene.origin != DVec3::ZERO {
+        for inst in &mut instances {
+            inst.world = origin::relative(inst.world64, scene.origin);
+        }
+        tracing::info!(
+            "{}: the scene lies far from the file's origin: loaded relative to ({}, {}, {}) m (points and camera paths are read, and positions written, in the file's coordinates)",
+            path.display(),
+            scene.origin.x,
+            scene.origin.y,
+            scene.origin.z
+        );
+    }
 
     // Geometry first (cheap, and what most errors are about); images are decoded only for a
     // scene that has something to light.
@@ -231,11 +252,28 @@ fn load_node_meshes(
         diag.note(Kind::IgnoredSkin, 1, || node_name.clone());
     }
     let mesh_name = mesh.name.clone().unwrap_or_else(|| format!("mesh{mesh_index}"));
-    let places: Vec<(Mat4, String)> = match nodes::instance_transforms(ctx, inst.node)? {
-        None => vec![(inst.world, node_name.clone())],
-        Some(transforms) => {
-            transforms.iter().enumerate().map(|(i, t)| (inst.world * *t, format!("{node_name}#{i}"))).collect()
+    // Each place in the scene's frame, and in f64 when the scene has an origin of its own.
+    let origin = scene.origin;
+    let place = |world64: DMat4, world: Mat4| match origin == DVec3::ZERO {
+        true => (world, None),
+        false => {
+            let local = origin::relative64(world64, origin);
+            (local.as_mat4(), Some(local))
         }
+    };
+    let places: Vec<(Mat4, Option<DMat4>, String)> = match nodes::instance_transforms(ctx, inst.node)? {
+        None => {
+            let (world, world64) = place(inst.world64, inst.world);
+            vec![(world, world64, node_name.clone())]
+        }
+        Some(transforms) => transforms
+            .iter()
+            .enumerate()
+            .map(|(i, t)| {
+                let (world, world64) = place(inst.world64 * t.as_dmat4(), inst.world * *t);
+                (world, world64, format!("{node_name}#{i}"))
+            })
+            .collect(),
     };
     let mut per_place = 0u64;
     for prim in &mesh.primitives {
@@ -252,7 +290,7 @@ fn load_node_meshes(
             ),
         });
     }
-    for (world, place_name) in &places {
+    for (world, world64, place_name) in &places {
         if !world.is_finite() {
             return Err(ctx.invalid(format!("{place_name}: its world transform overflows to non-finite values")));
         }
@@ -269,7 +307,8 @@ fn load_node_meshes(
                 }
             };
             let name = format!("{place_name}/{mesh_name}/{p}");
-            let instance = primitive::Instance { prim, node: inst.node, world: *world, name, material };
+            let instance =
+                primitive::Instance { prim, node: inst.node, world: *world, world64: *world64, name, material };
             match primitive::build(ctx, diag, &instance)? {
                 Built::Mesh(m) => scene.meshes.push(m),
                 Built::GeneratedNormals(m) => {

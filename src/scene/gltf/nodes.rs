@@ -1,7 +1,7 @@
 //! Scene selection, node hierarchy traversal and world transforms.
 
 use ::gltf::json;
-use glam::{Mat3, Mat4, Quat, Vec3};
+use glam::{DMat4, Mat3, Mat4, Quat, Vec3};
 
 use super::accessor;
 use super::diag::{Diagnostics, Kind};
@@ -11,7 +11,12 @@ use super::{Ctx, LoadError, LoadOptions};
 #[derive(Clone, Copy, Debug)]
 pub(super) struct NodeInstance {
     pub node: usize,
+    /// Node → the scene's frame (world less [`crate::scene::Scene::origin`]; the world
+    /// itself until the origin is chosen).
     pub world: Mat4,
+    /// Node → world, composed in f64: a model placed kilometres from the file's origin
+    /// keeps its millimetres (see [`super::origin`]).
+    pub world64: DMat4,
 }
 
 /// The scene to load: `options.scene`, else the file's default scene, else the first scene;
@@ -52,8 +57,9 @@ pub(super) fn traverse(ctx: &Ctx, roots: &[usize], diag: &mut Diagnostics) -> Re
     let nodes = &ctx.root.nodes;
     let mut visited = vec![false; nodes.len()];
     let mut out = Vec::new();
-    let mut stack: Vec<(usize, Mat4)> = roots.iter().rev().map(|&n| (n, Mat4::IDENTITY)).collect();
-    while let Some((index, parent)) = stack.pop() {
+    let mut stack: Vec<(usize, Mat4, DMat4)> =
+        roots.iter().rev().map(|&n| (n, Mat4::IDENTITY, DMat4::IDENTITY)).collect();
+    while let Some((index, parent, parent64)) = stack.pop() {
         let node = nodes
             .get(index)
             .ok_or_else(|| ctx.invalid(format!("node {index} does not exist ({} nodes)", nodes.len())))?;
@@ -65,16 +71,17 @@ pub(super) fn traverse(ctx: &Ctx, roots: &[usize], diag: &mut Diagnostics) -> Re
             )));
         }
         *seen = true;
-        let world = parent * local_transform(ctx, index, node, diag)?;
+        let local = local_transform(ctx, index, node, diag)?;
+        let (world, world64) = (parent * local, parent64 * local.as_dmat4());
         if !world.is_finite() {
             return Err(ctx.invalid(format!(
                 "node {index}{}: its world transform overflows to non-finite values",
                 name_suffix(&node.name)
             )));
         }
-        out.push(NodeInstance { node: index, world });
+        out.push(NodeInstance { node: index, world, world64 });
         for child in node.children.iter().flatten().rev() {
-            stack.push((child.value(), world));
+            stack.push((child.value(), world, world64));
         }
     }
     Ok(out)

@@ -3,7 +3,7 @@
 //! normals (transformed, repaired or generated flat), texture coordinates, vertex colours.
 
 use ::gltf::json;
-use glam::{Mat4, Vec2, Vec3, Vec4};
+use glam::{DMat4, Mat4, Vec2, Vec3, Vec4};
 use json::mesh::{Mode, Semantic};
 use json::validation::Checked;
 
@@ -17,7 +17,12 @@ use crate::scene::{MaterialId, Mesh};
 pub(super) struct Instance<'a> {
     pub prim: &'a json::mesh::Primitive,
     pub node: usize,
+    /// Into the scene's frame.
     pub world: Mat4,
+    /// The same in `f64`, for a scene moved to an origin of its own
+    /// ([`super::origin`]): positions go through it and are rounded to `f32` once, near the
+    /// origin. `None`: the scene keeps the file's origin, and `world` places them.
+    pub world64: Option<DMat4>,
     /// `node/mesh/primitive-index`.
     pub name: String,
     pub material: MaterialId,
@@ -129,6 +134,11 @@ pub(super) fn triangle_bound(ctx: &Ctx, prim: &json::mesh::Primitive) -> Result<
     })
 }
 
+/// The primitive's POSITION accessor, if it has one.
+pub(super) fn position_accessor(prim: &json::mesh::Primitive) -> Option<usize> {
+    attribute(prim, Semantic::Positions)
+}
+
 fn attribute(prim: &json::mesh::Primitive, semantic: Semantic) -> Option<usize> {
     prim.attributes.get(&Checked::Valid(semantic)).map(|i| i.value())
 }
@@ -151,7 +161,7 @@ fn check_count(
 }
 
 fn read_positions(ctx: &Ctx, inst: &Instance) -> Result<Vec<Vec3>, LoadError> {
-    let acc = attribute(inst.prim, Semantic::Positions)
+    let acc = position_accessor(inst.prim)
         .ok_or_else(|| ctx.invalid(format!("mesh instance '{}' has no POSITION attribute", inst.name)))?;
     let positions = accessor::read_vec3(ctx, acc, &format!("POSITION of '{}'", inst.name))?;
     check_finite(ctx, inst, "POSITION", &positions)?;
@@ -239,7 +249,10 @@ fn assemble(mode: Mode, idx: &[u32]) -> (Vec<[u32; 3]>, usize) {
 }
 
 fn to_world(ctx: &Ctx, inst: &Instance, local: &[Vec3]) -> Result<Vec<Vec3>, LoadError> {
-    let world: Vec<Vec3> = local.iter().map(|&p| inst.world.transform_point3(p)).collect();
+    let world: Vec<Vec3> = match inst.world64 {
+        Some(m) => local.iter().map(|&p| m.transform_point3(p.as_dvec3()).as_vec3()).collect(),
+        None => local.iter().map(|&p| inst.world.transform_point3(p)).collect(),
+    };
     check_finite(ctx, inst, "POSITION (after the node transform)", &world)?;
     Ok(world)
 }
