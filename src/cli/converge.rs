@@ -35,7 +35,7 @@ use livebake::progress::NoProgress;
 use livebake::reference::punctual::is_buried;
 use livebake::reference::{Bvh, ReferenceTracer};
 use livebake::sampling::Rng;
-use livebake::scene::SceneGeometry;
+use livebake::scene::{Scene, SceneGeometry};
 
 use super::SceneOptions;
 use super::bake::load_scene;
@@ -274,7 +274,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, converge: &ConvergeOptions
     let mut files = Vec::new();
     if traced {
         let path = converge.out.join("reference.json");
-        write_json(&path, &reference_json(&reference, scene_path, &reference_info, config.seed))?;
+        write_json(&path, &reference_json(&reference, &scene, scene_path, &reference_info, config.seed))?;
         files.push(path);
     }
     let doc = json!({
@@ -540,16 +540,19 @@ fn trace_reference(
     }
 }
 
-/// The traced reference in probe's output format, to pass back as `--reference`.
-fn reference_json(reference: &ReferencePoints, scene: &Path, info: &Value, seed: u64) -> Value {
+/// The traced reference in probe's output format (points in the file's coordinates), to pass
+/// back as `--reference`.
+fn reference_json(reference: &ReferencePoints, scene: &Scene, path: &Path, info: &Value, seed: u64) -> Value {
     let points: Vec<Value> = reference
         .queries
         .iter()
         .zip(reference.e.iter().zip(&reference.stderr))
-        .map(|(q, (e, s))| json!({ "p": q.p.to_array(), "n": q.n.to_array(), "E": e.to_array(), "E_stderr": s.to_array() }))
+        .map(|(q, (e, s))| {
+            json!({ "p": scene.to_file(q.p).to_array(), "n": q.n.to_array(), "E": e.to_array(), "E_stderr": s.to_array() })
+        })
         .collect();
     json!({
-        "scene": scene.display().to_string(),
+        "scene": path.display().to_string(),
         "tracer": "livebake reference path tracer",
         "paths_per_point": info["paths_per_point"],
         "seed": seed,
