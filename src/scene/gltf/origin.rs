@@ -68,7 +68,8 @@ pub(super) fn scene_origin(ctx: &Ctx, instances: &[NodeInstance]) -> Result<DVec
             }
         }
     }
-    let origin = ((lo + hi) * 0.5 / ORIGIN_STEP).round() * ORIGIN_STEP;
+    // Adding +0 turns the −0 of a centre just below zero into +0 (reports print "-0.0").
+    let origin = ((lo + hi) * 0.5 / ORIGIN_STEP).round() * ORIGIN_STEP + DVec3::ZERO;
     // Past any map's coordinates a scene is not placed but broken: it loads as it is, and
     // positions that overflow are reported where they do.
     Ok(if lo.cmple(hi).all() && origin.abs().max_element() <= MAX_ORIGIN { origin } else { DVec3::ZERO })
