@@ -3,10 +3,11 @@
 //! next to it before positions become `f32`.
 //!
 //! Everything downstream holds positions in `f32`, whose spacing grows with the distance from
-//! the origin: ~1 mm at 10 km, 8 mm at 100 km. There a light 1 cm below a ceiling merges
-//! with it and faces stop meeting edge to edge: measured on the Cornell box moved by
-//! (d, 0, −d), the mean irradiance of a bake was 1–3% off at d = 1–10 km, 16% at 100 km,
-//! and black at 4 000 km. So world transforms are composed in `f64`
+//! the origin: ~1 mm at 10 km, 8 mm at 100 km. There every vertex moves by up to half that,
+//! each its own way (a light 1 cm below a ceiling, faces meant to meet edge to edge):
+//! measured on the Cornell box moved by (d, 0, −d), the mean irradiance of a bake was 1–3%
+//! off at d = 1–10 km, 16% at 100 km, and black at 4 000 km. So world transforms are
+//! composed in `f64`
 //! ([`super::nodes::NodeInstance::world64`]), the scene's centre is rounded to a multiple of
 //! [`ORIGIN_STEP`], and positions, lights and cameras are made relative to it:
 //! [`Scene::origin`](crate::scene::Scene::origin) is that point in the file's coordinates. A
