@@ -351,7 +351,7 @@ pub fn run(scene_path: &Path, options: &SceneOptions, run: &RunOptions, ui: &Ui)
     let mut sun_path = run.sun_path.as_deref().map(|p| SunPath::read(p, &spec)).transpose()?;
     let path = path.map(|p| p.in_frame(scene.origin));
     // --camera is in the file's coordinates.
-    let pose = run.camera.map(|(eye, target)| (scene.to_scene(eye), scene.to_scene(target)));
+    let pose = run.camera.map(|p| scene.pose_to_scene(p));
     let interrupted = Arc::new(AtomicBool::new(false));
     // Ctrl-C ends the run early; the outputs are still written.
     let _ = signal_hook::flag::register(signal_hook::consts::SIGINT, interrupted.clone());

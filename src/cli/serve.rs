@@ -68,7 +68,7 @@ pub fn run(scene_path: &Path, serve: &ServeOptions, options: &SceneOptions, ui: 
             token,
             exposure: serve.exposure,
             // --camera is in the file's coordinates.
-            pose: serve.camera.map(|(eye, target)| (scene.to_scene(eye), scene.to_scene(target))),
+            pose: serve.camera.map(|p| scene.pose_to_scene(p)),
             in_flight_bytes: livebake::serve::hub::IN_FLIGHT_BYTES,
         },
     )?;

@@ -143,7 +143,7 @@ pub fn run_on(
     };
     let surroundings = scene.surroundings();
     // --camera is in the file's coordinates.
-    let pose = view.camera.map(|(eye, target)| (scene.to_scene(eye), scene.to_scene(target)));
+    let pose = view.camera.map(|p| scene.pose_to_scene(p));
     let mut runtime = super::run::start_runtime(scene, config, options.backend)
         .with_context(|| format!("cannot start the runtime on {}", scene_path.display()))?;
     if !view.no_watch {

@@ -498,6 +498,11 @@ impl Scene {
         if self.origin == DVec3::ZERO { p } else { (p.as_dvec3() - self.origin).as_vec3() }
     }
 
+    /// A camera pose (eye, target) in the file's coordinates, in the scene's frame.
+    pub fn pose_to_scene(&self, (eye, target): (Vec3, Vec3)) -> (Vec3, Vec3) {
+        (self.to_scene(eye), self.to_scene(target))
+    }
+
     /// A point of the scene's frame in the file's coordinates (see [`Scene::origin`]).
     pub fn to_file(&self, p: Vec3) -> DVec3 {
         p.as_dvec3() + self.origin
