@@ -179,9 +179,10 @@ fn option_words(text: &str) -> BTreeSet<String> {
 }
 
 /// Options docs/CLI.md names that belong to other programs: `scripts/bench-compare`'s
-/// (`--runs`; its `--out` is livebake's too), `scripts/bench-tables`' and `cargo`'s.
-const OTHER_PROGRAMS_OPTIONS: [&str; 8] =
-    ["--runs", "--date", "--machine", "--note", "--check", "--release", "--locked", "--test"];
+/// (`--runs`, `--instructions`; its `--out` is livebake's too), `scripts/bench-tables`' and
+/// `cargo`'s.
+const OTHER_PROGRAMS_OPTIONS: [&str; 9] =
+    ["--runs", "--instructions", "--date", "--machine", "--note", "--check", "--release", "--locked", "--test"];
 
 #[test]
 fn cli_md_names_every_option_of_every_command_and_no_other() {
