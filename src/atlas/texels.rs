@@ -628,11 +628,16 @@ impl TexelAlbedo<'_> {
     /// Texel `i` of face `face`'s albedo.
     #[inline]
     pub fn at(&self, i: usize, face: FaceId, uniform: &UniformAlbedos, geom: &SceneGeometry, atlas: &Atlas) -> Rgb {
+        self.at_or(i, || uniform.of_face(geom, atlas, face))
+    }
+
+    /// Texel `i`'s albedo, `of_face()` being its face's ([`UniformAlbedos::of_face`]), for
+    /// a caller that knows it.
+    #[inline]
+    pub fn at_or(&self, i: usize, of_face: impl FnOnce() -> Option<Rgb>) -> Rgb {
         match self {
             TexelAlbedo::Dense(a) => a[i],
-            TexelAlbedo::Textured(t) => {
-                t.get(i as u32).or_else(|| uniform.of_face(geom, atlas, face)).unwrap_or(Rgb::ZERO)
-            }
+            TexelAlbedo::Textured(t) => t.get(i as u32).or_else(of_face).unwrap_or(Rgb::ZERO),
         }
     }
 }

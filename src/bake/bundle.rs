@@ -12,7 +12,7 @@ use crate::atlas::chart_filter::fill_within_charts;
 use crate::atlas::lookup::TexelTable;
 use crate::atlas::texels::{Restore, TexelAlbedo, TexelEmission, TexelView, UniformAlbedos};
 use crate::atlas::{FaceId, TexelMap};
-use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, SourceKind};
+use crate::bundle::progressive::{BatchSums, ProgressiveEstimate, Reflectance, SourceKind};
 use crate::bundle::stats::PassStats;
 use crate::bundle::{
     BakeTarget, BundleBackend, BundleScene, Cancelled, DirectionJob, JobSequence, SourceRadiance, SurfaceRadiance,
@@ -358,9 +358,8 @@ pub(super) fn trace_region(
     let PunctualPass { irradiance: punctual, buried, seconds } = punctual;
     stats.punctual_seconds = seconds;
 
-    let carried = |i: usize| bundle.carried(texels.face[i]);
     let uniform = UniformAlbedos::new(&bundle.scene);
-    let albedo = |i: usize| texels.albedo.at(i, texels.face[i], &uniform, &bundle.geom, &bundle.atlas);
+    let reflectance = || FaceReflectance::new(bundle, &uniform, texels);
     let own_triangles;
     let triangles = match region.triangles {
         Some(t) => t,
@@ -388,7 +387,7 @@ pub(super) fn trace_region(
     let mut source = Vec::new();
     match converged {
         Some(c) => source = c,
-        None => estimate.source_radiance(&albedo, texels.emission, &carried, None, threads, &mut source),
+        None => estimate.initial_source(&reflectance, texels.emission, threads, &mut source),
     }
     stats.light_pass_groups = bundle.emitters.small.len();
     stats.emitter_triangles_in_global_bundles = bundle.emitters.carried_by_bundles.iter().filter(|&&c| c).count();
@@ -424,9 +423,18 @@ pub(super) fn trace_region(
             }
         };
         stats.pass.add(&pass);
-        estimate.add_batch(&sums, texels.area, count * config.light_directions as u64, threads);
-        if kind == SourceKind::Progressive {
-            estimate.source_radiance(&albedo, texels.emission, &carried, Some(&sums), threads, &mut source);
+        let light_directions = count * config.light_directions as u64;
+        match kind {
+            SourceKind::Progressive => estimate.add_batch_and_source(
+                &sums,
+                texels.area,
+                light_directions,
+                &reflectance,
+                texels.emission,
+                threads,
+                &mut source,
+            ),
+            SourceKind::Converged => estimate.add_batch(&sums, texels.area, light_directions, threads),
         }
         first += count;
         traced += count;
@@ -442,6 +450,41 @@ pub(super) fn trace_region(
     stats.light_directions_per_group = estimate.light_directions();
     stats.unsampled_texels = estimate.unsampled();
     Ok(Traced { estimate, stats, source, buried })
+}
+
+/// [`Reflectance`] of a bake's texels, asked of a texel's face once per run of texels on one
+/// face (texels follow their charts' pixels, so a face's lie together) instead of through
+/// face, triangle and mesh for every texel in every batch.
+struct FaceReflectance<'a> {
+    bundle: &'a BundleScene,
+    uniform: &'a UniformAlbedos,
+    face: &'a [FaceId],
+    albedo: TexelAlbedo<'a>,
+    /// The face of the last texel asked (none yet: `FaceId::MAX`), its material's uniform
+    /// albedo and whether the bundles carry its emission.
+    last: FaceId,
+    known: (Option<Rgb>, bool),
+}
+
+impl<'a> FaceReflectance<'a> {
+    fn new(bundle: &'a BundleScene, uniform: &'a UniformAlbedos, texels: &TexelView<'a>) -> Self {
+        let (face, albedo) = (texels.face, texels.albedo);
+        FaceReflectance { bundle, uniform, face, albedo, last: FaceId::MAX, known: (None, false) }
+    }
+}
+
+impl Reflectance for FaceReflectance<'_> {
+    #[inline(always)]
+    fn at(&mut self, i: usize) -> (Rgb, bool) {
+        let face = self.face[i];
+        if face != self.last {
+            let b = self.bundle;
+            self.known = (self.uniform.of_face(&b.geom, &b.atlas, face), b.carried(face));
+            self.last = face;
+        }
+        let of_face = self.known.0;
+        (self.albedo.at_or(i, || of_face), self.known.1)
+    }
 }
 
 /// A whole LOD's bundle bake.
