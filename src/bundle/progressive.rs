@@ -474,6 +474,7 @@ fn sent(e: Rgb, (albedo, carried): (Rgb, bool), emission: impl FnOnce() -> Rgb) 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::atlas::texels::TexelSubset;
 
     #[test]
     fn self_normalised_bundles_and_absolute_light_pass() {
@@ -489,6 +490,56 @@ mod tests {
         // 2π/4 · 0.25 / 0.5 = π/4
         assert!((e[1] - Rgb::splat(1.0 + pi / 4.0)).length() < 1e-5);
         assert_eq!(est.unsampled(), 1);
+    }
+
+    /// What three texels send into the next batch, worked out by hand. Albedo 0.5, punctual
+    /// irradiance 1, two batches (weights 1 and 4), the second's light pass 4 directions.
+    /// Texel 0, hit by both batches (L = 1 then L = 3): E = 1 + π·3 from the last batch
+    /// alone, and it sends 0.5/π·E. Texel 1, missed by the last batch: the running estimate,
+    /// π·(1·1)/(1·1) = π, plus its light pass 2π/4 · 0.5 / 0.25 = π: E = 1 + 2π. Texel 2,
+    /// never hit, carried, emitting 7: 0.5/π + 7. Folding in the same batch as `add_batch`
+    /// does leaves the same estimate.
+    #[test]
+    fn a_batch_folded_in_sends_its_own_indirect_light_to_the_next() {
+        let texels = 3;
+        let mut fused = ProgressiveEstimate::new(SourceKind::Progressive, vec![Rgb::ONE; texels]);
+        let mut plain = ProgressiveEstimate::new(SourceKind::Progressive, vec![Rgb::ONE; texels]);
+        let mut first = BatchSums::new(texels);
+        first.bundle[0] = [1.0, 1.0, 1.0, 1.0];
+        first.bundle[1] = [1.0, 1.0, 1.0, 1.0];
+        let mut second = BatchSums::new(texels);
+        second.bundle[0] = [6.0, 6.0, 6.0, 2.0];
+        second.light[1] = Rgb::splat(0.5);
+        let area = [0.25; 3];
+        let emission = TexelSubset::from_dense(&[Rgb::ZERO, Rgb::ZERO, Rgb::splat(7.0)]);
+        struct Grey;
+        impl Reflectance for Grey {
+            fn at(&mut self, i: usize) -> (Rgb, bool) {
+                (Rgb::splat(0.5), i == 2)
+            }
+        }
+        let mut source = Vec::new();
+        for (batch, light_directions) in [(&first, 0), (&second, 4)] {
+            fused.add_batch_and_source(
+                batch,
+                &area,
+                light_directions,
+                &|| Grey,
+                TexelEmission::Emitting(&emission),
+                2,
+                &mut source,
+            );
+            plain.add_batch(batch, &area, light_directions, 2);
+        }
+        let pi = std::f32::consts::PI;
+        let expected = [0.5 / pi * (1.0 + 3.0 * pi), 0.5 / pi * (1.0 + 2.0 * pi), 0.5 / pi + 7.0];
+        for (i, (s, e)) in source.iter().zip(expected).enumerate() {
+            assert!((*s - Rgb::splat(e)).abs().max_element() < 1e-5, "texel {i}: {s} against {e}");
+        }
+        for i in 0..texels {
+            assert_eq!(fused.irradiance_of(i), plain.irradiance_of(i), "texel {i}");
+        }
+        assert_eq!((fused.batches(), fused.light_directions()), (2, 4));
     }
 
     #[test]
