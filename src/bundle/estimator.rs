@@ -393,22 +393,23 @@ pub fn exchange(
 ) {
     if all_apart(frags, &l) {
         // Every layer is one fragment, whose side toward the viewer is its face.
-        let mut face = |side: u32| match side & CODE_MASK {
-            NO_SIDE => Rgb::ZERO,
-            code => seen(code),
-        };
+        let mut face = |code: u32| if code == NO_SIDE { Rgb::ZERO } else { seen(code) };
+        // The code of the side the fragment before shows this one (its side looking +ω),
+        // carried along; `None` before the first (the sky).
+        let mut shown_behind = None;
         for (i, f) in frags.iter().enumerate() {
+            let behind = std::mem::replace(&mut shown_behind, Some(f.plus & CODE_MASK));
+            let ahead = frags.get(i + 1).map(|a| a.minus & CODE_MASK);
             // Buried (see [`buried`]): both neighbours show it backs of single-sided faces.
-            let blind = |side: Option<u32>| side.is_some_and(|s| s & CODE_MASK == NO_SIDE);
-            if blind(i.checked_sub(1).map(|b| frags[b].plus)) && blind(frags.get(i + 1).map(|a| a.minus)) {
+            if behind == Some(NO_SIDE) && ahead == Some(NO_SIDE) {
                 continue;
             }
             if let Some(t) = f.plus_texel() {
-                let l = frags.get(i + 1).map_or(sky.ahead, |ahead| face(ahead.minus));
+                let l = ahead.map_or(sky.ahead, &mut face);
                 sink.hit(t, l * a_px, a_px);
             }
             if let Some(t) = f.minus_texel() {
-                let l = if i == 0 { sky.behind } else { face(frags[i - 1].plus) };
+                let l = behind.map_or(sky.behind, &mut face);
                 sink.hit(t, l * a_px, a_px);
             }
         }

@@ -202,6 +202,7 @@ pub trait SurfaceRadiance: Sync {
 }
 
 /// What the bundles of a batch see.
+#[derive(Clone, Copy)]
 pub struct SourceRadiance<'a> {
     /// Per target texel: its outgoing radiance toward the bundles.
     pub own: &'a [Rgb],

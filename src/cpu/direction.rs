@@ -378,7 +378,10 @@ fn trace_tile(
 
         let t = Instant::now();
         let a_px = vp.pixel_area();
-        let (sky, source, layering) = (plan.sky, ctx.source, ctx.scene.coincidence_at(vp.pixel).layering());
+        // A copy of its own, which the resolve's writes to the sums cannot alias: the texels'
+        // radiance is then read straight, not through the context at every lookup.
+        let source = &{ *ctx.source };
+        let (sky, layering) = (plan.sky, ctx.scene.coincidence_at(vp.pixel).layering());
         let prefetch = prefetcher(TexelLayout::of(ctx.source.own), sink.sums_layout());
         stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, prefetch, |row| {
             row.for_each_pixel(|f, foreign, cx, cy| match &ctx.scene.passing {
