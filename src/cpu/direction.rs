@@ -11,11 +11,12 @@ use glam::Vec2;
 
 use super::analysis::Analysis;
 use super::emitter_rows::EmitterRows;
-use super::fragments::{ForeignSides, TileFragments};
+use super::fragments::{ForeignSides, Row, TileFragments};
 use super::prefetch::prefetcher;
 use super::scene::CpuScene;
 use super::through::{Line, ThroughScratch};
-use crate::bundle::estimator::{FOREIGN, HitSink, TexelLayout, emit, exchange, is_own};
+use crate::atlas::texels::TexelEmission;
+use crate::bundle::estimator::{FOREIGN, HitSink, Layering, TexelLayout, emit, exchange, is_own};
 use crate::bundle::mips::MipChain;
 use crate::bundle::raster::{BundleFrame, Viewport};
 use crate::bundle::sky::{BundleSky, SkySeen};
@@ -377,29 +378,107 @@ fn trace_tile(
         stats.peak_tile_fragments = stats.peak_tile_fragments.max(count);
 
         let t = Instant::now();
-        let a_px = vp.pixel_area();
-        // A copy of its own, which the resolve's writes to the sums cannot alias: the texels'
-        // radiance is then read straight, not through the context at every lookup.
-        let source = &{ *ctx.source };
+        let (a_px, source) = (vp.pixel_area(), ctx.source);
         let (sky, layering) = (plan.sky, ctx.scene.coincidence_at(vp.pixel).layering());
+        let lines = OpaqueLines { source: *source, sky, layering, a_px };
         let prefetch = prefetcher(TexelLayout::of(ctx.source.own), sink.sums_layout());
-        stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, prefetch, |row| {
-            row.for_each_pixel(|f, foreign, cx, cy| match &ctx.scene.passing {
-                None => {
-                    exchange(f, layering, a_px, sky, |code| seen(source, foreign, code, cx, cy, &mut lookups), sink)
-                }
-                Some(passing) => {
-                    let line = line(ctx, &plan.frame, &vp, foreign, cx, cy);
-                    let seen = |code| seen(source, foreign, code, cx, cy, &mut lookups);
-                    passing.exchange(f, &line, layering, a_px, sky, seen, sink, &mut w.through)
-                }
-            });
+        stats.covered_pixels += w.fragments.resolve(ctx.scene, ctx.target, prefetch, |row| match &ctx.scene.passing {
+            None => exchange_row(row, &lines, &mut lookups, sink),
+            Some(passing) => row.for_each_pixel(|f, foreign, cx, cy| {
+                let line = line(ctx, &plan.frame, &vp, foreign, cx, cy);
+                let seen = |code| seen(source, foreign, code, cx, cy, &mut lookups);
+                passing.exchange(f, &line, layering, a_px, sky, seen, sink, &mut w.through)
+            }),
         });
         stats.resolve_seconds += seconds(t);
     }
     w.stats.lost_lookups += lookups.lost;
     w.stats.foreign_lookups += lookups.resolved;
     Ok(())
+}
+
+/// What every pixel of a tile's resolve reads besides its fragments, where no surface lets
+/// light through.
+struct OpaqueLines<'a> {
+    source: SourceRadiance<'a>,
+    sky: SkySeen,
+    layering: Layering,
+    a_px: f32,
+}
+
+/// The exchange of every covered pixel of one row. Out of line: inside the whole tile pass the
+/// pixel loop kept its state on the stack (the pass's own values took the registers), a
+/// store and a load for most of what a pixel reads.
+#[inline(never)]
+fn exchange_row(row: &mut Row, lines: &OpaqueLines, lookups: &mut ForeignLookups, sink: &mut impl HitSink) {
+    let OpaqueLines { source, sky, layering, a_px } = lines;
+    row.for_each_pixel(|f, foreign, cx, cy| {
+        exchange(f, *layering, *a_px, *sky, |code| seen(source, foreign, code, cx, cy, lookups), sink)
+    });
+}
+
+/// What every pixel of a light bundle's resolve reads besides its fragments, where no
+/// surface lets light through.
+struct EmitterLines<'a> {
+    own: TexelEmission<'a>,
+    source: SourceRadiance<'a>,
+    layering: Layering,
+    a_px: f32,
+}
+
+/// The light-pass exchange of every covered pixel of one row, out of line as
+/// [`exchange_row`] is; `covered` counts the pixels with an emitter.
+#[inline(never)]
+fn emit_row(row: &mut Row, lines: &EmitterLines, lost: &mut u64, covered: &mut u64, sink: &mut impl HitSink) {
+    let EmitterLines { own, source, layering, a_px } = lines;
+    row.for_each_pixel(|f, foreign, cx, cy| {
+        *covered += f.iter().any(|f| f.is_emitter()) as u64;
+        emit(f, *layering, *a_px, |code| emission(*own, source, foreign, code, cx, cy, lost), sink)
+    });
+}
+
+/// The emitted radiance of the side with code `code` at grid centre (cx, cy): a target
+/// texel's, or a foreign side's at its surface point (black, and counted lost, when the source
+/// has no foreign emission).
+#[inline(always)]
+fn emission(
+    own: TexelEmission,
+    source: &SourceRadiance,
+    foreign: &ForeignSides,
+    code: u32,
+    cx: f32,
+    cy: f32,
+    lost: &mut u64,
+) -> Rgb {
+    if is_own(code) {
+        return own.at(code as usize);
+    }
+    foreign_emission(source, foreign, code, cx, cy, lost)
+}
+
+/// [`emission`] of a foreign side, out of line (see [`seen_foreign`]).
+#[inline(never)]
+fn foreign_emission(
+    source: &SourceRadiance,
+    foreign: &ForeignSides,
+    code: u32,
+    cx: f32,
+    cy: f32,
+    lost: &mut u64,
+) -> Rgb {
+    match source.foreign {
+        Some(src) if src.by_lod_pixel() => {
+            foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| src.emission_at(x, y))
+        }
+        Some(src) => {
+            let (tri, side, u, v) = foreign.locate(code, cx, cy);
+            src.emission(tri, side, u, v)
+        }
+        None => {
+            *lost += 1;
+            Rgb::ZERO
+        }
+    }
 }
 
 /// False alarms (paper Table 2): splits for predicted memory overflow where the tile, at the
@@ -510,35 +589,15 @@ fn trace_light(ctx: &PassContext, job: &LightJob, s: &mut Worker, sink: &mut imp
         let (own, source) = (ctx.target.emission, ctx.source);
         // Emission is read for emitter texels alone: only the sums are worth fetching.
         let prefetch = prefetcher(TexelLayout::NONE, sums);
-        s.fragments.resolve(ctx.scene, ctx.target, prefetch, |row| {
-            row.for_each_pixel(|f, foreign, cx, cy| {
+        let lines = EmitterLines { own, source: *source, layering, a_px };
+        s.fragments.resolve(ctx.scene, ctx.target, prefetch, |row| match &ctx.scene.passing {
+            None => emit_row(row, &lines, &mut lost, &mut stats.light_covered_pixels, sink),
+            Some(passing) => row.for_each_pixel(|f, foreign, cx, cy| {
                 stats.light_covered_pixels += f.iter().any(|f| f.is_emitter()) as u64;
-                let emission = |code| {
-                    if is_own(code) {
-                        return own.at(code as usize);
-                    }
-                    match source.foreign {
-                        Some(src) if src.by_lod_pixel() => {
-                            foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| src.emission_at(x, y))
-                        }
-                        Some(src) => {
-                            let (tri, side, u, v) = foreign.locate(code, cx, cy);
-                            src.emission(tri, side, u, v)
-                        }
-                        None => {
-                            lost += 1;
-                            Rgb::ZERO
-                        }
-                    }
-                };
-                match &ctx.scene.passing {
-                    None => emit(f, layering, a_px, emission, sink),
-                    Some(passing) => {
-                        let line = line(ctx, &frame, &vp, foreign, cx, cy);
-                        passing.emit(f, &line, layering, a_px, emission, sink, &mut s.through)
-                    }
-                }
-            });
+                let emission = |code| emission(own, source, foreign, code, cx, cy, &mut lost);
+                let line = line(ctx, &frame, &vp, foreign, cx, cy);
+                passing.emit(f, &line, layering, a_px, emission, sink, &mut s.through)
+            }),
         });
     }
     s.stats.lost_lookups += lost;
