@@ -398,7 +398,7 @@ pub fn exchange(
         // carried along; `None` before the first (the sky).
         let mut shown_behind = None;
         for (i, f) in frags.iter().enumerate() {
-            let behind = std::mem::replace(&mut shown_behind, Some(f.plus & CODE_MASK));
+            let behind = shown_behind.replace(f.plus & CODE_MASK);
             let ahead = frags.get(i + 1).map(|a| a.minus & CODE_MASK);
             // Buried (see [`buried`]): both neighbours show it backs of single-sided faces.
             if behind == Some(NO_SIDE) && ahead == Some(NO_SIDE) {

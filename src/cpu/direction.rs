@@ -453,32 +453,24 @@ fn emission(
     if is_own(code) {
         return own.at(code as usize);
     }
-    foreign_emission(source, foreign, code, cx, cy, lost)
-}
-
-/// [`emission`] of a foreign side, out of line (see [`seen_foreign`]).
-#[inline(never)]
-fn foreign_emission(
-    source: &SourceRadiance,
-    foreign: &ForeignSides,
-    code: u32,
-    cx: f32,
-    cy: f32,
-    lost: &mut u64,
-) -> Rgb {
-    match source.foreign {
-        Some(src) if src.by_lod_pixel() => {
-            foreign.lod_pixel(code, cx, cy).map_or(Rgb::ZERO, |(x, y)| src.emission_at(x, y))
-        }
-        Some(src) => {
-            let (tri, side, u, v) = foreign.locate(code, cx, cy);
-            src.emission(tri, side, u, v)
-        }
-        None => {
-            *lost += 1;
-            Rgb::ZERO
+    // Out of line, as [`seen_foreign`] is.
+    #[inline(never)]
+    fn elsewhere(source: &SourceRadiance, sides: &ForeignSides, code: u32, at: (f32, f32), lost: &mut u64) -> Rgb {
+        match source.foreign {
+            Some(src) if src.by_lod_pixel() => {
+                sides.lod_pixel(code, at.0, at.1).map_or(Rgb::ZERO, |(x, y)| src.emission_at(x, y))
+            }
+            Some(src) => {
+                let (tri, side, u, v) = sides.locate(code, at.0, at.1);
+                src.emission(tri, side, u, v)
+            }
+            None => {
+                *lost += 1;
+                Rgb::ZERO
+            }
         }
     }
+    elsewhere(source, foreign, code, (cx, cy), lost)
 }
 
 /// False alarms (paper Table 2): splits for predicted memory overflow where the tile, at the
