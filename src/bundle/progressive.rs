@@ -88,8 +88,7 @@ impl BatchSums {
             }
         }
         // Lane after lane over the chunk: each texel's sum is still `self + lane 0 + lane 1 …`
-        // in that order, and each lane is one straight loop the compiler vectorises (a
-        // texel-by-texel walk over the lanes was 2% of a one-thread bake of the Cornell box).
+        // in that order, and each lane is one straight loop the compiler vectorises.
         par_for_each(items, threads, |((out_b, out_l), parts)| {
             for (lane_b, lane_l) in parts {
                 for (o, x) in out_b.iter_mut().zip(lane_b.iter_mut()) {
@@ -161,7 +160,7 @@ fn light_irradiance(light: Option<Rgb>, light_directions: u64) -> Rgb {
 }
 
 /// `2π/N_l` after `N_l` light directions (none before any): worked out once for a pass over
-/// the texels (an f64 division a texel was a tenth of a batch's own work).
+/// the texels, not as an f64 division a texel.
 #[inline]
 fn light_scale(light_directions: u64) -> Option<f32> {
     (light_directions > 0).then(|| (std::f64::consts::TAU / light_directions as f64) as f32)
@@ -380,8 +379,7 @@ impl ProgressiveEstimate {
 
     /// Folds one batch in (as [`add_batch`](Self::add_batch)) and writes into `out` the
     /// outgoing radiance each texel sends into the next batch, in one pass over the texels
-    /// (a pass each read the batch's sums and the totals twice, and cost 2.3× 9428cc3's per
-    /// batch on the Cornell box). A texel sends reflected light `albedo/π · E_src`, plus its
+    /// (two would read the batch's sums and the totals twice). A texel sends reflected light `albedo/π · E_src`, plus its
     /// emission when the global bundles carry it; `reflectance()` makes what tells, over a
     /// run of texels, a texel's albedo and whether it is carried. `E_src` is the direct
     /// estimate so far plus the indirect light of this batch alone (see the module docs), or,
