@@ -253,7 +253,7 @@ impl Layering {
     #[inline(always)]
     fn joins(&self, a: &Fragment, b: &Fragment) -> bool {
         let gap = (b.depth - a.depth).abs();
-        if a.coincident_rank() != b.coincident_rank() || gap > self.reach {
+        if gap > self.reach || a.coincident_rank() != b.coincident_rank() {
             return false;
         }
         self.c.stacked_within_slack(a, b, gap)
@@ -294,12 +294,14 @@ pub(super) fn layer_end(frags: &[Fragment], start: usize, l: Layering) -> usize 
     end
 }
 
-/// Whether no two fragments adjacent in depth order are within [`Coincidence::reach`]: every
-/// layer is then one fragment, the common case (a line meets surfaces far apart), which
-/// [`exchange`] and [`emit`] take without looking for layers.
+/// Whether no two fragments adjacent in depth order join (see [`Layering::joins`]): every
+/// layer is then one fragment, the common case, which [`exchange`] and [`emit`] take without
+/// looking for layers. Most lines meet surfaces far apart (beyond [`Coincidence::reach`],
+/// one compare a pair); a line that meets two close surfaces, such as a lamp under its ceiling
+/// or a slab through a floor, is still one fragment a layer unless they are stacked copies.
 #[inline(always)]
-pub(super) fn all_apart(frags: &[Fragment], l: &Layering) -> bool {
-    frags.windows(2).all(|w| (w[1].depth - w[0].depth).abs() > l.reach)
+pub(super) fn one_fragment_layers(frags: &[Fragment], l: &Layering) -> bool {
+    frags.windows(2).all(|w| !l.joins(&w[0], &w[1]))
 }
 
 /// The radiance a layer shows toward one side: the brightest (by r + g + b) of `radiance`
@@ -391,7 +393,7 @@ pub fn exchange(
     mut seen: impl FnMut(u32) -> Rgb,
     sink: &mut impl HitSink,
 ) {
-    if all_apart(frags, &l) {
+    if one_fragment_layers(frags, &l) {
         // Every layer is one fragment, whose side toward the viewer is its face.
         let mut face = |code: u32| if code == NO_SIDE { Rgb::ZERO } else { seen(code) };
         // The code of the side the fragment before shows this one (its side looking +ω),
@@ -475,7 +477,7 @@ pub fn emit(frags: &[Fragment], l: Layering, a_px: f32, mut emission: impl FnMut
     ) -> Option<Rgb> {
         layer_face(layer, side, |f, code| f.is_emitter().then(|| emission(code)))
     }
-    if all_apart(frags, &l) {
+    if one_fragment_layers(frags, &l) {
         // Every layer is one fragment: an emitter's side toward its neighbour is its face.
         let mut emitted = |f: &Fragment, side: u32| match side & CODE_MASK {
             NO_SIDE => None,
@@ -778,6 +780,26 @@ mod tests {
         for n in [Vec3::X, -Vec3::Y, Vec3::Z, -Vec3::Z, Vec3::new(1.0, 0.0, -1e-9).normalize()] {
             assert!(n.dot(unpack_normal(pack_normal(n))) >= COPLANAR_COS);
         }
+    }
+
+    /// A lamp hanging a centimetre under its ceiling (both fronts look −ω, parallel): within
+    /// the reach where layers are looked for, but farther apart than stacked copies, so two
+    /// layers. The floor sees the lamp (and the light pass lights it); the ceiling sees the
+    /// lamp's single-sided back, black, never the floor past it.
+    #[test]
+    fn a_lamp_under_its_ceiling_is_a_layer_of_its_own() {
+        let floor = frag(0.0, 5, NO_SIDE | FRONT_LOOKS_PLUS);
+        let lamp = frag(2.0, NO_SIDE | EMITTER_FLAG, 6);
+        let ceiling = frag(2.01, NO_SIDE, 4);
+        assert!(ceiling.depth - lamp.depth < C.reach, "the pair must be one the layers are looked for in");
+        let frags = [floor, lamp, ceiling];
+        let mut log = Log::default();
+        emit(&frags, C, 0.25, |t| if t == 6 { Rgb::splat(8.0) } else { Rgb::ZERO }, &mut log);
+        assert_eq!(log.0, vec![(5, Rgb::splat(2.0), 0.25)]);
+        let mut log = Log::default();
+        exchange(&frags, C, 0.5, SkySeen::uniform(Rgb::splat(7.0)), |t| Rgb::splat(t as f32), &mut log);
+        // Floor ← lamp (6); lamp ← floor (5); ceiling ← the lamp's back (black).
+        assert_eq!(log.0, vec![(5, Rgb::splat(3.0), 0.5), (6, Rgb::splat(2.5), 0.5), (4, Rgb::ZERO, 0.5)]);
     }
 
     /// An emissive quad (light-pass emitter, emitting along −ω: texel 6) on a ceiling

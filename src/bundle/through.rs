@@ -25,7 +25,7 @@
 //! punctual pass's 2×2 points) looks past see-through surfaces the same way.
 
 use super::estimator::{
-    CODE_MASK, Fragment, HitSink, Layering, NO_SIDE, all_apart, layer_end, layer_face, minus_side, plus_side,
+    CODE_MASK, Fragment, HitSink, Layering, NO_SIDE, layer_end, layer_face, minus_side, one_fragment_layers, plus_side,
 };
 use super::sky::SkySeen;
 use crate::scene::Rgb;
@@ -52,7 +52,7 @@ impl Layer {
 /// Splits depth-sorted `frags` (with transmittances `pass`) into layers.
 fn layers(frags: &[Fragment], pass: &[Rgb], l: Layering, out: &mut Vec<Layer>) {
     out.clear();
-    let apart = all_apart(frags, &l);
+    let apart = one_fragment_layers(frags, &l);
     let mut start = 0;
     while start < frags.len() {
         let end = if apart { start + 1 } else { layer_end(frags, start, l) };
