@@ -299,6 +299,8 @@ pub(super) fn layer_end(frags: &[Fragment], start: usize, l: Layering) -> usize 
 /// looking for layers. Most lines meet surfaces far apart (beyond [`Coincidence::reach`],
 /// one compare a pair); a line that meets two close surfaces, such as a lamp under its ceiling
 /// or a slab through a floor, is still one fragment a layer unless they are stacked copies.
+/// Where every layer is one fragment, the layered walk makes the same hits in the same order,
+/// so which of the two runs is a matter of speed only.
 #[inline(always)]
 pub(super) fn one_fragment_layers(frags: &[Fragment], l: &Layering) -> bool {
     frags.windows(2).all(|w| !l.joins(&w[0], &w[1]))
