@@ -24,9 +24,7 @@
 //! buried when a pane also lies inside the solid. The reference tracer's `is_buried` (the
 //! punctual pass's 2×2 points) looks past see-through surfaces the same way.
 
-use super::estimator::{
-    CODE_MASK, Fragment, HitSink, Layering, NO_SIDE, layer_end, layer_face, minus_side, one_fragment_layers, plus_side,
-};
+use super::estimator::{CODE_MASK, Fragment, HitSink, Layering, NO_SIDE, layer_end, layer_face, minus_side, plus_side};
 use super::sky::SkySeen;
 use crate::scene::Rgb;
 
@@ -52,10 +50,9 @@ impl Layer {
 /// Splits depth-sorted `frags` (with transmittances `pass`) into layers.
 fn layers(frags: &[Fragment], pass: &[Rgb], l: Layering, out: &mut Vec<Layer>) {
     out.clear();
-    let apart = one_fragment_layers(frags, &l);
     let mut start = 0;
     while start < frags.len() {
-        let end = if apart { start + 1 } else { layer_end(frags, start, l) };
+        let end = layer_end(frags, start, l);
         let pass = pass[start..end].iter().fold(Rgb::ONE, |a, &t| a.min(t)).max(Rgb::ZERO);
         out.push(Layer { start: start as u32, end: end as u32, pass, face_minus: None, face_plus: None });
         start = end;
