@@ -9,7 +9,7 @@ use crate::scene::Rgb;
 /// The 3×3 tent (1-2-1 per axis) weight of neighbour (dx, dy), and which neighbours of a
 /// texel count: texels of the same chart and set, never a gutter pixel nor another chart's
 /// pixel. Calls `each(j, w)` for texel `i`'s neighbours (itself included).
-fn for_each_neighbour<'t>(
+pub(crate) fn for_each_neighbour<'t>(
     pixel: &impl Fn(usize) -> [u32; 2],
     table: &impl Fn(usize) -> &'t TexelTable,
     i: usize,

@@ -8,7 +8,6 @@ use std::time::Instant;
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
 
-use crate::atlas::chart_filter::fill_within_charts;
 use crate::atlas::lookup::TexelTable;
 use crate::atlas::texels::{Restore, TexelAlbedo, TexelEmission, TexelView, UniformAlbedos};
 use crate::atlas::{FaceId, TexelMap};
@@ -187,15 +186,13 @@ pub fn bake_lod_lean(
 pub struct PunctualPass {
     /// Irradiance per texel (W/m²); empty in a scene without punctual lights (zero everywhere).
     pub irradiance: Vec<Rgb>,
-    /// Texels wholly inside closed geometry (ascending): their value is their centre's.
-    pub buried: Vec<u32>,
     pub seconds: f64,
 }
 
 impl PunctualPass {
     /// The pass over the texels of LOD `lod` on `faces`, texel `i` at LOD pixel `pixel(i)`
     /// in the chart table `table(i)`; a buried texel shows its chart neighbours' mean
-    /// ([`fill_within_charts`]).
+    /// ([`crate::atlas::chart_filter::fill_within_charts`]).
     pub fn of<'t>(
         bundle: &BundleScene,
         bvh: &Bvh,
@@ -207,9 +204,9 @@ impl PunctualPass {
     ) -> PunctualPass {
         let t0 = Instant::now();
         if bundle.scene.lights.is_empty() {
-            return PunctualPass { irradiance: Vec::new(), buried: Vec::new(), seconds: 0.0 };
+            return PunctualPass { irradiance: Vec::new(), seconds: 0.0 };
         }
-        let (mut irradiance, buried) = punctual_irradiance_of_texels(
+        let irradiance = punctual_irradiance_of_texels(
             &bundle.scene,
             &bundle.geom,
             &bundle.atlas,
@@ -217,11 +214,11 @@ impl PunctualPass {
             lod,
             faces,
             pixel,
+            table,
             ray_epsilon(&bundle.scene),
             threads,
         );
-        fill_within_charts(pixel, table, &mut irradiance, &buried);
-        PunctualPass { irradiance, buried, seconds: t0.elapsed().as_secs_f64() }
+        PunctualPass { irradiance, seconds: t0.elapsed().as_secs_f64() }
     }
 
     /// The pass over a whole-LOD texel map (its pixels held) whose lookup table is `table`
@@ -234,7 +231,7 @@ impl PunctualPass {
         threads: usize,
     ) -> PunctualPass {
         if bundle.scene.lights.is_empty() {
-            return PunctualPass { irradiance: Vec::new(), buried: Vec::new(), seconds: 0.0 };
+            return PunctualPass { irradiance: Vec::new(), seconds: 0.0 };
         }
         let w = texels.width;
         let pixel = |i: usize| [texels.pixel[i] % w, texels.pixel[i] / w];
@@ -295,13 +292,13 @@ fn bake_region_observed(
 ) -> Result<LodIrradiance, Cancelled> {
     let share = DirectionShare::whole(bundle.config.seed);
     let traced = trace_region(bundle, backend, region, converged, punctual, share, threads, progress, cancel, observe)?;
-    let Traced { estimate, stats, source, buried } = traced;
+    let Traced { estimate, stats, source } = traced;
     // The irradiance goes into the source buffer, and the punctual part is moved out: no
     // per-texel buffer is added at the bake's peak.
     let mut irradiance = source;
     estimate.irradiance_into(threads, &mut irradiance);
     let unsampled = estimate.unsampled_texels();
-    Ok(LodIrradiance { irradiance, punctual: estimate.into_punctual(), unsampled, buried, stats })
+    Ok(LodIrradiance { irradiance, punctual: estimate.into_punctual(), unsampled, stats })
 }
 
 /// Which batches of a bake's direction sequence a bake traces: batch `b` (of the batches
@@ -327,13 +324,12 @@ impl DirectionShare {
     }
 }
 
-/// What [`trace_region`] leaves: the estimate, the figures, the source buffer (to be reused)
-/// and the punctual pass's buried texels.
+/// What [`trace_region`] leaves: the estimate, the figures and the source buffer (to be
+/// reused).
 pub(super) struct Traced {
     pub estimate: ProgressiveEstimate,
     pub stats: BundleLodStats,
     pub source: Vec<Rgb>,
-    pub buried: Vec<u32>,
 }
 
 /// The batches of `share` traced into the region's estimate: its punctual pass (made by the
@@ -355,7 +351,7 @@ pub(super) fn trace_region(
     let texels = &region.texels;
     let config = &bundle.config;
     let mut stats = BundleLodStats::default();
-    let PunctualPass { irradiance: punctual, buried, seconds } = punctual;
+    let PunctualPass { irradiance: punctual, seconds } = punctual;
     stats.punctual_seconds = seconds;
 
     let uniform = UniformAlbedos::new(&bundle.scene);
@@ -449,7 +445,7 @@ pub(super) fn trace_region(
     stats.batches = estimate.batches();
     stats.light_directions_per_group = estimate.light_directions();
     stats.unsampled_texels = estimate.unsampled();
-    Ok(Traced { estimate, stats, source, buried })
+    Ok(Traced { estimate, stats, source })
 }
 
 /// [`Reflectance`] of a bake's texels, asked of a texel's face once per run of texels on one
@@ -497,9 +493,6 @@ pub struct LodIrradiance {
     /// Texels no global bundle reached (ascending): their irradiance is their direct part
     /// alone (see [`crate::atlas::chart_filter::filter_within_charts`] for how they are shown).
     pub unsampled: Vec<u32>,
-    /// Texels whose punctual part is that of a point inside closed geometry (ascending; see
-    /// [`PunctualPass::buried`]).
-    pub buried: Vec<u32>,
     pub stats: BundleLodStats,
 }
 

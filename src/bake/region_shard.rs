@@ -346,7 +346,7 @@ pub fn bake_region_round(
         reach: Some(&reach),
     };
     let share = DirectionShare::whole(round_seed(bundle.config.seed, round));
-    let punctual = PunctualPass { irradiance: punctual, buried: Vec::new(), seconds: 0.0 };
+    let punctual = PunctualPass { irradiance: punctual, seconds: 0.0 };
     let never = AtomicBool::new(false);
     let traced = trace_region(
         bundle,

@@ -107,7 +107,7 @@ pub(super) fn bake_round_from_source(
     let tables = std::slice::from_ref(table);
     let region = Region { texels: texels.view(), tables, window: None, foreign: None, triangles: None, reach: None };
     let share = DirectionShare { seed: round_seed(bundle.config.seed, round), index, count };
-    let punctual = PunctualPass { irradiance: punctual, buried: Vec::new(), seconds: 0.0 };
+    let punctual = PunctualPass { irradiance: punctual, seconds: 0.0 };
     let never = AtomicBool::new(false);
     let traced =
         trace_region(bundle, backend, &region, Some(source), punctual, share, threads, progress, &never, &mut |_| {
@@ -130,8 +130,7 @@ pub fn bake_lod_rounds(
     progress: &dyn Progress,
 ) -> Result<LodIrradiance, Cancelled> {
     let table = TexelTable::of_map(texels);
-    let PunctualPass { irradiance: punctual, buried, seconds } =
-        PunctualPass::of_map(bundle, bvh, texels, &table, threads);
+    let PunctualPass { irradiance: punctual, seconds } = PunctualPass::of_map(bundle, bvh, texels, &table, threads);
     let mut stats = BundleLodStats { punctual_seconds: seconds, ..BundleLodStats::default() };
     let mut last: Option<ProgressiveEstimate> = None;
     for round in 1..=rounds.max(1) {
@@ -152,7 +151,6 @@ pub fn bake_lod_rounds(
         irradiance: estimate.irradiance(),
         unsampled: estimate.unsampled_texels(),
         punctual: estimate.into_punctual(),
-        buried,
         stats,
     })
 }

@@ -5,6 +5,8 @@
 use glam::{DVec2, Vec3};
 
 use super::Bvh;
+use crate::atlas::chart_filter::{fill_within_charts, for_each_neighbour};
+use crate::atlas::lookup::TexelTable;
 use crate::atlas::raster::{barycentric, closest_barycentric};
 use crate::atlas::{Atlas, FaceId};
 use crate::parallel::par_map;
@@ -37,16 +39,23 @@ pub fn punctual_irradiance(
 }
 
 /// Irradiance (W/m²) from every punctual light over each texel's visible part: texel `i` is
-/// LOD `lod` pixel `pixel(i)` of atlas face `faces[i]`, sampled at the 2×2 points of its
-/// pixel (each moved to the nearest point of its face's UV triangle) that do not lie inside
-/// closed geometry ([`is_buried`]) or in a cut-out, and their mean taken. A point sample at the texel's
-/// centre is wrong wherever a texel straddles other geometry: a floor texel whose centre is
-/// under a wall shows the wall's shadow over its whole visible part, and real assets (a
-/// slab through a floor, a prop sunk into a wall) are full of such texels, most of all at
-/// coarse LODs. A texel whose every point is buried or cut out is never seen: it keeps its
-/// centre's value and is reported in the second list, for its neighbours to stand in for it.
+/// LOD `lod` pixel `pixel(i)` of atlas face `faces[i]` in the chart table `table(i)`, sampled
+/// at the 2×2 points of its pixel (each moved to the nearest point of its face's UV triangle)
+/// that do not lie inside closed geometry ([`is_buried`]) or in a cut-out, and their mean
+/// taken. A point sample at the texel's centre is wrong wherever a texel straddles other
+/// geometry: a floor texel whose centre is under a wall shows the wall's shadow over its
+/// whole visible part, and real assets (a slab through a floor, a prop sunk into a wall) are
+/// full of such texels, most of all at coarse LODs. A texel whose every point is buried or
+/// cut out is never seen: it shows its chart neighbours' mean ([`fill_within_charts`]), so
+/// that bilinear sampling beside it reads the light of what is seen.
+///
+/// A texel that faces away from every light (at its four points and its centre) is 0
+/// whether or not it is buried, so its points are not tested at first: the half of a sunlit
+/// scene's texels that face away from the sun cast no ray. Whether it is buried is then
+/// found only where the fill reads it (`settle_unlit`), so the values are those of testing
+/// every texel.
 #[allow(clippy::too_many_arguments)]
-pub fn punctual_irradiance_of_texels(
+pub fn punctual_irradiance_of_texels<'t>(
     scene: &Scene,
     geom: &SceneGeometry,
     atlas: &Atlas,
@@ -54,68 +63,167 @@ pub fn punctual_irradiance_of_texels(
     lod: u32,
     faces: &[FaceId],
     pixel: &(dyn Fn(usize) -> [u32; 2] + Sync),
+    table: impl Fn(usize) -> &'t TexelTable,
     epsilon: f32,
     threads: usize,
-) -> (Vec<Rgb>, Vec<u32>) {
+) -> Vec<Rgb> {
     let n = faces.len();
     if scene.lights.is_empty() || n == 0 {
-        return (vec![Rgb::ZERO; n], Vec::new());
+        return vec![Rgb::ZERO; n];
     }
     // A sub-point in the plane of the texel's face: beyond the face's edge it lands on the
     // neighbouring face of a flat chart, as the texel's area does (moved onto the face
     // instead, points near a diagonal between two triangles would crowd onto it). A texel
     // whose centre lies outside its face (a thin triangle's conservative texel) keeps its
     // points on the face.
-    let point = |i: usize, dx: f64, dy: f64| {
+    let texel = |i: usize| {
         let f = &atlas.faces[faces[i] as usize];
         let [x, y] = pixel(i);
         let uv = f.uv_lod(lod);
         let (cu, cv, outside) = closest_barycentric(&uv, DVec2::new(x as f64 + 0.5, y as f64 + 0.5));
-        let at = DVec2::new(x as f64 + dx, y as f64 + dy);
-        let (u, v) = match barycentric(&uv, at) {
-            Some(b) if outside == 0.0 => b,
-            _ if outside == 0.0 => (cu, cv),
+        TexelOnFace {
+            tri: f.tri,
+            normal: geom.normals[f.tri as usize] * f.side.sign(),
+            uv,
+            corner: DVec2::new(x as f64, y as f64),
+            centre: (cu, cv),
+            outside,
+        }
+    };
+    let point = |t: &TexelOnFace, dx: f64, dy: f64| {
+        let at = t.corner + DVec2::new(dx, dy);
+        let (u, v) = match barycentric(&t.uv, at) {
+            Some(b) if t.outside == 0.0 => b,
+            _ if t.outside == 0.0 => t.centre,
             _ => {
-                let (u, v, _) = closest_barycentric(&uv, at);
+                let (u, v, _) = closest_barycentric(&t.uv, at);
                 (u, v)
             }
         };
         let (u, v) = (u as f32, v as f32);
-        (f.tri, u, v, geom.point(f.tri, u, v), geom.normals[f.tri as usize] * f.side.sign())
+        (u, v, geom.point(t.tri, u, v))
     };
-    let mut out = vec![Rgb::ZERO; n];
-    let mut buried = Vec::new();
+    // A point in a cut-out is no surface: nothing is lit there (as the bundles drop the
+    // fragments there).
+    let seen = |t: &TexelOnFace, (u, v, p): (f32, f32, Vec3)| {
+        bvh.alpha().opaque_at(t.tri, u, v) && !is_buried(scene, geom, bvh, t.tri, p, t.normal, epsilon)
+    };
+    let unlit = |t: &TexelOnFace| {
+        SUBPIXELS.iter().chain(&[(0.5, 0.5)]).all(|&(dx, dy)| {
+            let p = point(t, dx, dy).2;
+            scene.lights.iter().all(|l| l.unoccluded_irradiance(p, t.normal).0.max_element() <= 0.0)
+        })
+    };
     let irradiance = |i: usize, cache: &mut [u32]| {
-        let (mut sum, mut seen) = (Rgb::ZERO, 0u32);
+        let t = texel(i);
+        if unlit(&t) {
+            return (Rgb::ZERO, Found::Unlit);
+        }
+        let (mut sum, mut count) = (Rgb::ZERO, 0u32);
         for (dx, dy) in SUBPIXELS {
-            let (tri, u, v, p, nrm) = point(i, dx, dy);
-            // A point in a cut-out is no surface: nothing is lit there (as the bundles drop
-            // the fragments there).
-            if bvh.alpha().opaque_at(tri, u, v) && !is_buried(scene, geom, bvh, tri, p, nrm, epsilon) {
-                sum += point_irradiance(scene, bvh, p, nrm, epsilon, cache);
-                seen += 1;
+            let at = point(&t, dx, dy);
+            if seen(&t, at) {
+                sum += point_irradiance(scene, bvh, at.2, t.normal, epsilon, cache);
+                count += 1;
             }
         }
-        if seen > 0 {
-            (sum / seen as f32, false)
+        if count > 0 {
+            (sum / count as f32, Found::Seen)
         } else {
-            let (_, _, _, p, nrm) = point(i, 0.5, 0.5);
-            (point_irradiance(scene, bvh, p, nrm, epsilon, cache), true)
+            let (_, _, p) = point(&t, 0.5, 0.5);
+            (point_irradiance(scene, bvh, p, t.normal, epsilon, cache), Found::Buried)
         }
     };
-    let store = |i: usize, (e, b): (Rgb, bool)| {
+    let (mut out, mut buried, mut unlit_texels) = (vec![Rgb::ZERO; n], Vec::new(), Vec::new());
+    let store = |i: usize, (e, found): (Rgb, Found)| {
         out[i] = e;
-        if b {
-            buried.push(i as u32);
+        match found {
+            Found::Seen => {}
+            Found::Buried => buried.push(i as u32),
+            Found::Unlit => unlit_texels.push(i as u32),
         }
     };
     // Over the box of the texels' faces, which holds their centres: the centres are made
     // once, as their keys are (held, they were 12 B a texel at the pass's peak).
     let corners = faces.iter().flat_map(|&f| geom.corners[atlas.faces[f as usize].tri as usize]);
-    let order = spatial_order(n, |i| point(i, 0.5, 0.5).3, bounds(corners));
+    let order = spatial_order(n, |i| point(&texel(i), 0.5, 0.5).2, bounds(corners));
     in_spatial_order(&order, threads, scene.lights.len(), irradiance, store);
+    let buried_of = |list: &[u32]| -> Vec<u32> {
+        let chunks: Vec<&[u32]> = list.chunks(CHUNK).collect();
+        let found = par_map(chunks, threads, |chunk| {
+            let buried = |i: usize| {
+                let t = texel(i);
+                !SUBPIXELS.iter().any(|&(dx, dy)| seen(&t, point(&t, dx, dy)))
+            };
+            chunk.iter().copied().filter(|&i| buried(i as usize)).collect::<Vec<_>>()
+        });
+        found.into_iter().flatten().collect()
+    };
+    unlit_texels.sort_unstable();
+    settle_unlit(pixel, &table, &out, &mut buried, &unlit_texels, buried_of);
+    fill_within_charts(pixel, table, &mut out, &buried);
+    out
+}
+
+/// What the first pass found at a texel.
+enum Found {
+    /// Some of its points are seen.
+    Seen,
+    /// None of its points is seen.
+    Buried,
+    /// It faces away from every light; its points were not tested.
+    Unlit,
+}
+
+/// Adds to `buried` (sorted on return) the unlit texels (`unlit`, sorted, their points not
+/// tested; `buried_of` tests them) whose being buried changes what [`fill_within_charts`]
+/// makes of `values`. An unlit texel is 0 buried or not, and it reads as 0 in the fill;
+/// whether it is buried counts (1) for itself, where a neighbour is lit: buried, it would show
+/// their mean, and (2) for a buried texel's mean it is part of, when that texel or one of its
+/// neighbours is lit (it is left out of the mean when buried). Where none of them is lit,
+/// every mean is 0 either way.
+fn settle_unlit<'t>(
+    pixel: &dyn Fn(usize) -> [u32; 2],
+    table: &impl Fn(usize) -> &'t TexelTable,
+    values: &[Rgb],
+    buried: &mut Vec<u32>,
+    unlit: &[u32],
+    buried_of: impl Fn(&[u32]) -> Vec<u32>,
+) {
+    let lit_near = |i: usize| {
+        let mut lit = false;
+        for_each_neighbour(&pixel, table, i, |j, _| lit |= values[j] != Rgb::ZERO);
+        lit
+    };
+    let beside_light: Vec<u32> = unlit.iter().copied().filter(|&u| lit_near(u as usize)).collect();
+    buried.extend(buried_of(&beside_light));
+    let mut in_lit_means = Vec::new();
+    for &b in buried.iter() {
+        if values[b as usize] != Rgb::ZERO || lit_near(b as usize) {
+            for_each_neighbour(&pixel, table, b as usize, |j, _| {
+                let j = j as u32;
+                if unlit.binary_search(&j).is_ok() && beside_light.binary_search(&j).is_err() {
+                    in_lit_means.push(j);
+                }
+            });
+        }
+    }
+    in_lit_means.sort_unstable();
+    in_lit_means.dedup();
+    buried.extend(buried_of(&in_lit_means));
     buried.sort_unstable();
-    (out, buried)
+}
+
+/// A texel's pixel on its face: its triangle, the normal of its side, the face's UV at the
+/// LOD, the pixel's corner and the weights of the face's point nearest the pixel's centre,
+/// `outside` its distance from the face (0 inside).
+struct TexelOnFace {
+    tri: u32,
+    normal: Vec3,
+    uv: [DVec2; 3],
+    corner: DVec2,
+    centre: (f64, f64),
+    outside: f64,
 }
 
 /// The points of a texel's pixel [`punctual_irradiance_of_texels`] samples (2×2, pixel units).
@@ -239,4 +347,88 @@ fn point_irradiance(scene: &Scene, bvh: &Bvh, p: Vec3, n: Vec3, epsilon: f32, ca
         }
     }
     e
+}
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+
+    use super::punctual_irradiance_of_texels;
+    use crate::atlas::lookup::TexelTable;
+    use crate::atlas::{Atlas, AtlasConfig, TexelMap};
+    use crate::reference::{Bvh, ray_epsilon};
+    use crate::scene::builder::white;
+    use crate::scene::{Rgb, SceneBuilder, SceneGeometry};
+
+    /// A ridge along z: face A slopes down towards +x, where a sun low on the horizon lights it
+    /// at cos 80°; face B slopes down towards −x and faces away. The two are 20° apart, one
+    /// chart. A closed box sunk through the ridge buries the strip of B beside it (and 2 cm of
+    /// A). B's texels are unlit, so the pass tests none of their points at first; those by the
+    /// ridge are buried beside A's lit texels and show their light (the fill's mean of seen
+    /// neighbours), as they do when every texel is tested: their buried neighbours on B are
+    /// found buried and left out of the mean. A buried texel of B with no lit neighbour stays 0,
+    /// and none shows more than A gets.
+    #[test]
+    fn buried_texels_facing_away_show_their_lit_neighbours_light() {
+        let (s, c) = (10f32.to_radians().sin(), 10f32.to_radians().cos());
+        let sun = Rgb::new(3.0, 2.0, 1.0);
+        let mut b = SceneBuilder::new();
+        let m = b.material(white());
+        let ridge = |z: f32| Vec3::new(0.0, 0.0, z);
+        let low = |x: f32, z: f32| Vec3::new(x * c, -s, z);
+        let corners = vec![ridge(-1.0), ridge(1.0), low(1.0, 1.0), low(1.0, -1.0), low(-1.0, -1.0), low(-1.0, 1.0)];
+        b.mesh("roof", corners, vec![[0, 1, 2], [0, 2, 3], [4, 5, 1], [4, 1, 0]], m);
+        b.cuboid("box", Vec3::new(-0.3, -0.5, -0.3), Vec3::new(0.02, 0.3, 0.3), false, m);
+        b.directional_light(Vec3::NEG_X, sun);
+        let scene = b.build();
+        let geom = SceneGeometry::new(&scene);
+        let (na, nb) = (Vec3::new(s, c, 0.0), Vec3::new(-s, c, 0.0));
+        assert!(geom.normals[0].distance(na) < 1e-5 && geom.normals[2].distance(nb) < 1e-5, "winding");
+        let config = AtlasConfig { texel_size: Some(0.05), ..AtlasConfig::default() };
+        let atlas = Atlas::build(&scene, &geom, &config).expect("atlas");
+        let texels = TexelMap::build(&scene, &geom, &atlas, 0);
+        let table = TexelTable::of_map(&texels);
+        let bvh = Bvh::for_scene(&scene, &geom);
+        let w = texels.width;
+        let pixel = |i: usize| [texels.pixel[i] % w, texels.pixel[i] / w];
+        let e = punctual_irradiance_of_texels(
+            &scene,
+            &geom,
+            &atlas,
+            &bvh,
+            0,
+            &texels.face,
+            &pixel,
+            |_| &table,
+            ray_epsilon(&scene),
+            1,
+        );
+        let lit = sun * s;
+        let on = |i: usize, n: Vec3| texels.normal[i].distance(n) < 1e-4;
+        let (mut shown, mut dark, mut open) = (0, 0, 0);
+        for (i, &p) in texels.position.iter().enumerate() {
+            if on(i, na) && p.x > 0.2 {
+                let tol = 1e-5 * lit.max_element();
+                assert!((e[i] - lit).abs().max_element() <= tol, "A in the open at {p}: {} vs {lit}", e[i]);
+                open += 1;
+            }
+            if on(i, nb) {
+                assert!(e[i].cmple(lit * (1.0 + 1e-5)).all(), "B at {p} shows more than A gets: {}", e[i]);
+                // Within the box's span along z, every neighbour a buried texel of B by the ridge
+                // counts is a lit texel of A (at `lit`: the box is on the sun's far side);
+                // its buried neighbours on B are left out, unlit as they are.
+                if e[i] != Rgb::ZERO && p.z.abs() < 0.2 {
+                    let tol = 1e-5 * lit.max_element();
+                    assert!((e[i] - lit).abs().max_element() <= tol, "B by the ridge at {p}: {} vs {lit}", e[i]);
+                    shown += 1;
+                }
+                if p.x < -0.15 && p.z.abs() < 0.15 {
+                    assert_eq!(e[i], Rgb::ZERO, "B deep in the box at {p}");
+                    dark += 1;
+                }
+            }
+        }
+        assert!(open > 100 && dark > 4, "{open} {dark}");
+        assert!(shown > 0, "no buried texel of B beside A shows A's light");
+    }
 }

@@ -1,12 +1,11 @@
 //! The shown map's punctual layer for one cell: its texels at a LOD and their direct light
-//! from the scene's punctual lights, one shadow ray per light per texel
-//! ([`punctual_irradiance`]). There is nothing to converge, so the layer is baked straight
+//! from the scene's punctual lights over each texel's visible part
+//! ([`punctual_irradiance_of_texels`]). There is nothing to converge, so the layer is baked straight
 //! at the LOD the cell wants, ahead of the bundle layer (whose light, the sky and every
 //! bounce, varies more slowly and is noisy): near the viewer, sharp sun shadows come at the
 //! screen's resolution within a fraction of a second of the camera arriving.
 
 use super::world::World;
-use crate::atlas::chart_filter::fill_within_charts;
 use crate::atlas::sparse::SparseTexels;
 use crate::grid::CellId;
 use crate::reference::punctual::punctual_irradiance_of_texels;
@@ -24,7 +23,7 @@ pub struct PunctualBake {
 impl PunctualBake {
     pub fn new(world: &World, cell: CellId, lod: u32) -> PunctualBake {
         let texels = world.cells_texels(&[cell], lod);
-        let (mut irradiance, buried) = punctual_irradiance_of_texels(
+        let irradiance = punctual_irradiance_of_texels(
             &world.scene,
             &world.geom,
             &world.atlas,
@@ -32,10 +31,10 @@ impl PunctualBake {
             lod,
             &texels.face,
             &|i| texels.pixel[i],
+            |i| texels.table_of(i),
             world.epsilon,
             1,
         );
-        fill_within_charts(|i| texels.pixel[i], |i| texels.table_of(i), &mut irradiance, &buried);
         PunctualBake { cell, lod, texels, irradiance }
     }
 
