@@ -108,20 +108,18 @@ pub fn punctual_irradiance_of_texels<'t>(
     let seen = |t: &TexelOnFace, (u, v, p): (f32, f32, Vec3)| {
         bvh.alpha().opaque_at(t.tri, u, v) && !is_buried(scene, geom, bvh, t.tri, p, t.normal, epsilon)
     };
-    let unlit = |t: &TexelOnFace| {
-        SUBPIXELS.iter().chain(&[(0.5, 0.5)]).all(|&(dx, dy)| {
-            let p = point(t, dx, dy).2;
-            scene.lights.iter().all(|l| l.unoccluded_irradiance(p, t.normal).0.max_element() <= 0.0)
-        })
+    let unlit = |t: &TexelOnFace, p: Vec3| {
+        scene.lights.iter().all(|l| l.unoccluded_irradiance(p, t.normal).0.max_element() <= 0.0)
     };
     let irradiance = |i: usize, cache: &mut [u32]| {
         let t = texel(i);
-        if unlit(&t) {
+        let points = SUBPIXELS.map(|(dx, dy)| point(&t, dx, dy));
+        let centre = point(&t, 0.5, 0.5).2;
+        if unlit(&t, centre) && points.iter().all(|at| unlit(&t, at.2)) {
             return (Rgb::ZERO, Found::Unlit);
         }
         let (mut sum, mut count) = (Rgb::ZERO, 0u32);
-        for (dx, dy) in SUBPIXELS {
-            let at = point(&t, dx, dy);
+        for at in points {
             if seen(&t, at) {
                 sum += point_irradiance(scene, bvh, at.2, t.normal, epsilon, cache);
                 count += 1;
@@ -130,8 +128,7 @@ pub fn punctual_irradiance_of_texels<'t>(
         if count > 0 {
             (sum / count as f32, Found::Seen)
         } else {
-            let (_, _, p) = point(&t, 0.5, 0.5);
-            (point_irradiance(scene, bvh, p, t.normal, epsilon, cache), Found::Buried)
+            (point_irradiance(scene, bvh, centre, t.normal, epsilon, cache), Found::Buried)
         }
     };
     let (mut out, mut buried, mut unlit_texels) = (vec![Rgb::ZERO; n], Vec::new(), Vec::new());
