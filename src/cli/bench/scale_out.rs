@@ -77,6 +77,32 @@ fn measured(livebake: &Path, dir: &Path, args: &[String]) -> Result<Usage> {
 struct Way {
     shards: Vec<Usage>,
     merges: Vec<Usage>,
+    /// The bundle work of its rounds over the single bake's ([`WORK`]), from the merged
+    /// reports.
+    work: Vec<f64>,
+}
+
+/// The bundle work compared, from the reports' `pass` statistics (summed over the shards
+/// by `merge`, over the rounds by `bake --bounce-rounds`): bundle lines resolved, fragments
+/// built, and the seconds of the per-triangle phases (analysis, mips, tiling, triangle
+/// set-up and count), the resolve and the light pass. A region shard resolves every line
+/// that crosses one of its faces, so a line crossing faces of two shares is resolved twice:
+/// the first ratio is what that costs, whatever the code does per line.
+const WORK: [&str; 5] = ["lines_resolved", "fragments", "per_triangle_seconds", "resolve_seconds", "light_seconds"];
+
+/// [`WORK`]'s figures of one report.
+fn work_of(report: &Path) -> Result<[f64; 5]> {
+    let text = std::fs::read_to_string(report).with_context(|| format!("cannot read {}", report.display()))?;
+    let v: Value = serde_json::from_str(&text).with_context(|| format!("{} is not JSON", report.display()))?;
+    let pass = &v["lods"][0]["bundle"]["pass"];
+    let f = |k: &str| pass[k].as_f64().with_context(|| format!("{}: no pass.{k}", report.display()));
+    Ok([
+        f("covered_pixels")?,
+        f("fragments")?,
+        f("analysis_seconds")? + f("mip_seconds")? + f("subdivision_seconds")? + f("build_seconds")?,
+        f("resolve_seconds")?,
+        f("light_seconds")?,
+    ])
 }
 
 /// One bake every way: the single bake's usage (before, between and after the two ways),
@@ -130,6 +156,14 @@ fn bake_both(bench: &Bench, dir: &Path, scene_args: &[String]) -> Result<Pair> {
             merge.extend(["--out".into(), format!("{by}-m{round}")]);
             way.merges.push(measured(lb, dir, &merge)?);
         }
+        let mut work = [0.0; 5];
+        for round in 1..=ROUNDS {
+            for (w, x) in work.iter_mut().zip(work_of(&dir.join(format!("{by}-m{round}/report.json")))?) {
+                *w += x;
+            }
+        }
+        let one = work_of(&dir.join("single/report.json"))?;
+        way.work = work.iter().zip(one).map(|(w, s)| w / s).collect();
         ways.push(way);
         singles.push(single(&format!("single-after-{by}"))?);
     }
@@ -199,7 +233,15 @@ pub fn run(bench: &Bench) -> Result<Value> {
         let peak = |u: &[Usage]| u.iter().map(|u| u.peak_bytes).max().unwrap_or(0) as f64;
         let shard_peak = median(pairs.iter().map(|p| peak(&way(p).shards)).collect());
         let merge_peak = median(pairs.iter().map(|p| peak(&way(p).merges)).collect());
+        let work: serde_json::Map<String, Value> = WORK
+            .iter()
+            .enumerate()
+            .map(|(i, k)| {
+                (k.to_string(), json!(median(pairs.iter().filter_map(|p| way(p).work.get(i).copied()).collect())))
+            })
+            .collect();
         json!({
+            "work_over_single": work,
             "shards_cpu_seconds": median(pairs.iter().map(|p| cpu(&way(p).shards)).collect()),
             "merge_cpu_seconds": median(pairs.iter().map(|p| cpu(&way(p).merges)).collect()),
             "cpu_ratio": ratio,
@@ -247,6 +289,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
         "shard_peak_bytes": field(&directions, "shard_peak_bytes"),
         "merge_peak_bytes": field(&directions, "merge_peak_bytes"),
         "shard_peak_over_single": field(&directions, "shard_peak_over_single"),
+        "work_over_single": field(&directions, "work_over_single"),
         "regions": regions,
         "goal_region_peak_over_single": 1.0 / SHARDS as f64,
         "regions_worst_relative_difference": median(pairs.iter().map(|p| p.regions_worst).collect()),
