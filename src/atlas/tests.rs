@@ -136,6 +136,19 @@ fn check(scene: &Scene, atlas: &Atlas, max_lod: u32, strict: bool) -> Vec<TexelM
         assert_eq!((&lean.pixel, &lean.face, &lean.albedo, &lean.area), (&tm.pixel, &tm.face, &tm.albedo, &tm.area));
         lean.restore_geometry(scene, &g, atlas, 2, texels::Restore::All);
         assert_eq!((&lean.position, &lean.normal), (&tm.position, &tm.normal));
+        // A lookup map places the same texels, with no attributes; asked, a texel's are
+        // build's, bit for bit.
+        let lookup = TexelMap::build_lookup(scene, &g, atlas, lod);
+        assert!(lookup.albedo.is_empty() && lookup.emission.is_empty() && lookup.position.is_empty());
+        assert_eq!(
+            (&lookup.pixel, &lookup.face, &lookup.area, &lookup.gutter),
+            (&tm.pixel, &tm.face, &tm.area, &tm.gutter)
+        );
+        for i in 0..tm.len() {
+            let a = lookup.attributes_of(scene, &g, atlas, i);
+            let got = (a.position, a.normal, a.albedo, a.emission);
+            assert_eq!(got, (tm.position[i], tm.normal[i], tm.albedo[i], tm.emission[i]), "texel {i} at LOD {lod}");
+        }
         assert_eq!(slot.iter().filter(|&&s| s != texels::NO_TEXEL).count(), tm.len());
         // Independent conservative raster over the whole atlas (no clipping to the chart):
         // no pixel is touched by two charts, every touched pixel holds a texel of the

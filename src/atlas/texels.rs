@@ -22,6 +22,15 @@ pub enum Restore {
     Albedo,
 }
 
+/// What [`TexelMap::build_parts`] makes beside the pixels, faces, areas and gutters.
+#[derive(Clone, Copy)]
+struct Parts {
+    /// Positions and normals.
+    geometry: bool,
+    /// Albedo and emission (and with them the surface point's texture reads).
+    attributes: bool,
+}
+
 /// Every valid texel of one LOD, stored compactly (covered texels only, in `block_order`),
 /// plus the gutter pixels that copy a texel. The pixel → texel lookup is not kept: the
 /// bundles read a [`TexelTable`], tests [`TexelMap::slots`].
@@ -75,6 +84,36 @@ impl TexelMap {
     /// # Panics
     /// As [`build`](Self::build).
     pub fn build_with(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, lod: u32, made: Restore) -> TexelMap {
+        Self::build_parts(scene, geom, atlas, lod, Parts { geometry: made == Restore::All, attributes: true })
+    }
+
+    /// [`build`](Self::build) without any attribute of the surface (positions, normals,
+    /// albedo, emission): which texel is where (pixels, faces, gutters) and its area, 16 B a
+    /// texel less than [`Restore::Albedo`]'s and none of its texture reads. What a region
+    /// shard holds of the whole LOD while it sets up; it asks the attributes of a texel
+    /// when it needs them ([`TexelMap::attributes_of`]).
+    ///
+    /// # Panics
+    /// As [`build`](Self::build).
+    pub fn build_lookup(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, lod: u32) -> TexelMap {
+        Self::build_parts(scene, geom, atlas, lod, Parts { geometry: false, attributes: false })
+    }
+
+    /// The attributes of texel `i` (its surface point, normal, albedo and emission), as
+    /// [`build`](Self::build) makes them: from its face and pixel alone.
+    pub(crate) fn attributes_of(
+        &self,
+        scene: &Scene,
+        geom: &SceneGeometry,
+        atlas: &Atlas,
+        i: usize,
+    ) -> TexelAttributes {
+        let (face, pixel) = (self.face[i], self.pixel[i]);
+        let uv = atlas.faces[face as usize].uv_lod(self.lod);
+        TexelAttributes::at(scene, geom, atlas, face, &uv, (pixel % self.width) as i64, (pixel / self.width) as i64)
+    }
+
+    fn build_parts(scene: &Scene, geom: &SceneGeometry, atlas: &Atlas, lod: u32, made: Parts) -> TexelMap {
         let width =
             atlas.width.checked_shl(lod).filter(|w| w >> lod == atlas.width).expect("LOD too fine for u32 pixels");
         let height =
@@ -153,7 +192,8 @@ impl TexelMap {
 
         // Phase 2: texels, in block order ([`block_order`]); `slot` turns from face into texel ids.
         let total: usize = counts.iter().sum();
-        let geometry = if made == Restore::All { total } else { 0 };
+        let geometry = if made.geometry { total } else { 0 };
+        let attributes = if made.attributes { total } else { 0 };
         let mut map = TexelMap {
             lod,
             width,
@@ -162,8 +202,8 @@ impl TexelMap {
             face: vec![0; total],
             position: vec![Vec3::ZERO; geometry],
             normal: vec![Vec3::ZERO; geometry],
-            albedo: vec![Vec3::ZERO; total],
-            emission: vec![Vec3::ZERO; total],
+            albedo: vec![Vec3::ZERO; attributes],
+            emission: vec![Vec3::ZERO; attributes],
             area: vec![0.0; total],
             gutter: Vec::new(),
         };
@@ -184,8 +224,8 @@ impl TexelMap {
                     take_front(&mut face, n),
                     take_front(&mut position, n.min(geometry)),
                     take_front(&mut normal, n.min(geometry)),
-                    take_front(&mut albedo, n),
-                    take_front(&mut emission, n),
+                    take_front(&mut albedo, n.min(attributes)),
+                    take_front(&mut emission, n.min(attributes)),
                     take_front(&mut area, n),
                     &band_areas[b],
                 ));
@@ -204,23 +244,17 @@ impl TexelMap {
                         }
                         let fid = *s;
                         let (x, y) = (i % w, y0 + i / w);
-                        let a = TexelAttributes::at(
-                            scene,
-                            geom,
-                            atlas,
-                            fid,
-                            &atlas.faces[fid as usize].uv_lod(lod),
-                            x as i64,
-                            y as i64,
-                        );
                         pixel[k] = (y * w + x) as u32;
                         area[k] = band_area[i];
                         face[k] = fid;
-                        if let (Some(p), Some(n)) = (position.get_mut(k), normal.get_mut(k)) {
-                            (*p, *n) = (a.position, a.normal);
+                        if let (Some(albedo), Some(emission)) = (albedo.get_mut(k), emission.get_mut(k)) {
+                            let uv = atlas.faces[fid as usize].uv_lod(lod);
+                            let a = TexelAttributes::at(scene, geom, atlas, fid, &uv, x as i64, y as i64);
+                            if let (Some(p), Some(n)) = (position.get_mut(k), normal.get_mut(k)) {
+                                (*p, *n) = (a.position, a.normal);
+                            }
+                            (*albedo, *emission) = (a.albedo, a.emission);
                         }
-                        albedo[k] = a.albedo;
-                        emission[k] = a.emission;
                         *s = (first + k) as u32;
                         k += 1;
                     }
@@ -362,7 +396,6 @@ impl TexelMap {
         // Empty unless given up (a map of no texels has nothing to restore either way).
         let mut albedo = if self.albedo.len() == n { Vec::new() } else { vec![Rgb::ZERO; n] };
         let chunk = n.div_ceil(threads.max(1) * 4).max(4096);
-        let (w, lod) = (self.width, self.lod);
         if geometry == 0 && albedo.is_empty() {
             return;
         }
@@ -377,13 +410,12 @@ impl TexelMap {
             .into_iter()
             .zip(chunks(&mut normal, chunk, count))
             .zip(chunks(&mut albedo, chunk, count))
-            .zip(self.face.chunks(chunk).zip(self.pixel.chunks(chunk)))
+            .zip((0..n).step_by(chunk))
             .collect();
-        par_for_each(items, threads, |(((position, normal), albedo), (face, pixel))| {
-            for k in 0..face.len() {
-                let uv = atlas.faces[face[k] as usize].uv_lod(lod);
-                let (x, y) = ((pixel[k] % w) as i64, (pixel[k] / w) as i64);
-                let a = TexelAttributes::at(scene, geom, atlas, face[k], &uv, x, y);
+        let map = &*self;
+        par_for_each(items, threads, |(((position, normal), albedo), first)| {
+            for k in 0..chunk.min(n - first) {
+                let a = map.attributes_of(scene, geom, atlas, first + k);
                 if let (Some(p), Some(n)) = (position.get_mut(k), normal.get_mut(k)) {
                     (*p, *n) = (a.position, a.normal);
                 }
@@ -537,18 +569,56 @@ impl TexelSubset {
 
     /// The values of `dense` at the texels `keep` says.
     pub fn from_dense_where(dense: &[Rgb], keep: impl Fn(usize) -> bool) -> Self {
-        let words = dense.len().div_ceil(64);
-        let (mut held, mut before, mut values) = (vec![0u64; words], Vec::with_capacity(words), Vec::new());
-        for ((w, bits), word) in held.iter_mut().enumerate().zip(dense.chunks(64)) {
-            before.push(values.len() as u32);
-            for (b, &v) in word.iter().enumerate() {
-                if keep(w * 64 + b) {
-                    *bits |= 1 << b;
-                    values.push(v);
-                }
+        Self::from_entries(dense.len(), dense.iter().enumerate().filter(|&(i, _)| keep(i)).map(|(i, &v)| (i as u32, v)))
+    }
+
+    /// The values `entries` gives (texel, value), in ascending texel order, of a map of
+    /// `texels` texels.
+    ///
+    /// # Panics
+    /// When the texels are not ascending or not below `texels`.
+    pub fn from_entries(texels: usize, entries: impl IntoIterator<Item = (u32, Rgb)>) -> Self {
+        let mut held = vec![0u64; texels.div_ceil(64)];
+        let mut values = Vec::new();
+        let mut last = None;
+        for (i, v) in entries {
+            assert!(last < Some(i) && (i as usize) < texels, "texel {i} after {last:?} of {texels}");
+            last = Some(i);
+            held[i as usize / 64] |= 1 << (i % 64);
+            values.push(v);
+        }
+        TexelSubset { texels, before: counts_before(&held), held, values }
+    }
+
+    /// Every texel's value of `dense` but those of `left_out` (ascending ids), compacted in
+    /// place: 12 B a held texel and a bit and a word count, where `dense` is 12 B a texel.
+    ///
+    /// # Panics
+    /// When `left_out` is not ascending or holds a texel past `dense`.
+    pub fn all_but(mut dense: Vec<Rgb>, left_out: &[u32]) -> Self {
+        let texels = dense.len();
+        let mut held = vec![!0u64; texels.div_ceil(64)];
+        if texels % 64 != 0
+            && let Some(last) = held.last_mut()
+        {
+            *last = (1 << (texels % 64)) - 1;
+        }
+        let mut previous = None;
+        for &i in left_out {
+            assert!(previous < Some(i) && (i as usize) < texels, "texel {i} after {previous:?} of {texels}");
+            previous = Some(i);
+            held[i as usize / 64] &= !(1 << (i % 64));
+        }
+        let mut kept = 0;
+        for i in 0..texels {
+            if held[i / 64] >> (i % 64) & 1 == 1 {
+                dense[kept] = dense[i];
+                kept += 1;
             }
         }
-        TexelSubset { texels: dense.len(), held, before, values }
+        dense.truncate(kept);
+        dense.shrink_to_fit();
+        TexelSubset { texels, before: counts_before(&held), held, values: dense }
     }
 
     /// Texel `i`'s value, `None` when it is not held.
@@ -590,6 +660,17 @@ impl TexelSubset {
     pub fn bytes(&self) -> usize {
         self.held.len() * 12 + self.values.len() * 12
     }
+}
+
+/// Per word of `held` bits: the bits set in the words before it.
+fn counts_before(held: &[u64]) -> Vec<u32> {
+    held.iter()
+        .scan(0u32, |n, bits| {
+            let b = *n;
+            *n += bits.count_ones();
+            Some(b)
+        })
+        .collect()
 }
 
 /// Each mesh's albedo where neither a texture nor vertex colours vary it (the same at every
@@ -721,5 +802,31 @@ mod tests {
         assert_eq!((emitting.len(), emitting.at(0)), (199, Rgb::ZERO));
         assert_eq!(emitting.dense(), emission);
         assert_eq!(emitting.bytes(), 4 * 12 + 199 * 12);
+    }
+
+    /// All but some: the others' values, in place; the left-out texels read nothing.
+    #[test]
+    fn a_texel_subset_of_all_but_some_reads_the_others() {
+        let dense: Vec<Rgb> = (0..150).map(|i| Rgb::new(i as f32, 2.0, 3.0)).collect();
+        let out: Vec<u32> = (0..150).filter(|i| i % 7 == 0 || (64..128).contains(i)).collect();
+        let subset = TexelSubset::all_but(dense.clone(), &out);
+        assert_eq!(subset.len(), 150 - out.len());
+        for (i, &v) in dense.iter().enumerate() {
+            let left_out = out.binary_search(&(i as u32)).is_ok();
+            assert_eq!(subset.get(i as u32), (!left_out).then_some(v), "texel {i}");
+        }
+        assert_eq!(subset.get(150), None);
+        assert_eq!(TexelSubset::all_but(dense.clone(), &[]).dense(), dense);
+        assert!(std::panic::catch_unwind(|| TexelSubset::all_but(dense.clone(), &[9, 3])).is_err());
+    }
+
+    /// Entries out of order or past the map would make a subset that reads wrong values.
+    #[test]
+    fn a_texel_subset_refuses_entries_out_of_order() {
+        let v = Rgb::ONE;
+        assert_eq!(TexelSubset::from_entries(70, [(3, v), (69, v)]).at(69), v);
+        for bad in [vec![(5, v), (5, v)], vec![(7, v), (2, v)], vec![(70, v)]] {
+            assert!(std::panic::catch_unwind(|| TexelSubset::from_entries(70, bad.clone())).is_err(), "{bad:?}");
+        }
     }
 }

@@ -523,9 +523,9 @@ pub fn bake_region_shard(
     );
     refuse_over_limit(&expected, config, false, config.atlas.texel_size, "")?;
     let t0 = Instant::now();
-    // No positions or normals: the rounds read neither (the punctual pass reads faces and
-    // pixels), and the albedo and emission are the same values `TexelMap::build` makes.
-    let texels = TexelMap::build_with(scene, &geom, &atlas, 0, crate::atlas::texels::Restore::Albedo);
+    // Which texel is where, without its attributes: the shard asks them once, to make the
+    // round's source, and holds them for its own texels alone.
+    let texels = TexelMap::build_lookup(scene, &geom, &atlas, 0);
     let texel_seconds = t0.elapsed().as_secs_f64();
     region_shard::stage("map");
     if let Some(p) = previous

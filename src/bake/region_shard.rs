@@ -4,7 +4,10 @@
 //! neighbours). A region shard traces every batch of the round, for its own texels only;
 //! the rest of the scene is seen through [`ForeignSource`]: the round's source (the
 //! previous round's merged irradiance as reflected light, plus the carried emission) of
-//! every texel, looked up at the fragment's surface point through the whole LOD's table.
+//! every other texel, looked up at the fragment's surface point through the whole LOD's
+//! table. The shard never holds the whole LOD's texel attributes: it places the texels
+//! ([`TexelMap::build_lookup`]) and asks each one's albedo and emission once, to make the
+//! source ([`whole_source`]).
 //!
 //! Why the merge equals the single-machine round: within a round the source is fixed, so a
 //! texel's sums depend on the source and the geometry alone, not on which texels are baked
@@ -22,7 +25,7 @@ use std::sync::atomic::AtomicBool;
 use glam::{Vec2, Vec3};
 
 use crate::atlas::lookup::TexelTable;
-use crate::atlas::texels::{NO_TEXEL, TexelSubset};
+use crate::atlas::texels::{NO_TEXEL, TexelEmission, TexelSubset};
 use crate::atlas::{Atlas, TexelMap};
 use crate::bundle::progressive::ProgressiveEstimate;
 use crate::bundle::target::{faces_reaching, target_triangles};
@@ -32,7 +35,8 @@ use crate::reference::Bvh;
 use crate::scene::{Rgb, SceneGeometry, Side};
 
 use super::bundle::{BundleLodStats, DirectionShare, PunctualPass, Region, Traced, trace_region};
-use super::rounds::{round_seed, round_source};
+use super::rounds::{carried_emission, reflected, round_seed};
+use crate::parallel::par_for_each;
 
 /// Logs the resident set and its peak so far at a step of a region shard (debug).
 pub(super) fn stage(step: &str) {
@@ -146,23 +150,27 @@ pub fn subset_map(map: &TexelMap, keep: &[u32]) -> TexelMap {
     }
 }
 
-/// What a region shard sees of the texels outside its share: the round's source of every
-/// texel of the LOD (12 B a texel) found through the whole LOD's lookup table (24 B an 8×8
-/// block of pixels, 4 B a gutter pixel), and the emission of the emitting texels (for the
-/// light pass; 12 B an emitting texel and ~0.2 B a texel, [`TexelSubset`]). A side whose
-/// pixel holds no texel is black, as a whole-LOD bake's lost lookup is.
+/// What a region shard sees of the texels outside its share: the round's source of the
+/// texels of the LOD but its own ([`WholeSource::without`]: 12 B a texel from round 2, the
+/// sending texels' alone in round 1) found through the whole LOD's lookup table (24 B an
+/// 8×8 block of pixels, 4 B a gutter pixel), and the emission of the emitting texels (for
+/// the light pass; 12 B an emitting texel and ~0.2 B a texel, [`TexelSubset`]). A side
+/// whose pixel holds no texel is black, as a whole-LOD bake's lost lookup is; so would be
+/// one that found a texel of the share, but the share's own table answers at its texels'
+/// pixels and gutter pixels first (short of the rounding the module's notes describe, a
+/// fragment within ~10⁻⁵ of a pixel's edge).
 pub struct ForeignSource<'a> {
     atlas: &'a Atlas,
     table: TexelTable,
-    source: Vec<Rgb>,
+    source: TexelSubset,
     emitting: TexelSubset,
     scale: f32,
 }
 
 impl<'a> ForeignSource<'a> {
-    /// The foreign source of `map` (a whole LOD) whose texels send `source`.
-    pub fn new(atlas: &'a Atlas, map: &TexelMap, source: Vec<Rgb>) -> Self {
-        let emitting = TexelSubset::from_dense(&map.emission);
+    /// The foreign source of `map` (a whole LOD's pixels: [`TexelMap::build_lookup`]) whose
+    /// texels send `source` and emit `emitting`.
+    pub fn new(atlas: &'a Atlas, map: &TexelMap, source: TexelSubset, emitting: TexelSubset) -> Self {
         ForeignSource { atlas, table: TexelTable::of_map(map), source, emitting, scale: (1u64 << map.lod) as f32 }
     }
 
@@ -182,13 +190,13 @@ impl<'a> ForeignSource<'a> {
 
     /// Bytes held (the source, the table, the emitting texels).
     pub fn bytes(&self) -> usize {
-        self.source.len() * 12 + self.table.bytes() + self.emitting.bytes()
+        self.source.bytes() + self.table.bytes() + self.emitting.bytes()
     }
 }
 
 impl SurfaceRadiance for ForeignSource<'_> {
     fn radiance(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb {
-        self.texel(tri, side, u, v).map_or(Rgb::ZERO, |t| self.source[t as usize])
+        self.texel(tri, side, u, v).map_or(Rgb::ZERO, |t| self.source.at(t))
     }
 
     fn emission(&self, tri: u32, side: Side, u: f32, v: f32) -> Rgb {
@@ -202,7 +210,7 @@ impl SurfaceRadiance for ForeignSource<'_> {
     fn radiance_at(&self, x: i64, y: i64) -> Rgb {
         match self.table.get(x, y) {
             NO_TEXEL => Rgb::ZERO,
-            t => self.source[t as usize],
+            t => self.source.at(t),
         }
     }
 
@@ -214,32 +222,113 @@ impl SurfaceRadiance for ForeignSource<'_> {
     }
 }
 
-/// Bytes a texel of the share takes in its map while its bundles run (pixel, face,
-/// emission, area; no positions, normals or albedo), its id in the whole LOD, and its own
-/// source.
-pub const SHARE_MAP_BYTES: u64 = 4 + 4 + 12 + 4 + 4 + 12;
+/// A round's source of every texel of the whole LOD, as a region shard holds it: dense
+/// where it reflects the last round's light (every texel sends some), the sending texels
+/// alone in round 1, whose source is the carried emission (a few emitters' texels: ~0.2 B
+/// a texel where dense is 12).
+pub enum WholeSource {
+    Dense(Vec<Rgb>),
+    Sending(TexelSubset),
+}
 
-/// Bytes a texel of the whole LOD takes in a region shard while its bundles run: its
-/// source (f32 RGB) in [`ForeignSource`], plus the whole LOD's lookup table (24 B an 8×8
-/// block of pixels, 4 B a gutter pixel) and the emitting texels' emission (12 B each and
-/// ~0.2 B a texel).
+impl WholeSource {
+    /// Texel `i`'s source radiance.
+    #[inline]
+    pub fn at(&self, i: u32) -> Rgb {
+        match self {
+            WholeSource::Dense(v) => v[i as usize],
+            WholeSource::Sending(s) => s.at(i),
+        }
+    }
+
+    /// The source of the texels a region shard finds through its foreign lookup: all but
+    /// the share's own texels `own` (ascending ids), whose source it holds apart and finds
+    /// through its own table (their pixels and gutters are its table's entries).
+    pub fn without(self, own: &[u32]) -> TexelSubset {
+        match self {
+            WholeSource::Dense(v) => TexelSubset::all_but(v, own),
+            WholeSource::Sending(s) => s,
+        }
+    }
+}
+
+/// Round `round`'s source of every texel of `map`, a whole LOD's lookup map
+/// ([`TexelMap::build_lookup`]): what [`super::rounds::round_source`] makes of the full map
+/// (`previous`: the last round's irradiance, none in round 1), and the emission of the
+/// emitting texels. Each texel's attributes are asked once, in parallel chunks, and none is
+/// held.
+fn whole_source(
+    bundle: &BundleScene,
+    map: &TexelMap,
+    previous: Option<Vec<Rgb>>,
+    threads: usize,
+) -> (WholeSource, TexelSubset) {
+    let n = map.len();
+    let chunk = n.div_ceil(threads.max(1) * 4).max(4096);
+    let starts = || (0..n).step_by(chunk);
+    let attributes = |i: usize| map.attributes_of(&bundle.scene, &bundle.geom, &bundle.atlas, i);
+    // Per chunk, the emitting texels (texel, emission) and in round 1 the sending ones.
+    let mut emitting: Vec<Vec<(u32, Rgb)>> = vec![Vec::new(); n.div_ceil(chunk)];
+    let source = match previous {
+        Some(mut source) => {
+            let items: Vec<_> = source.chunks_mut(chunk).zip(emitting.iter_mut()).zip(starts()).collect();
+            par_for_each(items, threads, |((source, emitting), first)| {
+                for (k, s) in source.iter_mut().enumerate() {
+                    let (i, a) = (first + k, attributes(first + k));
+                    *s = reflected(a.albedo, *s) + carried_emission(bundle, map.face[i], a.emission);
+                    if a.emission != Rgb::ZERO {
+                        emitting.push((i as u32, a.emission));
+                    }
+                }
+            });
+            WholeSource::Dense(source)
+        }
+        None => {
+            let mut sending: Vec<Vec<(u32, Rgb)>> = vec![Vec::new(); emitting.len()];
+            let items: Vec<_> = sending.iter_mut().zip(emitting.iter_mut()).zip(starts()).collect();
+            par_for_each(items, threads, |((sending, emitting), first)| {
+                for i in first..(first + chunk).min(n) {
+                    let a = attributes(i);
+                    if a.emission != Rgb::ZERO {
+                        emitting.push((i as u32, a.emission));
+                        let sent = carried_emission(bundle, map.face[i], a.emission);
+                        if sent != Rgb::ZERO {
+                            sending.push((i as u32, sent));
+                        }
+                    }
+                }
+            });
+            WholeSource::Sending(TexelSubset::from_entries(n, sending.into_iter().flatten()))
+        }
+    };
+    (source, TexelSubset::from_entries(n, emitting.into_iter().flatten()))
+}
+
+/// Bytes a texel of the share takes in its map while its bundles run (face, area; no
+/// positions, normals or albedo, the emission of the emitting texels alone, its pixel held
+/// by the share's table), its id in the whole LOD, and its own source.
+pub const SHARE_MAP_BYTES: u64 = 4 + 4 + 4 + 12;
+
+/// Bytes a texel of the whole LOD takes in a region shard that reads a previous round: its
+/// source (f32 RGB) in [`ForeignSource`]. Round 1's source is the carried emission, held
+/// for the sending texels alone (counted with the emitting texels').
 pub const FOREIGN_BYTES: u64 = 12;
 
-/// Bytes a texel of the whole LOD takes while a region shard sets up: its map without
-/// positions and normals (pixel, face, albedo, emission, area: 36 B, plus 8 B a gutter
-/// pixel, about 0.25 a texel) and its source (12 B).
-pub const SETUP_BYTES: f64 = 36.0 + 8.0 * crate::bake::memory::GUTTER_PER_TEXEL + 12.0;
+/// Bytes a texel of the whole LOD takes in a region shard's lookup map while it sets up
+/// ([`TexelMap::build_lookup`]: pixel, face, area, plus 8 B a gutter pixel, about 0.25 a
+/// texel).
+pub const LOOKUP_MAP_BYTES: f64 = 12.0 + 8.0 * crate::bake::memory::GUTTER_PER_TEXEL;
 
 /// Bytes a texel of the share takes of a merged previous round: its punctual part. The
 /// previous round is streamed ([`crate::shard::PreviousRound`]): its irradiance is read
-/// into the buffer that becomes the round's source (counted in [`SETUP_BYTES`]), its sums
+/// into the buffer that becomes the round's source (counted in [`FOREIGN_BYTES`]), its sums
 /// are never held.
 pub const PREVIOUS_BYTES: u64 = 12;
 
 /// The peak a region shard of `count` shares of a LOD of `texels` texels is expected to
-/// hold, before it allocates anything per texel: the larger of its set-up (the whole map
-/// without positions and normals, the whole source, and the previous round's estimate when
-/// it reads one) and its bundles (the whole source and lookup table, and 1/`count` of what
+/// hold, before it allocates anything per texel: the larger of its set-up (the whole LOD's
+/// lookup map and source beside the share's map, its source and the previous round's
+/// punctual part) and its bundles (the whole source and lookup table, and 1/`count` of what
 /// a single-machine bake of the LOD holds per texel: [`crate::bake::memory::estimate_from_lod0`]).
 pub fn estimate(
     texels: u64,
@@ -251,11 +340,15 @@ pub fn estimate(
     let single = estimate_from_lod0(texels, None, config, SceneTraits::LEAST);
     let t = texels as f64;
     let share = t / count.max(1) as f64;
-    let setup = t * SETUP_BYTES + if previous { share * PREVIOUS_BYTES as f64 } else { 0.0 };
     let table = t * TABLE_BLOCK_BYTES as f64 / 64.0 + t * crate::bake::memory::GUTTER_PER_TEXEL * 4.0;
-    // The emitting texels' bit and word counts (12 B a 64-texel word; their values are few).
-    let emitting = t * 12.0 / 64.0;
-    let run = t * FOREIGN_BYTES as f64 + table + emitting + single.texel_bytes as f64 / count.max(1) as f64;
+    // The emitting (and in round 1 the sending) texels' bit and word counts (12 B a
+    // 64-texel word each; their values are few).
+    let emitting = t * 24.0 / 64.0;
+    let source = if previous { t * FOREIGN_BYTES as f64 } else { 0.0 };
+    // The share's pixels are in its map while it sets up.
+    let own = share * (SHARE_MAP_BYTES + 4 + if previous { PREVIOUS_BYTES } else { 0 }) as f64;
+    let setup = t * LOOKUP_MAP_BYTES + source + emitting + table + own;
+    let run = source + table + emitting + single.texel_bytes as f64 / count.max(1) as f64;
     let texel_bytes = setup.max(run) as u64;
     let bytes = texel_bytes + single.thread_bytes + single.texture_bytes + single.passing_bytes;
     crate::bake::memory::MemoryEstimate {
@@ -308,18 +401,21 @@ pub fn bake_region_round(
     stage("dealt");
     let triangles = target_triangles(atlas, &map.face);
     // The previous round's irradiance, read into the buffer that becomes the source.
-    let whole_source = round_source(bundle, &map, previous.map(|p| p.irradiance()).transpose()?);
+    let (whole_source, emitting) = whole_source(bundle, &map, previous.map(|p| p.irradiance()).transpose()?, threads);
     stage("source");
-    let own_source: Vec<Rgb> = keep.iter().map(|&i| whole_source[i as usize]).collect();
+    let own_source: Vec<Rgb> = keep.iter().map(|&i| whole_source.at(i)).collect();
     let carried_punctual: Option<Vec<Rgb>> = previous.map(|p| p.punctual(Some(&keep))).transpose()?;
+    // The share's texels; its source is made, so its bundles read that, not the albedo, and
+    // the emission of its emitting texels alone.
+    let sub = subset_map(&map, &keep);
+    let own_emitting = TexelSubset::from_entries(
+        keep.len(),
+        keep.iter().enumerate().filter_map(|(k, &i)| emitting.get(i).map(|e| (k as u32, e))),
+    );
     // What the bundles read of the whole LOD from here on: its source and its lookup. The
     // whole map is given up before they run.
-    let foreign = ForeignSource::new(atlas, &map, whole_source);
-    stage("foreign");
-    let mut sub = subset_map(&map, &keep);
+    let foreign = ForeignSource::new(atlas, &map, whole_source.without(&keep), emitting);
     drop(map);
-    // The share's source is made: its bundles read that, not the albedo.
-    sub.drop_albedo();
     stage("subset");
     let tables = [TexelTable::of_map(&sub)];
     let reach = faces_reaching(atlas, &tables[0], sub.lod);
@@ -331,14 +427,21 @@ pub fn bake_region_round(
             PunctualPass::of(bundle, bvh, sub.lod, &sub.face, &pixel, |_| &tables[0], threads).irradiance
         }
     };
+    // The share's table holds its pixels while the bundles run (given back after).
+    let mut sub = sub;
+    sub.drop_pixels(&tables[0]);
     let held_bytes = foreign.bytes()
         + tables[0].bytes()
         + sub.len() * SHARE_MAP_BYTES as usize
+        + sub.pixel.len() * 4
         + sub.gutter.len() * 8
         + triangles.len() * 4
-        + reach.len();
+        + reach.len()
+        + own_emitting.bytes();
+    let mut texels = sub.view();
+    texels.emission = TexelEmission::Emitting(&own_emitting);
     let region = Region {
-        texels: sub.view(),
+        texels,
         tables: &tables,
         window: None,
         foreign: Some(&foreign),
@@ -362,6 +465,7 @@ pub fn bake_region_round(
     );
     let Ok(Traced { estimate, stats, .. }) = traced else { unreachable!("a round is never cancelled") };
     stage("traced");
+    sub.restore_pixels(&tables[0]);
     drop(tables);
     Ok(RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes })
 }

@@ -53,16 +53,27 @@ pub struct RoundSums {
 /// reflection of the previous round's irradiance `previous` (one per texel, made in its
 /// place: a round holds 12 B a texel of the previous round, not its estimate).
 pub(super) fn round_source(bundle: &BundleScene, texels: &TexelMap, previous: Option<Vec<Rgb>>) -> Vec<Rgb> {
-    let emitted = |i: usize| if bundle.carried(texels.face[i]) { texels.emission[i] } else { Rgb::ZERO };
+    let emitted = |i: usize| carried_emission(bundle, texels.face[i], texels.emission[i]);
     match previous {
         Some(mut e) => {
             for (i, e) in e.iter_mut().enumerate() {
-                *e = texels.albedo[i] * *e * std::f32::consts::FRAC_1_PI + emitted(i);
+                *e = reflected(texels.albedo[i], *e) + emitted(i);
             }
             e
         }
         None => (0..texels.len()).map(emitted).collect(),
     }
+}
+
+/// The part of a texel's `emission` (on face `face`) that the global bundles carry: all of
+/// it, or none where the light pass carries it.
+pub(super) fn carried_emission(bundle: &BundleScene, face: crate::atlas::FaceId, emission: Rgb) -> Rgb {
+    if bundle.carried(face) { emission } else { Rgb::ZERO }
+}
+
+/// Diffuse reflection of `irradiance` (W/m²) by a surface of `albedo`: radiance, W/(sr·m²).
+pub(super) fn reflected(albedo: Rgb, irradiance: Rgb) -> Rgb {
+    albedo * irradiance * std::f32::consts::FRAC_1_PI
 }
 
 /// Bakes round `round` (from 1) of `texels` (a whole LOD's map with its albedo and emission;

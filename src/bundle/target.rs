@@ -164,6 +164,8 @@ pub fn target_triangles(atlas: &Atlas, faces: &[FaceId]) -> Vec<u32> {
     let mut t: Vec<u32> = faces.iter().map(|&f| atlas.faces[f as usize].tri).collect();
     t.sort_unstable();
     t.dedup();
+    // Made a triangle a texel: without this a whole LOD's bake would hold 4 B a texel for it.
+    t.shrink_to_fit();
     t
 }
 

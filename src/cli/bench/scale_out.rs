@@ -8,7 +8,10 @@
 //! minutes, and one single bake before both ways moved the ratio by ±10% between repeats.
 //! The figures are medians over the repeats: the ratio of the shards' CPU time (merges
 //! included) to the single bake's, the merges' share of the single bake's CPU time, and
-//! each shard's peak memory against the single bake's.
+//! each shard's peak memory against the single bake's and against the goal for
+//! region shards (the single bake's over N plus the geometry's: the same scene baked at
+//! [`GEOMETRY_TEXELS`]). Region shards are for texels that outweigh the rest, so their
+//! memory is measured again at 4× the texels ([`region_memory`]).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -126,36 +129,51 @@ impl Pair {
 /// The ways of sharding measured (`--shard-by`).
 const WAYS: [&str; 2] = ["directions", "regions"];
 
+/// The arguments of `livebake bake SCENE ...EXTRA`, quiet.
+fn bake_args(scene_args: &[String], extra: &[&str]) -> Vec<String> {
+    let mut a = vec!["-q".to_string(), "bake".into()];
+    a.extend(scene_args.iter().cloned());
+    a.extend(extra.iter().map(|s| s.to_string()));
+    a
+}
+
+/// The scene's arguments at a texel budget and a number of directions.
+fn scene_args(scene: &Path, budget: u64, samples: u32) -> Vec<String> {
+    let scene = scene.to_string_lossy().into_owned();
+    vec![scene, "--texel-budget".into(), budget.to_string(), "--samples".into(), samples.to_string()]
+}
+
+/// The shards of every round sharded `by` (`--shard-by`), one after another, each round
+/// merged before the next reads it (into `{by}-m{round}`).
+fn shard_rounds(lb: &Path, dir: &Path, scene_args: &[String], by: &str) -> Result<Way> {
+    let mut way = Way::default();
+    for round in 1..=ROUNDS {
+        let out = format!("{by}-r{round}");
+        let previous = format!("{by}-m{}/merged.lbshard", round - 1);
+        for i in 0..SHARDS {
+            let share = format!("{i}/{SHARDS}");
+            let mut extra = vec!["--shard", share.as_str(), "--shard-by", by, "--out", out.as_str()];
+            if round > 1 {
+                extra.extend(["--previous", previous.as_str()]);
+            }
+            way.shards.push(measured(lb, dir, &bake_args(scene_args, &extra))?);
+        }
+        let mut merge = vec!["-q".to_string(), "merge".into()];
+        merge.extend((0..SHARDS).map(|i| format!("{out}/{}", livebake::shard::shard_file_name(i, SHARDS))));
+        merge.extend(["--out".into(), format!("{by}-m{round}")]);
+        way.merges.push(measured(lb, dir, &merge)?);
+    }
+    Ok(way)
+}
+
 fn bake_both(bench: &Bench, dir: &Path, scene_args: &[String]) -> Result<Pair> {
     let lb = bench.livebake;
-    let with = |extra: &[&str]| -> Vec<String> {
-        let mut a = vec!["-q".to_string(), "bake".into()];
-        a.extend(scene_args.iter().cloned());
-        a.extend(extra.iter().map(|s| s.to_string()));
-        a
-    };
     let rounds = ROUNDS.to_string();
-    let single = |out: &str| measured(lb, dir, &with(&["--bounce-rounds", &rounds, "--out", out]));
+    let single = |out: &str| measured(lb, dir, &bake_args(scene_args, &["--bounce-rounds", &rounds, "--out", out]));
     let mut singles = vec![single("single")?];
     let mut ways = Vec::new();
     for by in WAYS {
-        let mut way = Way::default();
-        for round in 1..=ROUNDS {
-            let out = format!("{by}-r{round}");
-            let previous = format!("{by}-m{}/merged.lbshard", round - 1);
-            for i in 0..SHARDS {
-                let share = format!("{i}/{SHARDS}");
-                let mut extra = vec!["--shard", share.as_str(), "--shard-by", by, "--out", out.as_str()];
-                if round > 1 {
-                    extra.extend(["--previous", previous.as_str()]);
-                }
-                way.shards.push(measured(lb, dir, &with(&extra))?);
-            }
-            let mut merge = vec!["-q".to_string(), "merge".into()];
-            merge.extend((0..SHARDS).map(|i| format!("{out}/{}", livebake::shard::shard_file_name(i, SHARDS))));
-            merge.extend(["--out".into(), format!("{by}-m{round}")]);
-            way.merges.push(measured(lb, dir, &merge)?);
-        }
+        let mut way = shard_rounds(lb, dir, scene_args, by)?;
         let mut work = [0.0; 5];
         for round in 1..=ROUNDS {
             for (w, x) in work.iter_mut().zip(work_of(&dir.join(format!("{by}-m{round}/report.json")))?) {
@@ -203,24 +221,26 @@ pub fn run(bench: &Bench) -> Result<Value> {
         // (load, atlas, BVH, texel map; the merge's write) weigh as they would in use.
         (assets().join("van_gogh_room/van_gogh_room_lit.gltf"), 500_000, 256, 3)
     };
-    let scene_args: Vec<String> = vec![
-        scene.to_string_lossy().into_owned(),
-        "--texel-budget".into(),
-        budget.to_string(),
-        "--samples".into(),
-        samples.to_string(),
-    ];
+    let args = scene_args(&scene, budget, samples);
     let dir = tempfile_dir()?;
     let mut pairs = Vec::new();
+    let mut geometry = Vec::new();
     for r in 0..repeats {
         bench.ui.status(&format!("scale_out: repeat {} of {repeats}", r + 1));
-        let pair = bake_both(bench, &dir, &scene_args);
+        let pair = bake_both(bench, &dir, &args);
+        let tiny = pair.as_ref().ok().map(|_| geometry_usage(bench.livebake, &dir, &scene, samples));
         // Every file of the repeat goes, whatever happened.
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir)?;
         pairs.push(pair?);
+        geometry.extend(tiny.transpose()?);
     }
+    let geometry_peak = median(geometry.iter().map(|u| u.peak_bytes as f64).collect());
+    // Where the texels outweigh what every process holds: what region shards are for.
+    bench.ui.status("scale_out: region shards' memory at 4× the texels");
+    let memory = region_memory(bench.livebake, &dir, &scene, budget * 4, samples);
     let _ = std::fs::remove_dir_all(&dir);
+    let memory = memory?;
     let cpu = |u: &[Usage]| u.iter().map(|u| u.cpu_seconds).sum::<f64>();
     let singles = || pairs.iter().flat_map(|p| &p.singles);
     let single_peak = median(singles().map(|u| u.peak_bytes as f64).collect());
@@ -249,6 +269,7 @@ pub fn run(bench: &Bench) -> Result<Value> {
             "shard_peak_bytes": shard_peak,
             "merge_peak_bytes": merge_peak,
             "shard_peak_over_single": shard_peak / single_peak,
+            "shard_peak_over_goal": shard_peak / (single_peak / SHARDS as f64 + geometry_peak),
         })
     };
     let directions = summary(0, &|p: &Pair| &p.directions);
@@ -292,8 +313,48 @@ pub fn run(bench: &Bench) -> Result<Value> {
         "work_over_single": field(&directions, "work_over_single"),
         "regions": regions,
         "goal_region_peak_over_single": 1.0 / SHARDS as f64,
+        "geometry_peak_bytes": geometry_peak,
+        "region_peak_goal_bytes": single_peak / SHARDS as f64 + geometry_peak,
+        "region_memory": memory,
         "regions_worst_relative_difference": median(pairs.iter().map(|p| p.regions_worst).collect()),
         "runs": runs,
+    }))
+}
+
+/// Texels of the bake that stands for "the geometry" of the memory goal (1/N of the
+/// single bake's peak plus the geometry): what a process holds for the scene, its BVH and
+/// atlas and the bundles' buffers of a tiny map.
+const GEOMETRY_TEXELS: u64 = 2_000;
+
+/// A one-round bake of `scene` at [`GEOMETRY_TEXELS`].
+fn geometry_usage(lb: &Path, dir: &Path, scene: &Path, samples: u32) -> Result<Usage> {
+    let args = scene_args(scene, GEOMETRY_TEXELS, samples);
+    measured(lb, dir, &bake_args(&args, &["--bounce-rounds", "1", "--out", "geometry"]))
+}
+
+/// Region shards' peak memory, round by round, against the goal at `budget` texels:
+/// the single bake's peak over N plus the geometry's ([`geometry_usage`]). One run each.
+fn region_memory(lb: &Path, dir: &Path, scene: &Path, budget: u64, samples: u32) -> Result<Value> {
+    let dir = dir.join("memory");
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let args = scene_args(scene, budget, samples);
+    let rounds = ROUNDS.to_string();
+    let single = measured(lb, &dir, &bake_args(&args, &["--bounce-rounds", &rounds, "--out", "single"]))?;
+    let geometry = geometry_usage(lb, &dir, scene, samples)?;
+    let way = shard_rounds(lb, &dir, &args, "regions")?;
+    let per_round: Vec<u64> =
+        way.shards.chunks(SHARDS as usize).map(|r| r.iter().map(|u| u.peak_bytes).max().unwrap_or(0)).collect();
+    let goal = single.peak_bytes as f64 / SHARDS as f64 + geometry.peak_bytes as f64;
+    let largest = per_round.iter().copied().max().unwrap_or(0) as f64;
+    Ok(json!({
+        "texel_budget": budget,
+        "single_peak_bytes": single.peak_bytes,
+        "geometry_peak_bytes": geometry.peak_bytes,
+        "goal_bytes": goal,
+        "shard_peak_bytes_per_round": per_round,
+        "shard_peak_over_goal": largest / goal,
+        "shard_peak_over_single": largest / single.peak_bytes as f64,
+        "shards": way.shards.iter().map(usage_json).collect::<Vec<_>>(),
     }))
 }
 
