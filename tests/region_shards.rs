@@ -73,6 +73,44 @@ fn four_region_shards_merged_equal_one_bake_round_by_round() {
     }
 }
 
+/// Round 1's source is the emission the global bundles carry, held by a region shard for
+/// the sending texels alone. No bundled scene has an emitter large enough to be carried
+/// (their lamps go through the light pass), so the 2 m Cornell room's white walls are made
+/// to glow: the shares see each other's glowing walls as the single bake does, to the bit.
+#[test]
+fn region_shards_see_the_other_shares_carried_emitters() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = dir.path();
+    let source = Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/cornell_2m/cornell_2m.gltf");
+    let mut gltf: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(source).expect("scene")).expect("the scene is JSON");
+    let white = gltf["materials"]
+        .as_array_mut()
+        .and_then(|m| m.iter_mut().find(|m| m["name"] == "white"))
+        .expect("a white material");
+    white["emissiveFactor"] = serde_json::json!([0.5, 0.4, 0.3]);
+    let room = d.join("glowing.gltf");
+    std::fs::write(&room, serde_json::to_vec(&gltf).expect("JSON")).expect("write");
+    let run = |extra: &[&str]| {
+        let mut args = vec!["-q", "bake", room.to_str().expect("UTF-8 path"), "--texel-budget", "20000"];
+        args.extend(["--samples", "32"]);
+        args.extend(extra);
+        ok(d, &args);
+    };
+    run(&["--bounce-rounds", "1", "--out", "single"]);
+    for i in 0..4 {
+        run(&["--shard", &format!("{i}/4"), "--shard-by", "regions", "--out", "r"]);
+    }
+    let files: Vec<String> = (0..4).map(|i| format!("r/shard-{i:04}-of-0004.lbshard")).collect();
+    merge(d, &files, "m");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("single/report.json")).expect("report")).expect("JSON");
+    let carried = &report["lods"][0]["bundle"]["emitter_triangles_in_global_bundles"];
+    assert!(carried.as_u64().is_some_and(|n| n > 0), "no emitter carried by the global bundles: {carried}");
+    let worst = worst_relative(&exr(&d.join("single/lightmap_lod0.exr")), &exr(&d.join("m/lightmap_lod0.exr")));
+    assert_eq!(worst, 0.0, "region shards' round 1 differs from the single bake's");
+}
+
 #[test]
 fn region_sets_that_do_not_fit_are_refused() {
     let dir = tempfile::tempdir().expect("temp dir");
