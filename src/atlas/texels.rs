@@ -582,8 +582,7 @@ impl TexelSubset {
         let mut values = Vec::new();
         let mut last = None;
         for (i, v) in entries {
-            assert!(last < Some(i) && (i as usize) < texels, "texel {i} after {last:?} of {texels}");
-            last = Some(i);
+            check_ascending(&mut last, i, texels);
             held[i as usize / 64] |= 1 << (i % 64);
             values.push(v);
         }
@@ -605,8 +604,7 @@ impl TexelSubset {
         }
         let mut previous = None;
         for &i in left_out {
-            assert!(previous < Some(i) && (i as usize) < texels, "texel {i} after {previous:?} of {texels}");
-            previous = Some(i);
+            check_ascending(&mut previous, i, texels);
             held[i as usize / 64] &= !(1 << (i % 64));
         }
         let mut kept = 0;
@@ -660,6 +658,12 @@ impl TexelSubset {
     pub fn bytes(&self) -> usize {
         self.held.len() * 12 + self.values.len() * 12
     }
+}
+
+/// Panics unless texel `i` comes after `last` and lies below `texels`; then `i` is the last.
+fn check_ascending(last: &mut Option<u32>, i: u32, texels: usize) {
+    assert!(*last < Some(i) && (i as usize) < texels, "texel {i} after {last:?} of {texels}");
+    *last = Some(i);
 }
 
 /// Per word of `held` bits: the bits set in the words before it.

@@ -407,7 +407,7 @@ pub fn bake_region_round(
     let carried_punctual: Option<Vec<Rgb>> = previous.map(|p| p.punctual(Some(&keep))).transpose()?;
     // The share's texels; its source is made, so its bundles read that, not the albedo, and
     // the emission of its emitting texels alone.
-    let sub = subset_map(&map, &keep);
+    let mut sub = subset_map(&map, &keep);
     let own_emitting = TexelSubset::from_entries(
         keep.len(),
         keep.iter().enumerate().filter_map(|(k, &i)| emitting.get(i).map(|e| (k as u32, e))),
@@ -428,7 +428,6 @@ pub fn bake_region_round(
         }
     };
     // The share's table holds its pixels while the bundles run (given back after).
-    let mut sub = sub;
     sub.drop_pixels(&tables[0]);
     let held_bytes = foreign.bytes()
         + tables[0].bytes()
