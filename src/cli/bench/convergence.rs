@@ -51,11 +51,11 @@ struct RecordedCycles {
 }
 
 const RECORDED_CYCLES: RecordedCycles = RecordedCycles {
-    date: "2026-12-05",
-    machine: "the project's 2-core AMD EPYC VM (shared with other work)",
+    date: "2026-12-07",
+    machine: "the project's 2-core Intel Xeon VM",
     renderer: "Blender Cycles 5.0.1 (bpy from PyPI), CPU, 2 threads",
-    command: "/work/bpy-venv/bin/python scripts/cycles_time_to_error.py assets/cornell_2m/{cornell_2m.gltf,points.json,mitsuba_reference.json}",
-    seconds: &[(0.10, 11.27), (0.05, 18.24)],
+    command: "LIVEBAKE_CYCLES_PYTHON=/work/bpy-venv/bin/python livebake bench --only convergence",
+    seconds: &[(0.10, 2.94), (0.05, 9.25), (0.02, 59.44)],
 };
 
 /// The reference's relative RMS error of per-point estimates (`None`: the point had none).
