@@ -8,7 +8,7 @@
 //! (at most 10% under). And the model behind it must match what was held, once its one
 //! input that a bake only knows at the end is given: the threads' fragment buffers and the
 //! hits kept for their turn grow to the largest tile, which the estimate, made before
-//! any tile is planned, takes at the full node budget (2 × 24 MB and 25 MB here, where a
+//! any tile is planned, takes at the full node budget (2 × 18 MB and 25 MB here, where a
 //! light pass gives the bake one lane for two threads; this bake's largest tile holds about
 //! a third of it). So the measured growth is held to the estimate's per-texel part plus
 //! `cpu_thread_bytes` at the largest tile the report gives, within ±10%: the per-texel

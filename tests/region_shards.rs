@@ -35,7 +35,7 @@ fn merge(dir: &Path, files: &[String], out: &str) {
 }
 
 #[test]
-fn four_region_shards_merged_equal_one_bake_round_by_round() {
+fn four_region_shards_merged_match_one_bake_round_by_round() {
     let dir = tempfile::tempdir().expect("temp dir");
     let d = dir.path();
     bake(d, &["--bounce-rounds", "1", "--out", "single1"]);

@@ -550,15 +550,16 @@ impl TexelEmission<'_> {
 /// of a per-texel array while its bundles run where most texels need none, such as the
 /// emission of the emitting texels, or the albedo of texels of textured materials. Which
 /// texels are held is a bit per texel; a held texel's value is found through the count of
-/// held texels before its 64-texel word (12 B a held texel, ~0.2 B a texel).
+/// held texels before its 64-texel word (a value a held texel, ~0.2 B a texel). The values
+/// are colours, or another per-texel type such as a colour in half floats.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct TexelSubset {
+pub struct TexelSubset<V = Rgb> {
     texels: usize,
     /// Bit `i % 64` of word `i / 64`: whether texel `i` is held.
     held: Vec<u64>,
     /// Per word: the held texels before it.
     before: Vec<u32>,
-    values: Vec<Rgb>,
+    values: Vec<V>,
 }
 
 impl TexelSubset {
@@ -570,61 +571,6 @@ impl TexelSubset {
     /// The values of `dense` at the texels `keep` says.
     pub fn from_dense_where(dense: &[Rgb], keep: impl Fn(usize) -> bool) -> Self {
         Self::from_entries(dense.len(), dense.iter().enumerate().filter(|&(i, _)| keep(i)).map(|(i, &v)| (i as u32, v)))
-    }
-
-    /// The values `entries` gives (texel, value), in ascending texel order, of a map of
-    /// `texels` texels.
-    ///
-    /// # Panics
-    /// When the texels are not ascending or not below `texels`.
-    pub fn from_entries(texels: usize, entries: impl IntoIterator<Item = (u32, Rgb)>) -> Self {
-        let mut held = vec![0u64; texels.div_ceil(64)];
-        let mut values = Vec::new();
-        let mut last = None;
-        for (i, v) in entries {
-            check_ascending(&mut last, i, texels);
-            held[i as usize / 64] |= 1 << (i % 64);
-            values.push(v);
-        }
-        TexelSubset { texels, before: counts_before(&held), held, values }
-    }
-
-    /// Every texel's value of `dense` but those of `left_out` (ascending ids), compacted in
-    /// place: 12 B a held texel and a bit and a word count, where `dense` is 12 B a texel.
-    ///
-    /// # Panics
-    /// When `left_out` is not ascending or holds a texel past `dense`.
-    pub fn all_but(mut dense: Vec<Rgb>, left_out: &[u32]) -> Self {
-        let texels = dense.len();
-        let mut held = vec![!0u64; texels.div_ceil(64)];
-        if texels % 64 != 0
-            && let Some(last) = held.last_mut()
-        {
-            *last = (1 << (texels % 64)) - 1;
-        }
-        let mut previous = None;
-        for &i in left_out {
-            check_ascending(&mut previous, i, texels);
-            held[i as usize / 64] &= !(1 << (i % 64));
-        }
-        let mut kept = 0;
-        for i in 0..texels {
-            if held[i / 64] >> (i % 64) & 1 == 1 {
-                dense[kept] = dense[i];
-                kept += 1;
-            }
-        }
-        dense.truncate(kept);
-        dense.shrink_to_fit();
-        TexelSubset { texels, before: counts_before(&held), held, values: dense }
-    }
-
-    /// Texel `i`'s value, `None` when it is not held.
-    #[inline]
-    pub fn get(&self, i: u32) -> Option<Rgb> {
-        let (w, b) = (i as usize / 64, i % 64);
-        let bits = *self.held.get(w)?;
-        (bits >> b & 1 == 1).then(|| self.values[(self.before[w] + super::lookup::before(bits, b)) as usize])
     }
 
     /// Texel `i`'s value, zero when it is not held.
@@ -644,6 +590,56 @@ impl TexelSubset {
         }
         e
     }
+}
+
+impl<V: Copy> TexelSubset<V> {
+    /// The values `entries` gives (texel, value), in ascending texel order, of a map of
+    /// `texels` texels.
+    ///
+    /// # Panics
+    /// When the texels are not ascending or not below `texels`.
+    pub fn from_entries(texels: usize, entries: impl IntoIterator<Item = (u32, V)>) -> Self {
+        let mut held = vec![0u64; texels.div_ceil(64)];
+        let mut values = Vec::new();
+        let mut last = None;
+        for (i, v) in entries {
+            check_ascending(&mut last, i, texels);
+            held[i as usize / 64] |= 1 << (i % 64);
+            values.push(v);
+        }
+        TexelSubset { texels, before: counts_before(&held), held, values }
+    }
+
+    /// `value` of every texel of `dense` but those of `left_out` (ascending ids): a value
+    /// a held texel and a bit and a word count.
+    ///
+    /// # Panics
+    /// When `left_out` is not ascending or holds a texel past `dense`.
+    pub fn all_but<T: Copy>(dense: &[T], left_out: &[u32], value: impl Fn(T) -> V) -> Self {
+        let texels = dense.len();
+        let mut held = vec![!0u64; texels.div_ceil(64)];
+        if texels % 64 != 0
+            && let Some(last) = held.last_mut()
+        {
+            *last = (1 << (texels % 64)) - 1;
+        }
+        let mut previous = None;
+        for &i in left_out {
+            check_ascending(&mut previous, i, texels);
+            held[i as usize / 64] &= !(1 << (i % 64));
+        }
+        let mut values = Vec::with_capacity(texels - left_out.len());
+        values.extend((0..texels).filter(|&i| held[i / 64] >> (i % 64) & 1 == 1).map(|i| value(dense[i])));
+        TexelSubset { texels, before: counts_before(&held), held, values }
+    }
+
+    /// Texel `i`'s value, `None` when it is not held.
+    #[inline]
+    pub fn get(&self, i: u32) -> Option<V> {
+        let (w, b) = (i as usize / 64, i % 64);
+        let bits = *self.held.get(w)?;
+        (bits >> b & 1 == 1).then(|| self.values[(self.before[w] + super::lookup::before(bits, b)) as usize])
+    }
 
     /// Held texels.
     pub fn len(&self) -> usize {
@@ -656,7 +652,7 @@ impl TexelSubset {
 
     /// Bytes held.
     pub fn bytes(&self) -> usize {
-        self.held.len() * 12 + self.values.len() * 12
+        self.held.len() * 12 + self.values.len() * std::mem::size_of::<V>()
     }
 }
 
@@ -808,20 +804,24 @@ mod tests {
         assert_eq!(emitting.bytes(), 4 * 12 + 199 * 12);
     }
 
-    /// All but some: the others' values, in place; the left-out texels read nothing.
+    /// All but some: the others' values; the left-out texels read nothing.
     #[test]
     fn a_texel_subset_of_all_but_some_reads_the_others() {
         let dense: Vec<Rgb> = (0..150).map(|i| Rgb::new(i as f32, 2.0, 3.0)).collect();
         let out: Vec<u32> = (0..150).filter(|i| i % 7 == 0 || (64..128).contains(i)).collect();
-        let subset = TexelSubset::all_but(dense.clone(), &out);
+        let subset = TexelSubset::all_but(&dense, &out, |v| v);
         assert_eq!(subset.len(), 150 - out.len());
         for (i, &v) in dense.iter().enumerate() {
             let left_out = out.binary_search(&(i as u32)).is_ok();
             assert_eq!(subset.get(i as u32), (!left_out).then_some(v), "texel {i}");
         }
         assert_eq!(subset.get(150), None);
-        assert_eq!(TexelSubset::all_but(dense.clone(), &[]).dense(), dense);
-        assert!(std::panic::catch_unwind(|| TexelSubset::all_but(dense.clone(), &[9, 3])).is_err());
+        assert_eq!(TexelSubset::all_but(&dense, &[], |v| v).dense(), dense);
+        assert!(std::panic::catch_unwind(|| TexelSubset::all_but(&dense, &[9, 3], |v| v)).is_err());
+        // Another type of value: the first channel as bits.
+        let bits = TexelSubset::all_but(&dense, &out, |v: Rgb| v.x.to_bits());
+        assert_eq!((bits.get(1), bits.get(0)), (Some(1f32.to_bits()), None));
+        assert_eq!(bits.bytes(), 3 * 12 + (150 - out.len()) * 4);
     }
 
     /// Entries out of order or past the map would make a subset that reads wrong values.

@@ -240,12 +240,12 @@ pub fn bake_bytes_per_texel(
 
 /// Bytes of the CPU backend's `threads` threads, sharing `lanes` lanes, that do not grow
 /// with the texels: each thread's fragment buffers (up to N fragments of 12 B and as many
-/// spans of 12 B, a row of W head pointers), and the hits kept for their turn by threads
+/// spans of 6 B, a row of W head pointers), and the hits kept for their turn by threads
 /// working ahead of their lane's next unit (20 B each, at most
 /// [`WAITING_HITS_PER_THREAD`] × N per thread beyond a lane's first, the cap past which
 /// they take no unit ahead; plus each such lane's spare record chunks).
 pub fn cpu_thread_bytes(b: &crate::bundle::BundleConfig, threads: u64, lanes: u64) -> u64 {
-    let fragments = b.node_capacity.saturating_mul(24) + b.head_side as u64 * 8;
+    let fragments = b.node_capacity.saturating_mul(12 + 6) + b.head_side as u64 * 8;
     let ahead = threads.saturating_sub(lanes);
     let records = b.node_capacity.saturating_mul(20 * WAITING_HITS_PER_THREAD);
     let spare = crate::cpu::SPARE_RECORD_BYTES * ahead.min(lanes);

@@ -4,6 +4,7 @@
 
 mod backend;
 pub mod bundle;
+pub mod half_source;
 pub mod memory;
 mod reference;
 pub mod region_shard;

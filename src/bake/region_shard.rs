@@ -9,16 +9,17 @@
 //! ([`TexelMap::build_lookup`]) and asks each one's albedo and emission once, to make the
 //! source ([`whole_source`]).
 //!
-//! Why the merge equals the single-machine round: within a round the source is fixed, so a
+//! Why the merge is the single-machine round: within a round the source is fixed, so a
 //! texel's sums depend on the source and the geometry alone, not on which texels are baked
 //! beside it, provided the bundles are laid out the same. They are: the importance (the
 //! bundles' resolution) is set from every texel-holding triangle of the LOD (not the
 //! share's alone), the lane count is the whole LOD's, the lookup table is whole-LOD shaped
 //! (a fragment of any chart finds the same pixel; a pixel of another share's texel gives
-//! the foreign code instead of that texel's id). What differs: a foreign side's pixel is
-//! found from its barycentrics at the bundle pixel's centre rather than from the UV the
-//! span interpolates, the same point in two float roundings: a fragment within ~10⁻⁵ of a
-//! pixel's edge may read the neighbouring texel's source.
+//! the foreign code instead of that texel's id), and a foreign side reads the texel at the
+//! LOD pixel the whole bake's lookup computes ([`SurfaceRadiance::radiance_at`]). Round 1's
+//! sums are therefore the single bake's bits. From round 2 the other shares' texels' source
+//! is held in half floats ([`super::half_source`]): a hit on one of them reads it rounded,
+//! relative 2⁻¹¹ at most.
 
 use std::sync::atomic::AtomicBool;
 
@@ -35,6 +36,7 @@ use crate::reference::Bvh;
 use crate::scene::{Rgb, SceneGeometry, Side};
 
 use super::bundle::{BundleLodStats, DirectionShare, PunctualPass, Region, Traced, trace_region};
+use super::half_source::{HalfRgb, HalfScale};
 use super::rounds::{carried_emission, reflected, round_seed};
 use crate::parallel::par_for_each;
 
@@ -151,7 +153,7 @@ pub fn subset_map(map: &TexelMap, keep: &[u32]) -> TexelMap {
 }
 
 /// What a region shard sees of the texels outside its share: the round's source of the
-/// texels of the LOD but its own ([`WholeSource::without`]: 12 B a texel from round 2, the
+/// texels of the LOD but its own ([`WholeSource::without`]: 6 B a texel from round 2, the
 /// sending texels' alone in round 1) found through the whole LOD's lookup table (24 B an
 /// 8×8 block of pixels, 4 B a gutter pixel), and the emission of the emitting texels (for
 /// the light pass; 12 B an emitting texel and ~0.2 B a texel, [`TexelSubset`]). A side
@@ -162,7 +164,7 @@ pub fn subset_map(map: &TexelMap, keep: &[u32]) -> TexelMap {
 pub struct ForeignSource<'a> {
     atlas: &'a Atlas,
     table: TexelTable,
-    source: TexelSubset,
+    source: OtherTexels,
     emitting: TexelSubset,
     scale: f32,
 }
@@ -170,7 +172,7 @@ pub struct ForeignSource<'a> {
 impl<'a> ForeignSource<'a> {
     /// The foreign source of `map` (a whole LOD's pixels: [`TexelMap::build_lookup`]) whose
     /// texels send `source` and emit `emitting`.
-    pub fn new(atlas: &'a Atlas, map: &TexelMap, source: TexelSubset, emitting: TexelSubset) -> Self {
+    pub fn new(atlas: &'a Atlas, map: &TexelMap, source: OtherTexels, emitting: TexelSubset) -> Self {
         ForeignSource { atlas, table: TexelTable::of_map(map), source, emitting, scale: (1u64 << map.lod) as f32 }
     }
 
@@ -223,11 +225,12 @@ impl SurfaceRadiance for ForeignSource<'_> {
 }
 
 /// A round's source of every texel of the whole LOD, as a region shard holds it: dense
-/// where it reflects the last round's light (every texel sends some), the sending texels
-/// alone in round 1, whose source is the carried emission (a few emitters' texels: ~0.2 B
-/// a texel where dense is 12).
+/// where it reflects the last round's light (every texel sends some; with the scale its
+/// other texels' are held in, [`OtherTexels`]), the sending texels alone in round 1, whose
+/// source is the carried emission (a few emitters' texels: ~0.2 B a texel where dense is
+/// 12).
 pub enum WholeSource {
-    Dense(Vec<Rgb>),
+    Dense(Vec<Rgb>, HalfScale),
     Sending(TexelSubset),
 }
 
@@ -236,7 +239,7 @@ impl WholeSource {
     #[inline]
     pub fn at(&self, i: u32) -> Rgb {
         match self {
-            WholeSource::Dense(v) => v[i as usize],
+            WholeSource::Dense(v, _) => v[i as usize],
             WholeSource::Sending(s) => s.at(i),
         }
     }
@@ -244,10 +247,37 @@ impl WholeSource {
     /// The source of the texels a region shard finds through its foreign lookup: all but
     /// the share's own texels `own` (ascending ids), whose source it holds apart and finds
     /// through its own table (their pixels and gutters are its table's entries).
-    pub fn without(self, own: &[u32]) -> TexelSubset {
+    pub fn without(self, own: &[u32]) -> OtherTexels {
         match self {
-            WholeSource::Dense(v) => TexelSubset::all_but(v, own),
-            WholeSource::Sending(s) => s,
+            WholeSource::Dense(v, scale) => {
+                OtherTexels::Half(TexelSubset::all_but(&v, own, |c| scale.encode(c)), scale)
+            }
+            WholeSource::Sending(s) => OtherTexels::Sending(s),
+        }
+    }
+}
+
+/// The source of the texels outside a region shard's share: from round 2 every one's, in
+/// half floats (6 B a texel where f32 took 12; [`super::half_source`]), in round 1 the
+/// sending texels' alone (f32, as the single bake's).
+pub enum OtherTexels {
+    Half(TexelSubset<HalfRgb>, HalfScale),
+    Sending(TexelSubset),
+}
+
+impl OtherTexels {
+    #[inline]
+    fn at(&self, i: u32) -> Rgb {
+        match self {
+            OtherTexels::Half(s, scale) => s.get(i).map_or(Rgb::ZERO, |h| scale.decode(h)),
+            OtherTexels::Sending(s) => s.at(i),
+        }
+    }
+
+    fn bytes(&self) -> usize {
+        match self {
+            OtherTexels::Half(s, _) => s.bytes(),
+            OtherTexels::Sending(s) => s.bytes(),
         }
     }
 }
@@ -281,7 +311,8 @@ fn whole_source(
                     }
                 }
             });
-            WholeSource::Dense(source)
+            let scale = HalfScale::of(&source);
+            WholeSource::Dense(source, scale)
         }
         None => {
             let mut sending: Vec<Vec<(u32, Rgb)>> = vec![Vec::new(); emitting.len()];
@@ -309,27 +340,29 @@ fn whole_source(
 /// by the share's table), its id in the whole LOD, and its own source.
 pub const SHARE_MAP_BYTES: u64 = 4 + 4 + 4 + 12;
 
-/// Bytes a texel of the whole LOD takes in a region shard that reads a previous round: its
-/// source (f32 RGB) in [`ForeignSource`]. Round 1's source is the carried emission, held
-/// for the sending texels alone (counted with the emitting texels').
-pub const FOREIGN_BYTES: u64 = 12;
+/// Bytes a texel of the whole LOD takes in a region shard that reads a previous round while
+/// it sets up: its source, dense in f32.
+pub const DENSE_SOURCE_BYTES: u64 = 12;
+
+/// Bytes a texel of the whole LOD takes in a region shard that reads a previous round while
+/// its bundles run: its source in half floats ([`OtherTexels`]). Round 1's source is the
+/// carried emission, held for the sending texels alone (counted with the emitting texels').
+pub const FOREIGN_BYTES: u64 = 6;
 
 /// Bytes a texel of the whole LOD takes in a region shard's lookup map while it sets up
 /// ([`TexelMap::build_lookup`]: pixel, face, area, plus 8 B a gutter pixel, about 0.25 a
 /// texel).
 pub const LOOKUP_MAP_BYTES: f64 = 12.0 + 8.0 * crate::bake::memory::GUTTER_PER_TEXEL;
 
-/// Bytes a texel of the share takes of a merged previous round: its punctual part. The
-/// previous round is streamed ([`crate::shard::PreviousRound`]): its irradiance is read
-/// into the buffer that becomes the round's source (counted in [`FOREIGN_BYTES`]), its sums
-/// are never held.
-pub const PREVIOUS_BYTES: u64 = 12;
-
 /// The peak a region shard of `count` shares of a LOD of `texels` texels is expected to
 /// hold, before it allocates anything per texel: the larger of its set-up (the whole LOD's
-/// lookup map and source beside the share's map, its source and the previous round's
-/// punctual part) and its bundles (the whole source and lookup table, and 1/`count` of what
-/// a single-machine bake of the LOD holds per texel: [`crate::bake::memory::estimate_from_lod0`]).
+/// lookup map and source beside the share's map and its source) and its bundles (the other
+/// texels' source and the whole lookup table, and 1/`count` of what a single-machine bake
+/// of the LOD holds per texel: [`crate::bake::memory::estimate_from_lod0`]). A merged
+/// previous round is streamed ([`crate::shard::PreviousRound`]): its irradiance is read into
+/// the buffer that becomes the round's source ([`DENSE_SOURCE_BYTES`]), its sums are never
+/// held, and the share's punctual part (12 B a texel of the share) is read once the
+/// bundles have given back their sums, which it does not outweigh.
 pub fn estimate(
     texels: u64,
     count: u32,
@@ -344,10 +377,11 @@ pub fn estimate(
     // The emitting (and in round 1 the sending) texels' bit and word counts (12 B a
     // 64-texel word each; their values are few).
     let emitting = t * 24.0 / 64.0;
-    let source = if previous { t * FOREIGN_BYTES as f64 } else { 0.0 };
+    let (dense, source) = if previous { (t * DENSE_SOURCE_BYTES as f64, t * FOREIGN_BYTES as f64) } else { (0.0, 0.0) };
     // The share's pixels are in its map while it sets up.
-    let own = share * (SHARE_MAP_BYTES + 4 + if previous { PREVIOUS_BYTES } else { 0 }) as f64;
-    let setup = t * LOOKUP_MAP_BYTES + source + emitting + table + own;
+    let own = share * (SHARE_MAP_BYTES + 4) as f64;
+    // The dense source and its half floats are both held while the latter are made.
+    let setup = t * LOOKUP_MAP_BYTES + dense + source + emitting + table + own;
     let run = source + table + emitting + single.texel_bytes as f64 / count.max(1) as f64;
     let texel_bytes = setup.max(run) as u64;
     let bytes = texel_bytes + single.thread_bytes + single.texture_bytes + single.passing_bytes;
@@ -398,13 +432,16 @@ pub fn bake_region_round(
     let charts: Vec<u32> = (0..owner.len() as u32).filter(|&c| owner[c as usize] == index).collect();
     let keep = share_texels(&map, atlas, &owner, index);
     drop(owner);
+    backend.scale_waiting_hits(keep.len() as f64 / map.len().max(1) as f64);
     stage("dealt");
     let triangles = target_triangles(atlas, &map.face);
     // The previous round's irradiance, read into the buffer that becomes the source.
     let (whole_source, emitting) = whole_source(bundle, &map, previous.map(|p| p.irradiance()).transpose()?, threads);
     stage("source");
     let own_source: Vec<Rgb> = keep.iter().map(|&i| whole_source.at(i)).collect();
-    let carried_punctual: Option<Vec<Rgb>> = previous.map(|p| p.punctual(Some(&keep))).transpose()?;
+    // The rest of the LOD's source, in half floats before anything else is made: the dense
+    // source (12 B a texel of the LOD) is given up here, at the set-up's peak.
+    let others = whole_source.without(&keep);
     // The share's texels; its source is made, so its bundles read that, not the albedo, and
     // the emission of its emitting texels alone.
     let mut sub = subset_map(&map, &keep);
@@ -414,19 +451,11 @@ pub fn bake_region_round(
     );
     // What the bundles read of the whole LOD from here on: its source and its lookup. The
     // whole map is given up before they run.
-    let foreign = ForeignSource::new(atlas, &map, whole_source.without(&keep), emitting);
+    let foreign = ForeignSource::new(atlas, &map, others, emitting);
     drop(map);
     stage("subset");
     let tables = [TexelTable::of_map(&sub)];
     let reach = faces_reaching(atlas, &tables[0], sub.lod);
-    let punctual = match carried_punctual {
-        Some(p) => p,
-        None => {
-            let w = sub.width;
-            let pixel = |i: usize| [sub.pixel[i] % w, sub.pixel[i] / w];
-            PunctualPass::of(bundle, bvh, sub.lod, &sub.face, &pixel, |_| &tables[0], threads).irradiance
-        }
-    };
     // The share's table holds its pixels while the bundles run (given back after).
     sub.drop_pixels(&tables[0]);
     let held_bytes = foreign.bytes()
@@ -448,24 +477,39 @@ pub fn bake_region_round(
         reach: Some(&reach),
     };
     let share = DirectionShare::whole(round_seed(bundle.config.seed, round));
-    let punctual = PunctualPass { irradiance: punctual, seconds: 0.0 };
+    // The punctual part is no input of a round's bundles (their source is fixed): it joins
+    // the estimate after them, not held beside their sums.
+    let no_punctual = PunctualPass { irradiance: Vec::new(), seconds: 0.0 };
     let never = AtomicBool::new(false);
     let traced = trace_region(
         bundle,
         backend,
         &region,
         Some(own_source),
-        punctual,
+        no_punctual,
         share,
         threads,
         progress,
         &never,
         &mut |_| std::ops::ControlFlow::Continue(()),
     );
-    let Ok(Traced { estimate, stats, .. }) = traced else { unreachable!("a round is never cancelled") };
+    let Ok(Traced { estimate, stats, source }) = traced else { unreachable!("a round is never cancelled") };
+    drop((source, foreign));
+    backend.release_texel_buffers();
     stage("traced");
     sub.restore_pixels(&tables[0]);
+    // Carried from the previous round, or made by the share's punctual pass in round 1
+    // (each share holds its own texels' part).
+    let punctual = match previous {
+        Some(p) => p.punctual(Some(&keep))?,
+        None => {
+            let w = sub.width;
+            let pixel = |i: usize| [sub.pixel[i] % w, sub.pixel[i] / w];
+            PunctualPass::of(bundle, bvh, sub.lod, &sub.face, &pixel, |_| &tables[0], threads).irradiance
+        }
+    };
     drop(tables);
+    let estimate = estimate.with_punctual(punctual);
     Ok(RegionRound { estimate, stats, charts, texels: keep, map: sub, held_bytes })
 }
 

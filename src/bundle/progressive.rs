@@ -210,6 +210,17 @@ impl ProgressiveEstimate {
         e
     }
 
+    /// This estimate holding `punctual` (one per texel; empty: none) as its punctual part,
+    /// in place of what it held.
+    ///
+    /// # Panics
+    /// When `punctual` is neither empty nor one per texel.
+    pub fn with_punctual(mut self, punctual: Vec<Rgb>) -> Self {
+        assert!(punctual.is_empty() || punctual.len() == self.totals.len(), "one punctual value per texel");
+        self.punctual = punctual;
+        self
+    }
+
     /// The estimate of `texels` texels whose punctual light is held elsewhere (a runtime
     /// cell's is a layer of its own): reads as zero, and costs no 12 B a texel.
     pub fn without_punctual(kind: SourceKind, texels: usize) -> Self {

@@ -247,6 +247,12 @@ pub trait BundleBackend: Send {
     /// calls it before it rebuilds what it gave up of the texel map, so that the two are
     /// not held at once.
     fn release_texel_buffers(&mut self) {}
+
+    /// Scales by `share` (in (0, 1]) the hits that threads working ahead of the unit due may
+    /// keep waiting: a target that credits about that share of a whole LOD's texels, laid
+    /// out as the whole LOD (a region shard's), makes about that share of its hits a tile,
+    /// so the same tiles ahead keep that share of the hits. Results do not depend on it.
+    fn scale_waiting_hits(&mut self, _share: f64) {}
 }
 
 /// Makes backends for a scene: the runtime is generic over this, never over a concrete

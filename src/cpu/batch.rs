@@ -273,7 +273,7 @@ pub fn trace_batch(
         pool: ChunkPool::default(),
         sums: SumsPtr(sums),
         due: AtomicU64::new(packed((0, 0))),
-        most_waiting: ctx.config.node_capacity.saturating_mul(WAITING_HITS_PER_THREAD * (threads - 1)),
+        most_waiting: ctx.waiting_hits.saturating_mul(threads - 1),
         bundle_layout,
         light_layout,
     };

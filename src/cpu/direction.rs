@@ -51,6 +51,10 @@ pub struct PassContext<'a> {
     pub split_large_tiles: bool,
     /// Whether a windowed target's fragments are built only inside its outline.
     pub outline_clip: bool,
+    /// Hits a thread working ahead may keep waiting, per thread beyond the first
+    /// ([`super::WAITING_HITS_PER_THREAD`] × N, scaled by
+    /// [`crate::bundle::BundleBackend::scale_waiting_hits`]).
+    pub waiting_hits: u64,
 }
 
 /// One thread's scratch buffers, reused across units, and the statistics of its units.

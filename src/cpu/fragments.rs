@@ -118,12 +118,26 @@ fn meets_outline(screen: &ScreenTriangle, outline_rows: &[(u32, u32)]) -> bool {
     (r0..=r1).any(|y| outline_rows.get(y as usize).is_none_or(|&(a, b)| a < b && a <= c1 && b > c0))
 }
 
-/// Pixels `x0..x1` of one row covered by triangle `tri` (an index into the tile's triangles).
+/// Pixels `base + x0 .. base + x1` of one row of a strip (`base`: its first column) covered
+/// by triangle `tri` (an index into the tile's triangles). 6 B, byte columns and no
+/// padding: a tile's spans (one a row and strip of each of its triangles) are a thread's
+/// largest buffer beside the fragments.
 #[derive(Clone, Copy, Debug)]
+#[repr(C, packed(2))]
 struct Span {
     tri: u32,
-    x0: u32,
-    x1: u32,
+    x0: u8,
+    x1: u8,
+}
+
+const _: () = assert!(STRIP <= u8::MAX as u32, "a span's columns are bytes within its strip");
+
+impl Span {
+    /// Its columns.
+    #[inline]
+    fn columns(self, base: u32) -> (u32, u32) {
+        (base + self.x0 as u32, base + self.x1 as u32)
+    }
 }
 
 /// Reusable buffers of one worker.
@@ -191,6 +205,9 @@ impl TileFragments {
         self.pixel = viewport.pixel;
         self.emitters_only = emitter_group.is_some();
         self.tris.clear();
+        // Grown to the most a tile asks, not doubled past it: with the planes, 276 B a
+        // triangle, and a tile may set up tens of thousands.
+        self.tris.reserve_exact(candidates.len());
         let geom = &scene.bundle.geom;
         for &t in candidates {
             let i = t as usize;
@@ -264,7 +281,9 @@ impl TileFragments {
                     let end = x1.min((strip + 1) * STRIP);
                     let bucket = (strip * height + y) as usize;
                     let len = &mut self.bucket_len[bucket];
-                    self.spans[(self.bucket_start[bucket] + *len) as usize] = Span { tri: k as u32, x0: x, x1: end };
+                    let base = strip * STRIP;
+                    let span = Span { tri: k as u32, x0: (x - base) as u8, x1: (end - base) as u8 };
+                    self.spans[(self.bucket_start[bucket] + *len) as usize] = span;
                     *len += 1;
                     x = end;
                 }
@@ -328,6 +347,7 @@ impl TileFragments {
             }
         };
         self.planes.clear();
+        self.planes.reserve_exact(self.tris.len());
         self.clip_rows.clear();
         for (k, tri) in self.tris.iter().enumerate() {
             let (plus_side, minus_side) =
@@ -402,19 +422,23 @@ impl TileFragments {
         let base = (bucket / self.height as usize) as u32 * STRIP;
         let row = bucket as u32 % self.height;
         let mut mask = spans.iter().fold(0u64, |m, s| {
+            let (x0, x1) = s.columns(base);
             let (x0, x1) = match self.planes[s.tri as usize].reach {
                 TargetReach::None => return m,
-                TargetReach::Everywhere => (s.x0, s.x1),
+                TargetReach::Everywhere => (x0, x1),
                 TargetReach::Rows { start } => {
                     let first = self.tris[s.tri as usize].screen.rows().0;
                     let (a, b) = self.clip_rows[(start + row - first) as usize];
-                    (s.x0.max(a), s.x1.min(b))
+                    (x0.max(a), x1.min(b))
                 }
             };
             if x0 < x1 { m | run_bits(x0 - base, x1 - base) } else { m }
         });
         if self.emitters_only {
-            let hull = |(lo, hi): (u32, u32), s: &Span| (lo.min(s.x0), hi.max(s.x1));
+            let hull = |(lo, hi): (u32, u32), s: &Span| {
+                let (x0, x1) = s.columns(base);
+                (lo.min(x0), hi.max(x1))
+            };
             let (a, b) = spans.iter().filter(|s| self.tris[s.tri as usize].emitter).fold((u32::MAX, 0), hull);
             mask &= if a < b { run_bits(a - base, b - base) } else { 0 };
         }
@@ -428,7 +452,10 @@ impl TileFragments {
         let spans = &self.spans[start..start + self.bucket_len[bucket] as usize];
         let row = bucket as u32 % self.height;
         let (lo, hi) = pixels.bounds();
-        let clip = |s: &Span| (s.x0.max(lo), s.x1.min(hi));
+        let clip = |s: &Span| {
+            let (x0, x1) = s.columns(pixels.base);
+            (x0.max(lo), x1.min(hi))
+        };
         // Per-pixel counts as a difference array, turned into pixel p's first slot at
         // `ends[p + 1]`: filling through `ends[p + 1]` as p's cursor then leaves
         // `ends[p]..ends[p + 1]` as its range.

@@ -42,13 +42,15 @@ pub struct CpuBundleBackend {
     /// Whether a windowed target's fragments are built only inside its outline
     /// ([`crate::bundle::window::WindowOutline`]).
     outline_clip: bool,
+    /// The share of N × [`WAITING_HITS_PER_THREAD`] that may wait ([`BundleBackend::scale_waiting_hits`]).
+    waiting_share: f64,
 }
 
 impl CpuBundleBackend {
     pub fn new(scene: Arc<CpuScene>, threads: usize) -> Self {
         let workers = (0..threads.max(1)).map(|_| Worker::default()).collect();
         let importance = vec![0.0; scene.bundle.geom.len()];
-        CpuBundleBackend { scene, workers, lane_sums: Vec::new(), importance, outline_clip: true }
+        CpuBundleBackend { scene, workers, lane_sums: Vec::new(), importance, outline_clip: true, waiting_share: 1.0 }
     }
 
     /// With `false`, a windowed target's fragments fill the window's whole square, as the
@@ -86,6 +88,10 @@ impl BundleBackend for CpuBundleBackend {
 
     fn release_texel_buffers(&mut self) {
         self.lane_sums = Vec::new();
+    }
+
+    fn scale_waiting_hits(&mut self, share: f64) {
+        self.waiting_share = share.clamp(f64::MIN_POSITIVE, 1.0);
     }
 }
 
@@ -134,6 +140,9 @@ impl CpuBundleBackend {
             global,
             split_large_tiles: lanes == 1,
             outline_clip: self.outline_clip,
+            waiting_hits: (bundle.config.node_capacity.saturating_mul(WAITING_HITS_PER_THREAD) as f64
+                * self.waiting_share)
+                .ceil() as u64,
         };
         // Lane 0 accumulates into `sums` itself (the caller is done with the last batch's),
         // the others into buffers of their own, zeroed when they were last added.

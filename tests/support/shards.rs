@@ -78,14 +78,25 @@ pub fn worst_relative(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
     worst
 }
 
-/// The bound of region shards merged against one machine's bake, per texel: none, in every
-/// round (docs/SHARDS.md). A region shard lays its bundles out as the whole LOD's (the
-/// whole LOD's importance and lane count, a whole-LOD-shaped table), so each texel's hits
-/// come in the same order and read the same source values (a foreign side reads the texel
-/// at the pixel the whole bake's table lookup computes, from the same float operations);
-/// its batch sums are the same bits, added in the same batch order, and the merge puts
-/// them in place without arithmetic. Round r's source is then the same bits too. (Textured
-/// translucent surfaces are the exception the docs state; the box has none.)
-pub fn region_bound(_round: u32) -> f64 {
-    0.0
+/// The bound of region shards merged against one machine's bake, relative, per texel
+/// (docs/SHARDS.md). A region shard lays its bundles out as the whole LOD's (the whole
+/// LOD's importance and lane count, a whole-LOD-shaped table), so each texel's hits come
+/// in the same order (a foreign side reads the texel at the pixel the whole bake's table
+/// lookup computes, from the same float operations), its batch sums are added in the same
+/// batch order, and the merge puts them in place without arithmetic.
+///
+/// Round 1: none. Every hit reads the single bake's value (its own texels' source, the
+/// sending texels' carried emission, f32 both), so every sum is the same bits.
+///
+/// Round 2: a foreign side reads the source of another share's texel in half floats
+/// (`bake::half_source`), rounded to nearest: relative 2⁻¹¹ at most while the value is
+/// over 2⁻²⁸ of the LOD's brightest source (in the box, with these options, the dimmest
+/// lit texel's round-1 irradiance is 2⁻¹⁷ of the brightest's). Each hit's term `w·L` is then within 2⁻¹¹ + 2u of the single bake's (its own
+/// texels' hits, the light pass and the weights the same bits), a batch's sum of m ≤ 256
+/// hits of a texel in a lane rounds differently by at most 2(m−1)u, and the batches'
+/// totals, E = π·S/A and the same light-pass and punctual parts added as in
+/// `round_one_bound`. (Textured translucent surfaces are the exception the docs state; the
+/// box has none.)
+pub fn region_bound(round: u32) -> f64 {
+    if round <= 1 { 0.0 } else { (-11f64).exp2() + 2.0 * U + 2.0 * 255.0 * U + round_one_bound() }
 }
