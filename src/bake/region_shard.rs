@@ -225,12 +225,11 @@ impl SurfaceRadiance for ForeignSource<'_> {
 }
 
 /// A round's source of every texel of the whole LOD, as a region shard holds it: dense
-/// where it reflects the last round's light (every texel sends some; with the scale its
-/// other texels' are held in, [`OtherTexels`]), the sending texels alone in round 1, whose
-/// source is the carried emission (a few emitters' texels: ~0.2 B a texel where dense is
-/// 12).
+/// where it reflects the last round's light (every texel sends some), the sending texels
+/// alone in round 1, whose source is the carried emission (a few emitters' texels: ~0.2 B
+/// a texel where dense is 12).
 pub enum WholeSource {
-    Dense(Vec<Rgb>, HalfScale),
+    Dense(Vec<Rgb>),
     Sending(TexelSubset),
 }
 
@@ -239,7 +238,7 @@ impl WholeSource {
     #[inline]
     pub fn at(&self, i: u32) -> Rgb {
         match self {
-            WholeSource::Dense(v, _) => v[i as usize],
+            WholeSource::Dense(v) => v[i as usize],
             WholeSource::Sending(s) => s.at(i),
         }
     }
@@ -249,7 +248,8 @@ impl WholeSource {
     /// through its own table (their pixels and gutters are its table's entries).
     pub fn without(self, own: &[u32]) -> OtherTexels {
         match self {
-            WholeSource::Dense(v, scale) => {
+            WholeSource::Dense(v) => {
+                let scale = HalfScale::of(&v);
                 OtherTexels::Half(TexelSubset::all_but(&v, own, |c| scale.encode(c)), scale)
             }
             WholeSource::Sending(s) => OtherTexels::Sending(s),
@@ -311,8 +311,7 @@ fn whole_source(
                     }
                 }
             });
-            let scale = HalfScale::of(&source);
-            WholeSource::Dense(source, scale)
+            WholeSource::Dense(source)
         }
         None => {
             let mut sending: Vec<Vec<(u32, Rgb)>> = vec![Vec::new(); emitting.len()];
