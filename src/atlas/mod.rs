@@ -372,6 +372,24 @@ struct MeshCharts {
     copy_of: Option<CopyOf>,
 }
 
+/// Unwraps the meshes that are not given their TEXCOORD_1 ahead of their first use, on
+/// `threads` threads: a mesh holding at least 1/`threads` of their faces on all threads
+/// (through its components, [`charts::unwrap_mesh`]), one after another; the others side by
+/// side, one thread each. (A mesh whose TEXCOORD_1 a texel size refuses is unwrapped on
+/// first use, on one thread.) The charts do not depend on the threads.
+fn unwrap_all(meshes: &[MeshCharts], scene: &Scene, geom: &SceneGeometry, config: &AtlasConfig, threads: usize) {
+    let pending: Vec<&MeshCharts> = meshes.iter().filter(|m| !m.try_uv1).collect();
+    let faces: usize = pending.iter().map(|m| m.tris.len()).sum();
+    let (large, small): (Vec<&MeshCharts>, Vec<&MeshCharts>) =
+        pending.into_iter().partition(|m| m.tris.len() * threads >= faces);
+    for m in large {
+        m.unwrapped(scene, geom, config, threads);
+    }
+    crate::parallel::par_for_each(small, threads, |m| {
+        m.unwrapped(scene, geom, config, 1);
+    });
+}
+
 /// A local chart's extent at `scale` (LOD-0 texels per unit of its UVs) and its placement.
 fn placement(c: &charts::LocalChart, scale: f64, config: &AtlasConfig) -> Result<(DVec2, pack::Placement), AtlasError> {
     let extent = c.extent * scale;
@@ -417,6 +435,22 @@ impl MeshCharts {
         })
     }
 
+    /// The unwrapped charts of the mesh (of its original, for a rigid copy: shared), made on
+    /// `threads` threads on first use.
+    fn unwrapped(
+        &self,
+        scene: &Scene,
+        geom: &SceneGeometry,
+        config: &AtlasConfig,
+        threads: usize,
+    ) -> &Vec<charts::LocalChart> {
+        let (mesh, tris) = match &self.copy_of {
+            None => (&scene.meshes[self.mesh as usize], &self.tris),
+            Some(copy) => (&scene.meshes[copy.mesh as usize], &copy.tris),
+        };
+        self.unwrapped.get_or_init(|| charts::unwrap_mesh(mesh, geom, tris, self.hint, config.chart_max_angle, threads))
+    }
+
     /// The mesh's local charts at `texel`: its TEXCOORD_1 blocks when they validate there
     /// (LOD-0 texels, scale 1), else its unwrapped charts (metres, scale 1/texel); and why
     /// TEXCOORD_1 was refused.
@@ -435,16 +469,10 @@ impl MeshCharts {
                 Err(reason) => rejected = Some(reason),
             }
         }
+        let unwrapped = self.unwrapped(scene, geom, config, 1);
         let Some(copy) = &self.copy_of else {
-            let unwrapped = self
-                .unwrapped
-                .get_or_init(|| charts::unwrap_mesh(mesh, geom, &self.tris, self.hint, config.chart_max_angle));
             return (ChartSource::Unwrapped, Cow::Borrowed(unwrapped.as_slice()), 1.0 / texel, rejected);
         };
-        let original = &scene.meshes[copy.mesh as usize];
-        let unwrapped = self
-            .unwrapped
-            .get_or_init(|| charts::unwrap_mesh(original, geom, &copy.tris, self.hint, config.chart_max_angle));
         let moved = unwrapped
             .iter()
             .map(|c| charts::LocalChart {
@@ -608,6 +636,7 @@ impl Atlas {
             (0..scene.meshes.len()).filter_map(|mi| MeshCharts::new(scene, geom, &face_of, mi, t0, config)).collect();
         link_copies(scene, geom, &mut meshes);
         let threads = crate::parallel::available_threads();
+        unwrap_all(&meshes, scene, geom, config, threads);
         let layout = |texel: f64| -> Result<Vec<MeshAtTexel>, AtlasError> {
             crate::parallel::par_map(meshes.iter().collect(), threads, |m| m.at(scene, geom, texel, config))
                 .into_iter()

@@ -5,16 +5,33 @@ use glam::{DVec2, DVec3};
 use super::face_grid::{FaceGrid, Visited};
 use super::faces::{Frame, MeshFaces, coarse};
 
-/// Step 2 of the [unwrapper](super): planar charts (face lists, increasing), UVs (texels) in `uv`.
-pub(super) fn grow(faces: &MeshFaces, cos_max: f64, uv: &mut [[DVec2; 3]], seen: &mut Visited) -> Vec<Vec<u32>> {
+/// Where a chart stands in the mesh's chart order: charts grown from a seed in the seeds'
+/// order (decreasing area, ties by face id), then degenerate faces with no neighbour to
+/// join, by face id. A chart never spans two edge-connected components of the mesh, so the
+/// charts of several sets of components, each grown (and merged) on its own, put in this
+/// order are those of the whole mesh.
+pub(super) type ChartOrder = (bool, std::cmp::Reverse<u32>, u32);
+
+/// Step 2 of the [unwrapper](super) on `subset` (face ids, increasing: whole edge-connected
+/// components of the mesh): planar charts (face lists, increasing) in their [`ChartOrder`],
+/// UVs (texels) of the subset's faces in `uv`.
+pub(super) fn grow(
+    faces: &MeshFaces,
+    subset: &[u32],
+    cos_max: f64,
+    uv: &mut [[DVec2; 3]],
+    seen: &mut Visited,
+) -> Vec<(ChartOrder, Vec<u32>)> {
     let n = faces.len();
-    let mut seeds: Vec<u32> = (0..n as u32).filter(|&f| !faces.degenerate[f as usize]).collect();
-    seeds.sort_unstable_by_key(|&f| (std::cmp::Reverse(coarse(faces.area[f as usize] as f64)), f));
+    let seed_order = |f: u32| (std::cmp::Reverse(coarse(faces.area[f as usize] as f64)), f);
+    let mut seeds: Vec<u32> = subset.iter().copied().filter(|&f| !faces.degenerate[f as usize]).collect();
+    seeds.sort_unstable_by_key(|&f| seed_order(f));
 
     let mut chart_of = vec![u32::MAX; n];
     let mut tried = vec![u32::MAX; n];
     let mut grid = FaceGrid::new(faces.cell);
     let mut charts: Vec<Vec<u32>> = Vec::new();
+    let mut order: Vec<ChartOrder> = Vec::new();
     let mut frames: Vec<Frame> = Vec::new();
     let mut queue = std::collections::VecDeque::new();
 
@@ -82,19 +99,22 @@ pub(super) fn grow(faces: &MeshFaces, cos_max: f64, uv: &mut [[DVec2; 3]], seen:
             }
         }
         charts.push(members);
+        let (area, face) = seed_order(seed);
+        order.push((false, area, face));
         frames.push(frame);
     }
 
     // Degenerate faces: into the chart of their first non-degenerate edge neighbour,
     // projected onto its plane, else alone. (No overlap test: thinner than 10⁻⁷ of their
     // length, or collapsed to a segment, they have no interior to overlap with.)
-    for f in 0..n as u32 {
+    for &f in subset {
         if !faces.degenerate[f as usize] {
             continue;
         }
         let home = faces.neighbours(f).iter().map(|&g| chart_of[g as usize]).find(|&c| c != u32::MAX);
         let c = home.unwrap_or_else(|| {
             charts.push(Vec::new());
+            order.push((true, std::cmp::Reverse(0), f));
             frames.push(Frame { n: faces.normal[f as usize], origin: faces.pos[f as usize][0] });
             (charts.len() - 1) as u32
         });
@@ -105,5 +125,5 @@ pub(super) fn grow(faces: &MeshFaces, cos_max: f64, uv: &mut [[DVec2; 3]], seen:
     for c in &mut charts {
         c.sort_unstable();
     }
-    charts
+    order.into_iter().zip(charts).collect()
 }

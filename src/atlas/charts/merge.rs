@@ -122,13 +122,17 @@ pub const MOVABLE_SIDE: u32 = 4;
 /// ones through a grid of the target chart, kept between merges.
 const BRUTE_FORCE_PAIRS: usize = 2048;
 
-/// Step 3 of the [unwrapper](super).
+/// Step 3 of the [unwrapper](super): the charts left (face lists, increasing), each with
+/// its index in `charts` (a merged chart keeps the index of the chart the other moved into).
 pub(super) fn merge(
     faces: &MeshFaces,
     charts: Vec<Vec<u32>>,
     uv: &mut [[DVec2; 3]],
     seen: &mut Visited,
-) -> Vec<Vec<u32>> {
+) -> Vec<(usize, Vec<u32>)> {
+    // The charts' faces: whole edge-connected components of the mesh, the only faces read.
+    let mut subset: Vec<u32> = charts.iter().flatten().copied().collect();
+    subset.sort_unstable();
     let mut chart_of = vec![0u32; faces.len()];
     for (c, members) in charts.iter().enumerate() {
         for &f in members {
@@ -145,9 +149,9 @@ pub(super) fn merge(
         })
         .collect();
     if clusters.len() < 2 {
-        return clusters.into_iter().map(|c| c.faces).collect();
+        return clusters.into_iter().map(|c| c.faces).enumerate().collect();
     }
-    for f in 0..faces.len() as u32 {
+    for &f in &subset {
         for &g in faces.neighbours(f) {
             let (cf, cg) = (chart_of[f as usize], chart_of[g as usize]);
             if cf == cg {
@@ -347,10 +351,11 @@ pub(super) fn merge(
     }
     clusters
         .into_iter()
-        .filter(|c| c.alive)
-        .map(|mut c| {
+        .enumerate()
+        .filter(|(_, c)| c.alive)
+        .map(|(i, mut c)| {
             c.faces.sort_unstable();
-            c.faces
+            (i, c.faces)
         })
         .collect()
 }

@@ -54,7 +54,7 @@ use crate::scene::{Mesh, SceneGeometry, TriangleId};
 use face_grid::Visited;
 use faces::MeshFaces;
 use finish::finish;
-use grow::grow;
+use grow::{ChartOrder, grow};
 pub use merge::MOVABLE_SIDE;
 use merge::merge;
 pub use weld::weld_tolerance;
@@ -90,22 +90,95 @@ pub fn effective_max_angle(a: f32) -> f32 {
 
 /// Unwraps the lit triangles `tris` (global ids, increasing) of `mesh` into charts whose UVs
 /// are in metres (see the module docs); `texel_hint` is the texel size the atlas expects.
+///
+/// On up to `threads` threads: a chart never spans two edge-connected components of the
+/// mesh, so the components are dealt into sets of about equal face counts, each set is
+/// grown and merged on its own, and the charts are put back in the mesh's [`ChartOrder`]:
+/// the result does not depend on `threads` (one set is the whole mesh at once).
 pub fn unwrap_mesh(
     mesh: &Mesh,
     geom: &SceneGeometry,
     tris: &[TriangleId],
     texel_hint: f64,
     max_angle: f32,
+    threads: usize,
 ) -> Vec<LocalChart> {
     if tris.is_empty() {
         return Vec::new();
     }
     let faces = MeshFaces::new(mesh, geom, tris, texel_hint);
-    let mut uv = vec![[DVec2::ZERO; 3]; faces.len()];
-    let mut seen = Visited::new(faces.len());
-    let grown = grow(&faces, (effective_max_angle(max_angle) as f64).cos(), &mut uv, &mut seen);
-    let merged = merge(&faces, grown, &mut uv, &mut seen);
-    merged.into_iter().map(|members| finish(&members, &uv, tris, texel_hint)).collect()
+    let cos_max = (effective_max_angle(max_angle) as f64).cos();
+    let sets = component_sets(&faces, if faces.len() >= PARALLEL_FACES { threads } else { 1 });
+    let parts = crate::parallel::par_map(sets, threads, |subset| {
+        // Each set's own scratch (only its faces' entries are written or read).
+        let mut uv = vec![[DVec2::ZERO; 3]; faces.len()];
+        let mut seen = Visited::new(faces.len());
+        let (order, grown): (Vec<ChartOrder>, Vec<Vec<u32>>) =
+            grow(&faces, &subset, cos_max, &mut uv, &mut seen).into_iter().unzip();
+        merge(&faces, grown, &mut uv, &mut seen)
+            .into_iter()
+            .map(|(i, members)| (order[i], finish(&members, &uv, tris, texel_hint)))
+            .collect::<Vec<_>>()
+    });
+    let mut charts: Vec<(ChartOrder, LocalChart)> = parts.into_iter().flatten().collect();
+    // Keys are distinct (a seed face or a lone face each).
+    charts.sort_unstable_by_key(|(order, _)| *order);
+    charts.into_iter().map(|(_, c)| c).collect()
+}
+
+/// Faces below which a mesh is unwrapped on one thread (a thread costs more than the work).
+const PARALLEL_FACES: usize = 2048;
+
+/// The mesh's faces dealt into at most `sets` sets of whole edge-connected components, of
+/// about equal face counts (largest component first, to the set with the fewest faces so
+/// far); each set's face ids increasing. Deterministic: ties go to the lower face or set.
+fn component_sets(faces: &MeshFaces, sets: usize) -> Vec<Vec<u32>> {
+    let n = faces.len();
+    if sets <= 1 || n == 0 {
+        return vec![(0..n as u32).collect()];
+    }
+    // Union-find over edge neighbours, each root the lowest face of its component.
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn root(parent: &mut [u32], mut f: u32) -> u32 {
+        while parent[f as usize] != f {
+            let up = parent[parent[f as usize] as usize];
+            parent[f as usize] = up;
+            f = up;
+        }
+        f
+    }
+    for f in 0..n as u32 {
+        for &g in faces.neighbours(f) {
+            let (a, b) = (root(&mut parent, f), root(&mut parent, g));
+            if a != b {
+                parent[a.max(b) as usize] = a.min(b);
+            }
+        }
+    }
+    let mut members: Vec<Vec<u32>> = Vec::new();
+    let mut index_of_root = vec![u32::MAX; n];
+    for f in 0..n as u32 {
+        let r = root(&mut parent, f) as usize;
+        if index_of_root[r] == u32::MAX {
+            index_of_root[r] = members.len() as u32;
+            members.push(Vec::new());
+        }
+        members[index_of_root[r] as usize].push(f);
+    }
+    if members.len() == 1 {
+        return members;
+    }
+    // Components in order of their lowest face: a stable sort keeps that among equal sizes.
+    members.sort_by_key(|m| std::cmp::Reverse(m.len()));
+    let mut out: Vec<Vec<u32>> = vec![Vec::new(); sets.min(members.len())];
+    for m in members {
+        let emptiest = (0..out.len()).min_by_key(|&k| (out[k].len(), k)).unwrap_or(0);
+        out[emptiest].extend(m);
+    }
+    for set in &mut out {
+        set.sort_unstable();
+    }
+    out
 }
 
 #[cfg(test)]
@@ -124,7 +197,7 @@ mod tests {
             .enumerate()
             .map(|(mi, m)| {
                 let tris: Vec<u32> = (g.mesh_offsets[mi]..g.mesh_offsets[mi + 1]).collect();
-                unwrap_mesh(m, &g, &tris, texel, 40f32.to_radians())
+                unwrap_mesh(m, &g, &tris, texel, 40f32.to_radians(), 1)
             })
             .collect()
     }
@@ -256,5 +329,77 @@ mod tests {
         assert!(rect_area(coarse, 0.33) < 4 * 4 * 19 + 2 * 4 * 4, "{} texels", rect_area(coarse, 0.33));
         let fine = &unwrap_all(&s, 0.05)[0];
         assert_eq!(fine.len(), 6);
+    }
+
+    /// One mesh of many edge-connected components (thin boxes whose sides merge, a finely
+    /// tessellated floor, a face collapsed onto a box's edge, a lone collapsed face):
+    /// unwrapped on 1, 2, 3 and 8 threads (its components dealt into that many sets), the
+    /// same charts in the same order, to the bit.
+    #[test]
+    fn charts_do_not_depend_on_the_threads() {
+        let mut pos: Vec<Vec3> = Vec::new();
+        let mut tris: Vec<[u32; 3]> = Vec::new();
+        let quad = |pos: &mut Vec<Vec3>, tris: &mut Vec<[u32; 3]>, c: [Vec3; 4]| {
+            let k = pos.len() as u32;
+            pos.extend(c);
+            tris.extend([[k, k + 1, k + 2], [k, k + 2, k + 3]]);
+        };
+        // Thin shafts (0.3 m × 2 m at 0.25 m texels: sides about a texel across), each a
+        // component of its own, at different sizes so that their seeds interleave.
+        for i in 0..24 {
+            let (o, w, h) =
+                (Vec3::new(i as f32 * 1.7, 0.0, (i % 5) as f32), 0.2 + 0.02 * i as f32, 1.0 + 0.1 * i as f32);
+            let c = |x: f32, y: f32, z: f32| o + Vec3::new(x * w, y * h, z * w);
+            let k = pos.len() as u32;
+            for z in [0.0, 1.0] {
+                for y in [0.0, 1.0] {
+                    for x in [0.0, 1.0] {
+                        pos.push(c(x, y, z));
+                    }
+                }
+            }
+            // The cube's 12 triangles over its 8 shared corners (index = x + 2y + 4z).
+            for [a, b, c2, d] in [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [2, 6, 7, 3], [0, 4, 6, 2], [1, 3, 7, 5]] {
+                tris.extend([[k + a, k + b, k + c2], [k + a, k + c2, k + d]]);
+            }
+            if i == 3 {
+                // A face collapsed onto the bottom edge (0–1): joins a neighbour's chart.
+                let m = pos.len() as u32;
+                pos.push(c(0.5, 0.0, 0.0) + Vec3::new(0.0, 0.0, 1e-9));
+                tris.push([k, m, k + 1]);
+            }
+        }
+        // A floor of 2 × 40² triangles, one component.
+        let n = 40;
+        for j in 0..n {
+            for i in 0..n {
+                let p = |a: usize, b: usize| Vec3::new(a as f32 * 0.5, -1.0, b as f32 * 0.5 + 10.0);
+                quad(&mut pos, &mut tris, [p(i, j), p(i + 1, j), p(i + 1, j + 1), p(i, j + 1)]);
+            }
+        }
+        // A lone collapsed face.
+        let k = pos.len() as u32;
+        pos.extend([Vec3::new(0.0, 5.0, 0.0), Vec3::new(2.0, 5.0, 0.0), Vec3::new(1.0, 5.0 + 1e-9, 0.0)]);
+        tris.push([k, k + 1, k + 2]);
+        assert!(tris.len() >= PARALLEL_FACES, "{} faces", tris.len());
+
+        let mut b = SceneBuilder::new();
+        let m = b.material(white());
+        b.mesh("parts", pos, tris, m);
+        let s = b.build();
+        let g = SceneGeometry::new(&s);
+        let all: Vec<u32> = (g.mesh_offsets[0]..g.mesh_offsets[1]).collect();
+        let one = unwrap_mesh(&s.meshes[0], &g, &all, 0.25, 40f32.to_radians(), 1);
+        // Boxes merged into strips (fewer charts than faces of the boxes and floor apart).
+        assert!(one.len() < 24 * 6 + 2, "{} charts", one.len());
+        for threads in [2, 3, 8] {
+            let many = unwrap_mesh(&s.meshes[0], &g, &all, 0.25, 40f32.to_radians(), threads);
+            assert_eq!(many.len(), one.len(), "{threads} threads");
+            for (k, (a, b)) in one.iter().zip(&many).enumerate() {
+                assert_eq!(a.tris, b.tris, "chart {k}, {threads} threads");
+                assert_eq!(a.extent, b.extent, "chart {k}, {threads} threads");
+                assert!(a.uv.iter().zip(&b.uv).all(|(p, q)| p == q), "chart {k}, {threads} threads");
+            }
+        }
     }
 }
