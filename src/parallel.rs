@@ -46,6 +46,17 @@ pub fn par_map<T: Send, R: Send>(items: Vec<T>, threads: usize, f: impl Fn(T) ->
     out.into_iter().flatten().collect()
 }
 
+/// Returns the heap memory freed so far to the system (glibc keeps what a thread frees in
+/// that thread's arena, for its next allocations; after a parallel phase whose scratch was
+/// freed on worker threads, nothing else may ask for it). Nothing elsewhere.
+pub fn give_back_free_heap() {
+    #[cfg(all(unix, target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns free heap memory to the system.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// Runs `f` on every item in parallel (see [`par_map`]).
 pub fn par_for_each<T: Send>(items: Vec<T>, threads: usize, f: impl Fn(T) + Sync) {
     par_map(items, threads, f);

@@ -388,6 +388,9 @@ fn unwrap_all(meshes: &[MeshCharts], scene: &Scene, geom: &SceneGeometry, config
     crate::parallel::par_for_each(small, threads, |m| {
         m.unwrapped(scene, geom, config, 1);
     });
+    // The unwrappers' scratch was freed on their threads, into their own malloc arenas,
+    // which keep it: given back, it does not add to the bake's peak.
+    crate::parallel::give_back_free_heap();
 }
 
 /// A local chart's extent at `scale` (LOD-0 texels per unit of its UVs) and its placement.
