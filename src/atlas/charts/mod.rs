@@ -344,8 +344,9 @@ mod tests {
             pos.extend(c);
             tris.extend([[k, k + 1, k + 2], [k, k + 2, k + 3]]);
         };
-        // Thin shafts (0.3 m × 2 m at 0.25 m texels: sides about a texel across), each a
-        // component of its own, at different sizes so that their seeds interleave.
+        // Thin shafts (0.2–0.66 m across, 1–3.3 m tall: at 0.25 m texels, sides one to three
+        // texels wide), each a component of its own, of sizes whose seeds interleave with the
+        // floor's.
         for i in 0..24 {
             let (o, w, h) =
                 (Vec3::new(i as f32 * 1.7, 0.0, (i % 5) as f32), 0.2 + 0.02 * i as f32, 1.0 + 0.1 * i as f32);
