@@ -57,6 +57,7 @@ use finish::finish;
 use grow::{ChartOrder, grow};
 pub use merge::MOVABLE_SIDE;
 use merge::merge;
+use weld::root;
 pub use weld::weld_tolerance;
 pub(crate) use weld::{FxHasher, edge_adjacency, weld};
 
@@ -139,14 +140,6 @@ fn component_sets(faces: &MeshFaces, sets: usize) -> Vec<Vec<u32>> {
     }
     // Union-find over edge neighbours, each root the lowest face of its component.
     let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn root(parent: &mut [u32], mut f: u32) -> u32 {
-        while parent[f as usize] != f {
-            let up = parent[parent[f as usize] as usize];
-            parent[f as usize] = up;
-            f = up;
-        }
-        f
-    }
     for f in 0..n as u32 {
         for &g in faces.neighbours(f) {
             let (a, b) = (root(&mut parent, f), root(&mut parent, g));

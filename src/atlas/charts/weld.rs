@@ -79,14 +79,6 @@ pub(crate) fn weld(positions: &[Vec3], tol: f64) -> (Vec<u32>, Vec<DVec3>) {
         s = e;
     }
     let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn root(parent: &mut [u32], mut i: u32) -> u32 {
-        while parent[i as usize] != i {
-            let g = parent[parent[i as usize] as usize];
-            parent[i as usize] = g;
-            i = g;
-        }
-        i
-    }
     let tol2 = tol * tol;
     for i in 0..n {
         let p = pos[i];
@@ -171,6 +163,17 @@ pub(crate) fn edge_adjacency(corners: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
         fill[a as usize] += 1;
     });
     (start, adj)
+}
+
+/// The root of `i`'s set in a union-find forest (`parent[r] == r` at a root), halving the
+/// path on the way.
+pub(super) fn root(parent: &mut [u32], mut i: u32) -> u32 {
+    while parent[i as usize] != i {
+        let g = parent[parent[i as usize] as usize];
+        parent[i as usize] = g;
+        i = g;
+    }
+    i
 }
 
 #[cfg(test)]
