@@ -182,6 +182,97 @@ fn shards_that_do_not_belong_together_are_refused() {
     ok(d, &args(&names));
 }
 
+/// A layout file (docs/SHARDS.md "The layout file"): the first shard given it makes it, the
+/// other shards and the merges of both rounds read it (each says which), and the maps are
+/// the same bytes as those of the same shards without it; a layout of another bake, or a
+/// damaged one, is made again with a warning, never taken. Region shards read it (a merge
+/// made it) and merge to the same bytes as without it.
+#[test]
+fn shards_and_merges_reading_one_layout_write_the_same_maps() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let d = dir.path();
+    let scene = scene();
+    let scene = scene.to_str().expect("UTF-8");
+    // Not quiet: each process says whether it read the layout or wrote it.
+    let stderr_of = |args: &[&str]| -> String {
+        let out = support::livebake(d, args);
+        let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(out.status.success() && !stderr.contains("panicked"), "livebake {args:?}:\n{stderr}");
+        stderr
+    };
+    let told = |extra: &[&str]| {
+        let mut args = vec!["bake", scene];
+        args.extend(OPTIONS);
+        args.extend(extra);
+        stderr_of(&args)
+    };
+    let merged_told = |files: &[String], out: &str| {
+        let mut args = vec!["merge"];
+        args.extend(files.iter().map(String::as_str));
+        args.extend(["--out", out, "--layout", "layout.lblayout"]);
+        stderr_of(&args)
+    };
+    let same = |a: &str, b: &str| {
+        for f in ["lightmap_lod0.exr", "lightmap_lod0.png"] {
+            let (x, y) = (std::fs::read(d.join(a).join(f)).expect(f), std::fs::read(d.join(b).join(f)).expect(f));
+            assert!(x == y, "{a}/{f} and {b}/{f} differ");
+        }
+    };
+    for (by, tag) in [("directions", "d"), ("regions", "g")] {
+        let _ = std::fs::remove_file(d.join("layout.lblayout"));
+        let (p1, p2) = (format!("{tag}p1"), format!("{tag}p2"));
+        let (l1, l2, m1, m2) = (format!("{tag}l1"), format!("{tag}l2"), format!("{tag}m1"), format!("{tag}m2"));
+        let plain = shards(d, &p1, 2, &["--shard-by", by]);
+        merge(d, &plain, &format!("{p1}-m"));
+        let previous = format!("{p1}-m/merged.lbshard");
+        let plain = shards(d, &p2, 2, &["--shard-by", by, "--previous", &previous]);
+        merge(d, &plain, &format!("{p2}-m"));
+        for (round, out, merged) in [(1, &l1, &m1), (2, &l2, &m2)] {
+            let previous = format!("{m1}/merged.lbshard");
+            let mut files = Vec::new();
+            for i in 0..2 {
+                let share = format!("{i}/2");
+                let mut extra = vec!["--shard", &share, "--shard-by", by, "--out", out, "--layout", "layout.lblayout"];
+                if round == 2 {
+                    extra.extend(["--previous", &previous]);
+                }
+                let stderr = told(&extra);
+                // Direction shards make it when it is missing; region shards, which hold
+                // no texel attributes, leave it to the merge.
+                let expected = match (by, round, i) {
+                    ("directions", 1, 0) => "layout written",
+                    ("regions", 1, _) => "",
+                    _ => "layout read",
+                };
+                assert!(stderr.contains(expected), "{by} round {round} share {i}: {stderr}");
+                if expected.is_empty() {
+                    assert!(!stderr.contains("layout"), "{by} round {round} share {i}: {stderr}");
+                }
+                files.push(format!("{out}/shard-{i:04}-of-0002.lbshard"));
+            }
+            let stderr = merged_told(&files, merged);
+            let expected = if (by, round) == ("regions", 1) { "layout written" } else { "layout read" };
+            assert!(stderr.contains(expected), "{by} merge of round {round}: {stderr}");
+        }
+        same(&format!("{p1}-m"), &m1);
+        same(&format!("{p2}-m"), &m2);
+    }
+    // Another bake's layout (another seed): made again with a warning, and replaced by this
+    // bake's; then a damaged one, the same.
+    let stderr = told(&["--seed", "7", "--shard", "0/2", "--out", "seed", "--layout", "layout.lblayout"]);
+    assert!(stderr.contains("another scene") && stderr.contains("layout written"), "{stderr}");
+    let stderr = told(&["--seed", "7", "--shard", "1/2", "--out", "seed", "--layout", "layout.lblayout"]);
+    assert!(stderr.contains("layout read"), "{stderr}");
+    let mut bytes = std::fs::read(d.join("layout.lblayout")).expect("layout");
+    let middle = bytes.len() / 2;
+    bytes[middle] ^= 1;
+    std::fs::write(d.join("layout.lblayout"), &bytes).expect("write");
+    let stderr = told(&["--seed", "7", "--shard", "1/2", "--out", "seed", "--layout", "layout.lblayout"]);
+    assert!(stderr.contains("checksum") && stderr.contains("layout written"), "{stderr}");
+    // A layout is a shard's or a merge's: a bake on one machine refuses it.
+    fails(d, &["bake", scene, "--layout", "layout.lblayout", "--out", "one"], &["required"]);
+}
+
 /// A shard killed while it bakes leaves no file a `shard-*` pattern matches; run again, it
 /// completes the set.
 #[test]

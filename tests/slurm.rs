@@ -123,6 +123,8 @@ fn a_job_array_of_shards_and_its_merge_equal_one_bake() {
     assert!(left.is_empty(), "jobs never ran: {left:?}\n{}", job_outputs(&work));
     let merged = work.join("merged-2/lightmap_lod0.exr");
     assert!(merged.exists(), "no merged light map\n{}", job_outputs(&work));
+    // Every job was given the bake's layout file: the first made it.
+    assert!(work.join("layout.lblayout").is_file(), "no layout file\n{}", job_outputs(&work));
     let worst = worst_relative(&exr(&d.join("single2/lightmap_lod0.exr")), &exr(&merged));
     eprintln!("Slurm, round 2: worst relative difference {worst:e} (bound {:e})", round_two_bound());
     assert!(worst <= round_two_bound(), "{worst:e} > {:e}", round_two_bound());

@@ -196,7 +196,7 @@ impl Chart {
     }
 }
 
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct AtlasStats {
     pub charts: usize,
     pub faces: usize,

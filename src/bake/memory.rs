@@ -369,6 +369,14 @@ pub fn memory_limit(configured: Option<u64>) -> (u64, LimitSource) {
     }
 }
 
+/// [`memory_limit`] with what set it, as errors name it.
+pub fn described_limit(configured: Option<u64>) -> (u64, &'static str) {
+    match memory_limit(configured) {
+        (l, LimitSource::Option) => (l, "--memory-limit"),
+        (l, LimitSource::Machine) => (l, "3/4 of this machine's memory"),
+    }
+}
+
 fn meminfo_kib(key: &str) -> Option<u64> {
     let m = std::fs::read_to_string("/proc/meminfo").ok()?;
     m.lines().find(|l| l.starts_with(key))?.split_whitespace().nth(1)?.parse().ok()

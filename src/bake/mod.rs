@@ -24,6 +24,7 @@ use crate::bundle::{BundleConfig, BundleConfigError, BundleScene};
 use crate::progress::Progress;
 use crate::reference::Bvh;
 use crate::scene::{Rgb, Scene, SceneGeometry};
+use crate::shard::layout::{Layout, LayoutPlace, keep_layout, open_layout};
 
 pub use report::{BakeReport, LodReport};
 
@@ -409,6 +410,36 @@ pub struct ShardBake {
     pub report: BakeReport,
 }
 
+/// The atlas and LOD 0's texel map (its albedo and emission, no positions or normals) of a
+/// sharded bake: read from the layout file at `layout` when it holds this bake's, else
+/// made and written there for the processes after this one (docs/SHARDS.md "The layout
+/// file"). With the seconds of the texel map's making or of the layout's reading.
+pub fn shard_layout(
+    scene: &Scene,
+    geom: &SceneGeometry,
+    config: &BakeConfig,
+    layout: Option<&LayoutPlace>,
+) -> Result<(Layout, f64), BakeError> {
+    let t0 = Instant::now();
+    let limit = memory::described_limit(config.memory_limit);
+    let layout_made = match layout.and_then(|p| open_layout(p, geom, true, limit)) {
+        Some(read) => (read, t0.elapsed().as_secs_f64()),
+        None => {
+            let atlas = Atlas::build(scene, geom, &config.atlas)?;
+            check_lod_sizes(&atlas, 1)?;
+            let t0 = Instant::now();
+            let texels = TexelMap::build_with(scene, geom, &atlas, 0, Restore::Albedo);
+            let seconds = t0.elapsed().as_secs_f64();
+            if let Some(place) = layout {
+                keep_layout(place, &atlas, &texels);
+            }
+            (Layout { atlas, texels }, seconds)
+        }
+    };
+    check_lod_sizes(&layout_made.0.atlas, 1)?;
+    Ok(layout_made)
+}
+
 /// Bakes one direction shard (see [`ShardBake`]). Share 0 holds the punctual part (made in
 /// round 1, taken from `previous` after), the other shares none, so that the merge counts
 /// it once. The texel map has no positions and normals (the round and the punctual pass
@@ -420,6 +451,7 @@ pub fn bake_shard(
     round: u32,
     share: (u32, u32),
     previous: Option<&crate::shard::PreviousRound>,
+    layout: Option<&LayoutPlace>,
     progress: &dyn Progress,
 ) -> Result<ShardBake, BakeError> {
     check_shard_config(config, &[BackendKind::Cpu, BackendKind::Gpu])?;
@@ -427,13 +459,9 @@ pub fn bake_shard(
     let geom = SceneGeometry::new(scene);
     config.atlas.validate()?;
     check_memory_early(scene, &geom, config)?;
-    let atlas = Atlas::build(scene, &geom, &config.atlas)?;
-    check_lod_sizes(&atlas, 1)?;
+    let (Layout { atlas, mut texels }, texel_seconds) = shard_layout(scene, &geom, config, layout)?;
     let mut report = BakeReport::new(scene, &atlas, config);
     let (bundle, bvh, mut backend) = bundle_setup(scene, &geom, &atlas, config, &mut report)?;
-    let t0 = Instant::now();
-    let mut texels = TexelMap::build_with(scene, &geom, &atlas, 0, crate::atlas::texels::Restore::Albedo);
-    let texel_seconds = t0.elapsed().as_secs_f64();
     if let Some(p) = previous
         && p.texels() != texels.len()
     {
@@ -501,6 +529,7 @@ pub fn bake_region_shard(
     round: u32,
     share: (u32, u32),
     previous: Option<&crate::shard::PreviousRound>,
+    layout: Option<&LayoutPlace>,
     progress: &dyn Progress,
 ) -> Result<RegionShardBake, BakeError> {
     check_shard_config(config, &[BackendKind::Cpu])?;
@@ -511,7 +540,15 @@ pub fn bake_region_shard(
     // against its own estimate once the atlas says how many texels the LOD has.
 
     region_shard::stage("geometry");
-    let atlas = Atlas::build(scene, &geom, &config.atlas)?;
+    // A layout made before (by a merge or a direction shard) read without the texels'
+    // attributes: what `build_lookup` makes. A region shard makes none for the next: it
+    // holds no attributes.
+    let t0 = Instant::now();
+    let limit = memory::described_limit(config.memory_limit);
+    let (atlas, read) = match layout.and_then(|p| open_layout(p, &geom, false, limit)) {
+        Some(Layout { atlas, texels }) => (atlas, Some((texels, t0.elapsed().as_secs_f64()))),
+        None => (Atlas::build(scene, &geom, &config.atlas)?, None),
+    };
     check_lod_sizes(&atlas, 1)?;
     region_shard::stage("atlas");
     let expected = region_shard::estimate(atlas.stats.covered_texels_lod0, share.1, previous.is_some(), config);
@@ -523,11 +560,15 @@ pub fn bake_region_shard(
         "region shard memory estimate"
     );
     refuse_over_limit(&expected, config, false, config.atlas.texel_size, "")?;
-    let t0 = Instant::now();
     // Which texel is where, without its attributes: the shard asks them once, to make the
     // round's source, and holds them for its own texels alone.
-    let texels = TexelMap::build_lookup(scene, &geom, &atlas, 0);
-    let texel_seconds = t0.elapsed().as_secs_f64();
+    let (texels, texel_seconds) = match read {
+        Some(read) => read,
+        None => {
+            let t0 = Instant::now();
+            (TexelMap::build_lookup(scene, &geom, &atlas, 0), t0.elapsed().as_secs_f64())
+        }
+    };
     region_shard::stage("map");
     if let Some(p) = previous
         && p.texels() != texels.len()

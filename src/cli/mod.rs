@@ -56,6 +56,11 @@ enum Command {
         /// DIR/merged.lbshard); this shard bakes the next round. Without it, round 1.
         #[arg(long, value_name = "FILE", requires = "shard")]
         previous: Option<PathBuf>,
+        /// With --shard: the bake's layout file (its atlas and texel map), read when it is
+        /// this bake's, else made here and written there for the shards and merges after
+        /// (docs/SHARDS.md). Give every shard and merge of a bake the same FILE.
+        #[arg(long, value_name = "FILE", requires = "shard")]
+        layout: Option<PathBuf>,
         /// Also write a static web page showing the finest baked light map (open
         /// DIR/index.html?static from any file server or a headset's browser; docs/SERVE.md),
         /// with the scene exported as --export-gltf does (DIR/scene.gltf).
@@ -77,6 +82,10 @@ enum Command {
         /// The shard files (DIR/shard-*), every share of one round.
         #[arg(required = true)]
         shards: Vec<PathBuf>,
+        /// The bake's layout file (`bake --shard … --layout FILE`): read when it is this
+        /// bake's, else made here and written there.
+        #[arg(long, value_name = "FILE")]
+        layout: Option<PathBuf>,
         #[command(flatten)]
         outputs: Outputs,
     },
@@ -184,7 +193,17 @@ pub fn run() -> Result<()> {
     match cli.command {
         None => run_default(&ui),
         Some(Command::Run { scene, options, run }) => run::run(&scene, &options, &run, &ui),
-        Some(Command::Bake { scene, outputs, bounce_rounds, shard, previous, export_web, shard_by, options }) => {
+        Some(Command::Bake {
+            scene,
+            outputs,
+            bounce_rounds,
+            shard,
+            previous,
+            layout,
+            export_web,
+            shard_by,
+            options,
+        }) => {
             let Outputs { out, export_gltf, memory_limit } = outputs;
             let Some(share) = shard else {
                 let exports = bake::Exports { gltf: export_gltf.as_deref(), web: export_web.as_deref() };
@@ -200,11 +219,12 @@ pub fn run() -> Result<()> {
                     "a shard bakes one bounce round (round 1, or the one after --previous): --bounce-rounds is for a bake on one machine"
                 );
             }
-            let request = shard::ShardRequest { share, previous: previous.as_deref(), by: shard_by };
+            let request =
+                shard::ShardRequest { share, previous: previous.as_deref(), by: shard_by, layout: layout.as_deref() };
             shard::bake(&scene, &out, request, memory_limit, &options, &raw_args, &ui)
         }
-        Some(Command::Merge { shards, outputs: Outputs { out, export_gltf, memory_limit } }) => {
-            shard::merge(&shards, &out, export_gltf.as_deref(), memory_limit, &ui)
+        Some(Command::Merge { shards, layout, outputs: Outputs { out, export_gltf, memory_limit } }) => {
+            shard::merge(&shards, &out, export_gltf.as_deref(), layout.as_deref(), memory_limit, &ui)
         }
         Some(Command::Probe { scene, points, out, options }) => {
             probe::run(&scene, &points, out.as_deref(), &options, &ui)

@@ -11,16 +11,17 @@ use anyhow::{Context, Result, bail};
 use clap::Parser;
 use serde::{Deserialize, Serialize};
 
-use livebake::atlas::texels::Restore;
-use livebake::atlas::{Atlas, TexelMap};
 use livebake::bake::bundle::BundleLodStats;
-use livebake::bake::memory::{LimitSource, memory_limit};
+use livebake::bake::memory::described_limit;
 use livebake::bake::report::LodReport;
 use livebake::bake::rounds::add_round_stats;
-use livebake::bake::{BackendStats, BakeOutput, BakeReport, BakedLod, bake_region_shard, bake_shard, check_finite};
+use livebake::bake::{
+    BackendStats, BakeOutput, BakeReport, BakedLod, bake_region_shard, bake_shard, check_finite, shard_layout,
+};
 use livebake::export::{ExportOptions, export_gltf};
 use livebake::output::{irradiance_image, write_json, write_lightmaps};
 use livebake::scene::{SceneGeometry, external_files};
+use livebake::shard::layout::{Layout, LayoutPlace};
 use livebake::shard::{
     self, MERGED_STATE, PreviousRound, ShardFile, ShardKind, ShardState, WordHash, check_set, read_header,
     region_placement, shard_file_name, write_state,
@@ -60,8 +61,8 @@ struct StoredBake {
 }
 
 /// Options left out of a stored job: with a value, and without.
-const DROPPED_WITH_VALUE: [&str; 7] =
-    ["--shard", "--shard-by", "--previous", "--out", "--threads", "--memory-limit", "--export-gltf"];
+const DROPPED_WITH_VALUE: [&str; 8] =
+    ["--shard", "--shard-by", "--previous", "--layout", "--out", "--threads", "--memory-limit", "--export-gltf"];
 const DROPPED_FLAGS: [&str; 4] = ["-q", "--quiet", "-v", "--verbose"];
 
 impl Job {
@@ -172,14 +173,7 @@ fn read_previous(path: &Path, scene_hash: u64, options_hash: u64, memory_limit: 
     if h.kind != ShardKind::Directions {
         bail!("--previous {}: a region shard, not a merged round; give the merge's {MERGED_STATE}", path.display());
     }
-    Ok(PreviousRound::open(file, limit(memory_limit))?)
-}
-
-fn limit(configured: Option<u64>) -> (u64, &'static str) {
-    match memory_limit(configured) {
-        (l, LimitSource::Option) => (l, "--memory-limit"),
-        (l, LimitSource::Machine) => (l, "3/4 of this machine's memory"),
-    }
+    Ok(PreviousRound::open(file, described_limit(memory_limit))?)
 }
 
 /// What a share is a share of (`--shard-by`).
@@ -191,18 +185,19 @@ pub enum ShardBy {
     Regions,
 }
 
-/// What `--shard`, `--shard-by` and `--previous` ask for.
+/// What `--shard`, `--shard-by`, `--previous` and `--layout` ask for.
 pub struct ShardRequest<'a> {
     pub share: (u32, u32),
     pub previous: Option<&'a Path>,
     pub by: ShardBy,
+    pub layout: Option<&'a Path>,
 }
 
 /// `livebake bake SCENE --shard I/N [--previous STATE] --out DIR`.
 pub fn bake(
     scene_path: &Path,
     out: &Path,
-    ShardRequest { share, previous, by }: ShardRequest,
+    ShardRequest { share, previous, by, layout }: ShardRequest,
     memory_limit: Option<u64>,
     options: &SceneOptions,
     raw_args: &[OsString],
@@ -221,17 +216,20 @@ pub fn bake(
     let scene_hash = scene_hash(&job.scene, &here)?;
     let previous = previous.map(|p| read_previous(p, scene_hash, hash, memory_limit)).transpose()?;
     let round = previous.as_ref().map_or(1, |p| p.header().round + 1);
+    let layout = layout.map(|path| LayoutPlace { path: path.to_path_buf(), scene_hash, options_hash: hash });
     let config = livebake::bake::BakeConfig { memory_limit, ..options.bake_config(default_samples)? };
     let (scene, _) = load_scene(scene_path, options, memory_limit)?;
     let t0 = Instant::now();
     let failed = || format!("cannot bake share {}/{} of {}", share.0, share.1, scene_path.display());
     let (estimate, report, regions) = match by {
         ShardBy::Directions => {
-            let baked = bake_shard(&scene, &config, round, share, previous.as_ref(), ui).with_context(failed)?;
+            let baked = bake_shard(&scene, &config, round, share, previous.as_ref(), layout.as_ref(), ui)
+                .with_context(failed)?;
             (baked.estimate, baked.report, None)
         }
         ShardBy::Regions => {
-            let baked = bake_region_shard(&scene, &config, round, share, previous.as_ref(), ui).with_context(failed)?;
+            let baked = bake_region_shard(&scene, &config, round, share, previous.as_ref(), layout.as_ref(), ui)
+                .with_context(failed)?;
             tracing::info!(
                 texels = baked.texels.len(),
                 lod_texels = baked.whole_texels,
@@ -268,7 +266,14 @@ pub fn bake(
 }
 
 /// `livebake merge FILES… --out DIR [--export-gltf OUT.gltf]`.
-pub fn merge(files: &[PathBuf], out: &Path, export: Option<&Path>, memory_limit: Option<u64>, ui: &Ui) -> Result<()> {
+pub fn merge(
+    files: &[PathBuf],
+    out: &Path,
+    export: Option<&Path>,
+    layout: Option<&Path>,
+    memory_limit: Option<u64>,
+    ui: &Ui,
+) -> Result<()> {
     let started = Instant::now();
     let headers = files.iter().map(|f| read_header(f)).collect::<Result<Vec<_>, _>>()?;
     // Shards of one bake may have been started from other folders or other copies of the
@@ -291,10 +296,13 @@ pub fn merge(files: &[PathBuf], out: &Path, export: Option<&Path>, memory_limit:
     };
     let (scene, load_seconds) = load_scene(&job.scene, &options, memory_limit)?;
     let geom = SceneGeometry::new(&scene);
-    let atlas = Atlas::build(&scene, &geom, &config.atlas).context("cannot remake the shards' atlas")?;
-    let t0 = Instant::now();
-    let texels = TexelMap::build_with(&scene, &geom, &atlas, 0, Restore::Albedo);
-    let texel_seconds = t0.elapsed().as_secs_f64();
+    let place = layout.map(|path| LayoutPlace {
+        path: path.to_path_buf(),
+        scene_hash: first.scene_hash,
+        options_hash: first.options_hash,
+    });
+    let (Layout { atlas, texels }, texel_seconds) =
+        shard_layout(&scene, &geom, &config, place.as_ref()).context("cannot remake the shards' atlas")?;
     if texels.len() as u64 != first.lod_texels {
         bail!("the shards hold {} texels, this atlas {}: not the same bake", first.lod_texels, texels.len());
     }
@@ -306,7 +314,7 @@ pub fn merge(files: &[PathBuf], out: &Path, export: Option<&Path>, memory_limit:
             Some(region_placement(&files, texels.len(), atlas.charts.len(), chart_of)?)
         }
     };
-    let estimate = shard::merge(&files, placement.as_deref(), limit(memory_limit))?;
+    let estimate = shard::merge(&files, placement.as_deref(), described_limit(memory_limit))?;
     drop(placement);
     let irradiance = estimate.irradiance();
     check_finite(0, &irradiance)?;

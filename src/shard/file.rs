@@ -63,19 +63,30 @@ impl ShardHeader {
 /// a shard killed while writing leaves no file under the final name, and a re-run
 /// replaces an older file whole.
 pub fn write_state(path: &Path, state: &ShardState) -> Result<(), ShardError> {
+    write_atomically(path, "partial", |w| write_body(w, state))
+}
+
+/// Writes `body` (then its checksum) to `path` through `.NAME.SUFFIX` in the same folder,
+/// flushed to disk, then renamed: no reader ever sees a part of the file under its name.
+pub(super) fn write_atomically(
+    path: &Path,
+    suffix: &str,
+    body: impl FnOnce(&mut HashingWriter<BufWriter<File>>) -> std::io::Result<()>,
+) -> Result<(), ShardError> {
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let name = path
         .file_name()
         .ok_or_else(|| ShardError::Io { path: path.to_path_buf(), source: std::io::Error::other("not a file name") })?;
     let mut tmp_name = std::ffi::OsString::from(".");
     tmp_name.push(name);
-    tmp_name.push(".partial");
+    tmp_name.push(".");
+    tmp_name.push(suffix);
     let tmp = dir.join(tmp_name);
     let io = |source| ShardError::Io { path: tmp.clone(), source };
     let result = (|| {
         let file = File::create(&tmp).map_err(io)?;
         let mut w = HashingWriter { inner: BufWriter::with_capacity(1 << 20, file), hash: WordHash::new() };
-        write_body(&mut w, state).map_err(io)?;
+        body(&mut w).map_err(io)?;
         let sum = w.hash.finish();
         w.inner.write_all(&sum.to_le_bytes()).map_err(io)?;
         let file = w.inner.into_inner().map_err(|e| io(e.into_error()))?;
@@ -111,15 +122,24 @@ fn write_body(w: &mut impl Write, state: &ShardState) -> std::io::Result<()> {
     Ok(())
 }
 
-/// Bytes of f32s [`write_f32s`] encodes before each write.
+/// Bytes of records [`write_words`] encodes before each write.
 const F32_CHUNK_BYTES: usize = 1 << 16;
 
-/// Writes `records` as little-endian f32s, encoded a chunk at a time into `buf`: a write of
-/// four bytes through the hashing writer cost more than the encoding (the same bytes), and
-/// a record at a time, not a float, the encoding is a few instructions a byte.
+/// Writes `records` as little-endian f32s (see [`write_words`]).
 fn write_f32s<const K: usize>(
     w: &mut impl Write,
     records: impl Iterator<Item = [f32; K]>,
+    buf: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    write_words(w, records.map(|r| r.map(f32::to_bits)), buf)
+}
+
+/// Writes `records` as little-endian 32-bit words, encoded a chunk at a time into `buf`: a
+/// write of four bytes through the hashing writer cost more than the encoding (the same
+/// bytes), and a record at a time, not a word, the encoding is a few instructions a byte.
+pub(super) fn write_words<const K: usize>(
+    w: &mut impl Write,
+    records: impl Iterator<Item = [u32; K]>,
     buf: &mut Vec<u8>,
 ) -> std::io::Result<()> {
     buf.clear();
@@ -138,7 +158,7 @@ fn write_f32s<const K: usize>(
 /// Reads `n` records of `size` bytes from `r`, [`F32_CHUNK_BYTES`] or so at a time into
 /// `buf`, and calls `f(k, record k)` on each: a read of a record at a time through the hashing
 /// reader cost more than the merge's additions (the same bytes, hashed the same).
-fn read_records(
+pub(super) fn read_records(
     r: &mut impl Read,
     n: usize,
     size: usize,
@@ -159,9 +179,9 @@ fn read_records(
     Ok(())
 }
 
-struct HashingWriter<W: Write> {
-    inner: W,
-    hash: WordHash,
+pub(super) struct HashingWriter<W: Write> {
+    pub(super) inner: W,
+    pub(super) hash: WordHash,
 }
 
 impl<W: Write> Write for HashingWriter<W> {
@@ -367,9 +387,9 @@ impl ShardFile {
     }
 }
 
-struct HashingReader<R: Read> {
-    inner: R,
-    hash: WordHash,
+pub(super) struct HashingReader<R: Read> {
+    pub(super) inner: R,
+    pub(super) hash: WordHash,
 }
 
 impl<R: Read> Read for HashingReader<R> {

@@ -4,6 +4,7 @@
 //! together and adds them up.
 
 pub mod file;
+pub mod layout;
 pub mod previous;
 
 use std::path::PathBuf;
@@ -12,6 +13,7 @@ use crate::bundle::progressive::{ProgressiveEstimate, SourceKind};
 use crate::scene::Rgb;
 
 pub use file::{ShardFile, read_header, write_state};
+pub use layout::{Layout, LayoutPlace};
 pub use previous::PreviousRound;
 
 /// Most shares a round may be cut into.
@@ -119,6 +121,8 @@ pub enum ShardError {
     Io { path: PathBuf, source: std::io::Error },
     #[error("{path} is not a usable shard file: {why}")]
     Invalid { path: PathBuf, why: String },
+    #[error("{path} is not a usable layout file: {why}")]
+    InvalidLayout { path: PathBuf, why: String },
     #[error("{path} does not belong with {first}: {why}")]
     Foreign { path: PathBuf, first: PathBuf, why: String },
     #[error("{second} and {first} are both share {index} of {count}")]

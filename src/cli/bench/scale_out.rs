@@ -1,7 +1,8 @@
 //! Direction and region shards against one machine (docs/SHARDS.md): a bake of `ROUNDS`
 //! bounce rounds on a real scene, once as `livebake bake --bounce-rounds`, once as N = 4
 //! direction shards and once as N = 4 region shards (`--shard-by regions`), run one after
-//! another plus a merge per round, each a process of its own. Per process the CPU time
+//! another plus a merge per round, each a process of its own (all of a way given one layout
+//! file, made by the first that needs it: docs/SHARDS.md). Per process the CPU time
 //! (user + system) and peak resident memory come from `wait4`'s resource usage. The single
 //! bake runs before, between and after the two ways, and each way is measured against the
 //! mean of the two single bakes around it: this machine's speed drifts by 20–30% within
@@ -162,15 +163,24 @@ fn scene_args(scene: &Path, budget: u64, samples: u32) -> Vec<String> {
 }
 
 /// The shards of every round sharded `by` (`--shard-by`), one after another, each round
-/// merged before the next reads it (into `{by}-m{round}`).
+/// merged before the next reads it (into `{by}-m{round}`). Every process is given the way's
+/// layout file (docs/SHARDS.md "The layout file"), made anew by the first that needs it.
 fn shard_rounds(lb: &Path, dir: &Path, scene_args: &[String], by: &str) -> Result<Way> {
     let mut way = Way::default();
+    let layout = format!("{by}-layout.lblayout");
+    match std::fs::remove_file(dir.join(&layout)) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).with_context(|| format!("cannot remove {layout}"));
+        }
+        _ => {}
+    }
     for round in 1..=ROUNDS {
         let out = format!("{by}-r{round}");
         let previous = format!("{by}-m{}/merged.lbshard", round - 1);
         for i in 0..SHARDS {
             let share = format!("{i}/{SHARDS}");
-            let mut extra = vec!["--shard", share.as_str(), "--shard-by", by, "--out", out.as_str()];
+            let mut extra =
+                vec!["--shard", share.as_str(), "--shard-by", by, "--out", out.as_str(), "--layout", layout.as_str()];
             if round > 1 {
                 extra.extend(["--previous", previous.as_str()]);
             }
@@ -178,7 +188,7 @@ fn shard_rounds(lb: &Path, dir: &Path, scene_args: &[String], by: &str) -> Resul
         }
         let mut merge = vec!["-q".to_string(), "merge".into()];
         merge.extend((0..SHARDS).map(|i| format!("{out}/{}", livebake::shard::shard_file_name(i, SHARDS))));
-        merge.extend(["--out".into(), format!("{by}-m{round}")]);
+        merge.extend(["--out".into(), format!("{by}-m{round}"), "--layout".into(), layout.clone()]);
         way.merges.push(measured(lb, dir, &merge)?);
     }
     Ok(way)
