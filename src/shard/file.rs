@@ -114,7 +114,7 @@ fn write_body(w: &mut impl Write, state: &ShardState) -> std::io::Result<()> {
         w.write_all(&c.to_le_bytes())?;
     }
     let e = &state.estimate;
-    let mut buf = Vec::with_capacity(F32_CHUNK_BYTES + 16);
+    let mut buf = Vec::with_capacity(CHUNK_BYTES + 16);
     write_f32s(w, (0..e.len()).map(|i| e.bundle_sums(i)), &mut buf)?;
     for part in [e.light_sums(), e.punctual()] {
         write_f32s(w, part.iter().map(|c| c.to_array()), &mut buf)?;
@@ -123,7 +123,7 @@ fn write_body(w: &mut impl Write, state: &ShardState) -> std::io::Result<()> {
 }
 
 /// Bytes of records [`write_words`] encodes before each write.
-const F32_CHUNK_BYTES: usize = 1 << 16;
+const CHUNK_BYTES: usize = 1 << 16;
 
 /// Writes `records` as little-endian f32s (see [`write_words`]).
 fn write_f32s<const K: usize>(
@@ -147,7 +147,7 @@ pub(super) fn write_words<const K: usize>(
         for v in r {
             buf.extend_from_slice(&v.to_le_bytes());
         }
-        if buf.len() >= F32_CHUNK_BYTES {
+        if buf.len() >= CHUNK_BYTES {
             w.write_all(buf)?;
             buf.clear();
         }
@@ -155,7 +155,7 @@ pub(super) fn write_words<const K: usize>(
     w.write_all(buf)
 }
 
-/// Reads `n` records of `size` bytes from `r`, [`F32_CHUNK_BYTES`] or so at a time into
+/// Reads `n` records of `size` bytes from `r`, [`CHUNK_BYTES`] or so at a time into
 /// `buf`, and calls `f(k, record k)` on each: a read of a record at a time through the hashing
 /// reader cost more than the merge's additions (the same bytes, hashed the same).
 pub(super) fn read_records(
@@ -165,7 +165,7 @@ pub(super) fn read_records(
     buf: &mut Vec<u8>,
     mut f: impl FnMut(usize, &[u8]),
 ) -> std::io::Result<()> {
-    let per_chunk = (F32_CHUNK_BYTES / size).max(1);
+    let per_chunk = (CHUNK_BYTES / size).max(1);
     buf.resize(per_chunk * size, 0);
     let mut k = 0;
     while k < n {

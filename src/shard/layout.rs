@@ -206,11 +206,16 @@ pub fn read_layout(
     let path = &place.path;
     let bad = |why: String| ShardError::InvalidLayout { path: path.clone(), why };
     let io = |source| ShardError::Io { path: path.clone(), source };
-    let meta = std::fs::metadata(path).map_err(io)?;
-    if !meta.is_file() {
+    // A special file is refused before it is opened (a FIFO's open would wait); the size is
+    // the opened file's (another process may rename a new layout into place meanwhile).
+    if !std::fs::metadata(path).map_err(io)?.is_file() {
         return Err(bad("not a regular file".into()));
     }
     let file = File::open(path).map_err(io)?;
+    let meta = file.metadata().map_err(io)?;
+    if !meta.is_file() {
+        return Err(bad("not a regular file".into()));
+    }
     let mut r = HashingReader { inner: BufReader::with_capacity(1 << 20, file), hash: super::WordHash::new() };
     let mut h = [0u8; HEADER_BYTES];
     let head = meta.len().min(HEADER_BYTES as u64) as usize;
