@@ -537,6 +537,7 @@ mod tests {
         let (geom, atlas, texels) = made();
         assert!(atlas.charts.len() > 20 && texels.len() > 10_000 && !texels.gutter.is_empty());
         assert!(texels.emission.iter().any(|e| e.max_element() > 0.0), "the room has an emitter");
+        assert!(atlas.faces.iter().any(|f| f.side == Side::Back), "the room has a double-sided panel");
         let p = written(dir.path(), "layout.lblayout", &atlas, &texels);
         let Layout { atlas: a, texels: t } = read_layout(&p, &geom, true, LIMIT).expect("read");
         assert_eq!((a.texel_size, a.width, a.height), (atlas.texel_size, atlas.width, atlas.height));
