@@ -422,8 +422,11 @@ pub fn shard_layout(
 ) -> Result<(Layout, f64), BakeError> {
     let t0 = Instant::now();
     let limit = memory::described_limit(config.memory_limit);
-    let layout_made = match layout.and_then(|p| open_layout(p, geom, true, limit)) {
-        Some(read) => (read, t0.elapsed().as_secs_f64()),
+    match layout.and_then(|p| open_layout(p, geom, true, limit)) {
+        Some(read) => {
+            check_lod_sizes(&read.atlas, 1)?;
+            Ok((read, t0.elapsed().as_secs_f64()))
+        }
         None => {
             let atlas = Atlas::build(scene, geom, &config.atlas)?;
             check_lod_sizes(&atlas, 1)?;
@@ -433,11 +436,9 @@ pub fn shard_layout(
             if let Some(place) = layout {
                 keep_layout(place, &atlas, &texels);
             }
-            (Layout { atlas, texels }, seconds)
+            Ok((Layout { atlas, texels }, seconds))
         }
-    };
-    check_lod_sizes(&layout_made.0.atlas, 1)?;
-    Ok(layout_made)
+    }
 }
 
 /// Bakes one direction shard (see [`ShardBake`]). Share 0 holds the punctual part (made in
