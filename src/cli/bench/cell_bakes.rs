@@ -31,6 +31,7 @@ use livebake::runtime::cell_bake::CellBake;
 use livebake::runtime::shown::ShownLightmap;
 use livebake::runtime::world::World;
 use livebake::runtime::{RuntimeConfig, bake_first_light, empty_shown};
+use livebake::sampling::mix64;
 use livebake::scene::{LoadOptions, Rgb, SceneGeometry, load_gltf};
 
 use super::runtime::quantile;
@@ -129,7 +130,7 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
         ..BakeConfig::default()
     };
     let (mut cell_rates, mut whole_rates, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
-    let mut ceilings = Vec::new();
+    let (mut ceilings, mut checksums) = (Vec::new(), Vec::new());
     let mut last = None;
     for r in 0..repeats {
         bench.ui.status(&format!("cell_bakes: {}, repeat {} of {repeats}", w.scene, r + 1));
@@ -143,6 +144,7 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
         whole_rates.push(whole_rate);
         ratios.push(cells.rate() / whole_rate);
         ceilings.push(cells.lines_rate() / whole_rate);
+        checksums.push(format!("{:016x}", cells.checksum));
         last = Some((cells, lod0.texels, whole_pass, whole_samples));
     }
     let (cell_bakes, whole_texels, whole_pass, whole_samples) = last.ok_or_else(|| anyhow!("no repeat ran"))?;
@@ -178,6 +180,7 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
             "resolve_ns_per_resolved_pixel": cell_ns,
             "foreign_lookups_per_texel_sample": cell_foreign,
             "per_direction_ms": per_direction_ms(&cell_bakes.pass),
+            "result_checksum_each": checksums,
         },
         "whole_bake": {
             "texels": whole_texels,
@@ -203,6 +206,9 @@ struct CellBakes {
     texel_samples: u64,
     setup_seconds: f64,
     pass: PassStats,
+    /// The published irradiance of every cell, folded bit by bit: equal for two builds whose
+    /// cell bakes give the same bits (the bench's check that a faster build baked the same).
+    checksum: u64,
 }
 
 impl CellBakes {
@@ -230,7 +236,8 @@ fn bake_cells(
     let config = RuntimeConfig::default();
     let never = AtomicBool::new(false);
     let mut backend = CpuProvider::new().backend(&world.bundle, 1).map_err(|e| anyhow!("{e}"))?;
-    let mut done = CellBakes { texels: 0, texel_samples: 0, setup_seconds: 0.0, pass: PassStats::default() };
+    let mut done =
+        CellBakes { texels: 0, texel_samples: 0, setup_seconds: 0.0, pass: PassStats::default(), checksum: 0 };
     for &cell in cells {
         let t = Instant::now();
         let mut cell_bake = CellBake::new(world, &[cell], lod, shown.clone(), 7);
@@ -242,6 +249,11 @@ fn bake_cells(
                 .map_err(|_| anyhow!("a cell bake was cancelled"))?;
             done.texel_samples += unit.texel_samples;
             done.pass.add(&unit.pass);
+        }
+        for e in cell_bake.result() {
+            for c in [e.x, e.y, e.z] {
+                done.checksum = mix64(done.checksum ^ u64::from(c.to_bits()));
+            }
         }
     }
     Ok(done)
