@@ -11,7 +11,9 @@
 //! two alternate, three times (once in a quick run), and the medians and the median of
 //! the repeats' ratios are reported. Both rates are texel-samples (texels × directions) per
 //! second of their bundle passes; the cell bakes' texel set-up (the runtime's
-//! `cell_setup_seconds`) is reported apart.
+//! `cell_setup_seconds`) is reported apart. The same cells are also baked as one group, one
+//! bake whose every direction serves them all: the most that sharing each direction
+//! between the bakes in flight could give them.
 
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -131,10 +133,13 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
     };
     let (mut cell_rates, mut whole_rates, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
     let (mut ceilings, mut checksums) = (Vec::new(), Vec::new());
+    let (mut group_rates, mut group_ratios) = (Vec::new(), Vec::new());
     let mut last = None;
     for r in 0..repeats {
         bench.ui.status(&format!("cell_bakes: {}, repeat {} of {repeats}", w.scene, r + 1));
-        let cells = bake_cells(&world, &shown, &cells, lod, directions)?;
+        let alone: Vec<Vec<u32>> = cells.iter().map(|&c| vec![c]).collect();
+        let grouped = bake_cells(&world, &shown, &[cells.clone()], lod, directions)?;
+        let cells = bake_cells(&world, &shown, &alone, lod, directions)?;
         let whole = bake(&scene, &bake_config, &NoProgress)?;
         let lod0 = whole.report.lods.first().ok_or_else(|| anyhow!("the whole bake has no LOD"))?;
         let whole_pass = lod0.bundle.as_ref().map(|b| b.stats.pass.clone()).unwrap_or_default();
@@ -143,6 +148,8 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
         cell_rates.push(cells.rate());
         whole_rates.push(whole_rate);
         ratios.push(cells.rate() / whole_rate);
+        group_rates.push(grouped.rate());
+        group_ratios.push(grouped.rate() / whole_rate);
         ceilings.push(cells.lines_rate() / whole_rate);
         checksums.push(format!("{:016x}", cells.checksum));
         last = Some((cells, lod0.texels, whole_pass, whole_samples));
@@ -153,10 +160,13 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
     let (cell_ns, cell_foreign) = resolve_costs(&cell_bakes.pass, cell_bakes.texel_samples as f64);
     let (whole_ns, whole_foreign) = resolve_costs(&whole_pass, whole_samples);
     bench.ui.say(format!(
-        "  {}: cell bakes {:.2} M texel-samples/s, whole bake {:.2} M: ratio {ratio:.3} (median of {repeats})",
+        "  {}: cell bakes {:.2} M texel-samples/s, as one group {:.2} M, whole bake {:.2} M: ratio {ratio:.3}, \
+         as one group {:.3} (medians of {repeats})",
         w.name,
         median(&cell_rates) / 1e6,
-        median(&whole_rates) / 1e6
+        median(&group_rates) / 1e6,
+        median(&whole_rates) / 1e6,
+        median(&group_ratios),
     ));
     Ok(json!({
         "scene": w.name,
@@ -193,6 +203,12 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
             "foreign_lookups_per_texel_sample": whole_foreign,
             "per_direction_ms": per_direction_ms(&whole_pass),
         },
+        "one_group": {
+            "texel_samples_per_second": median(&group_rates),
+            "texel_samples_per_second_each": group_rates,
+            "ratio_over_whole_bake": median(&group_ratios),
+            "ratio_each": group_ratios,
+        },
         "ratio_cell_bakes_over_whole_bake": ratio,
         "ratio_each": ratios,
         "ratio_with_per_triangle_phases_free": median(&ceilings),
@@ -225,11 +241,11 @@ impl CellBakes {
     }
 }
 
-/// Bakes each of `cells` alone at `lod` to `directions`, on one thread.
+/// Bakes each group of `groups` at `lod` to `directions`, on one thread.
 fn bake_cells(
     world: &World,
     shown: &Arc<ShownLightmap>,
-    cells: &[u32],
+    groups: &[Vec<u32>],
     lod: u32,
     directions: u64,
 ) -> Result<CellBakes> {
@@ -238,9 +254,9 @@ fn bake_cells(
     let mut backend = CpuProvider::new().backend(&world.bundle, 1).map_err(|e| anyhow!("{e}"))?;
     let mut done =
         CellBakes { texels: 0, texel_samples: 0, setup_seconds: 0.0, pass: PassStats::default(), checksum: 0 };
-    for &cell in cells {
+    for group in groups {
         let t = Instant::now();
-        let mut cell_bake = CellBake::new(world, &[cell], lod, shown.clone(), 7);
+        let mut cell_bake = CellBake::new(world, group, lod, shown.clone(), 7);
         done.setup_seconds += seconds(t);
         done.texels += cell_bake.texels.len();
         while cell_bake.directions() < directions {
