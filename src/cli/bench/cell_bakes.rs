@@ -134,11 +134,11 @@ fn one(bench: &Bench, w: &Workload) -> Result<Value> {
     let (mut cell_rates, mut whole_rates, mut ratios) = (Vec::new(), Vec::new(), Vec::new());
     let (mut ceilings, mut checksums) = (Vec::new(), Vec::new());
     let (mut group_rates, mut group_ratios) = (Vec::new(), Vec::new());
+    let (alone, together): (Vec<Vec<u32>>, _) = (cells.iter().map(|&c| vec![c]).collect(), [cells.clone()]);
     let mut last = None;
     for r in 0..repeats {
         bench.ui.status(&format!("cell_bakes: {}, repeat {} of {repeats}", w.scene, r + 1));
-        let alone: Vec<Vec<u32>> = cells.iter().map(|&c| vec![c]).collect();
-        let grouped = bake_cells(&world, &shown, &[cells.clone()], lod, directions)?;
+        let grouped = bake_cells(&world, &shown, &together, lod, directions)?;
         let cells = bake_cells(&world, &shown, &alone, lod, directions)?;
         let whole = bake(&scene, &bake_config, &NoProgress)?;
         let lod0 = whole.report.lods.first().ok_or_else(|| anyhow!("the whole bake has no LOD"))?;
